@@ -1,0 +1,67 @@
+"""One error hierarchy for zipon.
+
+Every error is a :class:`ZiponError` and also subclasses the matching built-in, so
+callers may catch either. Library code raises; only the CLI turns an error into a
+message and a non-zero exit. Messages name the file, the field or topic, the frame,
+and what was expected.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class ZiponError(Exception):
+    """Root of every error zipon raises on purpose."""
+
+
+class ConfigError(ZiponError, ValueError):
+    """A params file or override is invalid; the message names the key."""
+
+
+class InputDataError(ZiponError, ValueError):
+    """Raw input (a log, a dataset folder, a user file) is malformed.
+
+    ``where`` collects the file, topic/field and frame so every message reads the same.
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        path: str | Path | None = None,
+        topic: str | None = None,
+        field: str | None = None,
+        frame: int | None = None,
+        expected: str | None = None,
+    ):
+        self.path, self.topic, self.field, self.frame, self.expected = path, topic, field, frame, expected
+        parts = []
+        if path is not None:
+            parts.append(f"file {path}")
+        if topic is not None:
+            parts.append(f"topic {topic}")
+        if field is not None:
+            parts.append(f"field {field}")
+        if frame is not None:
+            parts.append(f"frame {frame}")
+        text = f"{'; '.join(parts)}: {message}" if parts else message
+        if expected:
+            text += f" (expected {expected})"
+        super().__init__(text)
+
+
+class MissingInputError(ZiponError, FileNotFoundError):
+    """A file, artifact or upstream stage output that is needed does not exist."""
+
+
+class ArtifactError(ZiponError, ValueError):
+    """An artifact on disk does not match its contract (format version, arrays, attrs)."""
+
+
+class LineageError(ZiponError, ValueError):
+    """Artifacts that must come from the same upstream version do not."""
+
+
+class StageError(ZiponError, RuntimeError):
+    """A stage could not produce a meaningful output (e.g. an empty scene)."""

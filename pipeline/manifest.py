@@ -1,0 +1,52 @@
+"""Manifests: ``manifests/<scene>/<stage>.json``, the provenance of one stage's outputs."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from pipeline.errors import ArtifactError
+from pipeline.store import write_text_atomic
+
+MANIFEST_FORMAT_VERSION = 1
+
+
+class OutputRecord(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    path: str = Field(description="as recorded: relative to the data root ('data/...') when inside it")
+    digest: str = Field(description="deterministic content digest (decoded zarr content or file bytes)")
+
+
+class Manifest(BaseModel):
+    """What produced an artifact, from what, with which params; and what it holds."""
+
+    model_config = ConfigDict(extra="forbid")
+    format_version: int = MANIFEST_FORMAT_VERSION
+    stage: str
+    scene: str
+    code_version: str
+    code_digest: str
+    params: dict[str, Any]
+    params_digest: str
+    inputs: dict[str, str] = Field(description="input name -> digest (upstream output digest or raw files digest)")
+    outputs: dict[str, OutputRecord]
+    summary: dict[str, Any] = Field(default_factory=dict, description="the stage's figures")
+    timing: dict[str, Any] = Field(default_factory=dict, description="started (UTC ISO), seconds, host")
+    layout: dict[str, str] = Field(default_factory=dict, description="artifact path templates of this zipon")
+
+    def write(self, path: Path) -> None:
+        write_text_atomic(path, json.dumps(self.model_dump(mode="json"), indent=2, sort_keys=True) + "\n")
+
+    @classmethod
+    def read(cls, path: Path) -> "Manifest | None":
+        """The manifest at ``path``, or ``None`` when there is none."""
+        path = Path(path)
+        if not path.is_file():
+            return None
+        try:
+            return cls.model_validate_json(path.read_text())
+        except ValidationError as err:
+            raise ArtifactError(f"{path}: not a valid zipon manifest: {err.errors()[0]['msg']}") from None

@@ -1,0 +1,342 @@
+"""The stage runner: a per-scene DAG of stages, staleness, atomic publication, dask scheduling.
+
+A stage is a pure function ``run(ctx: StageContext) -> dict`` (its summary figures). It reads its
+inputs from ``ctx.inputs``, its params from ``ctx.params``, and writes exactly the paths in
+``ctx.outputs`` (temporary locations); the runner digests and publishes them, then writes the
+manifest. One unit of work, :func:`run_stage`, serves the serial path and every dask scheduler.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.util
+import os
+import platform
+import socket
+import time
+import traceback
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Callable
+
+from pipeline import __version__
+from pipeline.config import Params, digest_value
+from pipeline.errors import MissingInputError, StageError, ZiponError
+from pipeline.manifest import Manifest, OutputRecord
+from pipeline.paths import ARTIFACTS, Workspace
+from pipeline.store import content_digest, files_digest, new_tmp_dir, publish, remove
+
+SOURCE = "source"  # the pseudo-input naming a scene's raw data (a log, a folder)
+
+
+@dataclass(frozen=True)
+class StageSpec:
+    """One stage of the DAG, declared once in :mod:`stages` (dvc.yaml is checked against it)."""
+
+    name: str
+    entry: str  # "module:function", imported lazily so the CLI starts fast
+    inputs: tuple[str, ...]  # artifact names, or SOURCE for the scene's raw data
+    outputs: tuple[str, ...]  # artifact names (see pipeline.paths.ARTIFACTS)
+    params: tuple[str, ...]  # params sections read; "scene" is the scene's own entry in params.scenes
+    code: tuple[str, ...]  # modules/packages whose source defines the output
+    simulated_only: bool = False
+    description: str = ""
+
+    def load(self) -> Callable[["StageContext"], dict]:
+        module, func = self.entry.split(":")
+        return getattr(importlib.import_module(module), func)
+
+    def applies_to(self, params: Params, scene: str) -> bool:
+        return params.scenes[scene].simulated or not self.simulated_only
+
+
+@dataclass
+class StageContext:
+    """Everything a stage may use. Outputs are temporary paths the runner publishes on success."""
+
+    scene: str
+    stage: str
+    params: Params
+    workspace: Workspace
+    inputs: dict[str, Path]
+    outputs: dict[str, Path]
+    params_digest: str
+    show_progress: bool = True
+    messages: list[str] = field(default_factory=list)
+
+    def log(self, message: str) -> None:
+        self.messages.append(message)
+        if self.show_progress:
+            from rich.console import Console
+
+            Console(stderr=True).print(f"[dim]{self.scene}/{self.stage}:[/dim] {message}")
+
+    def progress(self, iterable, total: int | None = None, description: str = ""):
+        """Iterate with a progress bar (rich) when progress is shown."""
+        if not self.show_progress:
+            return iterable
+        from rich.progress import track
+
+        return track(iterable, total=total, description=f"{self.scene}/{self.stage} {description}".strip(),
+                     console=_stderr_console(), transient=True)
+
+
+def _stderr_console():
+    from rich.console import Console
+
+    return Console(stderr=True)
+
+
+@dataclass
+class Outcome:
+    """What happened to one (scene, stage)."""
+
+    scene: str
+    stage: str
+    status: str  # "ran", "skipped", "failed", "blocked"
+    reason: str = ""
+    seconds: float = 0.0
+    summary: dict = field(default_factory=dict)
+    error: str = ""
+
+
+# ----------------------------------------------------------------------------- digests
+
+def code_digest(spec: StageSpec) -> str:
+    """Digest of the source of the modules a stage declares, plus zipon's version."""
+    h = hashlib.blake2b(digest_size=16)
+    h.update(__version__.encode())
+    for mod in sorted(spec.code):
+        found = importlib.util.find_spec(mod)
+        if found is None or found.origin is None:
+            raise ZiponError(f"stage {spec.name}: code module {mod!r} not found")
+        origin = Path(found.origin)
+        files = sorted(origin.parent.rglob("*.py")) if origin.name == "__init__.py" else [origin]
+        for f in files:
+            h.update(f"\0{mod}:{f.name}\0".encode())
+            h.update(f.read_bytes())
+    return f"blake2b:{h.hexdigest()}"
+
+
+def stage_params(params: Params, spec: StageSpec, scene: str) -> dict[str, Any]:
+    return {
+        key: (params.scenes[scene].model_dump(mode="json") if key == "scene" else params.section_dump(key))
+        for key in spec.params
+    }
+
+
+def source_path(ws: Workspace, params: Params, scene: str) -> Path:
+    """The raw data of a scene: the simulated log, or the configured path (relative to params.yaml)."""
+    src = params.scenes[scene]
+    if src.simulated:
+        return ws.artifact("raw_log", scene)
+    path = Path(src.source)
+    return path if path.is_absolute() else (ws.root / path)
+
+
+def producer(stages: dict[str, StageSpec], artifact: str) -> StageSpec:
+    for spec in stages.values():
+        if artifact in spec.outputs:
+            return spec
+    raise KeyError(f"no stage produces artifact {artifact!r}")
+
+
+def input_digests(ws: Workspace, params: Params, stages: dict[str, StageSpec], spec: StageSpec, scene: str,
+                  ) -> dict[str, str]:
+    """Current digests of a stage's inputs, from upstream manifests (raw files are hashed)."""
+    out = {}
+    for name in spec.inputs:
+        if name == SOURCE and not params.scenes[scene].simulated:
+            path = source_path(ws, params, scene)
+            if not path.exists():
+                raise MissingInputError(f"{path}: raw data of scene {scene!r} not found (params.yaml scenes.{scene}.source)")
+            out[name] = files_digest([path])
+            continue
+        artifact = "raw_log" if name == SOURCE else name
+        up = producer(stages, artifact)
+        man = Manifest.read(ws.manifest(scene, up.name))
+        if man is None or artifact not in man.outputs:
+            raise MissingInputError(f"scene {scene}: input {artifact!r} of stage {spec.name} is missing; run stage {up.name} first")
+        out[name] = man.outputs[artifact].digest
+    return out
+
+
+def staleness(ws: Workspace, params: Params, stages: dict[str, StageSpec], spec: StageSpec, scene: str) -> str:
+    """Why the stage must run ('' when its outputs are up to date)."""
+    man = Manifest.read(ws.manifest(scene, spec.name))
+    if man is None:
+        return "never run"
+    for name in spec.outputs:
+        if not ws.artifact(name, scene).exists():
+            return f"output {name} missing"
+    if man.code_digest != code_digest(spec):
+        return "code changed"
+    if man.params_digest != digest_value(stage_params(params, spec, scene)):
+        return "params changed"
+    try:
+        current = input_digests(ws, params, stages, spec, scene)
+    except MissingInputError:
+        return "input missing"
+    if current != man.inputs:
+        changed = sorted(k for k in set(current) | set(man.inputs) if current.get(k) != man.inputs.get(k))
+        return f"input changed: {', '.join(changed)}"
+    return ""
+
+
+# ----------------------------------------------------------------------------- unit of work
+
+def limit_native_threads(n: int) -> None:
+    """Cap BLAS/OpenMP/torch threads inside a worker (dask runs one task per worker thread)."""
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[var] = str(n)
+    try:
+        import torch
+
+        torch.set_num_threads(n)
+    except ImportError:
+        pass
+
+
+def run_stage(
+    ws: Workspace,
+    params: Params,
+    stages: dict[str, StageSpec],
+    scene: str,
+    stage: str,
+    *,
+    force: bool = False,
+    show_progress: bool = True,
+    upstream: list[Outcome] | None = None,
+) -> Outcome:
+    """Run one stage of one scene if it is stale (or ``force``); publish atomically; write its manifest."""
+    spec = stages[stage]
+    blocked = [o for o in (upstream or []) if o.status in ("failed", "blocked")]
+    if blocked:
+        return Outcome(scene, stage, "blocked", reason=f"upstream {blocked[0].stage} {blocked[0].status}")
+    reason = "forced" if force else staleness(ws, params, stages, spec, scene)
+    if not reason:
+        return Outcome(scene, stage, "skipped", reason="up to date")
+    t0 = time.perf_counter()
+    started = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    tmp = new_tmp_dir(ws.tmp_dir(scene), stage)
+    try:
+        inputs = {
+            name: (source_path(ws, params, scene) if name == SOURCE else ws.artifact(name, scene))
+            for name in spec.inputs
+        }
+        in_digests = input_digests(ws, params, stages, spec, scene)
+        outputs = {name: tmp / ws.artifact(name, scene).name for name in spec.outputs}
+        sp = stage_params(params, spec, scene)
+        ctx = StageContext(scene, stage, params, ws, inputs, outputs, digest_value(sp), show_progress)
+        summary = spec.load()(ctx) or {}
+        records = {}
+        for name, path in outputs.items():
+            if not path.exists():
+                raise StageError(f"stage {stage} (scene {scene}) did not write its output {name!r}")
+            records[name] = OutputRecord(path=ws.relative(ws.artifact(name, scene)), digest=content_digest(path))
+        seconds = time.perf_counter() - t0
+        man = Manifest(
+            stage=stage, scene=scene, code_version=__version__, code_digest=code_digest(spec),
+            params=sp, params_digest=ctx.params_digest, inputs=in_digests, outputs=records,
+            summary=summary, layout=dict(ARTIFACTS),
+            timing={"started": started, "seconds": round(seconds, 3), "host": socket.gethostname(),
+                    "python": platform.python_version()},
+        )
+        for name, path in outputs.items():
+            publish(path, ws.artifact(name, scene))
+        man.write(ws.manifest(scene, stage))
+        return Outcome(scene, stage, "ran", reason=reason, seconds=seconds, summary=summary)
+    finally:
+        remove(tmp)
+
+
+def _task(ws, params, stages, scene, stage, force, show_progress, threads, *upstream):
+    """dask task wrapper: never raises, so one scene's failure does not cancel the others."""
+    limit_native_threads(threads)
+    try:
+        return run_stage(ws, params, stages, scene, stage, force=force, show_progress=show_progress,
+                         upstream=list(upstream))
+    except ZiponError as err:
+        return Outcome(scene, stage, "failed", error=str(err))
+    except Exception as err:  # a bug, not bad input: keep the traceback for the report
+        return Outcome(scene, stage, "failed", error=f"{type(err).__name__}: {err}\n{traceback.format_exc()}")
+
+
+# ----------------------------------------------------------------------------- the DAG
+
+def stage_order(stages: dict[str, StageSpec]) -> list[str]:
+    """Stages in dependency order (stable: registry order breaks ties)."""
+    order: list[str] = []
+    pending = list(stages)
+    while pending:
+        for name in pending:
+            ups = {producer(stages, "raw_log" if i == SOURCE else i).name for i in stages[name].inputs}
+            if ups <= set(order):
+                order.append(name)
+                pending.remove(name)
+                break
+        else:
+            raise ZiponError(f"stage graph has a cycle among {pending}")
+    return order
+
+
+def upstream_stages(stages: dict[str, StageSpec], params: Params, scene: str, stage: str) -> list[str]:
+    """Stages whose outputs this (scene, stage) reads; a recorded log's SOURCE has no producer."""
+    ups = []
+    for i in stages[stage].inputs:
+        if i != SOURCE:
+            ups.append(producer(stages, i).name)
+        elif params.scenes[scene].simulated:
+            ups.append(producer(stages, "raw_log").name)
+    return ups
+
+
+def plan(stages: dict[str, StageSpec], params: Params, scenes: list[str], only: list[str] | None = None
+         ) -> list[tuple[str, str]]:
+    """(scene, stage) pairs to consider, in an order that respects dependencies."""
+    wanted = set(only) if only else None
+    pairs = []
+    for scene in scenes:
+        for stage in stage_order(stages):
+            if stages[stage].applies_to(params, scene) and (wanted is None or stage in wanted):
+                pairs.append((scene, stage))
+    return pairs
+
+
+def run_many(
+    ws: Workspace,
+    params: Params,
+    stages: dict[str, StageSpec],
+    pairs: list[tuple[str, str]],
+    *,
+    force: bool = False,
+    scheduler: str | None = None,
+    show_progress: bool = True,
+) -> list[Outcome]:
+    """Run (scene, stage) pairs; independent scenes in parallel with dask (``params.run.scheduler``)."""
+    import dask
+
+    scheduler = scheduler or params.run.scheduler
+    threads = params.run.threads_per_worker
+    tasks: dict[tuple[str, str], Any] = {}
+    for scene, stage in pairs:
+        ups = [tasks[(scene, u)] for u in upstream_stages(stages, params, scene, stage) if (scene, u) in tasks]
+        tasks[(scene, stage)] = dask.delayed(_task, pure=False)(
+            ws, params, stages, scene, stage, force, show_progress, threads, *ups,
+            dask_key_name=f"{stage}-{scene}",
+        )
+    if not tasks:
+        return []
+    values = list(tasks.values())
+    if scheduler == "sync":
+        results = dask.compute(*values, scheduler="sync")
+    elif scheduler in ("threads", "processes"):
+        results = dask.compute(*values, scheduler=scheduler, num_workers=params.run.workers)
+    else:
+        from distributed import Client
+
+        with Client(scheduler) as client:
+            results = dask.compute(*values, scheduler=client)
+    return list(results)

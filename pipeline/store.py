@@ -1,0 +1,183 @@
+"""Artifact stores: zarr v3 helpers, deterministic content digests, atomic publication.
+
+A stage never writes where readers look. It writes under ``artifacts/<scene>/.tmp/`` and the
+runner publishes the finished outputs with :func:`publish` (rename into place), so a crash
+leaves the previous version intact and nothing half-written that looks finished.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import uuid
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zarr
+from zarr.codecs import BloscCodec
+
+from pipeline import __version__
+from pipeline.config import canonical_json
+from pipeline.errors import ArtifactError, MissingInputError
+
+DIGEST_ALGO = "blake2b"
+
+
+# ----------------------------------------------------------------------------- zarr
+
+def compressor(level: int = 3, *, shuffle: str = "shuffle") -> BloscCodec:
+    """Blosc-zstd; ``shuffle`` ('shuffle', 'bitshuffle', 'noshuffle') suits the dtype."""
+    return BloscCodec(cname="zstd", clevel=level, shuffle=shuffle)
+
+
+def new_group(path: Path, attrs: dict[str, Any]) -> zarr.Group:
+    """Create an empty zarr v3 group at ``path`` (which must not exist) with ``attrs``."""
+    path = Path(path)
+    if path.exists():
+        raise FileExistsError(f"{path}: refusing to overwrite; stages write to fresh temporary paths")
+    group = zarr.open_group(zarr.storage.LocalStore(str(path)), mode="w-", zarr_format=3)
+    group.attrs.update(_plain(attrs))
+    return group
+
+
+def open_group(path: Path, *, artifact: str, format_version: int | None = None) -> zarr.Group:
+    """Open an artifact read-only, checking it is the named artifact and a readable format version."""
+    path = Path(path)
+    if not (path / "zarr.json").is_file():
+        raise MissingInputError(f"{path}: artifact {artifact!r} not found (run its stage first: zipon run)")
+    group = zarr.open_group(zarr.storage.LocalStore(str(path), read_only=True), mode="r")
+    got = group.attrs.get("artifact")
+    if got != artifact:
+        raise ArtifactError(f"{path}: attrs.artifact is {got!r}, expected {artifact!r}")
+    if format_version is not None and group.attrs.get("format_version") != format_version:
+        raise ArtifactError(
+            f"{path}: format_version {group.attrs.get('format_version')!r}, this zipon reads {format_version}; "
+            f"rebuild it with: zipon run --force"
+        )
+    return group
+
+
+def artifact_attrs(artifact: str, format_version: int, stage: str, params_digest: str, **extra: Any) -> dict:
+    """The self-description every artifact carries (STYLE rule 4)."""
+    return {
+        "artifact": artifact,
+        "format_version": format_version,
+        "stage": stage,
+        "params_digest": params_digest,
+        "code_version": __version__,
+        **extra,
+    }
+
+
+def _plain(value: Any) -> Any:
+    """Attrs as JSON-safe plain data (numpy scalars/arrays -> Python)."""
+    return json.loads(json.dumps(value, default=_json_default))
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return obj.as_posix()
+    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+
+
+# ----------------------------------------------------------------------------- digests
+
+def _hash_zarr(path: Path, h: "hashlib._Hash") -> None:
+    """Hash decoded content (not compressed bytes) so the digest is codec-version independent."""
+    root = zarr.open_group(zarr.storage.LocalStore(str(path), read_only=True), mode="r")
+    nodes = [("", root)] + sorted(root.members(max_depth=None), key=lambda kv: kv[0])
+    for name, node in nodes:
+        h.update(f"\0node:{name}\0".encode())
+        h.update(canonical_json(dict(node.attrs)).encode())
+        if isinstance(node, zarr.Array):
+            h.update(f"{node.dtype.str}{node.shape}{node.fill_value!r}".encode())
+            block = node.chunks[0] if node.ndim else 1
+            if node.ndim == 0:
+                h.update(np.ascontiguousarray(node[...]).tobytes())
+                continue
+            for start in range(0, node.shape[0], block):
+                h.update(np.ascontiguousarray(node[start : start + block]).tobytes())
+
+
+def _hash_file(path: Path, h: "hashlib._Hash") -> None:
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 22), b""):
+            h.update(chunk)
+
+
+def content_digest(path: Path) -> str:
+    """Deterministic digest of an artifact: a zarr store (decoded), a folder, or a file."""
+    path = Path(path)
+    if not path.exists():
+        raise MissingInputError(f"{path}: cannot digest a missing artifact")
+    h = hashlib.blake2b(digest_size=16)
+    if (path / "zarr.json").is_file():
+        _hash_zarr(path, h)
+    elif path.is_dir():
+        for file in sorted(p for p in path.rglob("*") if p.is_file()):
+            h.update(f"\0file:{file.relative_to(path).as_posix()}\0".encode())
+            _hash_file(file, h)
+    else:
+        _hash_file(path, h)
+    return f"{DIGEST_ALGO}:{h.hexdigest()}"
+
+
+def files_digest(paths: list[Path]) -> str:
+    """Digest of raw inputs (a log file, or every file of a dataset folder)."""
+    h = hashlib.blake2b(digest_size=16)
+    for p in paths:
+        p = Path(p)
+        files = sorted(q for q in p.rglob("*") if q.is_file()) if p.is_dir() else [p]
+        for file in files:
+            h.update(f"\0file:{file.name}\0".encode())
+            _hash_file(file, h)
+    return f"{DIGEST_ALGO}:{h.hexdigest()}"
+
+
+# ----------------------------------------------------------------------------- atomic writes
+
+def new_tmp_dir(base: Path, label: str) -> Path:
+    """A fresh private folder under ``base`` for a stage's outputs-in-progress."""
+    path = Path(base) / f"{label}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    path.mkdir(parents=True)
+    return path
+
+
+def publish(tmp_path: Path, final_path: Path) -> None:
+    """Move a finished output into place, replacing any previous version.
+
+    The old version is first renamed aside (same filesystem, atomic), then the new one is
+    renamed in, then the old one is deleted: readers see the old or the new, never a mix.
+    """
+    tmp_path, final_path = Path(tmp_path), Path(final_path)
+    final_path.parent.mkdir(parents=True, exist_ok=True)
+    trash = None
+    if final_path.exists() or final_path.is_symlink():
+        trash = final_path.with_name(f".{final_path.name}.old-{uuid.uuid4().hex[:8]}")
+        os.replace(final_path, trash)
+    os.replace(tmp_path, final_path)
+    if trash is not None:
+        remove(trash)
+
+
+def remove(path: Path) -> None:
+    path = Path(path)
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    elif path.exists() or path.is_symlink():
+        path.unlink()
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
+    tmp.write_text(text)
+    os.replace(tmp, path)
