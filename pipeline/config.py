@@ -112,9 +112,183 @@ class GridParams(Section):
 class ReconstructParams(Section):
     """Frames -> fused geometry (TSDF) and the top-down grids (``recon.zarr``)."""
 
+    voxel_size_m: float = Field(
+        0.025, gt=0, description="TSDF voxel edge, metres; grid.cell_size_m must be a whole multiple of it"
+    )
+    sdf_trunc_m: float = Field(
+        0.08, gt=0, description="TSDF truncation distance, metres (keep it below the thinnest wall)"
+    )
+    block_resolution: int = Field(16, ge=4, le=32, description="voxels per edge of one hashed TSDF block")
+    block_frames: int = Field(16, gt=0, description="frames read and fused per block")
+    depth_min_m: float = Field(0.1, ge=0, description="depth below this is ignored, metres")
+    depth_max_m: float = Field(5.0, gt=0, description="depth beyond this is ignored (sensor noise grows), metres")
+    depth_stride: int = Field(
+        1, ge=1, le=8, description="fuse every n-th depth pixel in each direction (1 = full resolution)"
+    )
+    min_weight: float = Field(
+        2.0, gt=0, description="a voxel counts as observed (mesh, points, grids) after this many fused frames"
+    )
+    max_invalid_frame_fraction: float = Field(
+        0.5, ge=0, le=1, description="fail when more than this fraction of frames has no valid depth"
+    )
+    floor_z_m: float | None = Field(
+        None, description="floor height in world z, metres; None = estimate it from upward-facing surfaces"
+    )
+    floor_tolerance_m: float = Field(
+        0.05, gt=0, description="a cell's floor is observed when solid geometry lies within this of the floor"
+    )
+    obstacle_min_height_m: float = Field(
+        0.1, ge=0, description="geometry above floor + this (and below obstacle_max_height_m) blocks a cell"
+    )
+    obstacle_max_height_m: float = Field(
+        1.5, gt=0, description="top of the robot's height band above the floor, metres"
+    )
+    height_max_m: float = Field(
+        2.0, gt=0, description="surfaces higher than this above the floor (ceilings) are left out of colour/height"
+    )
+    robot_radius_m: float = Field(
+        0.18, ge=0, description="navigable cells are free and farther than this from any occupied cell centre"
+    )
+    max_outside_fraction: float = Field(
+        0.02, ge=0, le=1, description="fail when more than this fraction of surface points falls outside the grid"
+    )
+    refine_poses: bool = Field(
+        False, description="refine poses by frame-to-model RGB-D odometry (real logs); refined poses go to recon.zarr"
+    )
+    refine_max_correction_m: float = Field(
+        0.3, gt=0, description="a refinement moving a frame farther than this from its recorded pose is rejected"
+    )
+
+    @model_validator(mode="after")
+    def _ranges(self) -> "ReconstructParams":
+        if self.depth_min_m >= self.depth_max_m:
+            raise ValueError("depth_min_m must be below depth_max_m")
+        if self.obstacle_min_height_m >= self.obstacle_max_height_m:
+            raise ValueError("obstacle_min_height_m must be below obstacle_max_height_m")
+        if self.sdf_trunc_m < self.voxel_size_m:
+            raise ValueError("sdf_trunc_m must be at least voxel_size_m")
+        return self
+
+
+EncoderName = Literal["lseg", "maskclip", "conceptfusion", "torchscript", "oracle"]
+
+
+class LSegParams(Section):
+    """LSeg (DPT head on ViT-L/16, CLIP ViT-B/32 text space), loaded from the public LSeg checkpoint."""
+
+    weights: str | None = Field(
+        None,
+        description="path to the LSeg checkpoint (e.g. demo_e200.ckpt: a pytorch-lightning ckpt whose state_dict "
+        "keys start with 'net.', or a bare state dict); None = no weights, an error when lseg is chosen",
+    )
+    crop_size: int = Field(480, gt=0, multiple_of=32, description="sliding-window crop edge, pixels (VLMaps: 480)")
+    base_size: int = Field(520, gt=0, description="the long image side is resized to this before cropping (VLMaps: 520)")
+    stride_rate: float = Field(2.0 / 3.0, gt=0, le=1, description="window stride as a fraction of crop_size")
+    out_size: tuple[int, int] = Field((120, 160), description="feature map (height, width) returned, cells")
+
+
+class MaskClipParams(Section):
+    """MaskCLIP dense features from an open_clip ViT (value embeddings of the last block, no query-key attention)."""
+
+    arch: str = Field("ViT-B-32", description="open_clip model name (a ViT); e.g. ViT-B-32, ViT-B-32-quickgelu")
+    weights: str | None = Field(
+        None, description="local open_clip weights file (.pt/.bin/.safetensors); None = error when maskclip is chosen"
+    )
+    input_size: tuple[int, int] = Field(
+        (480, 640), description="(height, width) the image is resized to before the ViT; multiples of the patch size"
+    )
+    out_size: tuple[int, int] | None = Field(None, description="feature (height, width); None = the patch grid")
+
+
+class RegionParams(Section):
+    """How ConceptFusion cuts a frame into regions."""
+
+    generator: Literal["rgbd", "gt", "sam"] = Field(
+        "rgbd",
+        description="'rgbd': felzenszwalb graph segmentation of colour + depth; 'gt': ground-truth instance masks "
+        "(simulated data); 'sam': segment-anything automatic masks (needs the package and sam_checkpoint)",
+    )
+    work_height: int = Field(120, gt=8, description="rgbd: frames are segmented at this height, pixels")
+    felzenszwalb_scale: float = Field(200.0, gt=0, description="rgbd: felzenszwalb scale (larger = bigger regions)")
+    felzenszwalb_sigma: float = Field(0.5, ge=0, description="rgbd: gaussian pre-smoothing, pixels")
+    depth_weight: float = Field(
+        0.5, ge=0, description="rgbd: weight of depth (per metre) against CIELAB colour (per 100 units) in the cut"
+    )
+    min_area_frac: float = Field(0.002, ge=0, lt=1, description="regions smaller than this image fraction are dropped")
+    max_regions: int = Field(64, gt=0, description="keep at most this many regions per frame (largest first)")
+    gt_background: bool = Field(True, description="gt: instance id 0 (walls, floor) forms one region")
+    sam_checkpoint: str | None = Field(None, description="sam: path to a local SAM checkpoint")
+    sam_model_type: str = Field("vit_h", description="sam: segment_anything model type of the checkpoint")
+
+
+class ConceptFusionParams(Section):
+    """ConceptFusion pixel features: global + per-region CLIP features fused by softmax-of-cosine weights."""
+
+    arch: str = Field("ViT-B-32", description="open_clip model name")
+    weights: str | None = Field(None, description="local open_clip weights file; None = error when chosen")
+    crop_size: int = Field(224, gt=0, description="edge the whole image and each region crop are resized to, pixels")
+    softmax_temperature: float = Field(1.0, gt=0, description="softmax over regions of cos(global, local) / T")
+    out_size: tuple[int, int] = Field((120, 160), description="feature (height, width); ConceptFusion stores 120x160")
+    regions: RegionParams = RegionParams()
+
+
+class TorchScriptParams(Section):
+    """Any user-exported dense encoder: two TorchScript files, or a python factory 'pkg.mod:factory'."""
+
+    image_file: str | None = Field(
+        None, description="TorchScript module: float (B,3,H,W) RGB in [0,1] -> (B,D,h,w) features"
+    )
+    text_file: str | None = Field(None, description="TorchScript module: list[str] -> (T,D) features")
+    factory: str | None = Field(
+        None,
+        description="'pkg.mod:factory' returning an object with encode_image(x (B,3,H,W) [0,1]) -> (B,D,h,w) and "
+        "encode_text(list[str]) -> (T,D); used instead of the two files",
+    )
+    input_size: tuple[int, int] | None = Field(None, description="resize images to (height, width) first; None = as is")
+    name: str = Field("torchscript", description="encoder name recorded in the maps' attrs")
+    version: str = Field("1", description="encoder version recorded in the maps' attrs")
+
+    @model_validator(mode="after")
+    def _one_source(self) -> "TorchScriptParams":
+        if self.factory is not None and (self.image_file or self.text_file):
+            raise ValueError("give either factory or image_file + text_file, not both")
+        return self
+
+
+class OracleParams(Section):
+    """DIAGNOSTIC encoder for simulated scenes: features from ground-truth instance classes, never a model."""
+
+    dim: int = Field(512, gt=1, description="feature dimension")
+    seed: int = Field(0, description="seed of the per-word random unit vectors and of the confusion/noise draws")
+    color_weight: float = Field(0.5, ge=0, description="weight of colour words against the class word (1)")
+    material_weight: float = Field(0.3, ge=0, description="weight of material words against the class word (1)")
+    confusion: float = Field(0.0, ge=0, le=1, description="probability an instance takes another class's word")
+    noise_std: float = Field(0.0, ge=0, description="std of per-cell gaussian noise added before renormalising")
+    out_size: tuple[int, int] = Field((120, 160), description="feature (height, width), cells")
+
 
 class EncodersParams(Section):
-    """Open-vocabulary pixel/text encoders used by the map stages and the evaluator."""
+    """Open-vocabulary pixel/text encoders used by the map stages and the evaluator.
+
+    No weights are ever downloaded: a real encoder without a ``weights`` file is a ConfigError.
+    The oracle is a diagnostic built from ground truth; it runs only where chosen explicitly.
+    """
+
+    vlmap: EncoderName = Field("lseg", description="encoder of the vlmap stage (VLMaps uses lseg)")
+    cfmap: EncoderName = Field("conceptfusion", description="encoder of the cfmap stage")
+    simulated: EncoderName | None = Field(
+        None,
+        description="encoder used INSTEAD of vlmap/cfmap for simulated scenes (e.g. 'oracle', the ground-truth "
+        "diagnostic, when no weights are at hand); None = simulated scenes use vlmap/cfmap like real ones",
+    )
+    device: Literal["cpu", "cuda", "auto"] = Field("auto", description="'auto' = cuda when available, else cpu")
+    batch_size: int = Field(4, gt=0, description="images per forward pass")
+    threads: int = Field(0, ge=0, description="torch CPU threads (0 = leave torch's default)")
+    lseg: LSegParams = LSegParams()
+    maskclip: MaskClipParams = MaskClipParams()
+    conceptfusion: ConceptFusionParams = ConceptFusionParams()
+    torchscript: TorchScriptParams = TorchScriptParams()
+    oracle: OracleParams = OracleParams()
 
 
 class GoalsParams(Section):

@@ -61,7 +61,7 @@ def invert_pose(T: np.ndarray) -> np.ndarray:
 def rigid_error(T: np.ndarray) -> np.ndarray:
     """How far ``(...,4,4)`` is from a rigid transform (max abs deviation; inf for non-finite)."""
     T = np.asarray(T, dtype=np.float64)
-    R = T[..., :3, :3]
+    R = np.nan_to_num(T[..., :3, :3], nan=0.0, posinf=0.0, neginf=0.0)  # non-finite handled below
     eye = np.eye(3)
     ortho = np.abs(np.einsum("...ji,...jk->...ik", R, R) - eye).max(axis=(-1, -2))
     det = np.abs(np.linalg.det(R) - 1.0)

@@ -26,7 +26,7 @@ from pipeline.config import Params, digest_value
 from pipeline.errors import MissingInputError, StageError, ZiponError
 from pipeline.manifest import Manifest, OutputRecord
 from pipeline.paths import ARTIFACTS, Workspace
-from pipeline.store import content_digest, files_digest, new_tmp_dir, publish, remove
+from pipeline.store import content_digest, files_digest, new_tmp_dir, publish, remove, sweep_tmp
 
 SOURCE = "source"  # the pseudo-input naming a scene's raw data (a log, a folder)
 
@@ -104,18 +104,23 @@ class Outcome:
 
 # ----------------------------------------------------------------------------- digests
 
+def module_source(mod: str) -> Path:
+    """The source of a declared code module: its file, or its folder for a package."""
+    found = importlib.util.find_spec(mod)
+    if found is None or found.origin is None:
+        raise ZiponError(f"code module {mod!r} not found")
+    origin = Path(found.origin)
+    return origin.parent if origin.name == "__init__.py" else origin
+
+
 def code_digest(spec: StageSpec) -> str:
     """Digest of the source of the modules a stage declares, plus zipon's version."""
     h = hashlib.blake2b(digest_size=16)
     h.update(__version__.encode())
     for mod in sorted(spec.code):
-        found = importlib.util.find_spec(mod)
-        if found is None or found.origin is None:
-            raise ZiponError(f"stage {spec.name}: code module {mod!r} not found")
-        origin = Path(found.origin)
-        files = sorted(origin.parent.rglob("*.py")) if origin.name == "__init__.py" else [origin]
-        for f in files:
-            h.update(f"\0{mod}:{f.name}\0".encode())
+        src = module_source(mod)
+        for f in sorted(src.rglob("*.py")) if src.is_dir() else [src]:
+            h.update(f"\0{mod}:{f.relative_to(src.parent).as_posix()}\0".encode())
             h.update(f.read_bytes())
     return f"blake2b:{h.hexdigest()}"
 
@@ -220,6 +225,7 @@ def run_stage(
         return Outcome(scene, stage, "skipped", reason="up to date")
     t0 = time.perf_counter()
     started = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    sweep_tmp(ws.tmp_dir(scene))
     tmp = new_tmp_dir(ws.tmp_dir(scene), stage)
     try:
         inputs = {

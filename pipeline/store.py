@@ -150,6 +150,30 @@ def new_tmp_dir(base: Path, label: str) -> Path:
     return path
 
 
+def sweep_tmp(base: Path) -> list[Path]:
+    """Remove leftovers of killed runs: ``<label>-<pid>-<token>`` folders whose process is gone."""
+    removed = []
+    base = Path(base)
+    if not base.is_dir():
+        return removed
+    for path in base.iterdir():
+        parts = path.name.rsplit("-", 2)
+        if len(parts) == 3 and parts[1].isdigit() and not _pid_alive(int(parts[1])):
+            remove(path)
+            removed.append(path)
+    return removed
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 def publish(tmp_path: Path, final_path: Path) -> None:
     """Move a finished output into place, replacing any previous version.
 

@@ -1,0 +1,136 @@
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import zarr
+
+from pipeline.config import load_params
+from pipeline.errors import ConfigError
+from pipeline.manifest import Manifest
+from pipeline.runner import plan, run_many, run_stage, staleness
+from pipeline.store import content_digest
+from pipeline.verify import verify_all
+from tests.fixtures.toy_stages import TOY_STAGES
+
+
+def run_all(ws, overrides=(), **kw):
+    params = load_params(ws.params_path, overrides)
+    return params, run_many(ws, params, TOY_STAGES, plan(TOY_STAGES, params, list(params.scenes)),
+                            show_progress=False, **kw)
+
+
+def test_runs_then_skips_and_reruns_only_what_changed(workspace):
+    params, first = run_all(workspace, ["simulate.frames=8"])
+    assert [(o.scene, o.stage, o.status) for o in first] == [
+        ("s0", "simulate", "ran"), ("s0", "ingest", "ran"), ("s1", "simulate", "ran"), ("s1", "ingest", "ran")]
+    _, second = run_all(workspace, ["simulate.frames=8"])
+    assert {o.status for o in second} == {"skipped"}
+    # ingest params only touch ingest; simulate params touch both (ingest sees a new input digest)
+    _, third = run_all(workspace, ["simulate.frames=8", "ingest.block_frames=4"])
+    assert [o.status for o in third] == ["skipped", "ran", "skipped", "ran"]
+    _, fourth = run_all(workspace, ["simulate.frames=9", "ingest.block_frames=4"])
+    assert [o.status for o in fourth] == ["ran", "ran", "ran", "ran"]
+    assert fourth[1].reason == "params changed" or fourth[1].reason.startswith("input changed")
+
+
+def test_manifest_records_lineage_and_is_deterministic(workspace, tmp_path):
+    run_all(workspace, ["simulate.frames=8"])
+    sim = Manifest.read(workspace.manifest("s0", "simulate"))
+    ing = Manifest.read(workspace.manifest("s0", "ingest"))
+    assert ing.inputs["source"] == sim.outputs["raw_log"].digest
+    assert ing.outputs["frames"].path == "data/artifacts/s0/frames.zarr"
+    assert ing.summary == {"rows": 8, "sum": int(ing.summary["sum"])}
+    assert ing.params == {"ingest": ing.params["ingest"], "scene": {"source": "simulate", "format": "auto"}}
+    digest = ing.outputs["frames"].digest
+    # a forced rerun and a run elsewhere give the same content digest
+    run_all(workspace, ["simulate.frames=8"], force=True)
+    assert Manifest.read(workspace.manifest("s0", "ingest")).outputs["frames"].digest == digest
+    assert content_digest(workspace.artifact("frames", "s0")) == digest
+
+
+def test_failure_keeps_previous_artifact_and_leaves_no_partial_store(workspace, monkeypatch):
+    params, _ = run_all(workspace, ["simulate.frames=8"])
+    before = content_digest(workspace.artifact("frames", "s0"))
+    monkeypatch.setenv("TOY_FAIL", "1")
+    _, outcomes = run_all(workspace, ["simulate.frames=8"], force=True)
+    assert {o.status for o in outcomes if o.stage == "ingest"} == {"failed"}
+    assert "toy failure mid-write" in outcomes[1].error
+    assert content_digest(workspace.artifact("frames", "s0")) == before
+    assert not any(workspace.tmp_dir("s0").iterdir())
+    assert all(r.ok for r in verify_all(workspace, params, TOY_STAGES))
+
+
+def test_killed_run_leaves_no_finished_looking_store(workspace, tmp_path):
+    run_all(workspace, ["simulate.frames=8"], )
+    frames = workspace.artifact("frames", "s0")
+    before = content_digest(frames)
+    pause = tmp_path / "paused"
+    code = (
+        "from pipeline.config import load_params; from pipeline.paths import Workspace;"
+        "from pipeline.runner import run_stage; from tests.fixtures.toy_stages import TOY_STAGES;"
+        f"ws = Workspace.resolve({str(workspace.params_path)!r});"
+        "p = load_params(ws.params_path, ['simulate.frames=8']);"
+        "run_stage(ws, p, TOY_STAGES, 's0', 'ingest', force=True, show_progress=False)"
+    )
+    env = {**os.environ, "TOY_PAUSE_FILE": str(pause)}
+    proc = subprocess.Popen([sys.executable, "-c", code], env=env, cwd=str(__import__("tests").__path__[0] + "/.."))
+    deadline = time.time() + 60
+    while not pause.exists() and time.time() < deadline:
+        time.sleep(0.1)
+    assert pause.exists(), "the stage never reached its pause point"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert content_digest(frames) == before  # previous version intact
+    leftovers = list(workspace.tmp_dir("s0").iterdir())
+    assert leftovers and all(p.name.startswith("ingest-") for p in leftovers)  # only under .tmp/
+    # the next run is not fooled (still up to date) and a forced run sweeps the dead run's leftovers
+    params = load_params(workspace.params_path, ["simulate.frames=8"])
+    assert staleness(workspace, params, TOY_STAGES, TOY_STAGES["ingest"], "s0") == ""
+    assert run_stage(workspace, params, TOY_STAGES, "s0", "ingest", force=True, show_progress=False).status == "ran"
+    assert not any(workspace.tmp_dir("s0").iterdir())
+
+
+def test_verify_detects_tampering(workspace):
+    params, _ = run_all(workspace, ["simulate.frames=8"])
+    arr = zarr.open_array(str(workspace.artifact("frames", "s1") / "values"), mode="r+")
+    arr[0, 0] = (int(arr[0, 0]) + 1) % 256
+    rows = {(r.scene, r.stage): r for r in verify_all(workspace, params, TOY_STAGES)}
+    assert rows[("s0", "ingest")].ok and not rows[("s1", "ingest")].ok
+    assert "digest" in rows[("s1", "ingest")].problem
+
+
+def test_staleness_reasons(workspace):
+    params = load_params(workspace.params_path, ["simulate.frames=8"])
+    spec = TOY_STAGES["ingest"]
+    assert staleness(workspace, params, TOY_STAGES, spec, "s0") == "never run"
+    run_all(workspace, ["simulate.frames=8"])
+    assert staleness(workspace, params, TOY_STAGES, spec, "s0") == ""
+    p2 = load_params(workspace.params_path, ["simulate.frames=8", "ingest.max_pose_gap_s=0.5"])
+    assert staleness(workspace, p2, TOY_STAGES, spec, "s0") == "params changed"
+    import shutil
+
+    shutil.rmtree(workspace.artifact("frames", "s0"))
+    assert staleness(workspace, params, TOY_STAGES, spec, "s0") == "output frames missing"
+
+
+def test_dask_local_cluster_runs_scenes_in_parallel(workspace):
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        _, outcomes = run_all(workspace, ["simulate.frames=8"], scheduler=cluster.scheduler_address)
+    assert [o.status for o in outcomes] == ["ran"] * 4
+    _, serial = run_all(workspace, ["simulate.frames=8"])
+    assert {o.status for o in serial} == {"skipped"}  # the cluster's results are the serial ones
+
+
+def test_config_errors_name_the_key(workspace):
+    with pytest.raises(ConfigError, match=r"ingest\.block_frames: Input should be greater than 0"):
+        load_params(workspace.params_path, ["ingest.block_frames=0"])
+    with pytest.raises(ConfigError, match=r"simulate\.framez: Extra inputs are not permitted"):
+        load_params(workspace.params_path, ["simulate.framez=3"])
+    with pytest.raises(ConfigError, match="expected KEY=VALUE"):
+        load_params(workspace.params_path, ["simulate.frames"])

@@ -1,0 +1,43 @@
+import numpy as np
+import pytest
+
+from pipeline.errors import ArtifactError, MissingInputError
+from pipeline.store import artifact_attrs, compressor, content_digest, new_group, open_group, publish
+
+
+def _store(path, values, level=3):
+    g = new_group(path, artifact_attrs("frames", 1, "ingest", "p"))
+    a = g.create_array("v", shape=values.shape, chunks=(2,) + values.shape[1:], dtype=values.dtype,
+                       compressors=compressor(level))
+    a[:] = values
+    return g
+
+
+def test_digest_is_content_not_bytes(tmp_path):
+    values = np.arange(60, dtype=np.uint16).reshape(6, 10)
+    _store(tmp_path / "a.zarr", values, level=1)
+    _store(tmp_path / "b.zarr", values, level=9)  # different compressed bytes, same content
+    assert content_digest(tmp_path / "a.zarr") == content_digest(tmp_path / "b.zarr")
+    values[3, 3] += 1
+    _store(tmp_path / "c.zarr", values)
+    assert content_digest(tmp_path / "c.zarr") != content_digest(tmp_path / "a.zarr")
+
+
+def test_open_group_checks_identity(tmp_path):
+    _store(tmp_path / "a.zarr", np.zeros((2, 2), np.uint8))
+    assert open_group(tmp_path / "a.zarr", artifact="frames", format_version=1).attrs["stage"] == "ingest"
+    with pytest.raises(ArtifactError, match="attrs.artifact is 'frames', expected 'recon'"):
+        open_group(tmp_path / "a.zarr", artifact="recon")
+    with pytest.raises(ArtifactError, match="format_version 1, this zipon reads 2"):
+        open_group(tmp_path / "a.zarr", artifact="frames", format_version=2)
+    with pytest.raises(MissingInputError, match="not found"):
+        open_group(tmp_path / "nope.zarr", artifact="frames")
+
+
+def test_publish_replaces_atomically(tmp_path):
+    _store(tmp_path / "new.zarr", np.ones((2, 2), np.uint8))
+    _store(tmp_path / "final.zarr", np.zeros((2, 2), np.uint8))
+    want = content_digest(tmp_path / "new.zarr")
+    publish(tmp_path / "new.zarr", tmp_path / "final.zarr")
+    assert content_digest(tmp_path / "final.zarr") == want
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["final.zarr"]
