@@ -7,7 +7,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
-import click
 import typer
 from rich.console import Console
 from rich.table import Table
@@ -243,15 +242,10 @@ def ingest(
 @app.command("params")
 def params_cmd(defaults: bool = typer.Option(False, "--defaults", help="print every tunable with its default")):
     """Print the resolved params (or the full defaults, a starting params.yaml). Example: `zipon params --defaults`"""
-    import yaml
+    from pipeline.config import parse_params, params_yaml
 
-    from pipeline.config import Params
-
-    if defaults:
-        data = Params(scenes={"sim_00": {"source": "simulate"}}).model_dump(mode="json")
-    else:
-        data = G.load()[1].model_dump(mode="json")
-    out.print(yaml.safe_dump(data, sort_keys=False), end="", markup=False, highlight=False)
+    params = parse_params({"scenes": {"sim_00": {"source": "simulate"}}}) if defaults else G.load()[1]
+    out.print(params_yaml(params), end="", markup=False, highlight=False, soft_wrap=True)
 
 
 @app.command("dvc")
@@ -308,17 +302,19 @@ def demo(
 
 def main(argv: list[str] | None = None) -> int:
     """Console entry: run the app; turn zipon errors into a one-line message and exit code 1."""
+    from typer._click.exceptions import ClickException
+
     try:
         app(args=argv, standalone_mode=False, prog_name="zipon")
     except ZiponError as err:
         console.print(f"[red]error:[/red] {err}", markup=True, highlight=False)
         return 1
-    except click.exceptions.Exit as e:
+    except typer.Exit as e:
         return e.exit_code
-    except click.exceptions.Abort:
+    except typer.Abort:
         console.print("aborted")
         return 130
-    except click.ClickException as e:
+    except ClickException as e:  # usage errors: typer's own message and exit code 2
         e.show()
         return e.exit_code
     return 0

@@ -10,7 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -67,6 +67,20 @@ class SimulateParams(Section):
     pose_topic_kind: Literal["pose", "tf", "both"] = Field(
         "both", description="write camera poses as geometry_msgs/PoseStamped, /tf, or both"
     )
+    rooms_min: int = Field(6, ge=2, le=10, description="fewest rooms of a procedural apartment")
+    rooms_max: int = Field(7, ge=2, le=10, description="most rooms of a procedural apartment")
+    robot_radius_m: float = Field(
+        0.18, gt=0, le=0.4, description="robot radius kept free in doorways and walkways, metres"
+    )
+    render_block_frames: int = Field(
+        8, gt=0, description="frames ray-cast together (memory ~ 60 MB per frame at 640x480)"
+    )
+
+    @model_validator(mode="after")
+    def _room_range(self) -> "SimulateParams":
+        if self.rooms_min > self.rooms_max:
+            raise ValueError("simulate.rooms_min must not exceed simulate.rooms_max")
+        return self
 
 
 class IngestTopics(Section):
@@ -75,9 +89,19 @@ class IngestTopics(Section):
     rgb: str | None = None
     depth: str | None = None
     camera_info: str | None = None
+    instance: str | None = Field(None, description="a 16UC1 instance-id image topic (auto: a name with 'instance')")
     pose: str | None = Field(None, description="a geometry_msgs/PoseStamped topic of the camera pose")
     tf_world_frame: str | None = Field(None, description="/tf parent frame to chain from (auto: the root)")
     tf_camera_frame: str | None = Field(None, description="/tf child frame of the optical camera (auto)")
+
+
+class CameraOverride(Section):
+    """Pinhole intrinsics in pixels (no distortion) for datasets that do not store them."""
+
+    fx: float = Field(gt=0, description="focal length along x, pixels")
+    fy: float = Field(gt=0, description="focal length along y, pixels")
+    cx: float = Field(description="principal point x, pixels")
+    cy: float = Field(description="principal point y, pixels")
 
 
 class IngestParams(Section):
@@ -93,11 +117,26 @@ class IngestParams(Section):
     )
     depth_min_m: float = Field(0.1, ge=0, description="depth below this is stored as invalid (0)")
     depth_max_m: float = Field(10.0, gt=0, description="depth above this is stored as invalid (0)")
-    compression_level: int = Field(3, ge=1, le=9, description="zstd level of the blosc compressor")
+    compression_level: int = Field(3, ge=1, le=9, description="level of the blosc compressor of frames.zarr")
+    codec: Literal["zstd", "lz4"] = Field(
+        "zstd", description="blosc codec of frames.zarr: zstd (smaller) or lz4 (about 10x faster to write camera "
+        "colour; see benchmarks/bench_ingest.py)"
+    )
     topics: IngestTopics = IngestTopics()
     navchat_camera_height_m: float = Field(0.88, gt=0, description="camera height above navchat's base pose")
     folder_fps: float = Field(
         30.0, gt=0, description="frame rate assumed for datasets without timestamps (7-Scenes, navchat)"
+    )
+    max_stream_lag_s: float = Field(
+        2.0, gt=0, description="a colour frame is decided once any stream is this far ahead of it (bounds memory "
+        "when a stream stalls or stops), seconds"
+    )
+    tum_camera: Literal["auto", "fr1", "fr2", "fr3"] = Field(
+        "auto", description="TUM RGB-D intrinsics set; 'auto' reads freiburg1/2/3 (fr1/2/3) from the folder name, "
+        "else fr1"
+    )
+    camera_override: CameraOverride | None = Field(
+        None, description="pinhole intrinsics replacing a folder format's defaults (TUM, 7-Scenes, navchat)"
     )
 
 
@@ -146,6 +185,10 @@ class ReconstructParams(Section):
     height_max_m: float = Field(
         2.0, gt=0, description="surfaces higher than this above the floor (ceilings) are left out of colour/height"
     )
+    fill_enclosed_max_m2: float = Field(
+        4.0, ge=0, description="unknown regions enclosed by occupied cells only and at most this big (the unseen "
+        "inside of furniture) are marked occupied, m^2"
+    )
     robot_radius_m: float = Field(
         0.18, ge=0, description="navigable cells are free and farther than this from any occupied cell centre"
     )
@@ -153,10 +196,14 @@ class ReconstructParams(Section):
         0.02, ge=0, le=1, description="fail when more than this fraction of surface points falls outside the grid"
     )
     refine_poses: bool = Field(
-        False, description="refine poses by frame-to-model RGB-D odometry (real logs); refined poses go to recon.zarr"
+        False, description="refine poses by frame-to-model RGB-D odometry (real logs); refined poses are stored in "
+        "recon.zarr, frames.zarr is never modified"
+    )
+    refine_method: Literal["hybrid", "point_to_plane"] = Field(
+        "hybrid", description="odometry residual: depth + intensity ('hybrid') or depth only ('point_to_plane')"
     )
     refine_max_correction_m: float = Field(
-        0.3, gt=0, description="a refinement moving a frame farther than this from its recorded pose is rejected"
+        0.1, gt=0, description="a refinement moving a frame farther than this from its prediction is rejected, metres"
     )
 
     @model_validator(mode="after")
@@ -171,6 +218,7 @@ class ReconstructParams(Section):
 
 
 EncoderName = Literal["lseg", "maskclip", "conceptfusion", "torchscript", "oracle"]
+CellSize = tuple[Annotated[int, Field(gt=0)], Annotated[int, Field(gt=0)]]  # (height, width)
 
 
 class LSegParams(Section):
@@ -184,7 +232,7 @@ class LSegParams(Section):
     crop_size: int = Field(480, gt=0, multiple_of=32, description="sliding-window crop edge, pixels (VLMaps: 480)")
     base_size: int = Field(520, gt=0, description="the long image side is resized to this before cropping (VLMaps: 520)")
     stride_rate: float = Field(2.0 / 3.0, gt=0, le=1, description="window stride as a fraction of crop_size")
-    out_size: tuple[int, int] = Field((120, 160), description="feature map (height, width) returned, cells")
+    out_size: CellSize = Field((120, 160), description="feature map (height, width) returned, cells")
 
 
 class MaskClipParams(Section):
@@ -194,10 +242,10 @@ class MaskClipParams(Section):
     weights: str | None = Field(
         None, description="local open_clip weights file (.pt/.bin/.safetensors); None = error when maskclip is chosen"
     )
-    input_size: tuple[int, int] = Field(
+    input_size: CellSize = Field(
         (480, 640), description="(height, width) the image is resized to before the ViT; multiples of the patch size"
     )
-    out_size: tuple[int, int] | None = Field(None, description="feature (height, width); None = the patch grid")
+    out_size: CellSize | None = Field(None, description="feature (height, width); None = the patch grid")
 
 
 class RegionParams(Section):
@@ -210,7 +258,10 @@ class RegionParams(Section):
     )
     work_height: int = Field(120, gt=8, description="rgbd: frames are segmented at this height, pixels")
     felzenszwalb_scale: float = Field(200.0, gt=0, description="rgbd: felzenszwalb scale (larger = bigger regions)")
-    felzenszwalb_sigma: float = Field(0.5, ge=0, description="rgbd: gaussian pre-smoothing, pixels")
+    felzenszwalb_sigma: float = Field(
+        0.0, ge=0, description="rgbd: gaussian pre-smoothing, pixels (0: the area-downscaled frame is smooth "
+        "enough, and smoothing a depth step leaves one-pixel strip regions along it)"
+    )
     depth_weight: float = Field(
         0.5, ge=0, description="rgbd: weight of depth (per metre) against CIELAB colour (per 100 units) in the cut"
     )
@@ -226,9 +277,8 @@ class ConceptFusionParams(Section):
 
     arch: str = Field("ViT-B-32", description="open_clip model name")
     weights: str | None = Field(None, description="local open_clip weights file; None = error when chosen")
-    crop_size: int = Field(224, gt=0, description="edge the whole image and each region crop are resized to, pixels")
     softmax_temperature: float = Field(1.0, gt=0, description="softmax over regions of cos(global, local) / T")
-    out_size: tuple[int, int] = Field((120, 160), description="feature (height, width); ConceptFusion stores 120x160")
+    out_size: CellSize = Field((120, 160), description="feature (height, width); ConceptFusion stores 120x160")
     regions: RegionParams = RegionParams()
 
 
@@ -244,7 +294,7 @@ class TorchScriptParams(Section):
         description="'pkg.mod:factory' returning an object with encode_image(x (B,3,H,W) [0,1]) -> (B,D,h,w) and "
         "encode_text(list[str]) -> (T,D); used instead of the two files",
     )
-    input_size: tuple[int, int] | None = Field(None, description="resize images to (height, width) first; None = as is")
+    input_size: CellSize | None = Field(None, description="resize images to (height, width) first; None = as is")
     name: str = Field("torchscript", description="encoder name recorded in the maps' attrs")
     version: str = Field("1", description="encoder version recorded in the maps' attrs")
 
@@ -263,8 +313,11 @@ class OracleParams(Section):
     color_weight: float = Field(0.5, ge=0, description="weight of colour words against the class word (1)")
     material_weight: float = Field(0.3, ge=0, description="weight of material words against the class word (1)")
     confusion: float = Field(0.0, ge=0, le=1, description="probability an instance takes another class's word")
-    noise_std: float = Field(0.0, ge=0, description="std of per-cell gaussian noise added before renormalising")
-    out_size: tuple[int, int] = Field((120, 160), description="feature (height, width), cells")
+    noise_std: float = Field(
+        0.0, ge=0, description="per-component std of gaussian noise added to each cell before renormalising "
+        "(noise norm ~ noise_std * sqrt(dim))"
+    )
+    out_size: CellSize = Field((120, 160), description="feature (height, width), cells")
 
 
 class EncodersParams(Section):
@@ -291,12 +344,204 @@ class EncodersParams(Section):
     oracle: OracleParams = OracleParams()
 
 
+class MapsParams(Section):
+    """Semantic map fusion (stages ``vlmap`` / ``cfmap``) and text queries on the maps.
+
+    Height rule (both maps): space above the grid is cut into levels of ``level_height_m``
+    between ``floor + min_height_m`` and ``floor + max_height_m``; a cell's top-down feature is the
+    weighted mean of the points in its HIGHEST observed level (navchat's "top voxel per column",
+    which also matches the top-down colour map and GT footprints, where taller parts win).
+    """
+
+    block_frames: int = Field(16, gt=0, description="frames read, encoded and fused per block")
+    depth_min_m: float = Field(0.1, ge=0, description="depth below this is not fused, metres")
+    depth_max_m: float = Field(5.0, gt=0, description="depth beyond this is not fused (noise grows), metres")
+    max_depth_jump: float = Field(
+        0.1, ge=0, description="a pixel whose depth differs from a 4-neighbour by more than this fraction of its "
+        "depth lies on a depth edge (flying pixel) and is not fused; 0 = keep all"
+    )
+    min_height_m: float = Field(-0.05, description="lowest fused point, metres above the floor (reconstruction's floor_z)")
+    max_height_m: float = Field(2.0, gt=0, description="highest fused point (ceilings left out), metres above the floor")
+    level_height_m: float = Field(0.1, gt=0, description="height of one level (voxel) of the height rule, metres")
+    vlmap_weight_sigma_m: float | None = Field(
+        None, gt=0, description="vlmap point weight exp(-d^2 / 2 sigma^2) of camera distance d; None = every point "
+        "weighs 1 (VLMaps' count-weighted mean)"
+    )
+    cfmap_weight_sigma_m: float | None = Field(
+        0.6, gt=0, description="cfmap point weight exp(-d^2 / 2 sigma^2) (ConceptFusion's confidence, sigma 0.6); "
+        "None = count weights"
+    )
+    cfmap_voxels: bool = Field(True, description="cfmap also stores its sparse 3D voxel feature map")
+    fill_radius_m: float = Field(
+        0.3, ge=0, description="unobserved cells recon does not mark free (the unseen tops of tall objects) take the "
+        "feature of the nearest observed cell within this distance; filled cells have count 0; 0 = no filling"
+    )
+    tile_cells: int = Field(64, gt=0, description="spatial tile edge (cells) of the stored map's chunks")
+    device: Literal["cpu", "cuda", "auto"] = Field("cpu", description="torch device of the fusion accumulators")
+    background: tuple[str, ...] = Field(
+        ("other", "floor", "wall", "ceiling"),
+        description="background prompts a query competes with per cell (VLMaps: categories + 'other'); "
+        "a cell is a candidate where the query's score beats every background prompt",
+    )
+    temperature: float | None = Field(
+        None, gt=0, description="softmax temperature of the heatmap; None = the encoder's own, else 0.1"
+    )
+    min_candidate_area_m2: float = Field(0.01, ge=0, description="smaller winning components are not candidates")
+    min_candidate_score: float = Field(
+        0.6, ge=0, le=1, description="components whose mean heatmap probability is below this are not candidates "
+        "(drops cells the query wins only because every prompt scores about as low)"
+    )
+    max_candidates: int = Field(20, gt=0, description="at most this many candidates per query")
+
+    @model_validator(mode="after")
+    def _ranges(self) -> "MapsParams":
+        if self.depth_min_m >= self.depth_max_m:
+            raise ValueError("depth_min_m must be below depth_max_m")
+        if self.min_height_m >= self.max_height_m:
+            raise ValueError("min_height_m must be below max_height_m")
+        if (self.max_height_m - self.min_height_m) / self.level_height_m > 1000:
+            raise ValueError("level_height_m is too small for the height band (more than 1000 levels)")
+        return self
+
+
 class GoalsParams(Section):
     """Objects -> personalized goals with the four kinds of feedback (``goals.zarr``)."""
+
+    seed: int = Field(0, description="seed of goal selection and persona names (owners, manufacturers, years)")
+    objects: Literal["auto", "gt", "file", "navchat"] = Field(
+        "auto", description="where objects come from: the simulator's ground truth in frames.zarr ('gt'), "
+        "objects_files[scene] ('file'), navchat_dirs[scene] ('navchat'); 'auto': gt, else file, else navchat"
+    )
+    objects_files: dict[str, str] = Field(
+        default_factory=dict, description="scene -> objects YAML/JSON (pipeline.goals.objects.ObjectSet layout), "
+        "relative to params.yaml"
+    )
+    navchat_dirs: dict[str, str] = Field(
+        default_factory=dict, description="scene -> folder with navchat's objects.json (+ final.json), cells on "
+        "the recon grid (the stated grid), relative to params.yaml"
+    )
+    edits: dict[str, str] = Field(
+        default_factory=dict, description="scene -> imported goals document (written by 'zipon goals import', "
+        "content-addressed so an edit changes the params digest), relative to params.yaml"
+    )
+    edits_missing_objects: Literal["error", "drop"] = Field(
+        "error", description="an edited goal whose objects no longer exist: fail, or drop the goal (reported)"
+    )
+    max_goals: int = Field(12, gt=0, description="goals per scene at most")
+    mix: tuple[float, float, float] = Field(
+        (1 / 3, 1 / 3, 1 / 3), description="wanted shares of big, small and ambiguous goals (paper: 39/41/37)"
+    )
+    same_goal_radius_m: float = Field(
+        2.0, ge=0, description="same class, room, colour and material within this many metres = one same_goal group"
+    )
+    landmark_radius_m: float = Field(1.0, gt=0, description="landmarks: footprint distance at most this, metres")
+    max_landmarks: int = Field(3, ge=0, description="landmarks named per goal at most")
+    landmark_min_area_m2: float = Field(0.1, ge=0, description="small objects below this footprint are not salient")
+    exclude_classes: tuple[str, ...] = Field((), description="classes never chosen as goals")
+
+    @field_validator("mix")
+    @classmethod
+    def _mix(cls, v):
+        if min(v) < 0 or sum(v) <= 0:
+            raise ValueError("mix: three non-negative shares with a positive sum")
+        return v
 
 
 class RoutesParams(Section):
     """Goals + navigable grid -> episodes, geodesic routes and procedural text (``routes.zarr``)."""
+
+    seed: int = Field(0, description="seed of the start poses")
+    episodes_per_goal: int = Field(3, gt=0, description="episodes (start poses) per goal")
+    min_geodesic_m: float = Field(2.0, ge=0, description="start poses are at least this geodesic distance away")
+    step_m: float = Field(0.25, gt=0, description="forward action, metres")
+    turn_deg: float = Field(15.0, gt=0, le=180, description="turn action, degrees")
+    clearance_m: float = Field(
+        0.1, ge=0, description="planned paths keep this far from non-navigable cells (beyond recon's robot radius)"
+    )
+    stop_radius_m: float = Field(1.0, gt=0, description="a route ends within this distance of the goal's footprint")
+    success_m: float = Field(1.5, gt=0, description="replay succeeds within this distance of the goal (paper: 1.5)")
+
+    @model_validator(mode="after")
+    def _radii(self) -> "RoutesParams":
+        if self.stop_radius_m + self.step_m / 2 > self.success_m:
+            raise ValueError("stop_radius_m + step_m / 2 must not exceed success_m (routes must end in success)")
+        return self
+
+
+EvalMethod = Literal["human", "cow", "vlmap", "cf", "orion"]
+FeedbackSetting = Literal["none", "yesno", "corrective", "descriptive", "landmark", "procedural", "mixed"]
+EVAL_METHODS: tuple[str, ...] = ("human", "cow", "vlmap", "cf", "orion")
+FEEDBACK_SETTINGS: tuple[str, ...] = ("none", "yesno", "corrective", "descriptive", "landmark", "procedural", "mixed")
+
+
+class LLMParams(Section):
+    """Optional LLM-backed user / agent through an OpenAI-compatible HTTP endpoint (off unless base_url is set)."""
+
+    base_url: str | None = Field(
+        None, description="e.g. http://127.0.0.1:8000/v1 (POST {base_url}/chat/completions); None = off, nothing "
+        "is contacted"
+    )
+    model: str = Field("gpt-4o-mini", description="model name sent in each request")
+    api_key_env: str | None = Field("OPENAI_API_KEY", description="environment variable holding the bearer key "
+                                    "(unset variable = no Authorization header)")
+    roles: Literal["user", "agent", "both"] = Field("both", description="which side the LLM plays")
+    timeout_s: float = Field(30.0, gt=0, description="per-request timeout, seconds")
+    max_requests: int = Field(200, gt=0, description="requests per evaluation run at most (then a StageError)")
+    temperature: float = Field(0.0, ge=0, description="sampling temperature sent with each request")
+
+
+class EvalParams(Section):
+    """The light online evaluator (``zipon eval``, package ``orion_eval``): agents, simulated user, metrics.
+
+    Actions: TurnLeft / TurnRight ``routes.turn_deg`` (15 deg), MoveForward ``routes.step_m`` (0.25 m), Talk.
+    An episode ends on success or after ``max_talk_turns`` Talk turns (or ``max_steps`` actions).
+    """
+
+    scenes: tuple[str, ...] | None = Field(None, description="scenes to evaluate; None = every scene in 'scenes'")
+    methods: tuple[EvalMethod, ...] = Field(
+        EVAL_METHODS, description="agents: human (geodesic upper bound), cow (exploration + detection), vlmap / cf "
+        "(map retrieval), orion (map + exploration + detection + memory)"
+    )
+    feedback: tuple[FeedbackSetting, ...] = Field(FEEDBACK_SETTINGS, description="simulated user's settings")
+    seeds: tuple[int, ...] = Field((0, 1, 2, 3, 4), description="seeds (start pose choice, user draws); "
+                                   "results are means over seeds")
+    max_talk_turns: int = Field(5, gt=0, description="I_max: Talk turns per episode at most (paper: 5)")
+    max_steps: int = Field(600, gt=0, description="movement actions per episode at most")
+    success_rule: Literal["paper", "navchat"] = Field(
+        "paper", description="'paper': within success_distance_m of the goal, its mass centre in the ego view's "
+        "field of view and in line of sight; 'navchat': navchat's tighter distance/angle bands"
+    )
+    success_distance_m: float = Field(1.5, gt=0, description="paper rule: distance to the goal's footprint, metres")
+    hfov_deg: float = Field(90.0, gt=0, lt=180, description="ego view horizontal field of view, degrees")
+    camera_height_m: float | None = Field(
+        None, gt=0, description="ego camera height above the floor; None = median height of the recording's poses"
+    )
+    orion_map: Literal["vlmap", "cfmap"] = Field("vlmap", description="the semantic map ORION retrieves from")
+    detect_encoder: str | None = Field(
+        None, description="encoder of detect_object ('vlmap' / 'cfmap' / an encoder name); None = the encoder the "
+        "VLMap was built with"
+    )
+    detect_size: tuple[int, int] = Field((24, 32), description="ego view (height, width) ray-cast for detection")
+    detect_max_range_m: float = Field(3.5, gt=0, description="detections farther than this are ignored, metres")
+    detect_min_pixels: int = Field(4, gt=0, description="a detection needs this many winning ego-view pixels")
+    explore_radius_m: float = Field(2.5, gt=0, description="a spin marks cells this close (in sight) as explored")
+    explore_max_targets: int = Field(12, gt=0, description="frontier targets visited per search at most")
+    reject_radius_m: float = Field(0.75, ge=0, description="candidates this close to a rejected place are skipped")
+    stop_radius_m: float = Field(
+        1.25, gt=0, description="goto_object stops at the nearest place this close to an object's cells from which "
+        "its centre is in sight, metres")
+    clearance_m: float = Field(0.1, ge=0, description="planned paths keep this far from non-navigable cells")
+    workers: int = Field(2, gt=0, description="processes evaluating scenes in parallel (1 = serial)")
+    llm: LLMParams = LLMParams()
+
+    @field_validator("methods", "feedback", "seeds")
+    @classmethod
+    def _nonempty(cls, v):
+        if not v:
+            raise ValueError("at least one value is needed")
+        if len(set(v)) != len(v):
+            raise ValueError("values must be distinct")
+        return v
 
 
 class RunParams(Section):
@@ -321,8 +566,10 @@ class Params(Section):
     ingest: IngestParams = IngestParams()
     reconstruct: ReconstructParams = ReconstructParams()
     encoders: EncodersParams = EncodersParams()
+    maps: MapsParams = MapsParams()
     goals: GoalsParams = GoalsParams()
     routes: RoutesParams = RoutesParams()
+    eval: EvalParams = EvalParams()
 
     @field_validator("scenes")
     @classmethod
@@ -407,3 +654,47 @@ def canonical_json(value: Any) -> str:
 def digest_value(value: Any) -> str:
     """Deterministic digest of plain data (params sections, attrs)."""
     return "blake2b:" + hashlib.blake2b(canonical_json(value).encode(), digest_size=16).hexdigest()
+
+
+def params_yaml(params: Params) -> str:
+    """``params.yaml`` text for ``params``: every tunable, each preceded by its description as a comment."""
+    lines = ["# zipon params: every tunable, one section per stage (types and checks: pipeline/config.py).",
+             "# Regenerate a complete file with: zipon params --defaults"]
+
+    def emit(model: BaseModel, indent: int) -> None:
+        pad = "  " * indent
+        for name, info in type(model).model_fields.items():
+            value = getattr(model, name)
+            if info.description:
+                lines.append(f"{pad}# {info.description}")
+            if isinstance(value, BaseModel):
+                lines.append(f"{pad}{name}:")
+                emit(value, indent + 1)
+            elif isinstance(value, dict) and value and all(isinstance(v, BaseModel) for v in value.values()):
+                lines.append(f"{pad}{name}:")
+                for key, sub in value.items():
+                    flow = yaml.safe_dump(sub.model_dump(mode="json"), default_flow_style=True, width=1000).strip()
+                    lines.append(f"{pad}  {key}: {flow}")
+            else:
+                dumped = yaml.safe_dump({name: _plain_value(value)}, default_flow_style=True, width=1000).strip()
+                lines.append(f"{pad}{dumped[1:-1] if dumped.startswith('{') else dumped}")
+
+    for name, info in Params.model_fields.items():
+        value = getattr(params, name)
+        lines.append("")
+        if info.description or type(value).__doc__:
+            doc = info.description if name == "scenes" else (type(value).__doc__ or "").strip().splitlines()[0]
+            lines.append(f"# {doc}")
+        if isinstance(value, BaseModel):
+            lines.append(f"{name}:")
+            emit(value, 1)
+        else:
+            lines.append(f"{name}:")
+            for key, sub in value.items():
+                flow = yaml.safe_dump(sub.model_dump(mode="json"), default_flow_style=True, width=1000).strip()
+                lines.append(f"  {key}: {flow}")
+    return "\n".join(lines) + "\n"
+
+
+def _plain_value(value: Any) -> Any:
+    return value.model_dump(mode="json") if isinstance(value, BaseModel) else value

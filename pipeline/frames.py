@@ -68,6 +68,7 @@ class FrameStoreWriter:
         block_frames: int = 16,
         with_instance: bool = False,
         compression_level: int = 3,
+        codec: str = "zstd",
     ):
         self.path = Path(path)
         self.intrinsics = intrinsics
@@ -79,8 +80,17 @@ class FrameStoreWriter:
             {**attrs, "intrinsics": intrinsics.to_dict(), "K": intrinsics.K.tolist(), "conventions": CONVENTIONS},
         )
         b = block_frames
-        c_img = compressor(compression_level, shuffle="noshuffle")
-        c_int = compressor(compression_level, shuffle="shuffle")
+        # Blosc-zstd by default; 'lz4' trades size (~1.2x vs ~1.5x on camera colour) for ~10x faster writes.
+        if codec not in ("zstd", "lz4"):
+            raise ValueError(f"codec {codec!r}: expected 'zstd' or 'lz4'")
+        if codec == "zstd":
+            c_img = compressor(compression_level, shuffle="noshuffle")
+            c_int = compressor(compression_level, shuffle="shuffle")
+        else:
+            from zarr.codecs import BloscCodec
+
+            c_img = BloscCodec(cname="lz4", clevel=compression_level, shuffle="noshuffle")
+            c_int = BloscCodec(cname="lz4", clevel=compression_level, shuffle="shuffle")
         g = self.group
         self.arrays = {
             "rgb": g.create_array("rgb", shape=(0, h, w, 3), chunks=(b, h, w, 3), dtype="uint8", compressors=c_img),

@@ -178,7 +178,8 @@ class Ros2LogWriter:
             self._closed = True
 
     def _write(self, topic: str, schema: str, msg: dict, stamp_ns: int) -> None:
-        self._writer.write_message(topic, self._schemas[schema], msg, log_time=int(stamp_ns), publish_time=int(stamp_ns))
+        self._writer.write_message(topic, self._schemas[schema], msg, log_time=int(stamp_ns),
+                                   publish_time=int(stamp_ns))
 
     def _header(self, stamp_ns: int, frame_id: str = OPTICAL_FRAME) -> dict:
         return {"stamp": _stamp(stamp_ns), "frame_id": frame_id}
@@ -200,7 +201,8 @@ class Ros2LogWriter:
         msg = {"header": self._header(stamp_ns), "format": fmt, "data": data}
         self._write(TOPICS[kind] + COMPRESSED_SUFFIX[kind], COMPRESSED, msg, stamp_ns)
 
-    def write_frame(self, stamp_ns: int, rgb: np.ndarray, depth_mm: np.ndarray, instance: np.ndarray | None = None) -> None:
+    def write_frame(self, stamp_ns: int, rgb: np.ndarray, depth_mm: np.ndarray,
+                    instance: np.ndarray | None = None) -> None:
         """Colour ``(H,W,3)`` uint8 RGB, depth ``(H,W)`` uint16 mm (0 = invalid), instance ``(H,W)`` uint16 ids,
         all stamped ``stamp_ns``; plus the CameraInfo of the colour camera."""
         intr = self.intrinsics
@@ -232,7 +234,8 @@ class Ros2LogWriter:
         if self.pose_topic_kind in ("pose", "both"):
             t, q = pose_to_tq(T)
             msg = {"header": self._header(stamp_ns, WORLD_FRAME),
-                   "pose": {"position": dict(zip("xyz", map(float, t))), "orientation": dict(zip("xyzw", map(float, q)))}}
+                   "pose": {"position": dict(zip("xyz", map(float, t))),
+                            "orientation": dict(zip("xyzw", map(float, q)))}}
             self._write(TOPICS["pose"], POSE_STAMPED, msg, stamp_ns)
         if self.pose_topic_kind in ("tf", "both"):
             if not self._static_written:

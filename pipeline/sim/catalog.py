@@ -48,12 +48,10 @@ MATERIAL_CODE = {name: i for i, name in enumerate(MATERIALS)}
 
 @dataclass(frozen=True)
 class Part:
-    """A part box in the local frame plus a tone factor (legs darker, mattress lighter...)."""
+    """A part box in the local frame (metres)."""
 
     min: tuple[float, float, float]
     max: tuple[float, float, float]
-    tone: float = 1.0
-    fixed_rgb: tuple[int, int, int] | None = None  # e.g. a black screen, a white mattress
 
 
 @dataclass(frozen=True)
@@ -69,14 +67,14 @@ class Template:
     meta: dict = field(default_factory=dict)
 
 
-def _box(x0, y0, z0, x1, y1, z1, tone=1.0, rgb=None) -> Part:
-    return Part((x0, y0, z0), (x1, y1, z1), tone, rgb)
+def _box(x0, y0, z0, x1, y1, z1) -> Part:
+    return Part((x0, y0, z0), (x1, y1, z1))
 
 
-def _legs(w, d, h, t=0.05, tone=0.6) -> list[Part]:
+def _legs(w, d, h, t=0.05) -> list[Part]:
     hw, hd = w / 2, d / 2
     return [_box(sx * hw - (t if sx > 0 else 0), sy * hd - (t if sy > 0 else 0), 0.0,
-                 sx * hw + (0 if sx > 0 else t), sy * hd + (0 if sy > 0 else t), h, tone)
+                 sx * hw + (0 if sx > 0 else t), sy * hd + (0 if sy > 0 else t), h)
             for sx in (-1, 1) for sy in (-1, 1)]
 
 
@@ -88,30 +86,30 @@ def _bed(rng):
     w, d = _u(rng, 1.0, 1.8), _u(rng, 1.95, 2.1)
     hd = d / 2
     return w, d, [
-        _box(-w / 2, -hd, 0.0, w / 2, hd, 0.30, 0.7),
-        _box(-w / 2 + 0.03, -hd + 0.08, 0.30, w / 2 - 0.03, hd - 0.02, 0.52, 1.0, (232, 232, 226)),
-        _box(-w / 2, -hd, 0.0, w / 2, -hd + 0.08, _u(rng, 0.9, 1.2), 1.0),
-        _box(-w / 2 + 0.15, -hd + 0.12, 0.52, w / 2 - 0.15, -hd + 0.5, 0.62, 1.15),  # pillow / duvet fold
+        _box(-w / 2, -hd, 0.0, w / 2, hd, 0.30),
+        _box(-w / 2 + 0.03, -hd + 0.08, 0.30, w / 2 - 0.03, hd - 0.02, 0.52),
+        _box(-w / 2, -hd, 0.0, w / 2, -hd + 0.08, _u(rng, 0.9, 1.2)),
+        _box(-w / 2 + 0.15, -hd + 0.12, 0.52, w / 2 - 0.15, -hd + 0.5, 0.62),  # pillow / duvet fold
     ]
 
 
 def _nightstand(rng):
     w, d, h = _u(rng, 0.4, 0.55), _u(rng, 0.35, 0.45), _u(rng, 0.45, 0.6)
     return w, d, [_box(-w / 2, -d / 2, 0.0, w / 2, d / 2, h),
-                  _box(-w / 2 + 0.04, d / 2 - 0.001, h * 0.55, w / 2 - 0.04, d / 2 + 0.01, h * 0.9, 0.8)]
+                  _box(-w / 2 + 0.04, d / 2 - 0.001, h * 0.55, w / 2 - 0.04, d / 2 + 0.01, h * 0.9)]
 
 
 def _wardrobe(rng):
     w, d, h = _u(rng, 0.9, 1.6), _u(rng, 0.55, 0.62), _u(rng, 1.9, 2.2)
     return w, d, [_box(-w / 2, -d / 2, 0.0, w / 2, d / 2, h),
-                  _box(-0.01, d / 2, 0.2, 0.01, d / 2 + 0.015, h - 0.2, 0.5)]
+                  _box(-0.01, d / 2, 0.2, 0.01, d / 2 + 0.015, h - 0.2)]
 
 
 def _chair(rng):
     w, d, seat = _u(rng, 0.42, 0.55), _u(rng, 0.42, 0.52), _u(rng, 0.42, 0.48)
     return w, d, _legs(w, d, seat - 0.04, 0.04) + [
         _box(-w / 2, -d / 2, seat - 0.04, w / 2, d / 2, seat),
-        _box(-w / 2, -d / 2, seat, w / 2, -d / 2 + 0.05, seat + _u(rng, 0.4, 0.5), 0.9),
+        _box(-w / 2, -d / 2, seat, w / 2, -d / 2 + 0.05, seat + _u(rng, 0.4, 0.5)),
     ]
 
 
@@ -119,9 +117,9 @@ def _armchair(rng):
     w, d = _u(rng, 0.75, 0.95), _u(rng, 0.75, 0.9)
     return w, d, [
         _box(-w / 2, -d / 2, 0.0, w / 2, d / 2, 0.42),
-        _box(-w / 2, -d / 2, 0.42, w / 2, -d / 2 + 0.18, 0.85, 0.9),
-        _box(-w / 2, -d / 2, 0.42, -w / 2 + 0.14, d / 2, 0.62, 0.85),
-        _box(w / 2 - 0.14, -d / 2, 0.42, w / 2, d / 2, 0.62, 0.85),
+        _box(-w / 2, -d / 2, 0.42, w / 2, -d / 2 + 0.18, 0.85),
+        _box(-w / 2, -d / 2, 0.42, -w / 2 + 0.14, d / 2, 0.62),
+        _box(w / 2 - 0.14, -d / 2, 0.42, w / 2, d / 2, 0.62),
     ]
 
 
@@ -138,8 +136,8 @@ def _desk(rng):
     w, d, h = _u(rng, 1.1, 1.5), _u(rng, 0.6, 0.75), _u(rng, 0.72, 0.76)
     return w, d, [
         _box(-w / 2, -d / 2, h - 0.04, w / 2, d / 2, h),
-        _box(-w / 2, -d / 2, 0.0, -w / 2 + 0.04, d / 2, h - 0.04, 0.7),
-        _box(w / 2 - 0.45, -d / 2, 0.0, w / 2, d / 2 - 0.05, h - 0.04, 0.85),  # drawer block
+        _box(-w / 2, -d / 2, 0.0, -w / 2 + 0.04, d / 2, h - 0.04),
+        _box(w / 2 - 0.45, -d / 2, 0.0, w / 2, d / 2 - 0.05, h - 0.04),  # drawer block
     ]
 
 
@@ -147,23 +145,23 @@ def _couch(rng):
     w, d = _u(rng, 1.8, 2.4), _u(rng, 0.85, 0.95)
     return w, d, [
         _box(-w / 2, -d / 2, 0.0, w / 2, d / 2, 0.42),
-        _box(-w / 2, -d / 2, 0.42, w / 2, -d / 2 + 0.22, 0.85, 0.9),
-        _box(-w / 2, -d / 2, 0.42, -w / 2 + 0.18, d / 2, 0.62, 0.85),
-        _box(w / 2 - 0.18, -d / 2, 0.42, w / 2, d / 2, 0.62, 0.85),
+        _box(-w / 2, -d / 2, 0.42, w / 2, -d / 2 + 0.22, 0.85),
+        _box(-w / 2, -d / 2, 0.42, -w / 2 + 0.18, d / 2, 0.62),
+        _box(w / 2 - 0.18, -d / 2, 0.42, w / 2, d / 2, 0.62),
     ]
 
 
 def _cabinet(rng):
     w, d, h = _u(rng, 0.8, 1.4), _u(rng, 0.4, 0.5), _u(rng, 0.5, 0.9)
     return w, d, [_box(-w / 2, -d / 2, 0.0, w / 2, d / 2, h),
-                  _box(-w / 2 + 0.03, d / 2, 0.08, -0.01, d / 2 + 0.01, h - 0.05, 0.85),
-                  _box(0.01, d / 2, 0.08, w / 2 - 0.03, d / 2 + 0.01, h - 0.05, 0.85)]
+                  _box(-w / 2 + 0.03, d / 2, 0.08, -0.01, d / 2 + 0.01, h - 0.05),
+                  _box(0.01, d / 2, 0.08, w / 2 - 0.03, d / 2 + 0.01, h - 0.05)]
 
 
 def _counter(rng):
     w, d = _u(rng, 1.2, 2.0), 0.6
     return w, d, [_box(-w / 2, -d / 2, 0.0, w / 2, d / 2, 0.86),
-                  _box(-w / 2, -d / 2, 0.86, w / 2, d / 2 + 0.02, 0.9, 1.0, (210, 210, 205))]
+                  _box(-w / 2, -d / 2, 0.86, w / 2, d / 2 + 0.02, 0.9)]
 
 
 def _shelf(rng):
@@ -173,84 +171,84 @@ def _shelf(rng):
               for i in range(n)]
     return w, d, boards + [_box(-w / 2, -d / 2, 0.0, -w / 2 + 0.03, d / 2, h),
                            _box(w / 2 - 0.03, -d / 2, 0.0, w / 2, d / 2, h),
-                           _box(-w / 2, -d / 2, 0.0, w / 2, -d / 2 + 0.02, h, 0.8)]
+                           _box(-w / 2, -d / 2, 0.0, w / 2, -d / 2 + 0.02, h)]
 
 
 def _tv(rng):
     w, h = _u(rng, 0.8, 1.2), _u(rng, 0.5, 0.7)
-    return w, 0.2, [_box(-0.15, -0.1, 0.0, 0.15, 0.1, 0.02, 0.7),
-                    _box(-0.03, -0.03, 0.02, 0.03, 0.03, 0.1, 0.7),
+    return w, 0.2, [_box(-0.15, -0.1, 0.0, 0.15, 0.1, 0.02),
+                    _box(-0.03, -0.03, 0.02, 0.03, 0.03, 0.1),
                     _box(-w / 2, -0.03, 0.1, w / 2, 0.03, 0.1 + h),
-                    _box(-w / 2 + 0.03, 0.03, 0.13, w / 2 - 0.03, 0.035, 0.07 + h, 1.0, (18, 20, 26))]
+                    _box(-w / 2 + 0.03, 0.03, 0.13, w / 2 - 0.03, 0.035, 0.07 + h)]
 
 
 def _computer(rng):
     w, h = _u(rng, 0.45, 0.6), _u(rng, 0.3, 0.38)
-    return w, 0.22, [_box(-0.12, -0.11, 0.0, 0.12, 0.07, 0.02, 0.8),
-                     _box(-0.03, -0.07, 0.02, 0.03, -0.03, 0.12, 0.8),
+    return w, 0.22, [_box(-0.12, -0.11, 0.0, 0.12, 0.07, 0.02),
+                     _box(-0.03, -0.07, 0.02, 0.03, -0.03, 0.12),
                      _box(-w / 2, -0.07, 0.12, w / 2, -0.03, 0.12 + h),
-                     _box(-w / 2 + 0.02, -0.03, 0.14, w / 2 - 0.02, -0.025, 0.10 + h, 1.0, (20, 24, 34)),
-                     _box(-0.22, 0.0, 0.0, 0.22, 0.11, 0.02, 0.9)]  # keyboard
+                     _box(-w / 2 + 0.02, -0.03, 0.14, w / 2 - 0.02, -0.025, 0.10 + h),
+                     _box(-0.22, 0.0, 0.0, 0.22, 0.11, 0.02)]  # keyboard
 
 
 def _plant(rng):
     p, h, f = _u(rng, 0.22, 0.34), _u(rng, 0.5, 1.3), _u(rng, 0.35, 0.6)
     return f, f, [_box(-p / 2, -p / 2, 0.0, p / 2, p / 2, 0.3),
-                  _box(-f / 2, -f / 2, 0.3, f / 2, f / 2, 0.3 + h, 1.0, (58, 120, 50))]
+                  _box(-f / 2, -f / 2, 0.3, f / 2, f / 2, 0.3 + h)]
 
 
 def _small_plant(rng):
     p, f = _u(rng, 0.12, 0.16), _u(rng, 0.2, 0.28)
     return f, f, [_box(-p / 2, -p / 2, 0.0, p / 2, p / 2, 0.14),
-                  _box(-f / 2, -f / 2, 0.14, f / 2, f / 2, 0.14 + _u(rng, 0.15, 0.3), 1.0, (66, 134, 56))]
+                  _box(-f / 2, -f / 2, 0.14, f / 2, f / 2, 0.14 + _u(rng, 0.15, 0.3))]
 
 
 def _floor_lamp(rng):
     h = _u(rng, 1.4, 1.7)
-    return 0.4, 0.4, [_box(-0.15, -0.15, 0.0, 0.15, 0.15, 0.03, 0.7),
-                      _box(-0.02, -0.02, 0.03, 0.02, 0.02, h - 0.3, 0.7),
-                      _box(-0.2, -0.2, h - 0.3, 0.2, 0.2, h, 1.2)]
+    return 0.4, 0.4, [_box(-0.15, -0.15, 0.0, 0.15, 0.15, 0.03),
+                      _box(-0.02, -0.02, 0.03, 0.02, 0.02, h - 0.3),
+                      _box(-0.2, -0.2, h - 0.3, 0.2, 0.2, h)]
 
 
 def _table_lamp(rng):
-    return 0.26, 0.26, [_box(-0.08, -0.08, 0.0, 0.08, 0.08, 0.04, 0.7),
-                        _box(-0.015, -0.015, 0.04, 0.015, 0.015, 0.3, 0.7),
-                        _box(-0.13, -0.13, 0.28, 0.13, 0.13, 0.48, 1.2)]
+    return 0.26, 0.26, [_box(-0.08, -0.08, 0.0, 0.08, 0.08, 0.04),
+                        _box(-0.015, -0.015, 0.04, 0.015, 0.015, 0.3),
+                        _box(-0.13, -0.13, 0.28, 0.13, 0.13, 0.48)]
 
 
 def _toilet(rng):
     return 0.42, 0.7, [_box(-0.19, -0.35, 0.0, 0.19, 0.3, 0.42),
                        _box(-0.21, -0.35, 0.42, 0.21, -0.15, 0.8),
-                       _box(-0.19, -0.12, 0.42, 0.19, 0.33, 0.45, 0.9)]
+                       _box(-0.19, -0.12, 0.42, 0.19, 0.33, 0.45)]
 
 
 def _sink(rng):
     w = _u(rng, 0.6, 0.9)
-    return w, 0.5, [_box(-w / 2, -0.25, 0.0, w / 2, 0.25, 0.8, 0.85),
-                    _box(-w / 2 + 0.08, -0.17, 0.8, w / 2 - 0.08, 0.2, 0.86, 1.1),
-                    _box(-0.02, -0.24, 0.86, 0.02, -0.12, 1.05, 0.6, (180, 180, 186))]  # faucet
+    return w, 0.5, [_box(-w / 2, -0.25, 0.0, w / 2, 0.25, 0.8),
+                    _box(-w / 2 + 0.08, -0.17, 0.8, w / 2 - 0.08, 0.2, 0.86),
+                    _box(-0.02, -0.24, 0.86, 0.02, -0.12, 1.05)]  # faucet
 
 
 def _fridge(rng):
     w, h = _u(rng, 0.6, 0.8), _u(rng, 1.7, 1.95)
     return w, 0.68, [_box(-w / 2, -0.34, 0.0, w / 2, 0.34, h),
-                     _box(w / 2 - 0.08, 0.34, h * 0.45, w / 2 - 0.05, 0.38, h * 0.85, 0.5)]
+                     _box(w / 2 - 0.08, 0.34, h * 0.45, w / 2 - 0.05, 0.38, h * 0.85)]
 
 
 def _stove(rng):
     return 0.6, 0.6, [_box(-0.3, -0.3, 0.0, 0.3, 0.3, 0.88),
-                      _box(-0.28, -0.28, 0.88, 0.28, 0.28, 0.9, 0.4),
-                      _box(-0.3, -0.3, 0.9, 0.3, -0.24, 1.05, 0.9)]
+                      _box(-0.28, -0.28, 0.88, 0.28, 0.28, 0.9),
+                      _box(-0.3, -0.3, 0.9, 0.3, -0.24, 1.05)]
 
 
 def _bathtub(rng):
     w = _u(rng, 1.5, 1.7)
-    return w, 0.75, [_box(-w / 2, -0.375, 0.0, w / 2, 0.375, 0.5, 1.0)]
+    return w, 0.75, [_box(-w / 2, -0.375, 0.0, w / 2, 0.375, 0.5)]
 
 
 def _microwave(rng):
     return 0.48, 0.36, [_box(-0.24, -0.18, 0.0, 0.24, 0.18, 0.28),
-                        _box(-0.2, 0.18, 0.04, 0.08, 0.185, 0.24, 1.0, (30, 32, 36))]
+                        _box(-0.2, 0.18, 0.04, 0.08, 0.185, 0.24)]
 
 
 def _picture(rng):
@@ -307,12 +305,12 @@ def rotate_box(bmin, bmax, quarter_turns: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def place_parts(parts: list[Part], xy: tuple[float, float], z0: float, quarter_turns: int):
-    """World boxes ``[(min, max, tone, fixed_rgb)]`` of local parts rotated and moved to ``xy``, base at ``z0``."""
+    """World boxes ``[(min (3,), max (3,))]`` of local parts rotated by quarter turns, moved to ``xy``, base at ``z0``."""
     out = []
     off = np.array([xy[0], xy[1], z0])
     for p in parts:
         lo, hi = rotate_box(p.min, p.max, quarter_turns)
-        out.append((np.round(lo + off, 4), np.round(hi + off, 4), p.tone, p.fixed_rgb))
+        out.append((np.round(lo + off, 4), np.round(hi + off, 4)))
     return out
 
 

@@ -1,0 +1,202 @@
+"""The reader family: one interface for every raw format, a registry, and format detection.
+
+A :class:`Reader` turns a raw log or dataset folder into
+
+- a :class:`SourceInfo` (intrinsics, the pose chain, provenance, ground truth) from :meth:`Reader.open`;
+- a time-ordered stream of :class:`Sample` from :meth:`Reader.samples`: colour, depth and instance
+  images (decoded lazily) and pose-link samples, each with its own stamp and message index.
+
+The shared :mod:`pipeline.readers.matcher` consumes that stream whatever the format, so every
+reader gets the same timestamp matching, tolerance, interpolation and unmatched-frame report.
+Add a format by writing one file with a ``@register("name")`` subclass and importing it in
+``pipeline/readers/__init__.py``.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from decimal import Decimal, InvalidOperation
+from pathlib import Path
+from typing import Any, Callable, ClassVar, Iterator
+
+import numpy as np
+
+from pipeline.config import IngestParams
+from pipeline.errors import InputDataError, MissingInputError
+from pipeline.geometry import Intrinsics, pose_from_tq
+
+# Stream names of samples.
+RGB, DEPTH, INSTANCE, POSE = "rgb", "depth", "instance", "pose"
+IMAGE_STREAMS = (RGB, DEPTH, INSTANCE)
+# A quaternion whose norm is further than this from 1 is malformed (not silently normalised).
+QUAT_NORM_TOL = 1e-3
+
+
+@dataclass
+class Sample:
+    """One message of one stream.
+
+    ``payload``: for images an array or a zero-argument callable returning it (decoded only when the
+    frame is matched): colour ``(H,W,3)`` uint8 RGB, depth ``(H,W)`` uint16 mm or float32 metres
+    (NaN/inf/0 = invalid), instance ``(H,W)`` uint16; for poses a ``(4,4)`` float64 transform of
+    pose link ``key`` (parent -> child, see :class:`PoseLink`).
+    ``index`` is the 0-based message index within its stream (the "frame" errors name).
+    """
+
+    stream: str
+    stamp_ns: int
+    index: int
+    payload: Any
+    key: str = ""
+    rigid: bool = False  # a pose known rigid by construction (from a checked quaternion): skip the matrix check
+
+    def array(self) -> np.ndarray:
+        if callable(self.payload):
+            self.payload = self.payload()
+        return self.payload
+
+
+@dataclass(frozen=True)
+class PoseLink:
+    """One link of the chain world -> camera. ``static`` holds the transform of a fixed link;
+    dynamic links get :class:`Sample` s of stream ``pose`` with ``key == name``."""
+
+    parent: str
+    child: str
+    static: np.ndarray | None = None
+
+    @property
+    def name(self) -> str:
+        return f"{self.parent}->{self.child}"
+
+
+@dataclass
+class SourceInfo:
+    """What a reader knows before streaming.
+
+    ``pose_chain`` composes left to right into ``T_world_camera`` (OpenCV optical camera, z-up world).
+    ``where`` maps each stream (and pose link) to the topic or file it comes from, for messages.
+    """
+
+    intrinsics: Intrinsics
+    has_instance: bool
+    pose_chain: list[PoseLink]
+    where: dict[str, str]
+    provenance: dict = field(default_factory=dict)
+    ground_truth: dict | None = None
+
+
+class Reader(ABC):
+    """A raw format. Subclasses are registered with :func:`register` and built by :func:`open_reader`."""
+
+    name: ClassVar[str]
+
+    def __init__(self, path: Path, params: IngestParams):
+        self.path = Path(path)
+        self.params = params
+
+    @classmethod
+    @abstractmethod
+    def detect(cls, path: Path) -> bool:
+        """Whether ``path`` looks like this format (cheap: names and magic bytes only)."""
+
+    @abstractmethod
+    def open(self) -> SourceInfo:
+        """Validate the source's layout and return what is known before streaming."""
+
+    @abstractmethod
+    def samples(self) -> Iterator[Sample]:
+        """Every message, ordered by time; within a stream (pose link) stamps must strictly increase."""
+
+
+READERS: dict[str, type[Reader]] = {}
+
+
+def register(name: str) -> Callable[[type[Reader]], type[Reader]]:
+    def deco(cls: type[Reader]) -> type[Reader]:
+        cls.name = name
+        READERS[name] = cls
+        return cls
+
+    return deco
+
+
+def detect_format(path: Path) -> str:
+    """Name of the reader whose :meth:`Reader.detect` accepts ``path``; errors list what was tried."""
+    path = Path(path)
+    if not path.exists():
+        raise MissingInputError(f"{path}: raw data not found")
+    found = [name for name, cls in READERS.items() if cls.detect(path)]
+    if len(found) == 1:
+        return found[0]
+    if not found:
+        raise InputDataError("cannot tell the format of this path", path=path,
+                             expected="a ROS 2 .mcap file (or rosbag2 folder holding one), a TUM RGB-D folder "
+                                      "(rgb.txt, depth.txt), a 7-Scenes folder (frame-*.color.png) or a navchat "
+                                      "recording (rgb/, depth/*.npy, pose/); or set the scene's format")
+    raise InputDataError(f"path matches several formats {found}", path=path, expected="set the scene's format")
+
+
+def open_reader(path: Path, params: IngestParams, fmt: str = "auto") -> Reader:
+    """The reader for ``path`` (``fmt`` a registry name or 'auto')."""
+    name = detect_format(path) if fmt == "auto" else fmt
+    if name not in READERS:
+        raise InputDataError(f"unknown format {name!r}", path=path, expected=f"one of {sorted(READERS)} or 'auto'")
+    return READERS[name](Path(path), params)
+
+
+# ----------------------------------------------------------------------------- helpers for readers
+
+def parse_stamp_ns(text: str, *, path=None, line: int | None = None) -> int:
+    """Seconds as decimal text ('1305031229.528748') -> int nanoseconds, without float rounding."""
+    try:
+        return int((Decimal(text) * 1_000_000_000).to_integral_value())
+    except InvalidOperation:
+        raise InputDataError(f"timestamp {text!r} is not a number", path=path, field=f"line {line}" if line else None,
+                             expected="seconds, e.g. 1305031229.528748") from None
+
+
+def pose_from_tq_checked(values, *, path=None, topic=None, frame: int | None = None, field=None) -> np.ndarray:
+    """``(4,4)`` from ``tx ty tz qx qy qz qw``; NaN or a non-unit quaternion raise :class:`InputDataError`."""
+    v = np.asarray(values, dtype=np.float64)
+    where = {"path": path, "topic": topic, "frame": frame, "field": field}
+    if v.shape != (7,) or not np.isfinite(v).all():
+        raise InputDataError(f"pose {v.tolist()} is not 7 finite numbers", **where,
+                             expected="tx ty tz qx qy qz qw, finite")
+    norm = float(np.linalg.norm(v[3:]))
+    if abs(norm - 1.0) > QUAT_NORM_TOL:
+        raise InputDataError(f"pose quaternion has norm {norm:.6f}: not a rotation", **where,
+                             expected=f"a unit quaternion (norm within {QUAT_NORM_TOL} of 1)")
+    return pose_from_tq(v[:3], v[3:] / norm)
+
+
+def frame_stamps_ns(indices: np.ndarray, fps: float) -> np.ndarray:
+    """Synthesised stamps for datasets without time: frame index / ``fps``, int64 ns."""
+    return np.round(np.asarray(indices, dtype=np.float64) * (1e9 / fps)).astype(np.int64)
+
+
+def native_intrinsics(fx: float, fy: float, cx: float, cy: float, first_image: Path, what: str
+                      ) -> tuple[Intrinsics, str]:
+    """Published 640x480 intrinsics, rescaled when the dataset's images (``first_image``) are resampled."""
+    import cv2
+
+    base = Intrinsics(fx, fy, cx, cy, 640, 480)
+    img = read_image(first_image, flags=cv2.IMREAD_COLOR, frame=0, what="colour")
+    h, w = img.shape[:2]
+    if (w, h) == (640, 480):
+        return base, f"{what}: {base.to_dict()}"
+    scaled = base.scaled(w, h)
+    return scaled, f"{what} for 640x480, rescaled to the images' {w}x{h}: {scaled.to_dict()}"
+
+
+def read_image(path: Path, *, flags: int, frame: int, what: str) -> np.ndarray:
+    """Load an image file with OpenCV; unreadable files raise :class:`InputDataError`."""
+    import cv2
+
+    img = cv2.imread(str(path), flags)
+    if img is None:
+        raise InputDataError(f"{what} image could not be read", path=path, frame=frame, expected="a PNG/JPEG image")
+    if img.ndim == 3:
+        img = np.ascontiguousarray(img[..., [2, 1, 0]])
+    return img

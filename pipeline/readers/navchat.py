@@ -1,0 +1,115 @@
+"""navchat (ORION reference code) recordings.
+
+Layout (one scene per folder): ``rgb/{scene}_{i}.png`` (RGB), ``depth/{scene}_{i}.npy`` (uint16 mm),
+``semantic/{scene}_{i}.npy`` (instance ids, optional), ``pose/{scene}_{i}.txt`` one line of 7 numbers:
+the agent *base* pose in Habitat's world (y up, -z forward). The camera sits
+``ingest.navchat_camera_height_m`` above the base; hfov 90 deg (fx = fy = 320, cx = 320, cy = 240 at
+640x480) unless ``ingest.camera_override``. Stamps are synthesised as ``i / ingest.folder_fps``.
+
+Quaternion quirk: navchat writes ``quaternion.as_float_array(q)[::-1]``, i.e. numpy-quaternion's
+``(w, x, y, z)`` reversed to ``(z, y, x, w)``, and its loader reads that as ``(x, y, z, w)`` -- right
+only for yaw-only motion. We undo the reversal: file ``a b c d`` -> ``(qx, qy, qz, qw) = (c, b, a, d)``
+(identical to navchat for yaw-only poses, correct for any other).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Iterator
+
+import cv2
+import numpy as np
+
+from pipeline.errors import InputDataError
+from pipeline.geometry import Intrinsics, habitat_to_world
+from pipeline.readers.base import (DEPTH, INSTANCE, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, frame_stamps_ns,
+                                   pose_from_tq_checked, read_image, register)
+
+NAVCHAT_HFOV_DEG = 90.0
+_RGB = re.compile(r"^(.+)_(\d+)\.png$")
+
+
+@register("navchat")
+class NavchatReader(Reader):
+    """See the module doc."""
+
+    @classmethod
+    def detect(cls, path: Path) -> bool:
+        return (path.is_dir() and (path / "rgb").is_dir() and (path / "pose").is_dir()
+                and next((path / "depth").glob("*.npy"), None) is not None)
+
+    def open(self) -> SourceInfo:
+        found = [(m.group(1), int(m.group(2))) for p in (self.path / "rgb").iterdir() if (m := _RGB.match(p.name))]
+        scenes = sorted({s for s, _ in found})
+        if len(scenes) != 1:
+            raise InputDataError(f"rgb/ holds scenes {scenes}", path=self.path / "rgb",
+                                 expected="files rgb/{scene}_{i}.png of exactly one scene")
+        self.scene = scenes[0]
+        self.ids = sorted(i for _, i in found)
+        self.has_instance = (self.path / "semantic").is_dir()
+        for k, i in enumerate(self.ids):
+            for sub, ext in (("depth", "npy"), ("pose", "txt")) + ((("semantic", "npy"),) if self.has_instance else ()):
+                f = self._file(sub, i, ext)
+                if not f.is_file():
+                    raise InputDataError(f"rgb/{self.scene}_{i}.png has no {sub} file", path=f, frame=k,
+                                         expected="depth, pose (and semantic) files for every rgb frame")
+        self.stamps = frame_stamps_ns(np.array(self.ids), self.params.folder_fps)
+        first = read_image(self._file("rgb", self.ids[0], "png"), flags=cv2.IMREAD_COLOR, frame=0, what="colour")
+        h, w = first.shape[:2]
+        o = self.params.camera_override
+        # hfov 90 deg: f = (w / 2) / tan(45 deg) = w / 2 exactly (from_hfov would leave 320.00000000000006)
+        intr = Intrinsics(o.fx, o.fy, o.cx, o.cy, w, h) if o else Intrinsics(w / 2.0, w / 2.0, w / 2.0, h / 2.0, w, h)
+        self.h_cam = self.params.navchat_camera_height_m
+        return SourceInfo(
+            intrinsics=intr, has_instance=self.has_instance, pose_chain=[PoseLink("world", "camera")],
+            where={RGB: "rgb/", DEPTH: "depth/", INSTANCE: "semantic/", "world->camera": "pose/"},
+            provenance={
+                "scene": self.scene, "frames": len(self.ids),
+                "conversions": [
+                    f"intrinsics: {'ingest.camera_override' if o else f'hfov {NAVCHAT_HFOV_DEG} deg'}: "
+                    f"{intr.to_dict()}",
+                    f"stamps: synthesised as frame number / ingest.folder_fps ({self.params.folder_fps} Hz)",
+                    "pose: file 'x y z a b c d' with (a, b, c, d) = reversed (w, x, y, z) -> q_xyzw = (c, b, a, d)",
+                    f"pose: Habitat base (y up) -> camera {self.h_cam} m above the base, OpenCV optical, z-up world "
+                    "(pipeline.geometry.habitat_to_world)",
+                    "depth: uint16 mm kept; semantic ids -> uint16 instance",
+                ],
+            },
+        )
+
+    def _file(self, sub: str, i: int, ext: str) -> Path:
+        return self.path / sub / f"{self.scene}_{i}.{ext}"
+
+    def samples(self) -> Iterator[Sample]:
+        for k, (i, stamp) in enumerate(zip(self.ids, self.stamps.tolist())):
+            yield Sample(POSE, stamp, k, self._pose(self._file("pose", i, "txt"), k), key="world->camera", rigid=True)
+            yield Sample(RGB, stamp, k, lambda f=self._file("rgb", i, "png"), k=k:
+                         read_image(f, flags=cv2.IMREAD_COLOR, frame=k, what="colour"))
+            yield Sample(DEPTH, stamp, k, lambda f=self._file("depth", i, "npy"), k=k: self._npy(f, k, "depth"))
+            if self.has_instance:
+                yield Sample(INSTANCE, stamp, k, lambda f=self._file("semantic", i, "npy"), k=k:
+                             self._npy(f, k, "semantic"))
+
+    def _pose(self, file: Path, k: int) -> np.ndarray:
+        try:
+            v = [float(x) for x in file.read_text().split()]
+        except ValueError as err:
+            raise InputDataError(f"pose is not numeric ({err})", path=file, frame=k,
+                                 expected="x y z a b c d") from None
+        if len(v) != 7:
+            raise InputDataError(f"pose has {len(v)} numbers", path=file, frame=k, expected="7: x y z a b c d")
+        a, b, c, d = v[3:]
+        T_hab_base = pose_from_tq_checked(v[:3] + [c, b, a, d], path=file, frame=k)
+        return habitat_to_world(T_hab_base, self.h_cam)
+
+    @staticmethod
+    def _npy(file: Path, k: int, what: str) -> np.ndarray:
+        arr = np.load(file, allow_pickle=False)
+        if arr.ndim == 3 and arr.shape[-1] == 1:
+            arr = arr[..., 0]
+        integral = np.issubdtype(arr.dtype, np.integer)
+        if arr.ndim != 2 or not integral or arr.min(initial=0) < 0 or arr.max(initial=0) > 65535:
+            raise InputDataError(f"{what} array is {arr.dtype}{arr.shape}", path=file, frame=k,
+                                 expected=f"(H,W) integers in 0..65535 ({'mm' if what == 'depth' else 'instance ids'})")
+        return arr.astype(np.uint16)

@@ -1,0 +1,124 @@
+"""TUM RGB-D benchmark folders (Sturm et al., IROS 2012).
+
+Layout: ``rgb.txt`` / ``depth.txt`` (``timestamp filename``), ``groundtruth.txt`` (``timestamp tx ty tz
+qx qy qz qw``: the optical camera in the motion-capture world, camera-to-world), ``rgb/*.png``
+640x480 RGB, ``depth/*.png`` uint16 with 5000 units per metre (0 = invalid). Lines starting with
+``#`` are comments. Intrinsics: the published fr1/fr2/fr3 values (distortion ignored), chosen by
+``ingest.tum_camera`` ('auto': from the folder name, default fr1) or ``ingest.camera_override``.
+"""
+
+from __future__ import annotations
+
+import heapq
+import re
+from pathlib import Path
+from typing import Iterator
+
+import cv2
+import numpy as np
+
+from pipeline.errors import InputDataError
+from pipeline.geometry import Intrinsics
+from pipeline.readers.base import (DEPTH, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, parse_stamp_ns,
+                                   native_intrinsics, pose_from_tq_checked, read_image, register)
+
+# (fx, fy, cx, cy) published for each Kinect of the benchmark, 640x480.
+TUM_INTRINSICS = {"fr1": (517.3, 516.5, 318.6, 255.3), "fr2": (520.9, 521.0, 325.1, 249.7),
+                  "fr3": (535.4, 539.2, 320.1, 247.6)}
+TUM_DEPTH_PER_M = 5000.0
+
+
+def _table(path: Path, columns: int) -> list[tuple[int, int, list[str]]]:
+    """Non-comment lines -> ``(line_no, stamp_ns, rest)``; checks column counts."""
+    if not path.is_file():
+        raise InputDataError("index file is missing", path=path, expected="the TUM RGB-D layout")
+    rows = []
+    for no, line in enumerate(path.read_text().splitlines(), start=1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        parts = line.split()
+        if len(parts) != columns:
+            raise InputDataError(f"line has {len(parts)} columns", path=path, field=f"line {no}",
+                                 expected=f"{columns} columns")
+        rows.append((no, parse_stamp_ns(parts[0], path=path, line=no), parts[1:]))
+    return rows
+
+
+def tum_depth_to_mm(raw: np.ndarray) -> np.ndarray:
+    """uint16 at 5000 per metre -> uint16 millimetres (round half up; 0 stays 0)."""
+    return ((raw.astype(np.uint32) + 2) // 5).astype(np.uint16)
+
+
+@register("tum")
+class TumReader(Reader):
+    """See the module doc."""
+
+    @classmethod
+    def detect(cls, path: Path) -> bool:
+        return path.is_dir() and (path / "rgb.txt").is_file() and (path / "depth.txt").is_file()
+
+    def _intrinsics(self) -> tuple[Intrinsics, str]:
+        first = self.path / self.rows[RGB][0][2][0]
+        o = self.params.camera_override
+        if o is not None:
+            return native_intrinsics(o.fx, o.fy, o.cx, o.cy, first, "ingest.camera_override")
+        cam = self.params.tum_camera
+        if cam == "auto":
+            m = re.search(r"(?:freiburg|fr)([123])", self.path.resolve().name.lower())
+            cam = f"fr{m.group(1)}" if m else "fr1"
+        return native_intrinsics(*TUM_INTRINSICS[cam], first, f"TUM {cam} (published, distortion ignored)")
+
+    def open(self) -> SourceInfo:
+        self.rows = {}
+        for stream, name in ((RGB, "rgb.txt"), (DEPTH, "depth.txt")):
+            rows = _table(self.path / name, 2)
+            for k, (no, _, rest) in enumerate(rows):
+                if not (self.path / rest[0]).is_file():
+                    raise InputDataError(f"{name} line {no} lists a missing file", path=self.path / rest[0],
+                                         field=f"{name} line {no}", frame=k, expected="the image file to exist")
+            self.rows[stream] = rows
+        self.rows[POSE] = _table(self.path / "groundtruth.txt", 8)
+        if not self.rows[RGB]:
+            raise InputDataError("no frames listed", path=self.path / "rgb.txt", expected="timestamp filename lines")
+        intr, how = self._intrinsics()
+        self.intrinsics = intr
+        return SourceInfo(
+            intrinsics=intr, has_instance=False, pose_chain=[PoseLink("world", "camera")],
+            where={RGB: "rgb.txt", DEPTH: "depth.txt", "world->camera": "groundtruth.txt"},
+            provenance={
+                "files": {"rgb": "rgb.txt", "depth": "depth.txt", "pose": "groundtruth.txt"},
+                "conversions": [
+                    f"intrinsics: {how}",
+                    "depth: png / 5000 m -> uint16 mm, rounded ((v + 2) // 5)",
+                    "pose: groundtruth tx ty tz qx qy qz qw is camera(optical)-to-world already; world = mocap frame",
+                    "stamps: decimal seconds -> int ns (exact)",
+                ],
+            },
+        )
+
+    def samples(self) -> Iterator[Sample]:
+        def images(stream: str, name: str):
+            for k, (no, stamp, rest) in enumerate(self.rows[stream]):
+                file = self.path / rest[0]
+                if stream == RGB:
+                    load = (lambda f=file, k=k: read_image(f, flags=cv2.IMREAD_COLOR, frame=k, what="colour"))
+                else:
+                    load = (lambda f=file, k=k: tum_depth_to_mm(self._depth(f, k)))
+                yield Sample(stream, stamp, k, load)
+
+        def poses():
+            for k, (no, stamp, rest) in enumerate(self.rows[POSE]):
+                T = pose_from_tq_checked([float(x) for x in rest], path=self.path / "groundtruth.txt",
+                                         field=f"line {no}", frame=k)
+                yield Sample(POSE, stamp, k, T, key="world->camera", rigid=True)
+
+        yield from heapq.merge(images(RGB, "rgb.txt"), images(DEPTH, "depth.txt"), poses(), key=lambda s: s.stamp_ns)
+
+    @staticmethod
+    def _depth(file: Path, k: int) -> np.ndarray:
+        img = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
+        if img is None or img.dtype != np.uint16 or img.ndim != 2:
+            raise InputDataError("depth image is not a single-channel 16-bit PNG", path=file, frame=k,
+                                 expected="uint16 depth at 5000 per metre")
+        return img

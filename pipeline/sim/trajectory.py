@@ -1,0 +1,207 @@
+"""Exploration-like camera trajectories on a ground-truth scene, in navchat's action space.
+
+The robot starts with a 360 degree spin in the living room, then visits every room (nearest
+unvisited room next, geodesic shortest paths on the free grid) and spins in place inside each;
+moves are 0.25 m forward steps and 15 degree turns. If the tour has fewer actions than the
+requested frames, further viewpoints per room are added. The action sequence is then stretched
+over the recording time so that exactly ``frames`` frames sample it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from pipeline.errors import StageError
+from pipeline.geometry import GridSpec, camera_pose_from_base, interpolate_poses
+from pipeline.scene_gt import GTScene
+from pipeline.sim.topdown import scene_grid
+
+STEP_M = 0.25
+TURN_RAD = np.deg2rad(15.0)
+CELL_M = 0.05
+BODY_Z = (0.05, 1.5)  # heights that block the robot's body, metres above the floor
+
+
+@dataclass
+class FreeSpace:
+    """Navigable cells of a scene for a robot of ``radius_m``."""
+
+    grid: GridSpec
+    clearance_m: np.ndarray  # (rows, cols) float distance to the nearest obstacle / outside
+    navigable: np.ndarray  # (rows, cols) bool
+    room_of_cell: np.ndarray  # (rows, cols) int16 room index, -1 outside rooms
+
+    def is_navigable(self, xy: np.ndarray) -> np.ndarray:
+        rc = self.grid.world_to_cell(xy)
+        ok = self.grid.inside(rc)
+        rc = np.clip(rc, 0, [self.grid.rows - 1, self.grid.cols - 1])
+        return ok & self.navigable[rc[..., 0], rc[..., 1]]
+
+
+def free_space(gt: GTScene, radius_m: float) -> FreeSpace:
+    """Floor minus walls and object parts in the body height band, eroded by ``radius_m``."""
+    grid = scene_grid(gt, CELL_M)
+    free = gt.floor_mask(grid) & ~gt.occupancy(grid, *BODY_Z)
+    clearance = ndimage.distance_transform_edt(free) * CELL_M
+    room = np.full((grid.rows, grid.cols), -1, np.int16)
+    centres = grid.cell_to_world(np.stack(np.mgrid[0:grid.rows, 0:grid.cols], axis=-1))
+    for k, r in enumerate(gt.rooms):
+        p = np.asarray(r.polygon)
+        inside = ((centres[..., 0] > p[:, 0].min()) & (centres[..., 0] < p[:, 0].max())
+                  & (centres[..., 1] > p[:, 1].min()) & (centres[..., 1] < p[:, 1].max()))
+        room[inside] = k
+    return FreeSpace(grid, clearance, clearance > radius_m, room)
+
+
+def _graph(fs: FreeSpace) -> tuple[csr_matrix, np.ndarray]:
+    """8-connected graph over navigable cells (edge weights in metres); returns it and cell -> node."""
+    nav = fs.navigable
+    node = np.full(nav.shape, -1, np.int64)
+    node[nav] = np.arange(int(nav.sum()))
+    rows, cols, weights = [], [], []
+    R, C = nav.shape
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        a = node[0:R - dr, max(0, -dc):C - max(0, dc)]
+        b = node[dr:R, max(0, dc):C - max(0, -dc)]
+        ok = (a >= 0) & (b >= 0)
+        rows.append(a[ok]), cols.append(b[ok])
+        weights.append(np.full(int(ok.sum()), CELL_M * np.hypot(dr, dc)))
+    r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
+    n = int(nav.sum())
+    g = csr_matrix((np.concatenate([w, w]), (np.concatenate([r, c]), np.concatenate([c, r]))), shape=(n, n))
+    return g, node
+
+
+def room_viewpoints(fs: FreeSpace, room: int, count: int) -> list[np.ndarray]:
+    """Up to ``count`` spots of a room: the most open one first, then farthest-point picks."""
+    cells = np.argwhere(fs.navigable & (fs.room_of_cell == room))
+    if len(cells) == 0:
+        return []
+    clear = fs.clearance_m[cells[:, 0], cells[:, 1]]
+    picks = [int(np.argmax(clear))]
+    dist = np.full(len(cells), np.inf)
+    for _ in range(count - 1):
+        dist = np.minimum(dist, np.hypot(*(cells - cells[picks[-1]]).T) * CELL_M)
+        score = np.where(clear > 0.35, dist, -1.0)
+        if score.max() < 1.0:
+            break
+        picks.append(int(np.argmax(score)))
+    return [fs.grid.cell_to_world(cells[i]) for i in picks]
+
+
+def _string_pull(fs: FreeSpace, pts: np.ndarray) -> list[np.ndarray]:
+    """Keep only the waypoints needed for straight, navigable segments."""
+    out = [pts[0]]
+    i = 0
+    while i < len(pts) - 1:
+        j = len(pts) - 1
+        while j > i + 1:
+            seg = np.linspace(pts[i], pts[j], int(np.hypot(*(pts[j] - pts[i])) / 0.025) + 2)
+            if fs.is_navigable(seg).all():
+                break
+            j -= 1
+        out.append(pts[j])
+        i = j
+    return out
+
+
+class _Walker:
+    """Turns and steps toward waypoints; records (x, y, yaw) after every action."""
+
+    def __init__(self, fs: FreeSpace, xy: np.ndarray, yaw_steps: int = 0):
+        self.fs, self.xy, self.k = fs, np.asarray(xy, float), yaw_steps
+        self.states = [(self.xy[0], self.xy[1], self.k * TURN_RAD)]
+
+    def _record(self):
+        self.states.append((self.xy[0], self.xy[1], self.k * TURN_RAD))
+
+    def spin(self):
+        for _ in range(24):
+            self.k += 1
+            self._record()
+
+    def go(self, target: np.ndarray):
+        for _ in range(4000):
+            delta = target - self.xy
+            dist = float(np.hypot(*delta))
+            if dist < STEP_M / 2:
+                return
+            want = np.arctan2(delta[1], delta[0])
+            diff = int(np.round((want - self.k * TURN_RAD) / TURN_RAD))
+            diff = (diff + 12) % 24 - 12
+            if diff != 0:
+                self.k += int(np.sign(diff))
+                self._record()
+                continue
+            yaw = self.k * TURN_RAD
+            nxt = self.xy + min(STEP_M, dist) * np.array([np.cos(yaw), np.sin(yaw)])
+            if not self.fs.is_navigable(nxt):  # the quantised heading would graze an obstacle
+                nxt = self.xy + min(STEP_M, dist) * delta / dist
+            self.xy = nxt
+            self._record()
+        raise StageError(f"trajectory: could not reach waypoint {target.round(2).tolist()}")
+
+
+def plan_actions(gt: GTScene, radius_m: float, min_actions: int) -> tuple[np.ndarray, list[str]]:
+    """``(A+1, 3)`` states (x, y, yaw) after each action, and the room ids in visiting order."""
+    fs = free_space(gt, radius_m)
+    graph, node = _graph(fs)
+    n_rooms = len(gt.rooms)
+    views = [room_viewpoints(fs, k, 6) for k in range(n_rooms)]
+    missing = [gt.rooms[k].id for k in range(n_rooms) if not views[k]]
+    if missing:
+        raise StageError(f"scene {gt.name}: no navigable spot in rooms {missing}")
+    start_room = max(range(n_rooms), key=lambda k: np.ptp(np.asarray(gt.rooms[k].polygon), axis=0).prod())
+    walker = _Walker(fs, views[start_room][0])
+    walker.spin()
+    visited = [gt.rooms[start_room].id]
+    queue = [(k, 0) for k in range(n_rooms) if k != start_room]
+    level = 0
+    while queue:
+        here = fs.grid.world_to_cell(walker.xy)
+        dist, pred = dijkstra(graph, indices=int(node[here[0], here[1]]), return_predecessors=True)
+        # The nearest queued viewpoint (geodesically) is next.
+        cands = [(dist[node[tuple(fs.grid.world_to_cell(views[k][v]))]], k, v) for k, v in queue]
+        d, k, v = min(cands)
+        if not np.isfinite(d):
+            raise StageError(f"scene {gt.name}: room {gt.rooms[k].id} is not reachable from {visited[0]}")
+        queue.remove((k, v))
+        goal = int(node[tuple(fs.grid.world_to_cell(views[k][v]))])
+        path = [goal]
+        while path[-1] != node[here[0], here[1]]:
+            path.append(int(pred[path[-1]]))
+        cells = np.argwhere(node >= 0)[np.argsort(node[node >= 0])][path[::-1]]
+        pts = fs.grid.cell_to_world(cells)
+        pts[0] = walker.xy
+        for wp in _string_pull(fs, pts)[1:]:
+            walker.go(wp)
+        walker.spin()
+        visited.append(gt.rooms[k].id)
+        if not queue and len(walker.states) - 1 < min_actions:
+            level += 1  # another round through the rooms' next viewpoints
+            queue = [(k2, level) for k2 in range(n_rooms) if len(views[k2]) > level]
+            if not queue:
+                level = 0
+                queue = [(k2, 0) for k2 in range(n_rooms)]
+    return np.asarray(walker.states), visited
+
+
+def sample_trajectory(states: np.ndarray, frames: int, fps: float, camera_height_m: float,
+                      start_ns: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Stretch the action states over ``frames`` frames at ``fps``.
+
+    Returns key stamps ``(A+1,)`` int64 ns and key poses ``(A+1,4,4)`` (one per action boundary,
+    spanning the recording), and frame stamps ``(frames,)`` and frame poses ``(frames,4,4)``.
+    """
+    duration_ns = int(round((frames - 1) / fps * 1e9))
+    n = len(states)
+    key_ns = start_ns + np.round(np.linspace(0, duration_ns, n)).astype(np.int64)
+    key_poses = np.stack([camera_pose_from_base(x, y, yaw, camera_height_m) for x, y, yaw in states])
+    frame_ns = start_ns + np.round(np.arange(frames) * 1e9 / fps).astype(np.int64)
+    frame_ns[-1] = key_ns[-1]
+    return key_ns, key_poses, frame_ns, interpolate_poses(key_ns, key_poses, frame_ns)

@@ -1,0 +1,103 @@
+"""The reader contract: every registered reader runs the same round trip (known arrays -> raw format ->
+frames.zarr) plus format detection."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.config import IngestParams
+from pipeline.errors import InputDataError, MissingInputError
+from pipeline.frames import FrameStore
+from pipeline.readers import READERS, detect_format, open_reader
+from stages.ingest import ingest_path
+from tests.fixtures.raw_datasets import (make_recording, navchat_expected_poses, write_7scenes, write_mcap,
+                                         write_navchat, write_tum)
+
+
+@dataclass
+class Case:
+    path: Path
+    rgb: np.ndarray
+    depth_mm: np.ndarray
+    instance: np.ndarray | None
+    poses: np.ndarray
+    stamps: np.ndarray
+    pose_tol: float
+
+
+def _mcap(tmp: Path) -> Case:
+    rec = make_recording(6)
+    return Case(write_mcap(tmp / "log.mcap", rec), rec.rgb, rec.depth_mm, rec.instance, rec.poses, rec.stamps, 1e-9)
+
+
+def _tum(tmp: Path) -> Case:
+    rec = make_recording(6)
+    # poses come at 3x the camera rate, so the reader's frames are interpolated (smooth path: ~1e-4 m).
+    return Case(write_tum(tmp, rec), rec.rgb, rec.depth_mm, None, rec.poses, rec.stamps, 2e-3)
+
+
+def _7scenes(tmp: Path) -> Case:
+    rec = make_recording(6)
+    stamps = np.round(np.arange(6) * 1e9 / 30.0).astype(np.int64)
+    return Case(write_7scenes(tmp, rec), rec.rgb, rec.depth_mm, None, rec.poses, stamps, 1e-12)
+
+
+def _navchat(tmp: Path) -> Case:
+    rec = make_recording(6)
+    stamps = np.round(np.arange(6) * 1e9 / 30.0).astype(np.int64)
+    return Case(write_navchat(tmp, rec), rec.rgb, rec.depth_mm, rec.instance, navchat_expected_poses(6), stamps, 1e-9)
+
+
+FACTORIES = {"mcap": _mcap, "tum": _tum, "7scenes": _7scenes, "navchat": _navchat}
+
+
+def test_every_reader_has_a_contract_case():
+    assert set(FACTORIES) == set(READERS)
+
+
+@pytest.mark.parametrize("fmt", sorted(FACTORIES))
+class TestReaderContract:
+    def test_detects_its_format(self, fmt, tmp_path):
+        case = FACTORIES[fmt](tmp_path)
+        assert detect_format(case.path) == fmt
+        assert open_reader(case.path, IngestParams()).name == fmt
+
+    def test_round_trip(self, fmt, tmp_path):
+        case = FACTORIES[fmt](tmp_path)
+        out = tmp_path / "frames.zarr"
+        summary = ingest_path(case.path, out, IngestParams(block_frames=4), log=lambda m: None)
+        fs = FrameStore(out)
+        n = len(case.stamps)
+        assert summary["matched_frames"] == fs.n_frames == n
+        assert all(not reasons for reasons in summary["unmatched"].values())
+        assert np.array_equal(fs.group["rgb"][:], case.rgb)
+        assert np.array_equal(fs.group["depth"][:], case.depth_mm)
+        assert np.array_equal(fs.stamps(), case.stamps)
+        assert np.abs(fs.poses() - case.poses).max() <= case.pose_tol
+        assert fs.has_instance == (case.instance is not None)
+        if case.instance is not None:
+            assert np.array_equal(fs.group["instance"][:], case.instance)
+        prov = fs.attrs["provenance"]
+        assert prov["format"] == fmt and prov["conversions"]
+        assert fs.attrs["matching"]["matched_frames"] == n
+        assert fs.block_frames == 4
+
+
+def test_detect_unknown_folder(tmp_path):
+    (tmp_path / "notes.txt").write_text("hello")
+    with pytest.raises(InputDataError, match=r"file .*: cannot tell the format of this path \(expected a ROS 2"):
+        detect_format(tmp_path)
+    with pytest.raises(MissingInputError, match="raw data not found"):
+        detect_format(tmp_path / "absent")
+
+
+def test_rosbag2_folder_is_mcap(tmp_path):
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    write_mcap(bag / "bag_0.mcap", make_recording(2))
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    assert detect_format(bag) == "mcap"

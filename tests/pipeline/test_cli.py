@@ -1,0 +1,35 @@
+import pytest
+
+from pipeline.cli import app, main
+
+
+def test_every_command_has_help_with_an_example(capsys):
+    import typer.main
+
+    group = typer.main.get_command(app)
+    for name, command in group.commands.items():
+        assert "zipon" in (command.help or ""), f"zipon {name} --help lacks an example"
+
+
+def test_config_error_is_a_message_and_exit_1(tmp_path, capsys):
+    (tmp_path / "params.yaml").write_text("scenes:\n  s0: {source: simulate}\ningest:\n  block_frames: -1\n")
+    code = main(["--params", str(tmp_path / "params.yaml"), "status"])
+    err = capsys.readouterr().err
+    assert code == 1
+    assert "ingest.block_frames: Input should be greater than 0" in err
+    assert "Traceback" not in err
+
+
+def test_missing_params_file(tmp_path, capsys):
+    assert main(["--params", str(tmp_path / "nope.yaml"), "status"]) == 1
+    assert "params file not found" in capsys.readouterr().err
+
+
+def test_unknown_scene_is_named(tmp_path, capsys):
+    (tmp_path / "params.yaml").write_text("scenes:\n  s0: {source: simulate}\n")
+    assert main(["--params", str(tmp_path / "params.yaml"), "run", "-s", "kitchen"]) == 1
+    assert "unknown scene(s) ['kitchen']" in capsys.readouterr().err
+
+
+def test_usage_error_exit_code(capsys):
+    assert main(["run", "--no-such-option"]) == 2
