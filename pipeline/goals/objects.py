@@ -16,6 +16,7 @@ from typing import Literal
 
 import cv2
 import numpy as np
+import skimage.draw
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
@@ -97,17 +98,18 @@ def rasterize_polygons(polys: list[np.ndarray], grid: GridSpec, values: list[int
     values = values if values is not None else list(range(1, len(polys) + 1))
     for poly, v in zip(polys, values):
         poly = np.asarray(poly, dtype=np.float64)
-        # polygon vertices in continuous (col, row) pixel coordinates; fillPoly fills cell centres inside
+        # polygon vertices in continuous (row, col) cell coordinates (cell centres at integers); a
+        # cell belongs to the polygon when its centre lies inside (as GTScene rasterises boxes)
         x0, y1 = grid.origin_xy
-        cr = np.stack([(poly[:, 0] - x0) / grid.cell_size_m - 0.5, (y1 - poly[:, 1]) / grid.cell_size_m - 0.5], -1)
-        shift = 4
-        pts = np.round(cr * (1 << shift)).astype(np.int32).reshape(-1, 1, 2)
-        layer = np.zeros_like(out, dtype=np.uint8)
-        cv2.fillPoly(layer, [pts], 1, shift=shift)
+        rows = (y1 - poly[:, 1]) / grid.cell_size_m - 0.5
+        cols = (poly[:, 0] - x0) / grid.cell_size_m - 0.5
+        rr, cc = skimage.draw.polygon(rows, cols, shape=out.shape)
+        layer = np.zeros(out.shape, dtype=bool)
+        layer[rr, cc] = True
         rc = grid.world_to_cell(polygon_centroid(poly))
         if grid.inside(rc):
-            layer[rc[0], rc[1]] = 1
-        out[layer.astype(bool)] = v
+            layer[rc[0], rc[1]] = True
+        out[layer] = v
     return out
 
 

@@ -1,0 +1,81 @@
+"""The feedback family: one interface, one registry, one file per kind.
+
+A :class:`FeedbackKind` turns a goal and its scene (:class:`FeedbackContext`) into the plain value
+stored in the goal's ``feedback`` mapping under the kind's ``name`` (the paper's FB dictionary):
+
+- ``corrective``  dict object key -> what the user says when the agent reaches that (wrong) object
+- ``descriptive`` str, appearance, state and function of the goal
+- ``landmark``    str, salient objects near the goal in line of sight, with spatial relation words
+- ``procedural``  str | None, the route in words from the recording's start pose (None: unreachable)
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from pipeline.geometry import GridSpec
+from pipeline.goals.naming import Identity, RoomInfo
+from pipeline.goals.objects import ObjectRecord
+
+
+@dataclass
+class GoalDraft:
+    """A goal before its feedback is attached."""
+
+    id: str  # the representative object key
+    name: str
+    type: str  # big | small | ambiguous
+    cls: str
+    room_id: str | None
+    room_name: str | None
+    members: tuple[str, ...]  # object keys; reaching any counts (same_goal)
+
+
+@dataclass
+class FeedbackContext:
+    """Everything a feedback kind may read about the scene."""
+
+    objects: dict[str, ObjectRecord]
+    identities: dict[str, Identity]  # object key -> identity of its same_goal group
+    rooms: dict[str, RoomInfo]
+    goals: list[GoalDraft]
+    grid: GridSpec
+    walls: np.ndarray  # (rows, cols) bool: cells that block line of sight
+    object_index: np.ndarray  # (rows, cols) int32: 1 + index into ``object_keys``, 0 none
+    object_keys: list[str]
+    planner: Any = None  # pipeline.routes.actions.RoutePlanner, or None (no navigable grid)
+    start_pose: tuple[float, float, float] | None = None  # x, y, yaw of the recording's start
+    settings: dict = field(default_factory=dict)  # the goals params (landmark radius, ...)
+
+    def footprint_mask(self, keys: tuple[str, ...]) -> np.ndarray:
+        idx = [self.object_keys.index(k) + 1 for k in keys]
+        return np.isin(self.object_index, idx)
+
+
+class FeedbackKind(ABC):
+    """One kind of user feedback."""
+
+    name: ClassVar[str]
+
+    @abstractmethod
+    def generate(self, goal: GoalDraft, ctx: FeedbackContext) -> Any:
+        """The value stored under ``feedback[name]`` (JSON-able)."""
+
+
+FEEDBACK_KINDS: dict[str, type[FeedbackKind]] = {}
+
+
+def register(cls: type[FeedbackKind]) -> type[FeedbackKind]:
+    FEEDBACK_KINDS[cls.name] = cls
+    return cls
+
+
+def object_phrase(key: str, ctx: FeedbackContext) -> str:
+    """How the user names another object: 'the bed', or its identity when its class repeats."""
+    obj = ctx.objects[key]
+    groups = {ctx.identities[k].members for k, o in ctx.objects.items() if o.cls == obj.cls}
+    return ctx.identities[key].name if len(groups) > 1 else f"the {obj.cls}"

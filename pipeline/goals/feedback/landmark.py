@@ -1,0 +1,81 @@
+"""Landmark feedback: salient objects within a radius of the goal and in line of sight, with
+spatial relation words (on, under, next to, near)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.goals.feedback.base import FeedbackContext, FeedbackKind, GoalDraft, object_phrase, register
+from pipeline.goals.objects import ObjectRecord
+from pipeline.routes.fmm import segment_free
+
+
+def polygon_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """Distance between two polygons ``(N,2)``, ``(M,2)`` (0 when they overlap)."""
+    import cv2
+
+    ca, cb = a.astype(np.float32).reshape(-1, 1, 2), b.astype(np.float32).reshape(-1, 1, 2)
+    da = [cv2.pointPolygonTest(cb, (float(x), float(y)), True) for x, y in a]
+    db = [cv2.pointPolygonTest(ca, (float(x), float(y)), True) for x, y in b]
+    if max(da + db) >= 0:
+        return 0.0
+    # vertex-to-edge distances both ways give the exact distance between disjoint polygons
+    return float(min(-max(da), -max(db)))
+
+
+def relation(goal: ObjectRecord, other: ObjectRecord, distance_m: float, next_to_m: float = 0.5) -> str:
+    """The spatial relation of ``goal`` to ``other``: 'on', 'under', 'next to' or 'near'."""
+    if distance_m <= 1e-6:
+        if goal.z_range[0] >= other.z_range[1] - 0.05:
+            return "on"
+        if other.z_range[0] >= goal.z_range[1] - 0.05:
+            return "under"
+    return "next to" if distance_m <= next_to_m else "near"
+
+
+def line_of_sight(walls: np.ndarray, grid, a_xy: np.ndarray, b_xy: np.ndarray) -> bool:
+    """No wall cell on the straight segment between two world points."""
+    x0, y1 = grid.origin_xy
+    to_rc = lambda p: np.array([(y1 - p[1]) / grid.cell_size_m - 0.5, (p[0] - x0) / grid.cell_size_m - 0.5])
+    return bool(segment_free(~walls, to_rc(a_xy), to_rc(b_xy))[0])
+
+
+def find_landmarks(goal: GoalDraft, ctx: FeedbackContext) -> list[dict]:
+    """Landmark records ``{object, relation, distance_m}``, nearest first, at most ``max_landmarks``."""
+    radius = ctx.settings.get("landmark_radius_m", 1.0)
+    limit = ctx.settings.get("max_landmarks", 3)
+    min_area = ctx.settings.get("landmark_min_area_m2", 0.1)
+    found: dict[str, dict] = {}
+    for mk in goal.members:
+        g = ctx.objects[mk]
+        gpoly = np.asarray(g.footprint)
+        for k, o in ctx.objects.items():
+            if k in goal.members or o.cls == goal.cls:
+                continue
+            if o.size != "big" and o.area_m2 < min_area:
+                continue  # not salient
+            d = polygon_distance(gpoly, np.asarray(o.footprint))
+            if d > radius:
+                continue
+            if not line_of_sight(ctx.walls, ctx.grid, np.asarray(g.mass_center), np.asarray(o.mass_center)):
+                continue
+            rel = relation(g, o, d)
+            if k not in found or d < found[k]["distance_m"]:
+                found[k] = {"object": k, "relation": rel, "distance_m": round(d, 3)}
+    return sorted(found.values(), key=lambda r: (r["distance_m"], r["object"]))[:limit]
+
+
+def _join(items: list[str]) -> str:
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
+@register
+class Landmark(FeedbackKind):
+    name = "landmark"
+
+    def generate(self, goal: GoalDraft, ctx: FeedbackContext) -> str:
+        marks = find_landmarks(goal, ctx)
+        if not marks:
+            return ""
+        phrases = [f"{m['relation']} {object_phrase(m['object'], ctx)}" for m in marks]
+        return f"It is {_join(phrases)}."

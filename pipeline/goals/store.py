@@ -1,0 +1,119 @@
+"""``goals.zarr``: personalized goals with feedback, and the reader the evaluator uses.
+
+Format (version 1)::
+
+    goals.zarr/            attrs: artifact="goals", format_version=1, stage, params_digest, code_version,
+    │                             scene, units="metres", frame="world, z up", grid {rows, cols, cell_size_m,
+    │                             origin_xy, orientation}, source ("gt" | "file" | "navchat"),
+    │                             edits {path, digest} | null, start_pose [x, y, yaw] | null,
+    │                             document   the goals document (pipeline.goals.schema): rooms, objects
+    │                                        (class, identity, room, position_xy), goals (id, name, type,
+    │                                        room, room_id, objects = same_goal group, feedback
+    │                                        {corrective, descriptive, landmark, procedural}),
+    │                             objects    [{key, cls, instance_id, room, footprint [[x, y], ...],
+    │                                        mass_center [x, y], z_range [z0, z1], size, color_name,
+    │                                        material, description}] (world metres, heights above floor),
+    │                             landmarks  {goal id: [{object, relation, distance_m}]}
+    └── object_index  (rows, cols) int32   1 + index into attrs.objects (footprints on the grid), 0 = none
+
+Variable-length records live in attrs as JSON (a few hundred objects at most); the raster is
+chunked in 256x256 tiles.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.geometry import GridSpec
+from pipeline.goals.objects import ObjectRecord, ObjectSet
+from pipeline.goals.schema import GoalsDocument
+from pipeline.store import compressor, new_group, open_group
+
+ARTIFACT = "goals"
+FORMAT_VERSION = 1
+
+
+def write_goals(path: Path, *, document: GoalsDocument, objset: ObjectSet, landmarks: dict, object_index: np.ndarray,
+                grid: GridSpec, attrs: dict, start_pose=None, edits: dict | None = None) -> None:
+    """Write a new goals store at ``path``; ``attrs`` carries artifact_attrs (stage, params digest...)."""
+    group = new_group(Path(path), {
+        **attrs, "scene": objset.scene, "units": "metres", "frame": "world, z up", "grid": grid.to_attrs(),
+        "source": objset.source, "edits": edits, "start_pose": list(start_pose) if start_pose is not None else None,
+        "document": document.model_dump(mode="json", by_alias=True),
+        "objects": [o.model_dump(mode="json") for o in objset.objects],
+        "landmarks": landmarks,
+    })
+    tile = (min(256, grid.rows), min(256, grid.cols))
+    arr = group.create_array("object_index", shape=object_index.shape, chunks=tile, dtype="int32",
+                             compressors=compressor(3))
+    arr[:] = object_index.astype(np.int32)
+    arr.attrs.update({"meaning": "1 + index into attrs.objects; 0 = no object"})
+
+
+@dataclass(frozen=True)
+class GoalView:
+    """One goal as the evaluator needs it (world metres)."""
+
+    id: str
+    name: str
+    type: str
+    room: str | None
+    room_id: str | None
+    object_keys: tuple[str, ...]  # the same_goal group
+    instance_ids: tuple[int, ...]
+    footprints: tuple[np.ndarray, ...]  # (N,2) polygons, one per object
+    mass_centers: np.ndarray  # (K,2) one per object
+    feedback: dict  # corrective (dict), descriptive, landmark, procedural (str | None)
+    landmarks: tuple[dict, ...]
+
+    @property
+    def mass_center(self) -> np.ndarray:
+        """Mass centre of the representative (first) object."""
+        return self.mass_centers[0]
+
+
+class Goals:
+    """Read-only view of a ``goals.zarr``."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.group = open_group(self.path, artifact=ARTIFACT, format_version=FORMAT_VERSION)
+        self.attrs = dict(self.group.attrs)
+        self.grid = GridSpec.from_attrs(self.attrs["grid"])
+        self.document = GoalsDocument.model_validate(self.attrs["document"])
+        self.objects = {o["key"]: ObjectRecord.model_validate(o) for o in self.attrs["objects"]}
+        self.object_keys = [o["key"] for o in self.attrs["objects"]]
+        self.scene = self.attrs["scene"]
+        self.goals = [self._view(g) for g in self.document.goals]
+
+    def _view(self, g) -> GoalView:
+        objs = [self.objects[k] for k in g.objects]
+        return GoalView(
+            id=g.id, name=g.name, type=g.type, room=g.room, room_id=g.room_id, object_keys=tuple(g.objects),
+            instance_ids=tuple(o.instance_id for o in objs),
+            footprints=tuple(np.asarray(o.footprint, dtype=np.float64) for o in objs),
+            mass_centers=np.asarray([o.mass_center for o in objs], dtype=np.float64),
+            feedback=g.feedback.model_dump(mode="json"),
+            landmarks=tuple(self.attrs.get("landmarks", {}).get(g.id) or ()),
+        )
+
+    def goal(self, goal_id: str) -> GoalView:
+        for g in self.goals:
+            if g.id == goal_id:
+                return g
+        raise KeyError(f"{self.path}: no goal {goal_id!r}")
+
+    def object_index(self) -> np.ndarray:
+        return self.group["object_index"][:]
+
+    def footprint_mask(self, keys) -> np.ndarray:
+        """``(rows, cols)`` bool: cells covered by the given objects."""
+        idx = [self.object_keys.index(k) + 1 for k in keys]
+        return np.isin(self.object_index(), idx)
+
+    def object_set(self) -> ObjectSet:
+        return ObjectSet(scene=self.scene, source=self.attrs.get("source", "file"),
+                         objects=list(self.objects.values()))

@@ -1,0 +1,157 @@
+"""Geodesic shortest paths on the navigable grid with the fast marching method (scikit-fmm).
+
+As in the paper and navchat: the travel distance to a goal region is the FMM distance field on the
+navigable mask; a path follows its steepest descent from the start cell and is then shortened
+(string pulling over the same mask) into a polyline in world metres.
+
+Arrays are ``(rows, cols)`` on a :class:`~pipeline.geometry.GridSpec`; distances in metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import skfmm
+from scipy import ndimage
+
+from pipeline.geometry import GridSpec
+
+_NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
+
+
+def planning_mask(navigable: np.ndarray, grid: GridSpec, clearance_m: float) -> np.ndarray:
+    """Navigable cells at least ``clearance_m`` from any non-navigable cell (or the grid edge)."""
+    nav = np.asarray(navigable, dtype=bool)
+    if clearance_m <= 0:
+        return nav.copy()
+    padded = np.pad(nav, 1, constant_values=False)
+    dist = ndimage.distance_transform_edt(padded)[1:-1, 1:-1] * grid.cell_size_m
+    # a cell centre is ``dist - cell/2`` from the nearest blocked cell's edge
+    return nav & (dist - 0.5 * grid.cell_size_m >= clearance_m - 1e-9)
+
+
+def target_region(plan_mask: np.ndarray, object_mask: np.ndarray, grid: GridSpec, stop_radius_m: float
+                  ) -> np.ndarray:
+    """Plannable cells whose centre is within ``stop_radius_m`` of the object's footprint cells."""
+    obj = np.asarray(object_mask, dtype=bool)
+    if not obj.any():
+        return np.zeros_like(plan_mask, dtype=bool)
+    dist = ndimage.distance_transform_edt(~obj) * grid.cell_size_m
+    return plan_mask & (dist <= stop_radius_m)
+
+
+def geodesic_field(plan_mask: np.ndarray, target: np.ndarray, grid: GridSpec) -> np.ndarray:
+    """FMM travel distance (metres) to ``target`` inside ``plan_mask``; 0 on the target, inf where unreachable."""
+    plan_mask = np.asarray(plan_mask, dtype=bool)
+    target = np.asarray(target, dtype=bool) & plan_mask
+    out = np.full(plan_mask.shape, np.inf)
+    if not target.any():
+        return out
+    if target.all() or target[plan_mask].all():
+        out[target] = 0.0
+        return out
+    phi = np.ma.MaskedArray(np.where(target, -1.0, 1.0), mask=~plan_mask)
+    try:
+        dist = skfmm.distance(phi, dx=grid.cell_size_m)
+    except ValueError:  # the target touches no free cell (an enclosed pocket): only itself is reachable
+        out[target] = 0.0
+        return out
+    field = np.ma.filled(dist, np.inf).astype(np.float64)
+    field[target] = 0.0
+    field[~plan_mask] = np.inf
+    return field
+
+
+def descend(field: np.ndarray, start_rc: tuple[int, int], max_steps: int | None = None) -> np.ndarray:
+    """Cells ``(K,2)`` from ``start_rc`` down the distance field to a cell with value 0 (8-connected).
+
+    Moves to the neighbour with the smallest ``field + step length`` ordering (steepest descent);
+    stops at the target, or raises ``ValueError`` at a local minimum (never expected for FMM fields).
+    """
+    rows, cols = field.shape
+    r, c = int(start_rc[0]), int(start_rc[1])
+    if not np.isfinite(field[r, c]):
+        raise ValueError(f"start cell {(r, c)} cannot reach the target")
+    path = [(r, c)]
+    max_steps = max_steps or rows * cols
+    steps = np.linalg.norm(_NEIGHBOURS, axis=1)
+    for _ in range(max_steps):
+        if field[r, c] <= 0:
+            return np.array(path)
+        nb = _NEIGHBOURS + (r, c)
+        ok = (nb[:, 0] >= 0) & (nb[:, 0] < rows) & (nb[:, 1] >= 0) & (nb[:, 1] < cols)
+        vals = np.full(8, np.inf)
+        vals[ok] = field[nb[ok, 0], nb[ok, 1]]
+        # slope = drop per unit length; prefer the steepest descent
+        slope = (field[r, c] - vals) / steps
+        k = int(np.argmax(slope))
+        if not (vals[k] < field[r, c]):
+            raise ValueError(f"descent stuck at cell {(r, c)} (field {field[r, c]:.3f})")
+        r, c = int(nb[k, 0]), int(nb[k, 1])
+        path.append((r, c))
+    raise ValueError("descent did not reach the target")
+
+
+def segment_free(mask: np.ndarray, a_rc: np.ndarray, b_rc: np.ndarray) -> np.ndarray:
+    """For segments between continuous cell coordinates ``(N,2)`` -> ``(N,)`` bool: every sample on the
+    segment (every 1/3 cell) lies in a True cell of ``mask``."""
+    a = np.asarray(a_rc, dtype=np.float64).reshape(-1, 2)
+    b = np.asarray(b_rc, dtype=np.float64).reshape(-1, 2)
+    n = int(np.ceil(np.max(np.linalg.norm(b - a, axis=1), initial=0.0) * 3)) + 2
+    t = np.linspace(0.0, 1.0, n)
+    pts = a[:, None] + (b - a)[:, None] * t[None, :, None]  # (N,n,2)
+    idx = np.floor(pts + 0.5).astype(np.int64)
+    rows, cols = mask.shape
+    inside = (idx[..., 0] >= 0) & (idx[..., 0] < rows) & (idx[..., 1] >= 0) & (idx[..., 1] < cols)
+    idx = np.clip(idx, 0, [rows - 1, cols - 1])
+    return (inside & mask[idx[..., 0], idx[..., 1]]).all(axis=1)
+
+
+def shortcut(cells: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """String pulling: keep the fewest cells of the path such that each kept segment stays in ``mask``."""
+    cells = np.asarray(cells)
+    if len(cells) <= 2:
+        return cells
+    keep = [0]
+    i = 0
+    while i < len(cells) - 1:
+        # farthest j visible from i (vectorised over all later cells)
+        later = cells[i + 1 :]
+        free = segment_free(mask, np.repeat(cells[i : i + 1], len(later), 0), later)
+        # the first blocked index bounds the visible run along the path
+        blocked = np.flatnonzero(~free)
+        j = i + 1 + (int(blocked[0]) - 1 if blocked.size else len(later) - 1)
+        j = max(j, i + 1)
+        keep.append(j)
+        i = j
+    return cells[keep]
+
+
+@dataclass
+class GeodesicPath:
+    """A shortest path: polyline in world metres and its lengths."""
+
+    polyline_xy: np.ndarray  # (K,2) float64, world metres, start first
+    geodesic_m: float  # FMM distance from the start cell to the goal region
+    length_m: float  # length of the polyline
+
+    @staticmethod
+    def polyline_length(xy: np.ndarray) -> float:
+        return float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum()) if len(xy) > 1 else 0.0
+
+
+def shortest_path(field: np.ndarray, plan_mask: np.ndarray, grid: GridSpec, start_xy: np.ndarray
+                  ) -> GeodesicPath | None:
+    """The shortest path from ``start_xy`` (world) down ``field``; ``None`` when unreachable.
+
+    The polyline starts at ``start_xy`` itself, then follows shortened cell centres.
+    """
+    start_xy = np.asarray(start_xy, dtype=np.float64)
+    rc = grid.world_to_cell(start_xy)
+    if not grid.inside(rc) or not np.isfinite(field[rc[0], rc[1]]):
+        return None
+    cells = shortcut(descend(field, (int(rc[0]), int(rc[1]))), plan_mask)
+    xy = grid.cell_to_world(cells)
+    xy[0] = start_xy
+    return GeodesicPath(xy, float(field[rc[0], rc[1]]), GeodesicPath.polyline_length(xy))

@@ -1,0 +1,110 @@
+"""``routes.zarr``: verified episodes with geodesic paths and actions, and the evaluator's reader.
+
+Format (version 1)::
+
+    routes.zarr/        attrs: artifact="routes", format_version=1, stage, params_digest, code_version, scene,
+    │                          units="metres, radians", frame="world, z up", grid {...},
+    │                          action_space {codes {0: stop, 1: forward, 2: left, 3: right}, step_m, turn_deg},
+    │                          success_m, goals_digest (content digest of the goals.zarr used),
+    │                          episodes   [{id, goal_id, start [x, y, yaw], geodesic_m (= l for SPL),
+    │                                      path_length_m, n_actions, instruction, n_parts, final_distance_m}]
+    │                          verification {generated, verified, share, rejected [{episode, reason}]},
+    │                          unreachable_goals [{goal, reason}]
+    ├── path_xy        (P,2) float64  every episode's polyline, concatenated (world metres)
+    ├── path_offset    (E+1,) int64   episode e's polyline = path_xy[path_offset[e]:path_offset[e+1]]
+    ├── actions        (A,) uint8     every episode's actions, concatenated (ending with 0 = stop)
+    └── action_offset  (E+1,) int64   episode e's actions = actions[action_offset[e]:action_offset[e+1]]
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.geometry import GridSpec
+from pipeline.routes.actions import ACTION_NAMES
+from pipeline.routes.episodes import EpisodeSet
+from pipeline.store import compressor, new_group, open_group
+
+ARTIFACT = "routes"
+FORMAT_VERSION = 1
+
+
+def write_routes(path: Path, eps: EpisodeSet, *, grid: GridSpec, attrs: dict, step_m: float, turn_deg: float,
+                 success_m: float) -> None:
+    records = [{
+        "id": e.id, "goal_id": e.goal_id, "start": [round(v, 6) for v in e.start], "geodesic_m": round(e.geodesic_m, 4),
+        "path_length_m": round(e.path_length_m, 4), "n_actions": int(len(e.actions)), "instruction": e.instruction,
+        "n_parts": e.n_parts, "final_distance_m": round(e.final_distance_m, 4),
+    } for e in eps.episodes]
+    n = eps.generated
+    group = new_group(Path(path), {
+        **attrs, "units": "metres, radians", "frame": "world, z up", "grid": grid.to_attrs(),
+        "action_space": {"codes": {str(k): v for k, v in ACTION_NAMES.items()}, "step_m": step_m,
+                         "turn_deg": turn_deg},
+        "success_m": success_m, "episodes": records,
+        "verification": {"generated": n, "verified": len(eps.episodes),
+                         "share": (len(eps.episodes) / n) if n else None, "rejected": eps.rejected},
+        "unreachable_goals": eps.unreachable,
+    })
+    paths = [e.path_xy for e in eps.episodes]
+    acts = [e.actions for e in eps.episodes]
+    path_off = np.concatenate([[0], np.cumsum([len(p) for p in paths])]).astype(np.int64)
+    act_off = np.concatenate([[0], np.cumsum([len(a) for a in acts])]).astype(np.int64)
+    arrays = {
+        "path_xy": np.concatenate(paths).astype(np.float64) if paths else np.zeros((0, 2)),
+        "path_offset": path_off,
+        "actions": np.concatenate(acts).astype(np.uint8) if acts else np.zeros(0, np.uint8),
+        "action_offset": act_off,
+    }
+    for name, a in arrays.items():
+        chunks = (max(len(a), 1),) + a.shape[1:]
+        z = group.create_array(name, shape=a.shape, chunks=chunks, dtype=a.dtype, compressors=compressor(3))
+        if a.size:
+            z[:] = a
+
+
+@dataclass(frozen=True)
+class EpisodeView:
+    id: str
+    goal_id: str
+    start: tuple[float, float, float]  # x, y, yaw
+    geodesic_m: float  # reference length l for SPL
+    path_xy: np.ndarray  # (K,2)
+    actions: np.ndarray  # (A,) uint8
+    instruction: str
+
+
+class Routes:
+    """Read-only view of a ``routes.zarr``."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.group = open_group(self.path, artifact=ARTIFACT, format_version=FORMAT_VERSION)
+        self.attrs = dict(self.group.attrs)
+        self.grid = GridSpec.from_attrs(self.attrs["grid"])
+        self.records = list(self.attrs["episodes"])
+        self._path_xy = self.group["path_xy"][:]
+        self._path_off = self.group["path_offset"][:]
+        self._actions = self.group["actions"][:]
+        self._act_off = self.group["action_offset"][:]
+        self.episodes = [self._view(i) for i in range(len(self.records))]
+
+    def _view(self, i: int) -> EpisodeView:
+        r = self.records[i]
+        return EpisodeView(r["id"], r["goal_id"], tuple(r["start"]), float(r["geodesic_m"]),
+                           self._path_xy[self._path_off[i]: self._path_off[i + 1]],
+                           self._actions[self._act_off[i]: self._act_off[i + 1]], r["instruction"])
+
+    def for_goal(self, goal_id: str) -> list[EpisodeView]:
+        return [e for e in self.episodes if e.goal_id == goal_id]
+
+    @property
+    def verification(self) -> dict:
+        return dict(self.attrs["verification"])
+
+    @property
+    def unreachable_goals(self) -> list[dict]:
+        return list(self.attrs["unreachable_goals"])

@@ -1,0 +1,55 @@
+"""Stage ``routes``: goals + recon's navigable grid -> episodes with verified geodesic routes (``routes.zarr``).
+
+Per goal: seeded start poses at least ``routes.min_geodesic_m`` away (geodesic), the FMM shortest
+path, its discrete actions and procedural text; every route is replayed on the navigable grid and
+only verified ones are stored; unreachable goals are flagged. Format: :mod:`pipeline.routes.store`.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from pipeline.errors import LineageError
+from pipeline.goals.store import Goals
+from pipeline.recon import Recon
+from pipeline.routes.actions import RouteSettings
+from pipeline.routes.episodes import GoalTarget, make_episodes
+from pipeline.routes.store import ARTIFACT, FORMAT_VERSION, write_routes
+from pipeline.runner import StageContext
+from pipeline.store import artifact_attrs
+
+
+def run(ctx: StageContext) -> dict:
+    t0 = time.perf_counter()
+    p = ctx.params.routes
+    goals = Goals(ctx.inputs["goals"])
+    recon = Recon(ctx.inputs["recon"])
+    if goals.grid != recon.grid:
+        raise LineageError(f"{goals.path}: goals grid {goals.grid} differs from recon grid {recon.grid}; "
+                           f"rerun the goals stage")
+    index = goals.object_index()
+    keys = goals.object_keys
+    targets = [GoalTarget(g.id, np.isin(index, [keys.index(k) + 1 for k in g.object_keys]), list(g.footprints),
+                          g.mass_center, g.room_id) for g in goals.goals]
+    settings = RouteSettings(p.step_m, p.turn_deg, p.clearance_m, p.stop_radius_m)
+    eps = make_episodes(recon.navigable, recon.grid, targets, episodes_per_goal=p.episodes_per_goal,
+                        min_geodesic_m=p.min_geodesic_m, seed=p.seed, settings=settings, success_m=p.success_m,
+                        progress=lambda it, description="": ctx.progress(it, total=len(targets),
+                                                                          description=description))
+    write_routes(ctx.outputs["routes"], eps, grid=recon.grid,
+                 attrs=artifact_attrs(ARTIFACT, FORMAT_VERSION, "routes", ctx.params_digest, scene=ctx.scene),
+                 step_m=p.step_m, turn_deg=p.turn_deg, success_m=p.success_m)
+    n = eps.generated
+    for u in eps.unreachable:
+        ctx.log(f"goal {u['goal']} unreachable: {u['reason']}")
+    for r in eps.rejected:
+        ctx.log(f"episode {r['episode']} rejected: {r['reason']}")
+    lengths = [e.geodesic_m for e in eps.episodes]
+    return {
+        "goals": len(targets), "unreachable_goals": len(eps.unreachable), "episodes": len(eps.episodes),
+        "generated": n, "replay_verified_share": round(len(eps.episodes) / n, 4) if n else None,
+        "mean_geodesic_m": round(float(np.mean(lengths)), 3) if lengths else None,
+        "seconds": round(time.perf_counter() - t0, 3),
+    }

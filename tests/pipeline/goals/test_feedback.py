@@ -1,0 +1,78 @@
+import numpy as np
+import pytest
+
+from pipeline.goals.build import GoalSettings, build_goals
+from pipeline.goals.feedback import FEEDBACK_KINDS, FeedbackKind
+from pipeline.goals.objects import objects_from_gt
+from pipeline.routes.actions import RoutePlanner
+from tests.fixtures.goal_scenes import gt_navigable, house_grid, house_scene
+
+
+@pytest.fixture(scope="module")
+def house_goals():
+    gt, grid = house_scene(), house_grid()
+    walls = gt.occupancy(grid, 0.05, 2.5, objects=False)
+    planner = RoutePlanner(gt_navigable(gt, grid), grid)
+    return build_goals(objects_from_gt(gt), grid, walls, planner=planner, start_pose=(2.5, 1.8, 0.0),
+                       settings=GoalSettings(max_goals=20))
+
+
+@pytest.mark.parametrize("kind", sorted(FEEDBACK_KINDS))
+class TestFeedbackKind:
+    """Every feedback kind: registered under its name, JSON-able values for every goal."""
+
+    def test_registered(self, kind):
+        assert issubclass(FEEDBACK_KINDS[kind], FeedbackKind) and FEEDBACK_KINDS[kind].name == kind
+
+    def test_value_on_every_goal(self, kind, house_goals):
+        import json
+
+        for g in house_goals.document.goals:
+            value = getattr(g.feedback, kind)
+            json.dumps(value)
+            assert value is None or isinstance(value, (str, dict))
+
+
+def test_all_four_kinds():
+    assert sorted(FEEDBACK_KINDS) == ["corrective", "descriptive", "landmark", "procedural"]
+
+
+def _goal(res, gid):
+    return next(g for g in res.document.goals if g.id == gid)
+
+
+def test_types_and_same_goal(house_goals):
+    chairs = _goal(house_goals, "chair_0")
+    assert chairs.objects == ["chair_0", "chair_1"] and chairs.type == "ambiguous"
+    assert _goal(house_goals, "couch_0").type == "big" and _goal(house_goals, "lamp_0").type == "small"
+    assert "2 of them" in chairs.feedback.descriptive
+
+
+def test_corrective_names_the_other_objects_identity(house_goals):
+    doc = house_goals.document
+    g = _goal(house_goals, "chair_2")
+    assert set(g.feedback.corrective) >= {"chair_0", "chair_1", "chair_3"}
+    assert g.feedback.corrective["chair_3"] == f"This is {doc.objects['chair_3'].identity}, not {g.name}."
+
+
+def test_descriptive_from_attributes(house_goals):
+    d = _goal(house_goals, "chair_2").feedback.descriptive
+    assert d.startswith("It is a red chair made of wood.") and "0.9 meters tall" in d
+    lamp = _goal(house_goals, "lamp_0").feedback.descriptive
+    assert f"sits on {house_goals.document.objects['bed_1'].identity}" in lamp
+
+
+def test_landmarks_relation_radius_and_line_of_sight(house_goals):
+    lm = house_goals.landmarks
+    assert lm["lamp_0"][0] == {"object": "bed_1", "relation": "on", "distance_m": 0.0}
+    assert {"object": "table_0", "relation": "next to", "distance_m": 0.1} in lm["chair_0"]  # chair_1 is 0.1 m away
+    # chair_2 (bedroom 1) is 0.3 m from the x = 5 wall; the living room beyond is never a landmark
+    assert all(house_goals.document.objects[m["object"]].room == "bedroom_1" for m in lm["chair_2"])
+    assert all(m["distance_m"] <= 1.0 for ms in lm.values() for m in ms)
+    assert _goal(house_goals, "lamp_0").feedback.landmark.startswith("It is on ")
+
+
+def test_procedural_from_the_start_pose(house_goals):
+    # start (2.5, 1.8) facing east; Alice/Bob bedroom 2 through the door at y 1..2
+    p = _goal(house_goals, "bed_1").feedback.procedural
+    assert p is not None and p.startswith("go forward")

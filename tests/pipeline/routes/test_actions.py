@@ -1,0 +1,41 @@
+import numpy as np
+import pytest
+
+from pipeline.routes.actions import (FORWARD, LEFT, RIGHT, STOP, RoutePlanner, follow_polyline, procedural_allowed,
+                                     procedural_instruction, route_parts, route_text)
+from tests.fixtures.goal_scenes import corridor_grid
+
+F, L, R = FORWARD, LEFT, RIGHT
+
+
+@pytest.mark.parametrize("actions,text", [
+    ([L] * 6 + [F] * 20 + [R] * 6, "turn left, go forward 5 meters, turn right"),
+    ([R] * 12 + [F] * 4, "turn around, go forward 1 meter"),
+    ([F] * 8 + [L] + [F] * 8, "go forward 4 meters"),  # a lone 15 deg correction is not said
+    ([F] * 2 + [L] * 3, "turn left"),  # 0.5 m forward is below navchat's 3-step run
+    ([L] * 3 + [F] + [L] * 3 + [F] * 10, "turn left, go forward 2.5 meters"),  # 45 + 45 deg add up to one turn
+    ([F, F, R, F, F, L, F, F], "go forward 1.5 meters"),
+])
+def test_route_text_rules(actions, text):
+    assert route_text(route_parts(np.array(actions + [STOP]))) == text
+
+
+def test_follow_polyline_lattice_headings_and_stop():
+    acts = follow_polyline(np.array([[0, 0], [3, 0], [3, 2]]), np.pi / 2)
+    assert acts[-1] == STOP and route_text(route_parts(acts)) == "turn right, go forward 3 meters, turn left, go forward 2 meters"
+
+
+@pytest.mark.parametrize("yaw,first", [(0.0, "go forward 5 meters"), (np.pi, "turn around"), (np.pi / 2, "turn right")])
+def test_procedural_from_any_pose_in_an_l_corridor(yaw, first):
+    nav, grid = corridor_grid()
+    text = procedural_instruction(nav, grid, (0.3, 0.5, yaw), (5.5, 4.8))
+    assert text.startswith(first) and text.endswith("turn left, go forward 3 meters")
+
+
+def test_planner_unreachable_returns_none_and_room_rule():
+    nav, grid = corridor_grid()
+    planner = RoutePlanner(nav, grid)
+    assert procedural_instruction(nav, grid, (0.3, 0.5, 0.0), (-5.0, -5.0), planner=planner) is None
+    parts = planner.route((0.3, 0.5, 0.0), planner.goal_mask(np.array([5.5, 4.8]))).parts
+    assert procedural_allowed(parts, "hall", "bedroom_1") and not procedural_allowed(parts, "bedroom_1", "bedroom_1")
+    assert not procedural_allowed(parts * 2, "hall", "bedroom_1")
