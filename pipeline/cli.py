@@ -272,6 +272,119 @@ def dvc_cmd(check: bool = typer.Option(False, "--check", help="only check dvc.ya
     out.print(f"wrote {path}")
 
 
+RENDERS = {
+    "frames": "frame contact sheet (colour / depth / instances)",
+    "plan": "ground-truth floor plan of a simulated scene",
+    "obstacles": "occupancy grid (unknown / free / occupied)",
+    "navigable": "navigable cells for the robot radius",
+    "color": "top-surface colour map",
+    "height": "max height above the floor",
+    "goals": "goals, landmarks and names on the colour map",
+    "routes": "episodes' start poses and geodesic routes on the colour map",
+}
+
+
+@app.command()
+def render(
+    scene: str = typer.Argument(..., help="scene name"),
+    what: str = typer.Option("color", "--what", "-w", help=" | ".join(RENDERS)),
+    out_png: Optional[Path] = typer.Option(None, "--out", "-o", help="PNG path (default DATA/artifacts/SCENE/renders/WHAT.png)"),
+):
+    """Draw an artifact as a north-up PNG with a scale bar.
+
+    Examples: `zipon render sim_00 --what navigable` · `zipon render sim_00 --what routes -o routes.png`
+    """
+    from pipeline.errors import ConfigError
+
+    if what not in RENDERS:
+        raise ConfigError(f"--what {what!r}: choose one of {', '.join(RENDERS)}")
+    ws, params = G.load()
+    target = Path(out_png) if out_png else ws.renders(scene) / f"{what}.png"
+    art = lambda name: ws.artifact(name, scene)  # noqa: E731
+    if what == "frames":
+        from pipeline.pictures import frames_contact_sheet
+
+        frames_contact_sheet(art("frames"), target)
+    elif what == "plan":
+        from pipeline.frames import FrameStore
+        from pipeline.scene_gt import GTScene
+        from pipeline.sim.topdown import render_scene_png
+
+        gt = FrameStore(art("frames")).ground_truth
+        if gt is None:
+            raise ConfigError(f"scene {scene}: --what plan needs ground truth (a simulated scene)")
+        render_scene_png(GTScene.model_validate(gt), target)
+    elif what in ("goals", "routes"):
+        from pipeline.goals.render import render_goals
+
+        render_goals(art("recon"), art("goals"), art("routes") if what == "routes" else None, what, target)
+    else:
+        from pipeline.recon.render import render_recon
+
+        render_recon(art("recon"), what, target)
+    out.print(str(target))
+
+
+goals_app = typer.Typer(help="Review and edit goals: export for people, import their edits, navchat layout. "
+                        "Example: `zipon goals export sim_00 -o goals.yaml`",
+                        no_args_is_help=True)
+app.add_typer(goals_app, name="goals")
+
+
+@goals_app.command("export")
+def goals_export(
+    scene: str = typer.Argument(..., help="scene name"),
+    out_file: Path = typer.Option(..., "--out", "-o", help="FILE.yaml or FILE.json"),
+):
+    """Write a scene's goals (name, type, room, feedback) as readable YAML/JSON.
+
+    Example: `zipon goals export sim_00 --out sim_00_goals.yaml`
+    """
+    from pipeline.goals.edits import export_goals
+
+    ws, _ = G.load()
+    out.print(str(export_goals(ws.artifact("goals", scene), out_file)))
+
+
+@goals_app.command("import")
+def goals_import(
+    scene: str = typer.Argument(..., help="scene name"),
+    edit_file: Path = typer.Argument(..., help="an edited export (YAML/JSON)"),
+):
+    """Validate an edited goals file, register it in params.yaml (goals.edits) and rebuild goals and routes.
+
+    Example: `zipon goals import sim_00 sim_00_goals.yaml`
+    """
+    from pipeline.goals.edits import import_goals, record_goals_edit
+
+    ws, _ = G.load()
+    rel = import_goals(edit_file, ws.artifact("goals", scene), ws.root)
+    record_goals_edit(ws.params_path, scene, rel)
+    out.print(f"stored {rel}; params.yaml goals.edits.{scene} updated")
+    if not _run([scene], ["goals", "routes"], False, "sync"):
+        raise typer.Exit(1)
+
+
+@goals_app.command("export-navchat")
+def goals_export_navchat(
+    scene: str = typer.Argument(..., help="scene name"),
+    folder: Path = typer.Option(..., "--out", "-o", help="folder for objects.json and final.json"),
+):
+    """Write objects.json / final.json in navchat's layout (cells on the scene's grid).
+
+    Example: `zipon goals export-navchat sim_00 -o navchat/sim_00`
+    """
+    from pipeline.goals.navchat import export_navchat, write_navchat
+    from pipeline.goals.store import Goals
+
+    ws, _ = G.load()
+    goals = Goals(ws.artifact("goals", scene))
+    objects_json, final_json = export_navchat(goals.object_set(), goals.document, goals.grid,
+                                              goals.attrs.get("landmarks"))
+    write_navchat(folder, objects_json, final_json)
+    out.print(f"{folder}/objects.json, {folder}/final.json")
+
+
 @app.command()
 def demo(
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="dask scheduler (default: params)"),

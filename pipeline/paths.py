@@ -6,7 +6,7 @@ Layout under the data root (``--data-dir`` / ``ZIPON_DATA``, default ``<workspac
       raw/<scene>.mcap                 simulated ROS 2 logs (stage ``simulate``)
       artifacts/<scene>/
         frames.zarr                    stage ``ingest``
-        recon.zarr, recon_mesh.ply     stage ``reconstruct``
+        recon.zarr, recon_mesh.ply     stage ``reconstruct`` (+ recon_points.ply)
         vlmap.zarr / cfmap.zarr        stages ``vlmap`` / ``cfmap``
         goals.zarr / routes.zarr       stages ``goals`` / ``routes``
         renders/                       PNG pictures (not artifacts; never hashed)
@@ -28,6 +28,7 @@ ARTIFACTS: dict[str, str] = {
     "frames": "artifacts/{scene}/frames.zarr",
     "recon": "artifacts/{scene}/recon.zarr",
     "recon_mesh": "artifacts/{scene}/recon_mesh.ply",
+    "recon_points": "artifacts/{scene}/recon_points.ply",
     "vlmap": "artifacts/{scene}/vlmap.zarr",
     "cfmap": "artifacts/{scene}/cfmap.zarr",
     "goals": "artifacts/{scene}/goals.zarr",

@@ -52,18 +52,15 @@ def import_goals(edit_file: Path, goals_path: Path, root: Path, edits_dir: str =
 def record_goals_edit(params_path: Path, scene: str, rel_path: str) -> None:
     """Set ``goals.edits.<scene>: <rel_path>`` in ``params.yaml``.
 
-    Appends a ``goals:`` section when there is none (comments kept); otherwise rewrites the file
-    from its parsed content (comments in it are lost).
+    The file is rewritten by :func:`pipeline.config.params_yaml` (validated, every tunable with its
+    documentation comment), so the result is a complete, checked params file.
     """
+    from pipeline.config import parse_params, params_yaml
+
     params_path = Path(params_path)
-    text = params_path.read_text()
-    raw = yaml.safe_load(text) or {}
-    if "goals" not in raw:
-        block = f"goals:\n  edits:\n    {scene}: {rel_path}\n"
-        write_text_atomic(params_path, text + ("" if text.endswith("\n") or not text else "\n") + block)
-        return
+    raw = yaml.safe_load(params_path.read_text()) or {}
     raw.setdefault("goals", {}).setdefault("edits", {})[scene] = rel_path
-    write_text_atomic(params_path, yaml.safe_dump(raw, sort_keys=False))
+    write_text_atomic(params_path, params_yaml(parse_params(raw, origin=str(params_path))))
 
 
 def edit_digest_from_name(path: str) -> str | None:

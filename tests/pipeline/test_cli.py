@@ -6,9 +6,13 @@ from pipeline.cli import app, main
 def test_every_command_has_help_with_an_example(capsys):
     import typer.main
 
-    group = typer.main.get_command(app)
-    for name, command in group.commands.items():
-        assert "zipon" in (command.help or ""), f"zipon {name} --help lacks an example"
+    def walk(group, prefix):
+        for name, command in group.commands.items():
+            assert "zipon" in (command.help or ""), f"zipon {prefix}{name} --help lacks an example"
+            if hasattr(command, "commands"):
+                walk(command, f"{prefix}{name} ")
+
+    walk(typer.main.get_command(app), "")
 
 
 def test_config_error_is_a_message_and_exit_1(tmp_path, capsys):

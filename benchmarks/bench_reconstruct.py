@@ -1,0 +1,114 @@
+"""Reconstruction throughput, peak memory and grid time on a simulated scene (one JSON object per line).
+
+    .venv/bin/python benchmarks/bench_reconstruct.py [--frames 1400] [--threads 2] [--workdir DIR]
+
+Simulates ``--frames`` frames of ``--scene`` (cached in ``--workdir``), ingests them, then runs the
+reconstruction in fresh worker processes (so peak RSS is per run) on:
+
+- ``every10``: every 10th frame (140 of 1,400), the reference run: the same rooms, a tenth of the frames;
+- ``all``: every frame.
+
+Peak RSS should follow the TSDF volume (blocks), not the frame count. Each run prints frames/s of
+fusion, seconds of extraction and of the grids, peak RSS, and IoU of the grids against the
+simulator's ground truth. ``OMP_NUM_THREADS`` is set to ``--threads`` in the workers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def prepare(workdir: Path, scene: str, n_frames: int) -> Path:
+    from pipeline.config import IngestParams, SimulateParams
+    from pipeline.sim import simulate_scene
+    from stages.ingest import ingest_path
+
+    frames = workdir / f"{scene}_{n_frames}.zarr"
+    if frames.exists():
+        return frames
+    workdir.mkdir(parents=True, exist_ok=True)
+    log = workdir / f"{scene}_{n_frames}.mcap"
+    t0 = time.perf_counter()
+    if not log.exists():
+        simulate_scene(scene, SimulateParams(frames=n_frames), log)
+    t1 = time.perf_counter()
+    ingest_path(log, frames, IngestParams(), "mcap", log=lambda m: None)
+    print(json.dumps({"step": "prepare", "scene": scene, "frames": n_frames,
+                      "simulate_s": round(t1 - t0, 1), "ingest_s": round(time.perf_counter() - t1, 1)}), flush=True)
+    return frames
+
+
+def worker(frames_path: Path, every: int, out_dir: Path, scene: str) -> None:
+    import numpy as np
+
+    from pipeline.config import GridParams, ReconstructParams, SimulateParams
+    from pipeline.frames import FrameStore
+    from pipeline.recon import FREE, OCCUPIED, Recon, navigable_mask
+    from pipeline.scene_gt import GTScene
+    from stages.reconstruct import reconstruct
+
+    p, grid = ReconstructParams(), GridParams()
+    store = FrameStore(frames_path)
+    sel = list(range(0, store.n_frames, every))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    s = reconstruct(frames_path, out_dir / "recon.zarr", out_dir / "recon_mesh.ply", out_dir / "recon_points.ply",
+                    p, grid, frames=sel)
+    total = time.perf_counter() - t0
+    rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    r = Recon(out_dir / "recon.zarr")
+    gt_raw = store.ground_truth
+    acc = {}
+    if gt_raw:
+        gt = GTScene.model_validate(gt_raw)
+        g_occ = gt.occupancy(r.grid, p.obstacle_min_height_m, p.obstacle_max_height_m)
+        g_free = gt.floor_mask(r.grid) & ~g_occ
+        g_nav = navigable_mask(g_free, g_occ, r.grid.cell_size_m, p.robot_radius_m)
+        iou = lambda a, b: round(float((a & b).sum() / max((a | b).sum(), 1)), 4)  # noqa: E731
+        occ = r.occupancy
+        acc = {"iou_occupied": iou(occ == OCCUPIED, g_occ), "iou_free": iou(occ == FREE, g_free),
+               "iou_navigable": iou(r.navigable, g_nav), "floor_error_m": round(abs(r.floor_z - gt.floor_z), 4)}
+    print(json.dumps({
+        "run": "all" if every == 1 else f"every{every}", "frames_fused": s["frames_fused"],
+        "threads": int(os.environ.get("OMP_NUM_THREADS", "0")), "fuse_frames_per_s": s["frames_per_s"],
+        "fuse_s": s["seconds_fuse"], "extract_s": s["seconds_extract"], "grids_s": s["seconds_grids"],
+        "total_s": round(total, 2), "tsdf_blocks": s["tsdf_blocks"], "mesh_triangles": s["mesh_triangles"],
+        "peak_rss_mb": round(rss_mb, 1), "rss_mb_per_1k_blocks": round(rss_mb / max(s["tsdf_blocks"], 1) * 1000, 1),
+        **acc, "load_avg_1m": round(os.getloadavg()[0], 2),
+    }), flush=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=1400)
+    ap.add_argument("--scene", default="sim_00")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--workdir", type=Path, default=Path("/tmp/zipon_bench_reconstruct"))
+    ap.add_argument("--worker-every", type=int, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--frames-path", type=Path, default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.worker_every is not None:
+        worker(args.frames_path, args.worker_every, args.workdir / f"out_every{args.worker_every}", args.scene)
+        return
+    frames = prepare(args.workdir, args.scene, args.frames)
+    env = {**os.environ, "OMP_NUM_THREADS": str(args.threads)}
+    for every in (10, 1):
+        import shutil
+
+        shutil.rmtree(args.workdir / f"out_every{every}", ignore_errors=True)
+        subprocess.run([sys.executable, __file__, "--worker-every", str(every), "--frames-path", str(frames),
+                        "--workdir", str(args.workdir), "--scene", args.scene], check=True, env=env)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,298 @@
+"""Top-down grids from a fused TSDF volume: floor height, occupancy, navigable mask, colour, height.
+
+All grids live on one :class:`pipeline.geometry.GridSpec` (north-up; it alone maps world x, y to
+row, col). Definitions (heights are above the estimated floor ``floor_z``):
+
+- **occupied** (code 2): some observed voxel of the cell-centre column with height in
+  ``[obstacle_min_height_m, obstacle_max_height_m]`` touches geometry (behind a surface, or less
+  than half a voxel in front of it); or a surface point of that band, moved half a cell into the
+  solid along its normal, lies in the cell (:func:`surface_occupancy`). The grid origin is snapped so that every cell centre is a voxel-lattice
+  column, which makes the test "is the cell centre inside geometry" — the rasterisation the
+  ground truth uses (:meth:`GTScene.occupancy`). Vertical structures thinner than a voxel between
+  cell centres can be missed.
+  A 3x3 closing fills unobserved one-cell gaps between occupied cells (never observed floor).
+  Unknown regions walled in by occupied cells alone (the unseen inside of a cabinet) become
+  occupied when smaller than ``fill_enclosed_max_m2``; unknown cells closer to occupied than to
+  free cells (and within ``hidden_solid_max_m``: the unseen back of furniture) become occupied.
+- **free** (code 1): not occupied, and the floor was observed at the cell centre (solid voxel
+  within ``floor_tolerance_m`` of the floor).
+- **unknown** (code 0): everything else (navchat's codes: 0 unknown, 1 free, 2 occupied).
+- **navigable**: free and farther than ``robot_radius_m`` from every occupied cell centre
+  (:func:`navigable_mask`; ground truth is dilated with the same function).
+- **height** / **color**: the highest surface point in the cell (at most ``height_max_m`` above
+  the floor, which leaves ceilings out), NaN / black where nothing was seen.
+
+The floor is estimated, not assumed: the lowest strong peak of the height histogram of
+upward-facing surface points below the cameras, refined by their median.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterable
+
+import numpy as np
+from scipy.ndimage import binary_closing, binary_dilation, distance_transform_edt, label
+
+from pipeline.config import GridParams, ReconstructParams
+from pipeline.errors import ConfigError, InputDataError, StageError
+from pipeline.geometry import GridSpec
+
+UNKNOWN, FREE, OCCUPIED = 0, 1, 2
+OCCUPANCY_CODES = {UNKNOWN: "unknown", FREE: "free", OCCUPIED: "occupied"}
+
+_UP_COS = 0.9  # normals within ~25 deg of +z count as horizontal, upward-facing surfaces
+_FLOOR_BIN_M = 0.01
+_FLOOR_MIN_POINTS = 50
+_FLOOR_PEAK_FRACTION = 0.3  # the floor is the lowest bin holding >= 30% of the tallest bin
+
+
+@dataclass
+class Grids:
+    """The top-down products of one reconstruction (arrays ``(rows, cols[, 3])``)."""
+
+    grid: GridSpec
+    floor_z: float
+    occupancy: np.ndarray  # uint8 codes
+    navigable: np.ndarray  # bool
+    color: np.ndarray  # uint8 RGB of the highest surface
+    height: np.ndarray  # float32 metres above the floor, NaN unknown
+    stats: dict = field(default_factory=dict)
+
+
+# ----------------------------------------------------------------------------- floor
+
+def estimate_floor(xyz: np.ndarray, normals: np.ndarray, camera_z: np.ndarray) -> tuple[float, int]:
+    """Floor height (world z, metres) and the number of floor points it rests on.
+
+    ``xyz``/``normals`` ``(N,3)`` surface points; ``camera_z`` ``(F,)`` camera heights. Raises
+    :class:`StageError` when no upward-facing surface lies below the cameras (e.g. a world that
+    is not z-up: set ``reconstruct.floor_z_m`` or convert the poses at ingest).
+    """
+    below = xyz[:, 2] < np.median(camera_z)
+    z = xyz[(normals[:, 2] > _UP_COS) & below, 2].astype(np.float64)
+    if z.size < _FLOOR_MIN_POINTS:
+        raise StageError(
+            f"no floor found: {z.size} upward-facing surface points below the cameras "
+            f"(expected at least {_FLOOR_MIN_POINTS} in a z-up world); set reconstruct.floor_z_m "
+            "if the floor is not visible or the world frame is not z-up"
+        )
+    lo = np.floor(z.min() / _FLOOR_BIN_M) * _FLOOR_BIN_M
+    n_bins = int(np.ceil((z.max() - lo) / _FLOOR_BIN_M)) + 1
+    hist = np.bincount(((z - lo) / _FLOOR_BIN_M).astype(np.int64), minlength=n_bins).astype(np.float64)
+    smooth = np.convolve(hist, np.ones(3), mode="same")
+    first = int(np.flatnonzero(smooth >= _FLOOR_PEAK_FRACTION * smooth.max())[0])
+    while first + 1 < n_bins and smooth[first + 1] > smooth[first]:  # climb to the local peak
+        first += 1
+    centre = lo + (first + 0.5) * _FLOOR_BIN_M
+    near = z[np.abs(z - centre) <= 2 * _FLOOR_BIN_M]
+    return float(np.median(near)), int(near.size)
+
+
+# ----------------------------------------------------------------------------- grid placement
+
+def lattice_ratio(grid: GridParams, p: ReconstructParams) -> int:
+    """Voxels per cell edge; the cell size must be a whole multiple of the voxel size."""
+    n = grid.cell_size_m / p.voxel_size_m
+    if abs(n - round(n)) > 1e-6 or round(n) < 1:
+        raise ConfigError(
+            f"grid.cell_size_m ({grid.cell_size_m}) must be a whole multiple of reconstruct.voxel_size_m "
+            f"({p.voxel_size_m}) so cell centres fall on the TSDF lattice"
+        )
+    return int(round(n))
+
+
+def place_grid(xyz: np.ndarray, grid: GridParams, p: ReconstructParams) -> GridSpec:
+    """A grid of ``grid.rows x grid.cols`` centred on the surface (0.5-99.5 percentile box).
+
+    The origin is snapped so every cell centre is a TSDF lattice column.
+    """
+    n = lattice_ratio(grid, p)
+    v, s = p.voxel_size_m, grid.cell_size_m
+    lo, hi = np.percentile(xyz[:, :2], [0.5, 99.5], axis=0)
+    centre = (lo + hi) / 2.0
+    off = 0.0 if n % 2 == 0 else 0.5  # cell centre = origin + (j + 1/2) n v must be k v
+    x0 = v * (np.round((centre[0] - grid.cols * s / 2.0) / v - off) + off)
+    y0 = v * (np.round((centre[1] + grid.rows * s / 2.0) / v - off) + off)
+    return GridSpec(grid.rows, grid.cols, s, (float(x0), float(y0)))
+
+
+# ----------------------------------------------------------------------------- grids
+
+def navigable_mask(free: np.ndarray, occupied: np.ndarray, cell_size_m: float, robot_radius_m: float) -> np.ndarray:
+    """``(rows, cols)`` bool: free cells whose centre is farther than the radius from every occupied centre."""
+    if not occupied.any():
+        return free.copy()
+    dist_m = distance_transform_edt(~occupied) * cell_size_m
+    return free & (dist_m > robot_radius_m)
+
+
+def enclosed_unknown(occupied: np.ndarray, free: np.ndarray, cell_size_m: float, max_area_m2: float) -> np.ndarray:
+    """Unknown regions (4-connected) walled in by occupied cells only: the unseen insides of solids.
+
+    A region touching a free cell or the grid border, or larger than ``max_area_m2``, stays unknown.
+    """
+    unknown = ~occupied & ~free
+    labels, n = label(unknown)
+    if n == 0:
+        return np.zeros_like(occupied)
+    open_ids = np.unique(labels[binary_dilation(free) & unknown])
+    border = np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])
+    sizes = np.bincount(labels.ravel(), minlength=n + 1) * cell_size_m**2
+    keep = sizes <= max_area_m2
+    keep[open_ids] = False
+    keep[border] = False
+    keep[0] = False
+    return keep[labels]
+
+
+def hidden_solid(occupied: np.ndarray, free: np.ndarray, cell_size_m: float, max_dist_m: float) -> np.ndarray:
+    """Unknown cells nearer to an occupied cell than to any free cell, within ``max_dist_m`` of it.
+
+    The back of a wardrobe seen only from the front is never observed; its cells lie behind the
+    observed face, closer to it than to the free floor in front. Unknown regions touching the grid
+    border (outside the building) are left alone. ``max_dist_m = 0`` turns this off.
+    """
+    if max_dist_m <= 0 or not occupied.any() or not free.any():
+        return np.zeros_like(occupied)
+    unknown = ~occupied & ~free
+    labels, _ = label(unknown)
+    outside = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    unknown &= ~np.isin(labels, outside[outside > 0])  # the unknown world around the building stays unknown
+    d_occ = distance_transform_edt(~occupied) * cell_size_m
+    d_free = distance_transform_edt(~free) * cell_size_m
+    return unknown & (d_occ < d_free) & (d_occ <= max_dist_m)
+
+
+def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.ndarray, np.ndarray]],
+                     p: ReconstructParams) -> tuple[np.ndarray, np.ndarray]:
+    """``occupied`` and ``floor_seen`` ``(rows, cols)`` bool from observed voxels (see module doc)."""
+    v = p.voxel_size_m
+    n = int(round(grid.cell_size_m / v))
+    # Lattice index of the centre column of cell (0, 0); centres repeat every n voxels.
+    k0 = np.round(np.array([grid.origin_xy[0] / v + 0.5 * n, grid.origin_xy[1] / v - 0.5 * n])).astype(np.int64)
+    # A lattice point "touches" geometry when behind a surface or within half a voxel in front of it.
+    touch = 0.5 * v / p.sdf_trunc_m
+    occupied = np.zeros((grid.rows, grid.cols), dtype=bool)
+    floor_seen = np.zeros_like(occupied)
+    for lattice, tsdf in voxels:
+        centre = ((lattice[:, 0] - k0[0]) % n == 0) & ((lattice[:, 1] - k0[1]) % n == 0) & (tsdf < touch)
+        lat = lattice[centre]
+        rc = grid.world_to_cell(lat[:, :2].astype(np.float64) * v)
+        z = lat[:, 2].astype(np.float64) * v - floor_z
+        inside = grid.inside(rc)
+        occ = inside & (z >= p.obstacle_min_height_m) & (z <= p.obstacle_max_height_m)
+        occupied[rc[occ, 0], rc[occ, 1]] = True
+        flo = inside & (np.abs(z) <= p.floor_tolerance_m)
+        floor_seen[rc[flo, 0], rc[flo, 1]] = True
+    return occupied, floor_seen
+
+
+def surface_occupancy(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.ndarray, p: ReconstructParams
+                      ) -> np.ndarray:
+    """``(rows, cols)`` bool: cells holding a surface point of the obstacle band, moved half a cell into the solid.
+
+    Normals point out of solids (toward the cameras), so a point moved by half a cell against its
+    normal lies in a cell whose centre is inside the solid: the same rasterisation as the column
+    test, for surfaces whose voxels were thinned out by fusion (thin table tops seen at grazing
+    angles, chair legs).
+    """
+    z_rel = xyz[:, 2] - floor_z
+    band = (z_rel >= p.obstacle_min_height_m) & (z_rel <= p.obstacle_max_height_m)
+    moved = xyz[band, :2] - 0.5 * grid.cell_size_m * normals[band, :2]
+    rc = grid.world_to_cell(moved)
+    rc = rc[grid.inside(rc)]
+    occupied = np.zeros((grid.rows, grid.cols), dtype=bool)
+    occupied[rc[:, 0], rc[:, 1]] = True
+    return occupied
+
+
+def top_surface(grid: GridSpec, floor_z: float, xyz: np.ndarray, colors: np.ndarray, p: ReconstructParams
+                ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Height ``(rows, cols)`` float32 (NaN unknown), colour ``(rows, cols, 3)`` uint8, points outside.
+
+    The highest point of each cell (up to ``height_max_m`` above the floor) wins.
+    """
+    rc = grid.world_to_cell(xyz[:, :2])
+    inside = grid.inside(rc)
+    z = xyz[:, 2].astype(np.float64) - floor_z
+    keep = inside & (z <= p.height_max_m)
+    flat = rc[keep, 0] * grid.cols + rc[keep, 1]
+    zk, ck = z[keep], colors[keep]
+    order = np.lexsort((ck[:, 2], ck[:, 1], ck[:, 0], zk, flat))  # ties broken by colour: deterministic
+    flat, zk, ck = flat[order], zk[order], ck[order]
+    last = np.r_[flat[1:] != flat[:-1], True] if flat.size else np.zeros(0, bool)
+    height = np.full(grid.rows * grid.cols, np.nan, np.float32)
+    color = np.zeros((grid.rows * grid.cols, 3), np.uint8)
+    height[flat[last]] = zk[last]
+    color[flat[last]] = ck[last]
+    return height.reshape(grid.rows, grid.cols), color.reshape(grid.rows, grid.cols, 3), int((~inside).sum())
+
+
+def build_grids(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray,
+                voxels: Iterable[tuple[np.ndarray, np.ndarray]], T_world_camera: dict[int, np.ndarray],
+                grid_params: GridParams, p: ReconstructParams, *, source: str = "frames") -> Grids:
+    """All grids of one reconstruction.
+
+    ``xyz``/``normals``/``colors``: surface points; ``voxels``: :func:`pipeline.recon.tsdf.iter_voxels`;
+    ``T_world_camera``: frame index -> pose used. Raises :class:`InputDataError` naming the first
+    camera outside the grid, :class:`StageError` for an empty scene or when more than
+    ``max_outside_fraction`` of the surface falls outside the grid.
+    """
+    if xyz.shape[0] == 0:
+        raise StageError(f"{source}: the fused volume has no surface (empty scene, or depth never observed "
+                         f"{p.min_weight:g}+ times at the same place: reconstruct.min_weight)")
+    cam_idx = np.array(sorted(T_world_camera), dtype=np.int64)
+    cam = np.stack([T_world_camera[i][:3, 3] for i in cam_idx])
+    if p.floor_z_m is None:
+        floor_z, floor_points = estimate_floor(xyz, normals, cam[:, 2])
+    else:
+        floor_z, floor_points = float(p.floor_z_m), 0
+    grid = place_grid(xyz, grid_params, p)
+    cam_rc = grid.world_to_cell(cam[:, :2])
+    out_cam = np.flatnonzero(~grid.inside(cam_rc))
+    if out_cam.size:
+        i = int(cam_idx[out_cam[0]])
+        x, y = cam[out_cam[0], :2]
+        x0, x1, y0, y1 = grid.extent_xy
+        raise InputDataError(
+            f"camera at ({x:.2f}, {y:.2f}) m lies outside the top-down grid "
+            f"x [{x0:.2f}, {x1:.2f}], y [{y0:.2f}, {y1:.2f}] ({out_cam.size} cameras outside)",
+            path=source, field="pose", frame=i,
+            expected="poses within the mapped area; a wrong pose, or a larger grid (grid.rows/cols/cell_size_m)",
+        )
+    occupied, floor_seen = column_occupancy(grid, floor_z, voxels, p)
+    occupied |= surface_occupancy(grid, floor_z, xyz, normals, p)
+    height, color, outside = top_surface(grid, floor_z, xyz, colors, p)
+    outside_fraction = outside / xyz.shape[0]
+    if outside_fraction > p.max_outside_fraction:
+        raise StageError(
+            f"{source}: {outside} of {xyz.shape[0]} surface points ({outside_fraction:.1%}) fall outside the "
+            f"{grid.rows}x{grid.cols} grid at {grid.cell_size_m} m (expected at most "
+            f"{p.max_outside_fraction:.1%}: enlarge grid.rows/cols or grid.cell_size_m)"
+        )
+    # Close one-cell gaps in sparsely sampled tops (grazing views), but never over observed floor.
+    occupied |= binary_closing(occupied, structure=np.ones((3, 3), bool)) & ~floor_seen
+    occupied |= enclosed_unknown(occupied, floor_seen & ~occupied, grid.cell_size_m, p.fill_enclosed_max_m2)
+    hidden = hidden_solid(occupied, floor_seen & ~occupied, grid.cell_size_m, p.hidden_solid_max_m)
+    occupied |= hidden
+    free = floor_seen & ~occupied
+    occupancy = np.full(occupied.shape, UNKNOWN, np.uint8)
+    occupancy[free] = FREE
+    occupancy[occupied] = OCCUPIED
+    navigable = navigable_mask(free, occupied, grid.cell_size_m, p.robot_radius_m)
+    if not free.any():
+        raise StageError(f"{source}: no free floor cell was observed (floor_z {floor_z:.3f} m); "
+                         "the top-down map would be empty")
+    stats = {
+        "floor_z_m": round(floor_z, 4),
+        "floor_points": floor_points,
+        "cells_free": int(free.sum()),
+        "cells_occupied": int(occupied.sum()),
+        "cells_unknown": int((occupancy == UNKNOWN).sum()),
+        "cells_navigable": int(navigable.sum()),
+        "cells_inferred_occupied": int(hidden.sum()),
+        "points_outside_grid": outside,
+        "points_outside_fraction": round(float(outside_fraction), 6),
+    }
+    return Grids(grid, floor_z, occupancy, navigable, color, height, stats)

@@ -1,0 +1,90 @@
+"""North-up PNGs of a ``recon.zarr`` grid (``zipon render <scene> --what ...``), with a scale bar."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from pipeline.errors import ConfigError
+from pipeline.recon.grids import FREE, OCCUPIED
+from pipeline.recon.store import Recon
+
+What = Literal["obstacles", "navigable", "color", "height"]
+WHATS: tuple[str, ...] = ("obstacles", "navigable", "color", "height")
+
+
+def _image(recon: Recon, what: str) -> tuple[np.ndarray, str]:
+    """An ``(rows, cols, 3)`` float image in [0, 1] and its title."""
+    occ = recon.occupancy
+    if what == "obstacles":
+        img = np.full(occ.shape + (3,), 0.55)  # unknown: grey
+        img[occ == FREE] = 1.0
+        img[occ == OCCUPIED] = 0.0
+        return img, "occupancy (white free, black occupied, grey unknown)"
+    if what == "navigable":
+        img = np.full(occ.shape + (3,), 0.55)
+        img[occ == FREE] = (0.85, 0.85, 0.85)
+        img[recon.navigable] = (0.2, 0.7, 0.3)
+        img[occ == OCCUPIED] = 0.0
+        return img, f"navigable (green) for robot radius {recon.robot_radius_m} m"
+    if what == "color":
+        return recon.color.astype(np.float64) / 255.0, "top-surface colour"
+    if what == "height":
+        import matplotlib
+
+        h = recon.height
+        top = max(float(np.nanmax(h)) if np.isfinite(h).any() else 1.0, 0.1)
+        img = matplotlib.colormaps["viridis"](np.clip(np.nan_to_num(h, nan=0.0) / top, 0, 1))[..., :3]
+        img[~np.isfinite(h)] = 1.0
+        return img, f"height above floor (0 .. {top:.2f} m)"
+    raise ConfigError(f"render --what {what!r}: expected one of {', '.join(WHATS)}")
+
+
+def _nice_length(span_m: float) -> float:
+    """A round scale-bar length near a fifth of the span (0.1, 0.2, 0.5, 1, 2, 5 ... m)."""
+    target = span_m / 5.0
+    base = 10 ** np.floor(np.log10(target))
+    return float(max(m * base for m in (1, 2, 5) if m * base <= target) if target >= base else base)
+
+
+def render_recon(recon_path: str | Path, what: str, out_png: str | Path, *, crop: bool = True) -> Path:
+    """Draw one grid of ``recon_path`` north-up (x east to the right, y north up) with a scale bar.
+
+    ``crop`` trims the view to the observed cells plus a margin. Returns the PNG path.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    recon = Recon(recon_path)
+    img, title = _image(recon, what)
+    g = recon.grid
+    x0, x1, y0, y1 = g.extent_xy
+    fig, ax = plt.subplots(figsize=(7, 7), dpi=120)
+    ax.imshow(img, extent=(x0, x1, y0, y1), origin="upper", interpolation="nearest")
+    seen = np.argwhere(recon.occupancy != 0)
+    if crop and len(seen):
+        (r0, c0), (r1, c1) = seen.min(axis=0) - 10, seen.max(axis=0) + 10
+        (xa, yb), (xb, ya) = g.cell_to_world(np.array([[r1, c0], [r0, c1]]))
+        ax.set_xlim(xa, xb)
+        ax.set_ylim(yb, ya)
+    xa, xb = ax.get_xlim()
+    ya, yb = ax.get_ylim()
+    bar = _nice_length(xb - xa)
+    bx, by = xa + 0.05 * (xb - xa), ya + 0.05 * (yb - ya)
+    ax.plot([bx, bx + bar], [by, by], color="red", linewidth=4, solid_capstyle="butt")
+    ax.text(bx + bar / 2, by + 0.02 * (yb - ya), f"{bar:g} m", color="red", ha="center", va="bottom", fontsize=10)
+    ax.annotate("N", xy=(xb - 0.05 * (xb - xa), yb - 0.04 * (yb - ya)),
+                xytext=(xb - 0.05 * (xb - xa), yb - 0.14 * (yb - ya)), color="red", ha="center",
+                arrowprops={"arrowstyle": "->", "color": "red"})
+    ax.set_xlabel("x (m, east)")
+    ax.set_ylabel("y (m, north)")
+    ax.set_title(f"{Path(recon_path).parent.name}: {title}", fontsize=10)
+    out_png = Path(out_png)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_png, bbox_inches="tight")
+    plt.close(fig)
+    return out_png

@@ -1,0 +1,182 @@
+"""``recon.zarr`` (+ ``recon_mesh.ply`` / ``recon_points.ply`` beside it): the reconstruction artifact.
+
+Format (version 1)::
+
+    recon.zarr/                  attrs: artifact="recon", format_version, stage, params_digest, code_version,
+    │                                   grid {rows, cols, cell_size_m, origin_xy, orientation} (GridSpec.to_attrs),
+    │                                   floor_z (world z of the floor, m), floor_estimated (bool),
+    │                                   robot_radius_m, height_band_m [lo, hi] (obstacle band above the floor),
+    │                                   occupancy_codes {"0": "unknown", "1": "free", "2": "occupied"},
+    │                                   tsdf {voxel_size_m, sdf_trunc_m, min_weight, depth_range_m, blocks},
+    │                                   mesh {file, vertices, triangles, bounds_min, bounds_max},
+    │                                   points {file, count}, frames {n_frames, fused, empty},
+    │                                   refinement {enabled, max_moved_m, median_moved_m, frames_rejected, ...},
+    │                                   stats {cells_*, points_outside_*, floor_points},
+    │                                   units, conventions
+    ├── occupancy  (rows, cols)    uint8    0 unknown, 1 free, 2 occupied (navchat's codes)
+    ├── navigable  (rows, cols)    bool     free and clear of occupied cells by robot_radius_m
+    ├── color      (rows, cols, 3) uint8    RGB of the highest surface (ceilings excluded), 0 unknown
+    ├── height     (rows, cols)    float32  metres above floor_z of the highest surface, NaN unknown
+    ├── pose       (N, 4, 4)       float64  T_world_camera used for fusion (refined when refine_poses;
+    │                                       frames.zarr is never modified); NaN: frame not fused
+    └── fused      (N,)            bool     frame i went into the volume
+
+Grids are chunked in 128x128-cell spatial tiles (the whole colour axis in a chunk). Meshes are
+binary PLY with vertex colours and normals, in world metres; vertices and triangles are stored
+in a canonical (sorted) order so the same inputs give the same bytes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+
+from pipeline.errors import ArtifactError, MissingInputError
+from pipeline.geometry import GridSpec
+from pipeline.recon.grids import OCCUPANCY_CODES, Grids
+from pipeline.store import compressor, new_group, open_group
+
+ARTIFACT = "recon"
+FORMAT_VERSION = 1
+TILE = 128
+MESH_SUFFIX = "_mesh.ply"
+POINTS_SUFFIX = "_points.ply"
+UNITS = {"height": "m above floor_z", "floor_z": "m (world z)", "grid": "m", "color": "8-bit RGB"}
+
+
+def write_recon(path: Path, grids: Grids, poses: np.ndarray, fused: np.ndarray, attrs: dict) -> None:
+    """Write a new ``recon.zarr`` at ``path`` (``attrs`` from :func:`pipeline.store.artifact_attrs` + figures)."""
+    g = grids.grid
+    group = new_group(Path(path), {
+        **attrs,
+        "grid": g.to_attrs(),
+        "floor_z": float(grids.floor_z),
+        "occupancy_codes": {str(k): v for k, v in OCCUPANCY_CODES.items()},
+        "units": UNITS,
+        "stats": grids.stats,
+    })
+    tile = (min(TILE, g.rows), min(TILE, g.cols))
+    c = compressor(shuffle="noshuffle")
+    arrays = {
+        "occupancy": (grids.occupancy.astype(np.uint8), tile, c, {"codes": {str(k): v for k, v in OCCUPANCY_CODES.items()}}),
+        "navigable": (grids.navigable.astype(bool), tile, c, {}),
+        "color": (grids.color.astype(np.uint8), tile + (3,), c, {"unit": "8-bit RGB"}),
+        "height": (grids.height.astype(np.float32), tile, compressor(shuffle="shuffle"),
+                   {"unit": "m above floor_z", "unknown": "NaN"}),
+        "pose": (poses.astype(np.float64), (max(len(poses), 1), 4, 4), compressor(), {"frame": "T_world_camera"}),
+        "fused": (fused.astype(bool), (max(len(fused), 1),), c, {}),
+    }
+    for name, (data, chunks, codec, a) in arrays.items():
+        arr = group.create_array(name, shape=data.shape, chunks=chunks, dtype=data.dtype, compressors=codec,
+                                 fill_value=np.nan if data.dtype == np.float32 else 0)
+        arr[...] = data
+        arr.attrs.update(a)
+
+
+def canonical_mesh(mesh: o3d.geometry.TriangleMesh) -> o3d.geometry.TriangleMesh:
+    """The same mesh with vertices sorted by position and triangles sorted, for byte-stable files."""
+    v = np.asarray(mesh.vertices)
+    order = np.lexsort((v[:, 2], v[:, 1], v[:, 0]))
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    tri = rank[np.asarray(mesh.triangles)]
+    if len(tri):
+        # Rotate each triangle to start at its smallest index (winding kept), then sort the rows.
+        shift = np.argmin(tri, axis=1)
+        tri = np.take_along_axis(tri, (shift[:, None] + np.arange(3)) % 3, axis=1)
+        tri = tri[np.lexsort((tri[:, 2], tri[:, 1], tri[:, 0]))]
+    out = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v[order]), o3d.utility.Vector3iVector(tri))
+    if mesh.has_vertex_colors():
+        out.vertex_colors = o3d.utility.Vector3dVector(np.asarray(mesh.vertex_colors)[order])
+    out.compute_vertex_normals()  # after sorting: the summation order, hence the bits, are fixed
+    return out
+
+
+def write_mesh(path: Path, mesh: o3d.geometry.TriangleMesh) -> dict:
+    """Write a canonical binary PLY; returns its description for attrs and the stage summary."""
+    mesh = canonical_mesh(mesh)
+    if not o3d.io.write_triangle_mesh(str(path), mesh, write_ascii=False, compressed=False):
+        raise ArtifactError(f"{path}: open3d could not write the mesh")
+    v = np.asarray(mesh.vertices)
+    return {"file": Path(path).name, "vertices": int(len(v)), "triangles": int(len(mesh.triangles)),
+            "bounds_min": np.round(v.min(axis=0), 4).tolist(), "bounds_max": np.round(v.max(axis=0), 4).tolist()}
+
+
+def write_points(path: Path, xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray) -> dict:
+    """Write surface points as a sorted binary PLY (positions m, normals, colours)."""
+    order = np.lexsort((xyz[:, 2], xyz[:, 1], xyz[:, 0]))
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz[order].astype(np.float64)))
+    pcd.normals = o3d.utility.Vector3dVector(normals[order].astype(np.float64))
+    pcd.colors = o3d.utility.Vector3dVector(colors[order].astype(np.float64) / 255.0)
+    if not o3d.io.write_point_cloud(str(path), pcd, write_ascii=False, compressed=False):
+        raise ArtifactError(f"{path}: open3d could not write the point cloud")
+    return {"file": Path(path).name, "count": int(len(xyz))}
+
+
+@dataclass
+class Recon:
+    """Read-only view of a ``recon.zarr`` for the maps, routes and evaluator stages.
+
+    ``Recon(path)`` checks the artifact and format version; arrays are read on access.
+    """
+
+    path: Path
+
+    def __post_init__(self):
+        self.path = Path(self.path)
+        self.group = open_group(self.path, artifact=ARTIFACT, format_version=FORMAT_VERSION)
+        self.attrs = dict(self.group.attrs)
+        self.grid = GridSpec.from_attrs(self.attrs["grid"])
+        self.floor_z = float(self.attrs["floor_z"])
+        self.robot_radius_m = float(self.attrs["robot_radius_m"])
+        self.height_band_m = tuple(self.attrs["height_band_m"])
+
+    @property
+    def occupancy(self) -> np.ndarray:
+        """``(rows, cols)`` uint8: 0 unknown, 1 free, 2 occupied."""
+        return self.group["occupancy"][...]
+
+    @property
+    def navigable(self) -> np.ndarray:
+        """``(rows, cols)`` bool."""
+        return self.group["navigable"][...]
+
+    @property
+    def color(self) -> np.ndarray:
+        """``(rows, cols, 3)`` uint8 RGB of the top surface."""
+        return self.group["color"][...]
+
+    @property
+    def height(self) -> np.ndarray:
+        """``(rows, cols)`` float32 metres above the floor, NaN unknown."""
+        return self.group["height"][...]
+
+    @property
+    def poses(self) -> np.ndarray:
+        """``(N,4,4)`` float64 poses used for fusion (NaN where a frame was not fused)."""
+        return self.group["pose"][...]
+
+    @property
+    def fused(self) -> np.ndarray:
+        return self.group["fused"][...]
+
+    def _beside(self, key: str, suffix: str) -> Path:
+        name = self.attrs.get(key, {}).get("file") or self.path.name.removesuffix(".zarr") + suffix
+        path = self.path.parent / name
+        if not path.is_file():
+            raise MissingInputError(f"{path}: {key} file of {self.path} not found (rerun: zipon run --force)")
+        return path
+
+    @property
+    def mesh_path(self) -> Path:
+        return self._beside("mesh", MESH_SUFFIX)
+
+    @property
+    def points_path(self) -> Path:
+        return self._beside("points", POINTS_SUFFIX)
+
+    def mesh(self) -> o3d.geometry.TriangleMesh:
+        return o3d.io.read_triangle_mesh(str(self.mesh_path))

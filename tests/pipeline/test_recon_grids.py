@@ -1,0 +1,98 @@
+"""Floor estimation, grid placement and the navigable / enclosed-region rules of pipeline.recon.grids."""
+
+import numpy as np
+import pytest
+
+from pipeline.config import GridParams, ReconstructParams
+from pipeline.errors import ConfigError, StageError
+from pipeline.recon.grids import enclosed_unknown, estimate_floor, lattice_ratio, navigable_mask, place_grid
+
+
+def _plane(rng, n, z, x=(0, 4), y=(0, 3)):
+    xyz = np.c_[rng.uniform(*x, n), rng.uniform(*y, n), z + rng.normal(0, 0.004, n)]
+    return xyz, np.tile([0.0, 0.0, 1.0], (n, 1))
+
+
+def test_floor_is_lowest_strong_horizontal_peak_not_the_biggest_or_an_outlier():
+    rng = np.random.default_rng(0)
+    floor, nf = _plane(rng, 4000, 0.317)
+    table, nt = _plane(rng, 6000, 0.75, x=(1, 2), y=(1, 2))  # a bigger peak higher up
+    speck, ns = _plane(rng, 30, -0.4)  # a few spurious points below the floor
+    wall = np.c_[rng.uniform(0, 4, 3000), np.zeros(3000), rng.uniform(-1, 2, 3000)]
+    nw = np.tile([0.0, 1.0, 0.0], (3000, 1))
+    xyz = np.concatenate([floor, table, speck, wall])
+    normals = np.concatenate([nf, nt, ns, nw])
+    z, count = estimate_floor(xyz, normals, camera_z=np.full(5, 1.2))
+    assert abs(z - 0.317) < 0.005
+    assert count > 3000
+
+
+def test_no_floor_under_the_cameras_is_a_stage_error():
+    rng = np.random.default_rng(1)
+    wall = np.c_[rng.uniform(0, 4, 500), np.zeros(500), rng.uniform(0, 2, 500)]
+    with pytest.raises(StageError, match="no floor found.*reconstruct.floor_z_m"):
+        estimate_floor(wall, np.tile([0.0, 1.0, 0.0], (500, 1)), camera_z=np.ones(3))
+
+
+def test_grid_is_centred_on_the_surface_and_cell_centres_fall_on_the_voxel_lattice():
+    rng = np.random.default_rng(2)
+    xyz = np.c_[rng.uniform(10, 14, 1000), rng.uniform(-3, 0, 1000), np.zeros(1000)]
+    for voxel in (0.025, 0.05, 0.0125):
+        p = ReconstructParams(voxel_size_m=voxel, sdf_trunc_m=0.08)
+        grid = place_grid(xyz, GridParams(rows=200, cols=300), p)
+        x0, x1, y0, y1 = grid.extent_xy
+        assert abs((x0 + x1) / 2 - 12) < 0.1 and abs((y0 + y1) / 2 + 1.5) < 0.1
+        centres = grid.cell_to_world(np.array([[0, 0], [17, 123]])) / voxel
+        assert np.allclose(centres, np.round(centres), atol=1e-6)
+
+
+def test_cell_size_must_be_a_multiple_of_the_voxel():
+    with pytest.raises(ConfigError, match="grid.cell_size_m .* whole multiple of reconstruct.voxel_size_m"):
+        lattice_ratio(GridParams(cell_size_m=0.05), ReconstructParams(voxel_size_m=0.03, sdf_trunc_m=0.08))
+
+
+def test_navigable_keeps_the_robot_radius_from_occupied_cell_centres():
+    occ = np.zeros((21, 21), bool)
+    occ[10, 10] = True
+    free = ~occ
+    nav = navigable_mask(free, occ, cell_size_m=0.05, robot_radius_m=0.18)
+    rr, cc = np.mgrid[:21, :21]
+    dist = np.hypot(rr - 10, cc - 10) * 0.05
+    assert np.array_equal(nav, dist > 0.18)
+    assert np.array_equal(navigable_mask(free, np.zeros_like(occ), 0.05, 0.18), free)
+
+
+def test_only_small_regions_walled_in_by_occupied_cells_are_filled():
+    occ = np.zeros((30, 30), bool)
+    occ[5:10, 5] = occ[5:10, 9] = occ[5, 5:10] = occ[9, 5:10] = True  # a closed ring: inside 3x3
+    occ[20:25, 20] = occ[20:25, 24] = occ[20, 20:25] = True  # open on one side
+    free = np.zeros_like(occ)
+    free[25:28, 18:27] = True  # the open ring's mouth sees free floor
+    filled = enclosed_unknown(occ, free, cell_size_m=0.05, max_area_m2=1.0)
+    assert filled.sum() == 9 and filled[6:9, 6:9].all()
+    assert not enclosed_unknown(occ, free, cell_size_m=0.05, max_area_m2=0.01).any()
+
+
+def test_unseen_back_of_furniture_is_inferred_but_the_outside_world_is_not():
+    from pipeline.recon.grids import hidden_solid
+
+    occ = np.zeros((40, 40), bool)
+    occ[5, 5:35] = occ[35, 5:35] = occ[5:36, 5] = occ[5:36, 34] = True  # building walls
+    occ[20, 10:20] = True  # the observed front face of a wardrobe standing against the west wall
+    free = np.zeros_like(occ)
+    free[21:34, 6:34] = True  # floor seen in front of it
+    free[6:15, 6:34] = True  # and in the room's north part
+    hidden = hidden_solid(occ, free, cell_size_m=0.05, max_dist_m=0.5)
+    # Unknown rows 15-19 lie between the seen floor (row 14) and the face (row 20): each goes to the nearer.
+    assert hidden[18:20, 10:20].all() and not hidden[15:18, 10:20].any()
+    assert not hidden[:5].any() and not hidden[:, :5].any()  # outside the building stays unknown
+    assert not hidden_solid(occ, free, 0.05, 0.0).any()
+
+
+def test_an_empty_scene_is_a_stage_error_not_an_empty_map():
+    from pipeline.recon.grids import build_grids
+
+    empty = np.zeros((0, 3), np.float32)
+    with pytest.raises(StageError, match="frames.zarr: the fused volume has no surface"):
+        build_grids(empty, empty, np.zeros((0, 3), np.uint8), iter(()), {0: np.eye(4)}, GridParams(),
+                    ReconstructParams(), source="frames.zarr")

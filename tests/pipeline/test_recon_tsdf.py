@@ -1,0 +1,61 @@
+"""TSDF fusion: streaming, empty frames, and honest failure on bad depth."""
+
+import numpy as np
+import pytest
+
+from pipeline.config import ReconstructParams
+from pipeline.errors import InputDataError
+from pipeline.frames import FrameStore
+from pipeline.geometry import Intrinsics
+from pipeline.recon import tsdf
+from tests.fixtures.recon_scenes import box_room_gt, box_room_poses, render_frames, write_frames
+
+INTR = Intrinsics.from_hfov(96, 72, 90.0)
+
+
+@pytest.fixture(scope="module")
+def arrays():
+    gt = box_room_gt()
+    poses = box_room_poses(24)
+    rgb, depth, _ = render_frames(gt, poses, INTR)
+    return gt, poses, rgb, depth
+
+
+def test_fusion_streams_blocks_and_surface_lies_on_the_walls(arrays, tmp_path):
+    gt, poses, rgb, depth = arrays
+    store = FrameStore(write_frames(tmp_path / "f.zarr", gt, rgb, depth, poses, INTR, block_frames=5))
+    p = ReconstructParams(block_frames=7, min_weight=1.0)
+    fusion = tsdf.fuse(store, p, frames=range(0, 24, 2))
+    assert fusion.frames_fused == list(range(0, 24, 2)) and fusion.empty_frames == []
+    xyz, normals, colors = tsdf.extract_points(fusion.volume, p)
+    assert len(xyz) > 1000 and colors.dtype == np.uint8
+    # Every surface point lies within a voxel of the floor plane, a wall face or an object face.
+    faces_x = np.array([0.0, 4.0, 4.1, 6.0, 1.0, 2.0, 2.6, 3.0, 5.3, 5.9])
+    faces_y = np.array([0.0, 3.0, 1.0, 2.0, 1.8, 2.6, 0.5, 0.9, 0.1, 0.6])
+    faces_z = np.array([0.0, 0.75, 0.4, 1.2, 2.5])
+    d = np.minimum.reduce([np.abs(xyz[:, 0:1] - faces_x).min(1), np.abs(xyz[:, 1:2] - faces_y).min(1),
+                           np.abs(xyz[:, 2:3] - faces_z).min(1)])
+    assert np.median(d) < 0.005 and np.percentile(d, 99) < p.voxel_size_m
+    lattice, values = next(tsdf.iter_voxels(fusion.volume, p))
+    assert lattice.dtype == np.int32 and values.min() >= -1 and values.max() <= 1
+
+
+def test_a_few_empty_frames_are_skipped_and_reported(arrays, tmp_path):
+    gt, poses, rgb, depth = arrays
+    depth = depth.copy()
+    depth[[3, 11]] = 0
+    store = FrameStore(write_frames(tmp_path / "f.zarr", gt, rgb, depth, poses, INTR))
+    fusion = tsdf.fuse(store, ReconstructParams())
+    assert fusion.empty_frames == [3, 11] and len(fusion.frames_fused) == 22
+
+
+def test_mostly_invalid_depth_fails_naming_the_first_frame(arrays, tmp_path):
+    gt, poses, rgb, depth = arrays
+    depth = depth.copy()
+    depth[5:] = 0
+    path = write_frames(tmp_path / "f.zarr", gt, rgb, depth, poses, INTR)
+    with pytest.raises(InputDataError, match=r"field depth; frame 5: 19 of 24 frames have no valid depth"):
+        tsdf.fuse(FrameStore(path), ReconstructParams())
+    # Depth beyond depth_max_m counts as invalid too.
+    with pytest.raises(InputDataError, match="frame 0: 24 of 24 frames"):
+        tsdf.fuse(FrameStore(path), ReconstructParams(depth_min_m=0.1, depth_max_m=0.2))
