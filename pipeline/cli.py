@@ -385,6 +385,37 @@ def goals_export_navchat(
     out.print(f"{folder}/objects.json, {folder}/final.json")
 
 
+@app.command("eval")
+def eval_cmd(
+    out_dir: Path = typer.Option(Path("eval_out"), "--out", "-o", help="folder for results.json, report.html, episode logs"),
+    scenes: list[str] = typer.Option([], "--scenes", "-s", help="scenes (repeatable; default: params eval/scenes)"),
+    methods: list[str] = typer.Option([], "--methods", "-m", help="human | cow | vlmap | cf | orion (repeatable)"),
+    feedback: list[str] = typer.Option([], "--feedback", "-f", help="feedback settings (repeatable; default: all)"),
+    seeds: list[int] = typer.Option([], "--seeds", help="seeds (repeatable; default: params eval.seeds)"),
+):
+    """Run ORION-style agents on the built artifacts; write SR / SPL / SIT as JSON and an HTML report.
+
+    Examples: `zipon eval --out eval_out` · `zipon eval -s sim_00 -m orion -m vlmap -f descriptive --seeds 0`
+    """
+    from orion_eval.run import run_eval
+
+    ws, params = G.load()
+    results = run_eval(ws, params, out_dir, scenes=scenes or None, methods=methods or None,
+                       feedback=feedback or None, seeds=seeds or None, progress=not G.quiet)
+    _print_eval(results, out_dir)
+
+
+def _print_eval(results: dict, out_dir: Path) -> None:
+    table = Table(title="orion_eval: mean over seeds (%)")
+    for col in ("method", "feedback", "SR", "SPL", "SIT", "episodes"):
+        table.add_column(col)
+    for method, by_feedback in results["overall"].items():
+        for setting, m in by_feedback.items():
+            table.add_row(method, setting, f"{m['SR']:.1f}", f"{m['SPL']:.1f}", f"{m['SIT']:.1f}", str(m["episodes"]))
+    out.print(table)
+    out.print(f"results: {Path(out_dir) / 'results.json'}\nreport:  {Path(out_dir) / 'report.html'}")
+
+
 @app.command()
 def demo(
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="dask scheduler (default: params)"),

@@ -1,0 +1,226 @@
+"""ORION's modules as a Python API with the paper's function names and returns.
+
+One :class:`Modules` per episode, on top of the scene's shared :class:`~orion_eval.scene.SceneContext`:
+
+- control: ``move(dist_m)``, ``rotate(angle_rad)``, ``goto_point(xy)`` (FMM planner on the navigable
+  grid), ``goto_object(obj_id)``;
+- semantic map: ``retrieve_map(obj_str) -> [(obj_id, distance_m, angle_rad)]`` (VLMap or CF map);
+- detection: ``detect_object(obj_str) -> [(obj_id, distance_m, angle_rad)]`` on the ego view
+  ray-cast from the reconstructed mesh; ``double_check(obj_id) -> bool``;
+- exploration: ``search_object(obj_str) -> obj_id | None`` (spin first, then frontiers);
+- memory: ``update_memory(obj_id, pos_str, neg_str)``, ``retrieve_memory(obj_str) -> [(obj_id, d, a)]``;
+- interaction: ``talk(content) -> str`` (the user's reply).
+
+Distances are metres from the agent to the object's nearest cell; angles are the bearing of the
+object's centre relative to the agent's heading (counter-clockwise positive). Objects get ids in
+the episode's registry; a new sighting within ``MERGE_M`` of a known object is that object.
+Every action goes through :class:`~orion_eval.episode.EpisodeRun`, which counts steps and Talk turns
+and ends the episode by raising :class:`~orion_eval.episode.EpisodeOver`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+
+from orion_eval.memory import MemoryMaps
+from pipeline.routes.actions import FORWARD, LEFT, RIGHT, wrap_angle
+
+MERGE_M = 0.6
+
+
+@dataclass
+class ObjectEntry:
+    obj_id: int
+    center_xy: np.ndarray
+    cells: np.ndarray  # flat cell ids
+    source: str  # 'vlmap' | 'cfmap' | 'detect' | ...
+    score: float = 0.0
+    texts: set = field(default_factory=set)
+
+
+class Modules:
+    """The ORION API for one episode (see the module docstring)."""
+
+    def __init__(self, run):
+        self.run = run  # EpisodeRun: body, ctx, act(), talk()
+        self.ctx = run.ctx
+        self.objects: dict[int, ObjectEntry] = {}
+        self.memory = MemoryMaps(lambda texts: self.ctx.arts.map_query(self.ctx.params.eval.orion_map)
+                                 .text_features(texts).numpy())
+        self._explored = None
+
+    # ------------------------------------------------------------------ registry
+    @property
+    def pose(self):
+        return self.run.body.pose
+
+    def register(self, center_xy, cells, source: str, score: float = 0.0, text: str | None = None) -> int:
+        c = np.asarray(center_xy, np.float64)
+        for e in self.objects.values():
+            if np.linalg.norm(e.center_xy - c) <= MERGE_M:
+                if text:
+                    e.texts.add(text)
+                return e.obj_id
+        oid = len(self.objects) + 1
+        self.objects[oid] = ObjectEntry(oid, c, np.asarray(cells, np.int64), source, score, {text} if text else set())
+        return oid
+
+    def relative(self, obj_id: int) -> tuple[float, float]:
+        """(distance_m to the nearest cell, bearing of the centre) of an object from the agent."""
+        e = self.objects[obj_id]
+        x, y, yaw = self.pose
+        g = self.ctx.grid
+        rr, cc = np.divmod(e.cells[:: max(1, len(e.cells) // 64)], g.cols)
+        xy = g.cell_to_world(np.stack([rr, cc], axis=1)) if len(rr) else e.center_xy[None]
+        d = float(np.min(np.hypot(xy[:, 0] - x, xy[:, 1] - y)))
+        a = float(wrap_angle(math.atan2(e.center_xy[1] - y, e.center_xy[0] - x) - yaw))
+        return d, a
+
+    def _triples(self, ids: list[int]) -> list[tuple[int, float, float]]:
+        out = [(i, *self.relative(i)) for i in dict.fromkeys(ids)]
+        return sorted(out, key=lambda t: (t[1], t[0]))
+
+    # ------------------------------------------------------------------ control
+    def move(self, dist_m: float) -> None:
+        for _ in range(max(0, int(round(dist_m / self.ctx.step_m)))):
+            self.run.act(FORWARD)
+
+    def rotate(self, angle_rad: float) -> None:
+        n = int(round(float(wrap_angle(angle_rad)) / math.radians(self.ctx.turn_deg)))
+        for _ in range(abs(n)):
+            self.run.act(LEFT if n > 0 else RIGHT)
+
+    def _follow(self, route) -> bool:
+        if route is None:
+            return False
+        for a in route.actions.tolist():
+            if a == 0:
+                break
+            self.run.act(a)
+        return True
+
+    def goto_point(self, xy) -> bool:
+        """Walk to (near) a world point; False when unreachable."""
+        mask = self.ctx.planner.point_mask(xy)
+        rc = self.ctx.grid.world_to_cell(np.asarray(xy, np.float64))
+        route = self.ctx.planner.route(self.pose, mask, key=("pt", int(rc[0]), int(rc[1])), face_xy=None)
+        return self._follow(route)
+
+    def goto_object(self, obj_id: int) -> bool:
+        """Walk to the nearest place within the stop radius of an object's cells that sees it, face its centre;
+        False when unreachable."""
+        e = self.objects[obj_id]
+        g = self.ctx.grid
+        mask = np.zeros(g.rows * g.cols, bool)
+        mask[e.cells] = True
+        key = ("obj", e.source, int(e.cells.min()) if len(e.cells) else 0, len(e.cells))
+        # sight the object's centre column at half and full height of its reconstructed top surface
+        h = self.ctx.arts.height.reshape(-1)[e.cells] if len(e.cells) else np.array([np.nan])
+        top = float(np.clip(np.nanmedian(h), 0.1, 2.0)) if np.isfinite(h).any() else 0.6
+        view = self.ctx.viewpoints(key, mask.reshape(g.rows, g.cols), e.center_xy, (0.5 * top, top))
+        route = self.ctx.view_planner.route(self.pose, view, key=key, face_xy=e.center_xy)
+        return self._follow(route)
+
+    # ------------------------------------------------------------------ semantic map
+    def retrieve_map(self, obj_str: str, which: str = "vlmap") -> list[tuple[int, float, float]]:
+        ids = [self.register(m.center_xy, m.cells, which, m.score, obj_str) for m in self.ctx.map_objects(which, obj_str)]
+        return self._triples(ids)
+
+    def map_scores(self, obj_str: str, which: str) -> dict[int, float]:
+        """obj_id -> map score of ``obj_str`` (registering the candidates)."""
+        return {self.register(m.center_xy, m.cells, which, m.score, obj_str): m.score
+                for m in self.ctx.map_objects(which, obj_str)}
+
+    # ------------------------------------------------------------------ detection
+    def detect_object(self, obj_str: str) -> list[tuple[int, float, float]]:
+        self.run.log_event("detect", obj_str)
+        ids = [self.register(d.center_xy, d.cells, "detect", d.score, obj_str) for d in self.ctx.detect(self.pose, obj_str)]
+        return self._triples(ids)
+
+    def double_check(self, obj_id: int) -> bool:
+        """Face the object and check the ego view detects something matching the object's query there."""
+        e = self.objects[obj_id]
+        d, a = self.relative(obj_id)
+        self.rotate(a)
+        texts = sorted(e.texts) or [""]
+        for text in texts:
+            for det in self.ctx.detect(self.pose, text):
+                if np.linalg.norm(det.center_xy - e.center_xy) <= 1.0 or np.isin(det.cells, e.cells).any():
+                    return True
+        return False
+
+    # ------------------------------------------------------------------ exploration
+    def _explored_mask(self) -> np.ndarray:
+        if self._explored is None:
+            self._explored = np.zeros((self.ctx.planner.crop_grid.rows, self.ctx.planner.crop_grid.cols), bool)
+        return self._explored
+
+    def _mark_explored(self) -> None:
+        cg = self.ctx.planner.crop_grid
+        r = self.ctx.params.eval.explore_radius_m
+        rc = cg.world_to_cell(np.asarray(self.pose[:2]))
+        n = int(math.ceil(r / cg.cell_size_m))
+        rr, cc = np.mgrid[-n : n + 1, -n : n + 1]
+        keep = (rr**2 + cc**2) * cg.cell_size_m**2 <= r * r
+        rr, cc = rr[keep] + rc[0], cc[keep] + rc[1]
+        ok = (rr >= 0) & (rr < cg.rows) & (cc >= 0) & (cc < cg.cols)
+        self._explored_mask()[rr[ok], cc[ok]] = True
+
+    def look_around(self, obj_str: str) -> list[tuple[int, float, float]]:
+        """Spin 360 deg in turn steps, detecting every 90 deg (the ego view is 90 deg wide)."""
+        found: list[int] = []
+        per_view = max(1, int(round(90.0 / self.ctx.turn_deg)))
+        views = int(round(360.0 / self.ctx.turn_deg)) // per_view
+        for _ in range(views):
+            found += [t[0] for t in self.detect_object(obj_str)]
+            for _ in range(per_view):
+                self.run.act(LEFT)
+        self._mark_explored()
+        return self._triples(found)
+
+    def frontier(self) -> np.ndarray | None:
+        """World xy of the nearest frontier cell (navigable, unexplored, next to explored) at least 1 m away."""
+        nav = self.ctx.planner.planner.plan_mask
+        ex = self._explored_mask()
+        front = nav & ~ex & ndimage.binary_dilation(ex)
+        if not front.any():
+            return None
+        cg = self.ctx.planner.crop_grid
+        rr, cc = np.nonzero(front)
+        xy = cg.cell_to_world(np.stack([rr, cc], axis=1))
+        d = np.hypot(xy[:, 0] - self.pose[0], xy[:, 1] - self.pose[1])
+        far = d >= 1.0
+        if not far.any():
+            return None
+        k = int(np.flatnonzero(far)[np.argmin(d[far])])
+        return xy[k]
+
+    def search_object(self, obj_str: str, skip=lambda obj_id: False) -> int | None:
+        """Frontier-based exploration with a spin first; the nearest detection not ``skip``-ped, or None."""
+        for _ in range(self.ctx.params.eval.explore_max_targets):
+            hits = [t for t in self.look_around(obj_str) if not skip(t[0])]
+            if hits:
+                return hits[0][0]
+            target = self.frontier()
+            if target is None:
+                return None
+            if not self.goto_point(target):
+                self._explored_mask()[tuple(self.ctx.planner.crop_grid.world_to_cell(target))] = True
+        return None
+
+    # ------------------------------------------------------------------ memory
+    def update_memory(self, obj_id: int, pos_str: str | None, neg_str: str | None) -> None:
+        self.memory.update(obj_id, self.objects[obj_id].cells, pos_str, neg_str)
+
+    def retrieve_memory(self, obj_str: str) -> tuple[list[tuple[int, float, float]], list[int]]:
+        """(positive hits as (obj_id, distance, angle), negative obj_ids) of ``obj_str``."""
+        pos, neg = self.memory.retrieve(obj_str)
+        return self._triples(pos), neg
+
+    # ------------------------------------------------------------------ interaction
+    def talk(self, content: str) -> str:
+        return self.run.talk(content)

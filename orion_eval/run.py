@@ -1,0 +1,159 @@
+"""``zipon eval``: every (scene, method, feedback setting, seed, goal) episode, metrics, and the report.
+
+The unit of work is one scene (:func:`evaluate_scene`, a pure function of the artifacts and params
+returning its episode results); scenes are mapped over ``eval.workers`` processes with dask, the
+serial path calling the same function. Per goal and seed the episode is
+``routes.for_goal(goal)[seed % n]`` with its start heading turned by 90 deg per pass over the goal's
+episodes (:func:`orion_eval.episode.start_pose`); the user's draws are seeded by
+``(seed, goal index, setting index)``. Results are identical for identical inputs.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from orion_eval.agents import build_agent
+from orion_eval.artifacts import Artifacts
+from orion_eval.episode import Task, run_episode, start_pose
+from orion_eval.scene import SceneContext
+from orion_eval.user import FEEDBACK_SETTINGS
+from pipeline.config import Params
+from pipeline.errors import ConfigError
+from pipeline.paths import Workspace
+
+
+def scene_tasks(arts: Artifacts, methods, feedback, seeds) -> list[tuple[Task, object]]:
+    """(task, goal view) pairs of one scene in a fixed order (goal, seed, setting, method)."""
+    out = []
+    routes, goals = arts.routes, arts.goals
+    for goal in goals.goals:
+        eps = routes.for_goal(goal.id)
+        if not eps:
+            continue  # unreachable goal: reported by the routes stage, not an episode
+        for seed in seeds:
+            e = eps[seed % len(eps)]
+            p0 = start_pose(e.start, seed, len(eps))
+            for fb in feedback:
+                for method in methods:
+                    out.append((Task(arts.scene, method, fb, int(seed), goal.id, e.id, p0, float(e.geodesic_m)), goal))
+    return out
+
+
+def evaluate_scene(ws: Workspace, params: Params, scene: str, methods, feedback, seeds,
+                   log_dir: Path | None = None, threads: int = 1) -> list[dict]:
+    """All episodes of one scene (the unit of work); writes ``log_dir/<scene>.episodes.jsonl.gz`` when given."""
+    from pipeline.runner import limit_native_threads
+
+    limit_native_threads(threads)
+    arts = Artifacts(ws, params, scene)
+    ctx = SceneContext(arts)
+    lp = params.eval.llm
+    client = llm_user = None
+    if lp.base_url:
+        from orion_eval.llm import ChatClient, LLMAgent, LLMUser
+
+        client = ChatClient.from_params(lp)
+        if lp.roles in ("user", "both"):
+            llm_user = lambda goal: LLMUser(client, goal)  # noqa: E731
+    agents = {m: (LLMAgent(client) if m == "llm" else build_agent(m, params)) for m in methods}
+    goal_index = {g.id: i for i, g in enumerate(arts.goals.goals)}
+    results = []
+    for task, goal in scene_tasks(arts, methods, feedback, seeds):
+        rng = np.random.default_rng([task.seed, goal_index[goal.id], FEEDBACK_SETTINGS.index(task.feedback)])
+        t0 = time.perf_counter()
+        res = run_episode(ctx, task, agents[task.method], goal, rng=rng, llm_user=llm_user)
+        res["seconds"] = round(time.perf_counter() - t0, 5)
+        results.append(res)
+    if log_dir is not None:
+        log_dir.mkdir(parents=True, exist_ok=True)
+        with gzip.open(log_dir / f"{scene}.episodes.jsonl.gz", "wt") as f:
+            for r in results:
+                f.write(json.dumps({k: v for k, v in r.items() if k != "seconds"}, sort_keys=True) + "\n")
+    return results
+
+
+def _resolve(params: Params, scenes, methods, feedback, seeds):
+    ep = params.eval
+    scenes = list(scenes or ep.scenes or params.scenes)
+    unknown = [s for s in scenes if s not in params.scenes]
+    if unknown:
+        raise ConfigError(f"--scenes: unknown scene(s) {unknown}; params.yaml has {sorted(params.scenes)}")
+    from orion_eval.agents import AGENTS
+
+    methods = list(methods or ep.methods)
+    llm_agent = bool(ep.llm.base_url) and ep.llm.roles in ("agent", "both")
+    bad = [m for m in methods if m not in AGENTS and not (m == "llm" and llm_agent)]
+    if bad:
+        raise ConfigError(f"--methods: unknown method(s) {bad}; choose from {sorted(AGENTS)} "
+                          f"(and 'llm' when eval.llm.base_url is set with roles agent/both)")
+    feedback = list(feedback or ep.feedback)
+    bad = [f for f in feedback if f not in FEEDBACK_SETTINGS]
+    if bad:
+        raise ConfigError(f"--feedback: unknown setting(s) {bad}; choose from {list(FEEDBACK_SETTINGS)}")
+    seeds = [int(s) for s in (seeds if seeds is not None else ep.seeds)]
+    return scenes, methods, feedback, seeds
+
+
+def run_eval(ws: Workspace, params: Params, out_dir: Path, scenes=None, methods=None, feedback=None, seeds=None,
+             *, progress: bool = True, report: bool = True) -> dict:
+    """Evaluate, write ``out_dir/results.json`` (+ episode logs, + the HTML report) and return the results."""
+    from orion_eval.metrics import summarize
+
+    out_dir = Path(out_dir)
+    scenes, methods, feedback, seeds = _resolve(params, scenes, methods, feedback, seeds)
+    for s in scenes:  # fail early, before any worker starts, on missing or mismatched artifacts
+        Artifacts(ws, params, s)
+    if params.eval.llm.base_url:
+        from orion_eval.llm import check_llm_params
+
+        check_llm_params(params.eval.llm)
+    t0 = time.perf_counter()
+    log_dir = out_dir / "episodes"
+    workers = min(params.eval.workers, len(scenes))
+    if workers > 1:
+        import dask
+
+        tasks = [dask.delayed(evaluate_scene, pure=False)(ws, params, s, methods, feedback, seeds, log_dir)
+                 for s in scenes]
+        per_scene = dask.compute(*tasks, scheduler="processes", num_workers=workers)
+    else:
+        per_scene = []
+        for s in scenes:
+            if progress:
+                from rich.console import Console
+
+                Console(stderr=True).print(f"[dim]eval:[/dim] scene {s}")
+            per_scene.append(evaluate_scene(ws, params, s, methods, feedback, seeds, log_dir))
+    episodes = [r for rs in per_scene for r in rs]
+    seconds = time.perf_counter() - t0
+    results = summarize(episodes, methods=methods, feedback=feedback, seeds=seeds, scenes=scenes,
+                        max_turns=params.eval.max_talk_turns)
+    results["run"] = {"scenes": scenes, "methods": methods, "feedback": feedback, "seeds": seeds,
+                      "episodes": len(episodes), "seconds": round(seconds, 2),
+                      "episodes_per_s": round(len(episodes) / seconds, 2) if seconds > 0 else None,
+                      "success_rule": params.eval.success_rule, "max_talk_turns": params.eval.max_talk_turns,
+                      "encoders": {s: _encoder_names(ws, params, s) for s in scenes}}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "results.json").write_text(json.dumps(results, indent=2, sort_keys=True) + "\n")
+    if report:
+        from orion_eval.report import write_report
+
+        write_report(results, out_dir)
+    return results
+
+
+def _encoder_names(ws, params, scene) -> dict:
+    from pipeline.maps.store import SemanticMap
+
+    out = {}
+    for which in ("vlmap", "cfmap"):
+        p = ws.artifact(which, scene)
+        if p.exists():
+            e = SemanticMap(p).encoder
+            out[which] = {"name": e.get("name"), "diagnostic": bool(e.get("diagnostic"))}
+    return out

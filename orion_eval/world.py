@@ -1,0 +1,161 @@
+"""The evaluation world: the agent's body on the navigable grid, its actions, and the success rule.
+
+Actions (the paper's): ``TurnLeft`` / ``TurnRight`` by ``turn_deg`` (15 deg; left = counter-clockwise),
+``MoveForward`` by ``step_m`` (0.25 m), and ``Talk`` (counted by the episode, see
+:mod:`orion_eval.episode`). A forward step collides when any point of it (sampled every third of a
+cell) leaves the navigable cells; the agent then stays put, as in Habitat and in
+:func:`pipeline.routes.verify.replay`.
+
+Success (``eval.success_rule``):
+
+- ``paper``: the agent is within ``success_distance_m`` (1.5 m) of the goal's footprint (0 inside),
+  the goal's mass centre lies inside the ``hfov_deg`` (90 deg) ego view, and it is in line of sight;
+- ``navchat``: navchat's tighter bands on (distance, |bearing|): (0.6 m, 45 deg), (1.2 m, 30 deg),
+  (1.4 m, 15 deg — standing in for "enough goal pixels near the image centre"), plus line of sight.
+
+Line of sight: rays from the camera (above the agent) to the goal's mass-centre column, at half
+and the top of the object, cast against the RECONSTRUCTED mesh (:func:`orion_eval.egoview.sight_lines`):
+in sight when one ray reaches the target or first hits the goal's own footprint (dilated two
+cells). Without a mesh, a 2.5-D test on the height grid stands in (a cell blocks when its top is
+above the segment there).
+Any member of a same_goal group counts.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+
+from pipeline.geometry import GridSpec
+from pipeline.routes.actions import FORWARD, LEFT, RIGHT, STOP, wrap_angle
+from pipeline.routes.fmm import segment_free
+from pipeline.routes.verify import point_polygon_distance
+
+ACTION_WORDS = {FORWARD: "MoveForward", LEFT: "TurnLeft", RIGHT: "TurnRight", STOP: "Stop"}
+NAVCHAT_BANDS = ((0.6, 45.0), (1.2, 30.0), (1.4, 15.0))
+SIGHT_LEVELS = (0.5, 1.0)  # fractions of the object height sighted on its mass-centre column (1.0 = its top)
+
+
+@dataclass
+class Body:
+    """The agent's pose on the grid and what it has done (world metres, radians)."""
+
+    x: float
+    y: float
+    yaw: float
+    travelled_m: float = 0.0
+    steps: int = 0
+    collisions: int = 0
+    actions: list[int] = field(default_factory=list)
+    poses: list[tuple[float, float, float]] = field(default_factory=list)
+
+    @property
+    def pose(self) -> tuple[float, float, float]:
+        return (self.x, self.y, self.yaw)
+
+
+class World:
+    """Moves a :class:`Body` on ``navigable`` ``(rows, cols)`` bool of ``grid``."""
+
+    def __init__(self, navigable: np.ndarray, grid: GridSpec, *, step_m: float = 0.25, turn_deg: float = 15.0):
+        self.nav = np.asarray(navigable, dtype=bool)
+        self.grid, self.step_m, self.turn = grid, float(step_m), math.radians(turn_deg)
+
+    def _crc(self, x: float, y: float) -> np.ndarray:
+        x0, y1 = self.grid.origin_xy
+        return np.array([(y1 - y) / self.grid.cell_size_m - 0.5, (x - x0) / self.grid.cell_size_m - 0.5])
+
+    def act(self, body: Body, action: int) -> bool:
+        """Execute one action code; returns False when a forward step collided."""
+        ok = True
+        if action == LEFT:
+            body.yaw = float(wrap_angle(body.yaw + self.turn))
+        elif action == RIGHT:
+            body.yaw = float(wrap_angle(body.yaw - self.turn))
+        elif action == FORWARD:
+            nx, ny = body.x + self.step_m * math.cos(body.yaw), body.y + self.step_m * math.sin(body.yaw)
+            if segment_free(self.nav, self._crc(body.x, body.y), self._crc(nx, ny))[0]:
+                body.x, body.y = nx, ny
+                body.travelled_m += self.step_m
+            else:
+                body.collisions += 1
+                ok = False
+        elif action != STOP:
+            raise ValueError(f"unknown action code {action}")
+        if action != STOP:
+            body.steps += 1
+            body.actions.append(int(action))
+            body.poses.append((round(body.x, 4), round(body.y, 4), round(body.yaw, 4)))
+        return ok
+
+
+@dataclass(frozen=True)
+class GoalGeometry:
+    """What the success rule needs of one goal: per member footprint, mass centre and height band."""
+
+    footprints: tuple[np.ndarray, ...]  # (N,2) world polygons
+    mass_centers: np.ndarray  # (K,2)
+    z_levels: np.ndarray  # (K,L) heights above the floor where the mass centre column is sighted
+    own_cells: np.ndarray  # (rows, cols) bool: the group's footprint cells, dilated by one cell
+
+
+class SuccessRule:
+    """The paper's (or navchat's) success test on one scene; see the module docstring."""
+
+    def __init__(self, grid: GridSpec, height: np.ndarray, camera_height_m: float, *, rule: str = "paper",
+                 distance_m: float = 1.5, hfov_deg: float = 90.0, sight=None):
+        self.grid, self.rule, self.distance_m = grid, rule, float(distance_m)
+        self.half_fov = math.radians(hfov_deg) / 2.0
+        self.height = np.nan_to_num(np.asarray(height, dtype=np.float32), nan=-np.inf)
+        self.camera_h = float(camera_height_m)
+        self.sight = sight  # (origins (N,2), target_xy, z_levels, own) -> (N,) bool; None = 2.5-D height grid
+
+    def geometry(self, footprints, mass_centers, z_ranges, footprint_mask: np.ndarray) -> GoalGeometry:
+        own = ndimage.binary_dilation(np.asarray(footprint_mask, bool), iterations=2)
+        z_levels = np.array([[z0 + f * (z1 - z0) for f in SIGHT_LEVELS] for z0, z1 in np.asarray(z_ranges, float)])
+        return GoalGeometry(tuple(np.asarray(f, np.float64) for f in footprints),
+                            np.asarray(mass_centers, np.float64).reshape(-1, 2), z_levels, own)
+
+    def line_of_sight(self, xy, target_xy, z_levels, own: np.ndarray) -> bool:
+        """Whether the goal's mass centre column (at ``z_levels`` above the floor) is in sight from ``xy``."""
+        if self.sight is not None:
+            return bool(self.sight(np.asarray(xy)[None], target_xy, z_levels, own)[0])
+        a, b = np.asarray(xy, np.float64), np.asarray(target_xy, np.float64)
+        length = float(np.linalg.norm(b - a))
+        n = max(2, int(math.ceil(length / (self.grid.cell_size_m / 2))) + 1)
+        t = np.linspace(0.0, 1.0, n)[1:-1]
+        pts = a[None] + (b - a)[None] * t[:, None]
+        rc = self.grid.world_to_cell(pts)
+        inside = self.grid.inside(rc)
+        for target_z in z_levels:
+            z = (self.camera_h + (target_z - self.camera_h) * t)[inside]
+            r = rc[inside]
+            blocked = (self.height[r[:, 0], r[:, 1]] > z + 0.05) & ~own[r[:, 0], r[:, 1]]
+            if not blocked.any():
+                return True
+        return False
+
+    def evaluate(self, pose, goal: GoalGeometry) -> dict:
+        """``{success, distance_m, bearing_deg, visible}`` for the best member of the goal's group."""
+        x, y, yaw = (float(v) for v in pose)
+        best = {"success": False, "distance_m": math.inf, "bearing_deg": 180.0, "visible": False}
+        for k, poly in enumerate(goal.footprints):
+            d = point_polygon_distance((x, y), poly)
+            mc = goal.mass_centers[k]
+            bearing = float(wrap_angle(math.atan2(mc[1] - y, mc[0] - x) - yaw))
+            if d > max(self.distance_m, NAVCHAT_BANDS[-1][0]) + 1e-9:
+                ok = vis = False
+            else:
+                vis = self.line_of_sight((x, y), mc, goal.z_levels[k], goal.own_cells)
+                if self.rule == "paper":
+                    ok = d <= self.distance_m and abs(bearing) <= self.half_fov and vis
+                else:
+                    ok = vis and any(d <= dm and abs(bearing) <= math.radians(ad) for dm, ad in NAVCHAT_BANDS)
+            cand = {"success": bool(ok), "distance_m": round(d, 4), "bearing_deg": round(math.degrees(bearing), 2),
+                    "visible": bool(vis)}
+            if (cand["success"], -cand["distance_m"]) > (best["success"], -best["distance_m"]):
+                best = cand
+        return best

@@ -1,0 +1,76 @@
+"""The ORION modules on the tiny scene: map retrieval, ego-view detection, control, memory."""
+
+import math
+
+import numpy as np
+
+from orion_eval.artifacts import Artifacts
+from orion_eval.episode import EpisodeRun, Task
+from orion_eval.memory import MemoryMaps
+from orion_eval.scene import SceneContext
+from orion_eval.user import SimulatedUser
+
+
+def _run(tiny_scene, goal_index=0):
+    ws, params = tiny_scene
+    ctx = SceneContext(Artifacts(ws, params, "tiny"))
+    goal = [g for g in ctx.arts.goals.goals if ctx.arts.routes.for_goal(g.id)][goal_index]
+    ep = ctx.arts.routes.for_goal(goal.id)[0]
+    task = Task("tiny", "orion", "yesno", 0, goal.id, ep.id, ep.start, ep.geodesic_m)
+    user = SimulatedUser(ctx, goal, "yesno", np.random.default_rng(0))
+    return ctx, goal, EpisodeRun(ctx, task, user, 2000, 5)
+
+
+def test_retrieve_map_finds_the_goal_class_and_goto_object_reaches_it(tiny_scene):
+    ctx, goal, run = _run(tiny_scene)
+    m = run.modules
+    hits = m.retrieve_map(goal.name, "vlmap")
+    assert hits and all(len(t) == 3 for t in hits)
+    dists = [d for _, d, _ in hits]
+    assert dists == sorted(dists) and all(-math.pi <= a <= math.pi for _, _, a in hits)
+    # one candidate lies on the goal's footprint (oracle features: the class is right)
+    fp = ctx.footprint_mask(goal.object_keys).reshape(-1)
+    on_goal = [i for i, _, _ in hits if fp[m.objects[i].cells].any()]
+    assert on_goal
+    assert m.goto_object(on_goal[0])
+    assert run.user.judge(run.body.pose)["success"]
+    assert run.body.steps == len(run.body.actions) > 0
+
+
+def test_detect_object_in_the_ego_view_and_double_check(tiny_scene):
+    ctx, goal, run = _run(tiny_scene)
+    m = run.modules
+    oid = [i for i, _, _ in m.retrieve_map(goal.name, "vlmap")
+           if ctx.footprint_mask(goal.object_keys).reshape(-1)[m.objects[i].cells].any()][0]
+    m.goto_object(oid)
+    dets = m.detect_object(goal.name)
+    assert dets, "the goal in front of the agent is detected in the ray-cast ego view"
+    d, a = m.relative(dets[0][0])
+    assert d < 2.5 and abs(a) < math.radians(45)
+    assert m.double_check(oid)
+    view = ctx.view(run.body.pose)
+    assert view.rgb.shape == (*ctx.params.eval.detect_size, 3) and view.hit.mean() > 0.9
+    assert np.isin(goal.instance_ids, view.instance).any()
+
+
+def test_move_rotate_and_search(tiny_scene):
+    ctx, goal, run = _run(tiny_scene)
+    m = run.modules
+    yaw0 = run.body.yaw
+    m.rotate(math.radians(90))
+    assert math.isclose(math.remainder(run.body.yaw - yaw0, 2 * math.pi), math.pi / 2, abs_tol=1e-9)
+    oid = m.search_object(goal.name)
+    assert oid is not None and run.body.steps >= 24  # spun first
+
+
+def test_memory_keeps_names_apart():
+    from orion_eval.memory import lexical_feature
+
+    enc = lambda texts: np.stack([np.eye(4)[0] for _ in texts])  # a class-level encoder: every chair alike
+    mem = MemoryMaps(enc)
+    mem.update(1, np.array([10, 11, 12]), "Bob's chair", "Alice's chair")
+    mem.update(2, np.array([50, 51]), "Alice's chair", None)
+    pos, neg = mem.retrieve("Alice's chair")
+    assert pos == [2] and neg == [1]
+    assert mem.retrieve("Bob's chair") == ([1], [])
+    assert np.isclose(np.linalg.norm(lexical_feature("a b")), 1.0)

@@ -1,0 +1,104 @@
+"""``run_eval`` end to end on the tiny scene: sanity of the results, determinism, the report."""
+
+import json
+import shutil
+import subprocess
+
+import pytest
+
+from orion_eval.run import run_eval
+from pipeline.errors import ConfigError
+
+MAP_AGENTS = ("vlmap", "cf", "orion")
+FEEDBACK = ("corrective", "descriptive", "landmark", "procedural", "mixed")
+
+
+@pytest.fixture(scope="module")
+def evaluated(tiny_scene, tmp_path_factory):
+    ws, params = tiny_scene
+    out = tmp_path_factory.mktemp("eval_out")
+    res = run_eval(ws, params, out, seeds=[0], progress=False)
+    return ws, params, out, res
+
+
+def test_results_document_and_logs(evaluated):
+    ws, params, out, res = evaluated
+    assert res["run"]["methods"] == list(params.eval.methods) and res["run"]["feedback"] == list(params.eval.feedback)
+    on_disk = json.loads((out / "results.json").read_text())
+    assert on_disk["overall"] == res["overall"]
+    for method, row in res["overall"].items():
+        for fb, cell in row.items():
+            assert set(cell) >= {"SR", "SPL", "SIT"} and 0 <= cell["SPL"] <= cell["SR"] <= 100
+            assert cell["SIT"] <= cell["SR"]
+    ep = res["episodes"][0]
+    assert {"success", "spl", "sit", "talk_turns", "travelled_m", "geodesic_m", "end"} <= set(ep)
+    import gzip
+
+    with gzip.open(out / "episodes" / "tiny.episodes.jsonl.gz", "rt") as f:
+        first = json.loads(f.readline())
+    log = first["log"]
+    assert len(log["poses"]) == len(log["actions"]) + 1 and log["dialogue"][0]["speaker"] == "agent"
+
+
+def test_upper_bound_and_feedback_ordering(evaluated):
+    _, _, _, res = evaluated
+    o = res["overall"]
+    for fb in o["human"]:
+        assert o["human"][fb]["SR"] >= 95.0
+        assert o["human"][fb]["SIT"] == o["human"][fb]["SR"]  # one Talk turn
+    exceptions = []
+    for m in MAP_AGENTS:
+        assert o[m]["none"]["SR"] <= o[m]["yesno"]["SR"], m
+        for fb in FEEDBACK:
+            if o[m]["yesno"]["SR"] > o[m][fb]["SR"]:
+                exceptions.append((m, fb))
+                # Known exception (reported): a procedural route moves the agent, so it approaches a candidate
+                # from another side, where the map candidate's centre is in sight but the goal's mass centre is
+                # not; at most one episode of a cell may flip that way.
+                one = 100.0 / o[m][fb]["episodes"]
+                assert o[m]["yesno"]["SR"] - o[m][fb]["SR"] <= one + 1e-6, (m, fb)
+    assert all(fb == "procedural" for _, fb in exceptions), exceptions
+    for e in res["episodes"]:
+        if e["feedback"] == "none":
+            assert e["talk_turns"] <= 1
+        assert e["talk_turns"] <= 5
+
+
+def test_same_seed_same_results(tiny_scene, tmp_path):
+    ws, params = tiny_scene
+    kw = dict(methods=["cow", "orion"], feedback=["mixed"], seeds=[1], progress=False, report=False)
+    a = run_eval(ws, params, tmp_path / "a", **kw)
+    b = run_eval(ws, params, tmp_path / "b", **kw)
+    strip = lambda r: [{k: v for k, v in e.items() if k != "seconds"} for e in r["episodes"]]
+    assert strip(a) == strip(b) and a["overall"] == b["overall"]
+    assert (tmp_path / "a" / "episodes" / "tiny.episodes.jsonl.gz").read_bytes() != b""
+
+
+def test_unknown_names_are_config_errors(tiny_scene, tmp_path):
+    ws, params = tiny_scene
+    with pytest.raises(ConfigError, match="--methods: unknown method"):
+        run_eval(ws, params, tmp_path, methods=["gpt"], progress=False)
+    with pytest.raises(ConfigError, match="--feedback: unknown setting"):
+        run_eval(ws, params, tmp_path, feedback=["shouting"], progress=False)
+    with pytest.raises(ConfigError, match="--scenes: unknown scene"):
+        run_eval(ws, params, tmp_path, scenes=["nope"], progress=False)
+
+
+def test_report_renders_in_headless_chromium(evaluated, tmp_path):
+    _, _, out, _ = evaluated
+    page = (out / "report.html").read_text()
+    assert "Table I" in page and "success_by_turn.png" in page and (out / "success_by_turn.png").stat().st_size > 5000
+    browser = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
+    if browser is None:
+        pytest.skip("chromium is not installed (apt-get install -y chromium): the HTML report was written but "
+                    "not rendered to PNG")
+    png = tmp_path / "report.png"
+    subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu", f"--screenshot={png}",
+                    "--window-size=1200,1600", (out / "report.html").as_uri()], check=True, timeout=120,
+                   capture_output=True)
+    import numpy as np
+    from PIL import Image
+
+    img = np.asarray(Image.open(png).convert("RGB"))
+    assert img.shape[:2] == (1600, 1200)
+    assert (img < 200).mean() > 0.01  # text, tables and the figures are drawn, not a blank page
