@@ -385,6 +385,69 @@ def goals_export_navchat(
     out.print(f"{folder}/objects.json, {folder}/final.json")
 
 
+@app.command()
+def query(
+    scene: str = typer.Argument(..., help="scene name"),
+    text: str = typer.Argument(..., help='what to look for, e.g. "chair" or "the red couch"'),
+    map_name: str = typer.Option("vlmap", "--map", help="vlmap | cfmap"),
+    pose: Optional[str] = typer.Option(None, "--pose", help="x,y,yaw (metres, radians) to measure candidates from"),
+    as_json: bool = typer.Option(False, "--json", help="print the result as JSON"),
+    png: Optional[Path] = typer.Option(None, "--png", help="write the heatmap and candidates over the colour map"),
+):
+    """Query a semantic map with text: a similarity heatmap and object candidates (id, distance, angle).
+
+    Examples: `zipon query sim_00 chair --pose 2,3,0` · `zipon query sim_00 "green plant" --map cfmap --png plant.png`
+    """
+    from pipeline.errors import ConfigError
+    from pipeline.maps.query import parse_pose, query_map
+
+    if map_name not in ("vlmap", "cfmap"):
+        raise ConfigError(f"--map {map_name!r}: choose vlmap or cfmap")
+    ws, params = G.load()
+    result = query_map(ws.artifact(map_name, scene), ws.artifact("recon", scene), text,
+                       parse_pose(pose) if pose else None, params=params, frames_path=ws.artifact("frames", scene))
+    if png:
+        from pipeline.maps.render import render_query
+
+        render_query(result, png)
+    if as_json:
+        out.print_json(result.to_json_text())
+        return
+    table = Table(title=f"{scene} {map_name}: {text!r}")
+    for col in ("obj_id", "distance (m)", "angle (deg)", "score", "area (m²)", "ground truth"):
+        table.add_column(col)
+    import math
+
+    for c in result.candidates:
+        angle = None if c.angle_rad is None else math.degrees(c.angle_rad)
+        gt = "" if c.gt_class is None else f"{c.gt_class} #{c.gt_instance}"
+        table.add_row(str(c.obj_id), _fmt(c.distance_m), _fmt(angle), _fmt(c.score), _fmt(c.area_m2), gt)
+    out.print(table)
+    if png:
+        out.print(str(png))
+
+
+def _fmt(v) -> str:
+    return "" if v is None else f"{v:.2f}" if isinstance(v, float) else str(v)
+
+
+@app.command("recon-eval")
+def recon_eval(
+    frames: Path = typer.Argument(..., help="a frames.zarr (any sequence)"),
+    holdout_every: int = typer.Option(10, "--holdout-every", min=2, help="hold out every N-th frame"),
+):
+    """Fuse all but every N-th frame, ray-cast depth at the held-out poses, print the depth error as JSON.
+
+    Example: `zipon recon-eval data/artifacts/tum/frames.zarr --holdout-every 6`
+    """
+    import json
+
+    from pipeline.recon.evaluate import evaluate_holdout
+
+    _, params = G.load()
+    out.print_json(json.dumps({"frames": str(frames), **evaluate_holdout(frames, params.reconstruct, holdout_every)}))
+
+
 @app.command("eval")
 def eval_cmd(
     out_dir: Path = typer.Option(Path("eval_out"), "--out", "-o", help="folder for results.json, report.html, episode logs"),

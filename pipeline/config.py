@@ -189,6 +189,10 @@ class ReconstructParams(Section):
         4.0, ge=0, description="unknown regions enclosed by occupied cells only and at most this big (the unseen "
         "inside of furniture) are marked occupied, m^2"
     )
+    hidden_solid_max_m: float = Field(
+        0.5, ge=0, description="unknown cells nearer to occupied than to free cells, and at most this far from "
+        "occupied, are marked occupied (the unseen back of furniture); 0 = off, metres"
+    )
     robot_radius_m: float = Field(
         0.18, ge=0, description="navigable cells are free and farther than this from any occupied cell centre"
     )
@@ -386,12 +390,21 @@ class MapsParams(Section):
     temperature: float | None = Field(
         None, gt=0, description="softmax temperature of the heatmap; None = the encoder's own, else 0.1"
     )
+    min_probability: float = Field(
+        0.5, ge=0, le=1, description="a cell wins when the query beats every background prompt AND its heatmap "
+        "probability is at least this (0.5: the query outweighs all background prompts together); 0 = argmax only"
+    )
     min_candidate_area_m2: float = Field(0.01, ge=0, description="smaller winning components are not candidates")
     min_candidate_score: float = Field(
         0.6, ge=0, le=1, description="components whose mean heatmap probability is below this are not candidates "
         "(drops cells the query wins only because every prompt scores about as low)"
     )
     max_candidates: int = Field(20, gt=0, description="at most this many candidates per query")
+    query_rank: int = Field(
+        64, ge=0, description="maps with at least query_lowrank_min_cells cells are scored through a rank-k basis "
+        "of their features, with exact rescoring of every cell that could win (exact wins and candidates); 0 = exact"
+    )
+    query_lowrank_min_cells: int = Field(50_000, gt=0, description="smaller maps are always scored exactly")
 
     @model_validator(mode="after")
     def _ranges(self) -> "MapsParams":

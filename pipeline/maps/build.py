@@ -1,0 +1,105 @@
+"""Build one semantic map from ``frames.zarr`` + ``recon.zarr``: the unit of work of the vlmap/cfmap stages.
+
+Frames stream in blocks of ``maps.block_frames``; each block is encoded in batches of
+``encoders.batch_size`` and fused with one vectorized scatter (:mod:`pipeline.maps.fusion`), so
+memory is bounded by the map (observed cells / voxels), never by the number of frames. Poses
+come from ``recon.zarr`` (the poses the geometry was fused with); frames recon did not fuse are
+skipped and counted.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable, Iterable, Literal
+
+import numpy as np
+
+from pipeline.config import Params
+from pipeline.errors import StageError
+from pipeline.frames import FrameStore
+from pipeline.maps.fusion import (Lattice, TopDownAccumulator, VoxelAccumulator, fill_unseen, locate_block,
+                                  point_weights)
+from pipeline.maps.store import write_map
+
+Kind = Literal["vlmap", "cfmap"]
+
+
+def build_map(
+    kind: Kind,
+    frames_path: Path,
+    recon_path: Path,
+    out_path: Path,
+    params: Params,
+    attrs: dict,
+    *,
+    simulated: bool = False,
+    progress: Callable[[Iterable, int, str], Iterable] | None = None,
+) -> dict:
+    """Fuse every frame into a new map store at ``out_path``; returns the summary figures."""
+    import torch
+
+    from pipeline.encoders import build_encoder
+    from pipeline.encoders.base import resolve_device
+    from pipeline.recon import Recon
+    from pipeline.scene_gt import GTScene
+
+    p = params.maps
+    fs = FrameStore(frames_path)
+    recon = Recon(recon_path)
+    if fs.n_frames != len(recon.fused):
+        raise StageError(f"{recon_path}: holds {len(recon.fused)} poses but {frames_path} has {fs.n_frames} frames "
+                         f"(recon from another frame store? rerun: zipon run --force --only reconstruct)")
+    poses = recon.poses
+    usable = recon.fused & np.isfinite(poses).all(axis=(1, 2))
+    encoder = build_encoder(params.encoders, kind, simulated=simulated)
+    gt = fs.ground_truth
+    encoder.bind_scene(GTScene.model_validate(gt) if gt else None)
+    lattice = Lattice(recon.grid, recon.floor_z, p.min_height_m, p.max_height_m, p.level_height_m)
+    device = resolve_device(p.device)
+    sigma = p.vlmap_weight_sigma_m if kind == "vlmap" else p.cfmap_weight_sigma_m
+    acc = (VoxelAccumulator if kind == "cfmap" else TopDownAccumulator)(lattice, encoder.dim, device=device)
+    blocks = fs.iter_blocks(p.block_frames, instance=fs.has_instance)
+    n_blocks = -(-fs.n_frames // p.block_frames)
+    if progress is not None:
+        blocks = progress(blocks, n_blocks, "fusing")
+    fused_frames = pixels = 0
+    with torch.inference_mode():
+        for block in blocks:
+            ok = usable[block.start : block.start + len(block)]
+            if not ok.any():
+                continue
+            depth = block.depth_m()[ok]
+            dense = encoder.encode_images(block.rgb[ok], depth_m=depth,
+                                          instance=None if block.instance is None else block.instance[ok])
+            depth_f = dense.resample_depth(depth)
+            pts = locate_block(lattice, depth_f, dense.valid.numpy(), poses[block.start : block.start + len(block)][ok],
+                               dense.intrinsics(fs.intrinsics), depth_min_m=p.depth_min_m, depth_max_m=p.depth_max_m,
+                               max_depth_jump=p.max_depth_jump)
+            acc.add(pts, dense.features, point_weights(pts.dist_m, sigma))
+            fused_frames += int(ok.sum())
+            pixels += pts.n_fused
+    voxels = None
+    if kind == "cfmap":
+        voxels = acc.result()
+        cells = voxels.top_down()
+        if not p.cfmap_voxels:
+            voxels = None
+    else:
+        cells = acc.result()
+    n_seen = len(cells.cell)
+    from pipeline.recon import FREE
+
+    cells, n_filled = fill_unseen(cells, recon.grid, recon.occupancy != FREE, p.fill_radius_m)
+    if len(cells.cell) == 0:
+        raise StageError(f"{frames_path}: no pixel fell inside the grid and height band; nothing to map "
+                         f"(check maps.depth_* / maps.*_height_m and the recon grid)")
+    identity = encoder.identity()
+    write_map(out_path, {**attrs, "encoder": identity, "weighting": {"sigma_m": sigma},
+                         "frames": {"n_frames": fs.n_frames, "fused": fused_frames},
+                         "points_fused": int(acc.points_fused), "pixels_in_band": int(pixels),
+                         "cells_observed": n_seen, "cells_filled": n_filled, "fill_radius_m": p.fill_radius_m},
+              recon.grid, lattice, cells, tile_cells=p.tile_cells, voxels=voxels)
+    return {"frames_fused": fused_frames, "frames_skipped": fs.n_frames - fused_frames, "cells": int(len(cells.cell)), "cells_filled": n_filled,
+            "voxels": 0 if voxels is None else int(len(voxels.cell)), "points_fused": int(acc.points_fused),
+            "encoder": identity["name"], "diagnostic_encoder": bool(identity.get("diagnostic", False)),
+            "observed_area_m2": round(len(cells.cell) * recon.grid.cell_size_m**2, 3)}

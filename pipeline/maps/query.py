@@ -1,0 +1,369 @@
+"""Text queries on a semantic map: a similarity heatmap and object candidates (like navchat's retrieve_map).
+
+Scoring (VLMaps' background handling): a cell's score for a prompt is the dot product of its
+unit feature with the prompt's unit text feature. The query competes with the background prompts
+of ``maps.background`` (default 'other', 'floor', 'wall', 'ceiling'; a background prompt whose
+text feature is the query's own, cosine > 0.99, is left out):
+
+- heatmap = softmax probability of the query among [query, background...] with temperature
+  ``maps.temperature`` (else the encoder's, else 0.1) — ``sigmoid(s_q / T - logsumexp(s_bg / T))``;
+  NaN where the map has no feature;
+- a cell WINS when the query's score beats every background score (VLMaps' argmax rule) AND its
+  probability is at least ``maps.min_probability`` (default 0.5: the query outweighs all background
+  prompts together). The second condition stops cells of OTHER objects, which score about as low
+  on the query as on the background and so win the argmax by chance, from joining a real object's
+  component;
+- candidates are the 8-connected components of winning cells of at least
+  ``maps.min_candidate_area_m2`` and mean probability ``maps.min_candidate_score``, found with
+  opencv. Each has an ``obj_id`` (its rank in this
+  result, 1-based), a ``center_xy`` (the component's cell nearest its centroid, so it always lies on
+  the component), the cell nearest the pose, the nearest navigable cell to the centre (an
+  approach point, when recon's navigable grid is given), ``distance_m`` from the pose to the
+  nearest cell and ``angle_rad`` = bearing of the centre relative to the pose's heading
+  (counter-clockwise positive, so > 0 means to the left), ``area_m2`` and ``score`` (mean
+  heatmap probability). With a pose, candidates are sorted by distance (retrieve_map's order);
+  without one, by mass = score x area, largest first.
+
+Map features and the background scores are computed once per :class:`MapQuery` (cached), text
+features are cached per prompt, so a repeated query costs one ``(N,D) @ (D,)`` product plus the
+connected components.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from pipeline.errors import ArtifactError, LineageError
+from pipeline.geometry import GridSpec
+from pipeline.maps.store import SemanticMap
+
+DEFAULT_TEMPERATURE = 0.1
+
+
+@dataclass
+class Candidate:
+    """One object candidate (world metres, radians)."""
+
+    obj_id: int
+    center_xy: tuple[float, float]
+    centroid_xy: tuple[float, float]
+    nearest_xy: tuple[float, float]
+    approach_xy: tuple[float, float] | None
+    distance_m: float | None
+    angle_rad: float | None
+    area_m2: float
+    score: float
+    center_rc: tuple[int, int]
+    bbox_rc: tuple[int, int, int, int]  # row0, col0, row1 (excl), col1 (excl)
+    label: int = 0  # component label in ``QueryResult.labels``
+    gt_instance: int | None = None  # ground-truth instance under the centre (0 = none), when GT is given
+    gt_class: str | None = None
+
+
+@dataclass
+class QueryResult:
+    """Heatmap ``(rows, cols)`` float32 (NaN unobserved), winning mask ``(rows, cols)`` bool, candidates."""
+
+    text: str
+    artifact: str
+    grid: GridSpec
+    heatmap: np.ndarray
+    wins: np.ndarray
+    candidates: list[Candidate]
+    pose: tuple[float, float, float] | None
+    background: list[str]
+    temperature: float
+    seconds: float
+    labels: np.ndarray | None = field(default=None, repr=False)  # (rows, cols) int32 component labels
+    color: np.ndarray | None = field(default=None, repr=False)  # (rows, cols, 3) uint8 recon colour, if known
+
+    def to_json(self) -> dict:
+        """JSON-able summary (no arrays): the query, the pose and every candidate."""
+        observed = np.isfinite(self.heatmap)
+        return {
+            "text": self.text,
+            "map": self.artifact,
+            "pose": None if self.pose is None else list(self.pose),
+            "background": self.background,
+            "temperature": self.temperature,
+            "cells_observed": int(observed.sum()),
+            "cells_winning": int(self.wins.sum()),
+            "seconds": round(self.seconds, 5),
+            "candidates": [asdict(c) for c in self.candidates],
+        }
+
+    def to_json_text(self) -> str:
+        return json.dumps(self.to_json(), indent=2)
+
+
+class MapQuery:
+    """Queries on one map with one encoder (text side). Cheap to query repeatedly; see the module docstring.
+
+    ``navigable`` ``(rows, cols)`` bool (recon) gives approach points; ``gt`` (a GTScene) labels
+    candidates with the ground-truth instance under them.
+    """
+
+    def __init__(self, smap: SemanticMap, encoder, params, *, navigable: np.ndarray | None = None, gt=None,
+                 color: np.ndarray | None = None):
+        self.map, self.encoder, self.params, self.color = smap, encoder, params, color
+        ident = smap.encoder
+        if ident.get("name") != encoder.name or int(ident.get("dim", -1)) != encoder.dim:
+            raise ArtifactError(
+                f"{smap.path}: map built with encoder {ident.get('name')!r} (dim {ident.get('dim')}), "
+                f"query encoder is {encoder.name!r} (dim {encoder.dim}); query with the map's encoder"
+            )
+        for key in ("version", "weights_digest"):
+            if key in ident and ident[key] != encoder.identity().get(key):
+                raise ArtifactError(f"{smap.path}: encoder {key} {ident[key]!r} differs from the query encoder's "
+                                    f"{encoder.identity().get(key)!r}")
+        self.grid = smap.grid
+        self.temperature = float(params.temperature or ident.get("temperature") or DEFAULT_TEMPERATURE)
+        self.background = list(params.background)
+        self._text: dict[str, torch.Tensor] = {}
+        self._feats = smap.features()
+        self._bg_feats = self.text_features(self.background) if self.background else None
+        self._bg_scores = (self._feats @ self._bg_feats.T) if self.background else None  # (N,Tb)
+        self._bg_cache: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
+        self._lowrank: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
+        self._row, self._col = np.divmod(smap.cell, self.grid.cols)
+        self._nearest_nav = None
+        if navigable is not None:
+            if navigable.shape != (self.grid.rows, self.grid.cols):
+                raise LineageError(f"{smap.path}: navigable grid {navigable.shape} does not match the map's grid "
+                                   f"{(self.grid.rows, self.grid.cols)} (map and recon from different runs?)")
+            if navigable.any():
+                from scipy.ndimage import distance_transform_edt
+
+                self._nearest_nav = distance_transform_edt(~navigable, return_distances=False, return_indices=True)
+        self.gt = gt
+        self._footprints = gt.instance_footprints(self.grid) if gt is not None else None
+
+    # ------------------------------------------------------------------ text
+    def text_features(self, texts: list[str]) -> torch.Tensor:
+        """``(T,D)`` float32 unit text features (cached per prompt)."""
+        missing = [t for t in dict.fromkeys(texts) if t not in self._text]
+        if missing:
+            for t, f in zip(missing, self.encoder.encode_text(missing).float()):
+                self._text[t] = f
+        return torch.stack([self._text[t] for t in texts])
+
+    def _background_for(self, q: torch.Tensor) -> tuple[np.ndarray, np.ndarray, list[int]]:
+        """Per-cell max and logsumexp(/T) of the background scores, leaving out prompts equal to ``q``."""
+        if self._bg_feats is None:
+            n = len(self.map.cell)
+            return np.full(n, -np.inf, np.float32), np.full(n, -np.inf, np.float32), []
+        keep = tuple(int(i) for i in np.flatnonzero((self._bg_feats @ q).numpy() <= 0.99))
+        if keep not in self._bg_cache:
+            if not keep:
+                n = len(self.map.cell)
+                self._bg_cache[keep] = (np.full(n, -np.inf, np.float32), np.full(n, -np.inf, np.float32))
+            else:
+                s = self._bg_scores[:, list(keep)]
+                self._bg_cache[keep] = (s.max(dim=1).values.numpy(),
+                                        torch.logsumexp(s / self.temperature, dim=1).numpy())
+        bg_max, bg_lse = self._bg_cache[keep]
+        return bg_max, bg_lse, list(keep)
+
+    # ------------------------------------------------------------------ scores
+    def _basis(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Rank-k basis V ``(D,k)`` of the map features, projections ``(N,k)`` and residual norms ``(N,)``."""
+        if self._lowrank is None:
+            F = self._feats
+            sample = F[torch.linspace(0, len(F) - 1, min(len(F), 20_000)).long()]
+            _, _, vh = torch.linalg.svd(sample, full_matrices=False)
+            V = vh[: self.params.query_rank].T.contiguous()
+            P = F @ V
+            resid = (1.0 - (P * P).sum(dim=1)).clamp_min(0).sqrt()  # rows of F are unit: |F - P V^T|^2 = 1 - |P|^2
+            self._lowrank = (V, P, resid)
+        return self._lowrank
+
+    def _scores(self, q: torch.Tensor, bg_max: np.ndarray, bg_lse: np.ndarray) -> np.ndarray:
+        """``(N,)`` query scores: exact, or (large maps) low-rank with exact refinement where it matters.
+
+        Low rank: ``s~ = (F V)(V^T q)`` with ``|s - s~| <= r_i |q_perp|`` (``r_i`` the residual norm of
+        row i). Every cell whose upper bound ``s~ + bound`` could win (beat the background and reach
+        ``min_probability``) is recomputed exactly, so the winning cells, the candidates and the heatmap
+        of every cell that can win are exact; other cells keep ``s~`` (their probability stays below
+        ``min_probability``, within the bound).
+        """
+        n = len(self._feats)
+        if self.params.query_rank == 0 or n < self.params.query_lowrank_min_cells or \
+                self.params.query_rank >= self._feats.shape[1]:
+            return (self._feats @ q).numpy()
+        V, P, resid = self._basis()
+        ql = V.T @ q
+        q_perp = float((1.0 - float(ql @ ql)) if float(ql @ ql) < 1.0 else 0.0) ** 0.5
+        s = (P @ ql).numpy()
+        upper = s + resid.numpy() * q_perp
+        p_upper = 1.0 / (1.0 + np.exp(np.clip(bg_lse - upper / self.temperature, -80, 80)))
+        idx = np.flatnonzero((upper > bg_max) & (p_upper >= self.params.min_probability))
+        if len(idx):
+            t = torch.from_numpy(idx)
+            s[idx] = (self._feats[t] @ q).numpy()
+        return s
+
+    # ------------------------------------------------------------------ query
+    def scores(self, text: str) -> np.ndarray:
+        """``(N,)`` float32 dot products of the observed cells with ``text``."""
+        q = self.text_features([text])[0]
+        return (self._feats @ q).numpy()
+
+    def query(self, text: str, pose: tuple[float, float, float] | None = None) -> QueryResult:
+        """Heatmap and candidates for ``text``; ``pose`` = (x, y, yaw) world metres / radians."""
+        t0 = time.perf_counter()
+        g = self.grid
+        q = self.text_features([text])[0]
+        bg_max, bg_lse, keep = self._background_for(q)
+        s = self._scores(q, bg_max, bg_lse)
+        prob = 1.0 / (1.0 + np.exp(np.clip(bg_lse - s / self.temperature, -80, 80)))
+        heat = np.full(g.rows * g.cols, np.nan, np.float32)
+        heat[self.map.cell] = prob
+        wins_flat = np.zeros(g.rows * g.cols, np.uint8)
+        wins_flat[self.map.cell[(s > bg_max) & (prob >= self.params.min_probability)]] = 1
+        heat, wins = heat.reshape(g.rows, g.cols), wins_flat.reshape(g.rows, g.cols)
+        cands, labels = self._candidates(wins, heat, pose)
+        return QueryResult(text=text, artifact=self.map.artifact, grid=g, heatmap=heat, wins=wins.astype(bool),
+                           candidates=cands, pose=None if pose is None else tuple(float(v) for v in pose),
+                           background=[self.background[i] for i in keep], temperature=self.temperature,
+                           seconds=time.perf_counter() - t0, labels=labels, color=self.color)
+
+    def _candidates(self, wins: np.ndarray, heat: np.ndarray, pose) -> tuple[list[Candidate], np.ndarray]:
+        g = self.grid
+        n, labels, stats, centroids = cv2.connectedComponentsWithStats(wins, connectivity=8, ltype=cv2.CV_32S)
+        min_cells = max(1, math.ceil(self.params.min_candidate_area_m2 / g.cell_size_m**2 - 1e-9))
+        area = stats[:, cv2.CC_STAT_AREA]
+        rr, cc = np.nonzero(labels)
+        lab = labels[rr, cc]
+        score = np.bincount(lab, weights=heat[rr, cc], minlength=n) / np.maximum(area, 1)
+        ok = (area >= min_cells) & (score >= self.params.min_candidate_score)
+        ok[0] = False
+        sel = ok[lab]
+        rr, cc, lab = rr[sel], cc[sel], lab[sel]
+        if not len(lab):
+            return [], np.zeros_like(labels)
+        # centre: the component's cell nearest its centroid (centroids are (x=col, y=row))
+        d_c = (cc - centroids[lab, 0]) ** 2 + (rr - centroids[lab, 1]) ** 2
+        centre = _first_per_label(lab, d_c)
+        if pose is not None:
+            prc = np.array([(g.origin_xy[1] - pose[1]) / g.cell_size_m - 0.5, (pose[0] - g.origin_xy[0]) / g.cell_size_m - 0.5])
+            near = _first_per_label(lab, (rr - prc[0]) ** 2 + (cc - prc[1]) ** 2)
+        else:
+            near = centre
+        ids = np.flatnonzero(ok)
+        # order (vectorized) before building at most max_candidates records
+        if pose is not None:
+            nxy_all = g.cell_to_world(np.stack([rr[near[ids]], cc[near[ids]]], axis=1))
+            d_all = np.hypot(nxy_all[:, 0] - pose[0], nxy_all[:, 1] - pose[1])
+            rank = np.lexsort((-score[ids], d_all))
+        else:
+            rank = np.lexsort((cc[centre[ids]], rr[centre[ids]], -score[ids] * area[ids]))
+        ids = ids[rank[: self.params.max_candidates]]
+        out = []
+        for k in ids:
+            crc = (int(rr[centre[k]]), int(cc[centre[k]]))
+            nrc = (int(rr[near[k]]), int(cc[near[k]]))
+            cxy = tuple(float(v) for v in g.cell_to_world(np.array(crc)))
+            nxy = tuple(float(v) for v in g.cell_to_world(np.array(nrc)))
+            gxy = g.cell_to_world(np.array([centroids[k, 1], centroids[k, 0]]))
+            approach = None
+            if self._nearest_nav is not None:
+                arc = self._nearest_nav[:, crc[0], crc[1]]
+                approach = tuple(float(v) for v in g.cell_to_world(arc))
+            dist = ang = None
+            if pose is not None:
+                dist = float(math.hypot(nxy[0] - pose[0], nxy[1] - pose[1]))
+                ang = float(_wrap(math.atan2(cxy[1] - pose[1], cxy[0] - pose[0]) - pose[2]))
+            x, y, w, h = (int(v) for v in stats[k, :4])
+            gt_id = gt_cls = None
+            if self._footprints is not None:
+                gt_id = int(self._footprints[crc])
+                gt_cls = self.gt.object(gt_id).cls if gt_id else None
+            out.append(Candidate(obj_id=0, center_xy=cxy, centroid_xy=(float(gxy[0]), float(gxy[1])), nearest_xy=nxy,
+                                 approach_xy=approach, distance_m=dist, angle_rad=ang,
+                                 area_m2=float(area[k] * g.cell_size_m**2), score=float(score[k]), center_rc=crc,
+                                 bbox_rc=(y, x, y + h, x + w), label=int(k), gt_instance=gt_id, gt_class=gt_cls))
+        for i, c in enumerate(out, 1):
+            c.obj_id = i
+        return out, labels
+
+
+def _first_per_label(lab: np.ndarray, key: np.ndarray) -> np.ndarray:
+    """``(n_labels,)`` index into ``lab`` of the element with the smallest ``key`` per label (-1 if absent)."""
+    order = np.lexsort((key, lab))
+    first = np.r_[True, lab[order][1:] != lab[order][:-1]]
+    out = np.full(int(lab.max()) + 1, -1, np.int64)
+    out[lab[order][first]] = order[first]
+    return out
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+# ----------------------------------------------------------------------------- API for the CLI / evaluator
+
+_CACHE: dict[tuple, MapQuery] = {}
+
+
+def open_query(map_path: str | Path, params, *, recon_path: str | Path | None = None,
+               frames_path: str | Path | None = None) -> MapQuery:
+    """A cached :class:`MapQuery` for a map store (``params`` = the whole :class:`~pipeline.config.Params`).
+
+    The text encoder is built from ``params.encoders`` by the NAME recorded in the map (so it always
+    matches the map's feature space; a different version or weights file is an ArtifactError).
+    ``frames_path`` gives the scene's ground truth (needed by the oracle encoder, and labels
+    candidates with GT instances); ``recon_path`` gives navigable approach points and checks lineage.
+    """
+    from pipeline.encoders import build_encoder
+    from pipeline.frames import FrameStore
+    from pipeline.scene_gt import GTScene
+
+    key = (str(map_path), str(recon_path), str(frames_path), id(params))
+    if key in _CACHE:
+        return _CACHE[key]
+    smap = SemanticMap(map_path)
+    navigable = color = None
+    if recon_path is not None:
+        from pipeline.recon import Recon
+
+        recon = Recon(recon_path)
+        if recon.grid != smap.grid:
+            raise LineageError(f"{map_path}: grid {smap.grid} differs from {recon_path}'s {recon.grid}; rebuild the map")
+        navigable, color = recon.navigable, recon.color
+    gt = None
+    if frames_path is not None and Path(frames_path).exists():
+        raw = FrameStore(frames_path).ground_truth
+        gt = GTScene.model_validate(raw) if raw else None
+    encoder = build_encoder(params.encoders, smap.encoder["name"])
+    encoder.bind_scene(gt)
+    mq = MapQuery(smap, encoder, params.maps, navigable=navigable, gt=gt, color=color)
+    _CACHE[key] = mq
+    return mq
+
+
+def query_map(map_path: str | Path, recon_path: str | Path | None, text: str,
+              pose: tuple[float, float, float] | None = None, *, params, frames_path: str | Path | None = None
+              ) -> QueryResult:
+    """One query (the ``zipon query`` entry point): heatmap + candidates; see :class:`MapQuery`."""
+    return open_query(map_path, params, recon_path=recon_path, frames_path=frames_path).query(text, pose)
+
+
+def parse_pose(text: str) -> tuple[float, float, float]:
+    """``"x,y,yaw"`` (metres, metres, radians) -> tuple; raises InputDataError naming the expected form."""
+    from pipeline.errors import InputDataError
+
+    parts = [p for p in text.replace(" ", "").split(",") if p]
+    try:
+        if len(parts) != 3:
+            raise ValueError
+        return tuple(float(p) for p in parts)  # type: ignore[return-value]
+    except ValueError:
+        raise InputDataError(f"got {text!r}", field="--pose", expected="x,y,yaw in metres, metres, radians") from None

@@ -1,0 +1,90 @@
+"""North-up pictures of semantic maps and queries (PNG; never artifacts).
+
+- :func:`render_query`: recon's colour map, the query's heatmap blended over observed cells
+  (turbo: dark blue = probability 0, red = 1; stronger where the query wins), white outlines around candidates,
+  numbered markers at their centres (1 = first in the result's order), the pose as an arrow.
+- :func:`render_map_pca`: the map's features projected on their first three principal axes as
+  RGB, a quick look at what the map separates.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from pipeline.maps.query import QueryResult
+from pipeline.maps.store import SemanticMap
+from pipeline.pictures import add_scale_bar, colorize, write_png
+
+
+def _crop_box(mask: np.ndarray, margin: int = 10) -> tuple[int, int, int, int]:
+    rows, cols = np.nonzero(mask)
+    if not len(rows):
+        return 0, mask.shape[0], 0, mask.shape[1]
+    return (max(int(rows.min()) - margin, 0), min(int(rows.max()) + 1 + margin, mask.shape[0]),
+            max(int(cols.min()) - margin, 0), min(int(cols.max()) + 1 + margin, mask.shape[1]))
+
+
+def _upscale(img: np.ndarray, min_side: int = 640) -> tuple[np.ndarray, int]:
+    k = max(1, int(np.ceil(min_side / max(min(img.shape[:2]), 1))))
+    k = min(k, 8)
+    return cv2.resize(img, None, fx=k, fy=k, interpolation=cv2.INTER_NEAREST), k
+
+
+def render_query(result: QueryResult, out_png: str | Path, *, crop: bool = True) -> Path:
+    """Write the query picture; returns its path."""
+    g = result.grid
+    heat = result.heatmap
+    observed = np.isfinite(heat)
+    base = result.color if result.color is not None else np.zeros((g.rows, g.cols, 3), np.uint8)
+    base = base.astype(np.float32)
+    unknown = base.sum(axis=-1) == 0
+    base[unknown] = 235.0
+    hm = colorize(np.nan_to_num(heat), 0.0, 1.0).astype(np.float32)
+    # low-probability cells keep most of the colour map; winning cells show the heatmap strongly
+    prob = np.nan_to_num(heat, nan=0.0)
+    alpha = np.where(result.wins, 0.85, 0.2 + 0.5 * prob)[..., None] * observed[..., None]
+    img = (base * (1 - alpha) + hm * alpha).clip(0, 255).astype(np.uint8)
+    r0, r1, c0, c1 = _crop_box(observed | ~unknown) if crop else (0, g.rows, 0, g.cols)
+    img, k = _upscale(np.ascontiguousarray(img[r0:r1, c0:c1]))
+    for c in result.candidates:
+        if result.labels is not None:
+            m = (result.labels[r0:r1, c0:c1] == c.label).astype(np.uint8)
+            m = cv2.resize(m, None, fx=k, fy=k, interpolation=cv2.INTER_NEAREST)
+            contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+            cv2.drawContours(img, contours, -1, (255, 255, 255), 2)
+        p = (int((c.center_rc[1] - c0 + 0.5) * k), int((c.center_rc[0] - r0 + 0.5) * k))
+        cv2.circle(img, p, 9, (0, 0, 0), -1)
+        cv2.putText(img, str(c.obj_id), (p[0] - 5, p[1] + 5), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
+                    cv2.LINE_AA)
+    if result.pose is not None:
+        x, y, yaw = result.pose
+        pc = ((x - g.origin_xy[0]) / g.cell_size_m - c0) * k, ((g.origin_xy[1] - y) / g.cell_size_m - r0) * k
+        tip = pc[0] + 28 * np.cos(yaw), pc[1] - 28 * np.sin(yaw)  # north-up: +y is up the image
+        cv2.circle(img, (int(pc[0]), int(pc[1])), 7, (255, 0, 255), -1)
+        cv2.arrowedLine(img, (int(pc[0]), int(pc[1])), (int(tip[0]), int(tip[1])), (255, 0, 255), 3, tipLength=0.35)
+    img = add_scale_bar(img, g.cell_size_m / k)
+    title = f"{result.artifact}: '{result.text}'  ({len(result.candidates)} candidates)"
+    band = np.full((26, img.shape[1], 3), 255, np.uint8)
+    cv2.putText(band, title, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    return write_png(Path(out_png), np.concatenate([band, img], axis=0))
+
+
+def render_map_pca(map_path: str | Path, out_png: str | Path, *, crop: bool = True) -> Path:
+    """Features of a map as RGB (first three principal components); unobserved cells white."""
+    smap = SemanticMap(map_path)
+    g = smap.grid
+    img = np.full((g.rows * g.cols, 3), 255, np.uint8)
+    if smap.n_cells >= 3:
+        f = smap.features().numpy().astype(np.float64)
+        f = f - f.mean(axis=0)
+        _, _, vt = np.linalg.svd(f[:: max(1, len(f) // 20000)], full_matrices=False)
+        p = f @ vt[:3].T
+        lo, hi = np.percentile(p, 1, axis=0), np.percentile(p, 99, axis=0)
+        img[smap.cell] = ((p - lo) / np.maximum(hi - lo, 1e-9) * 255).clip(0, 255).astype(np.uint8)
+    img = img.reshape(g.rows, g.cols, 3)
+    r0, r1, c0, c1 = _crop_box(smap.observed()) if crop else (0, g.rows, 0, g.cols)
+    img, k = _upscale(np.ascontiguousarray(img[r0:r1, c0:c1]))
+    return write_png(Path(out_png), add_scale_bar(img, g.cell_size_m / k))

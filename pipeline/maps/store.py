@@ -1,0 +1,189 @@
+"""The semantic map stores ``vlmap.zarr`` / ``cfmap.zarr`` and their reader :class:`SemanticMap`.
+
+Format (version 1)::
+
+    vlmap.zarr/ (or cfmap.zarr/)   attrs: artifact ('vlmap' | 'cfmap'), format_version, stage, params_digest,
+    │                                     code_version, grid {rows, cols, cell_size_m, origin_xy, orientation},
+    │                                     lattice {floor_z, min_height_m, max_height_m, level_height_m, levels, rule},
+    │                                     encoder {name, version, dim, normalization, temperature, diagnostic, ...},
+    │                                     weighting {sigma_m | null}, tile_cells, n_cells, n_voxels,
+    │                                     frames {n_frames, fused}, points_fused, cells_observed, cells_filled,
+    │                                     fill_radius_m, units
+    ├── top/                       the top-down map: one row per OBSERVED cell (compact, no dense cube)
+    │   ├── cell       (N,)   int32    flat cell index row * cols + col; rows are in TILE-MAJOR order
+    │   ├── features   (N,D)  float16  L2-normalised weighted mean feature; chunks (tile_cells^2, D)
+    │   ├── weight     (N,)   float32  sum of point weights fused into the cell
+    │   ├── count      (N,)   int32    points fused into the cell; 0 = filled from the nearest observed cell
+    │   │                              (maps.fill_radius_m: unseen tops of tall objects)
+    │   ├── level      (N,)   int16    height level of the cell's top (z = floor + min_height + level * level_height)
+    │   ├── tile_start (T+1,) int64    cells of spatial tile t are rows [tile_start[t], tile_start[t+1]);
+    │   │                              t = (row // tile_cells) * tiles_per_row + col // tile_cells
+    │   └── index      (rows, cols) int32   row of top/* for each cell, -1 = unobserved; chunks (tile, tile)
+    └── voxels/                    cfmap only (maps.cfmap_voxels): the sparse 3-D voxel map
+        ├── key        (M,3)  int16    (row, col, level), ascending
+        ├── features   (M,D)  float16  L2-normalised weighted mean feature
+        ├── weight     (M,)   float32
+        └── count      (M,)   int32
+
+Tile-major rows make each spatial tile one contiguous slice with the whole feature axis, so a
+reader of one region reads only the chunks of its tiles; a query reads ``top/features`` once
+(``(N,D)``, a few hundred MB at most) and keeps it in memory.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+import zarr
+
+from pipeline.errors import ArtifactError, MissingInputError
+from pipeline.geometry import GridSpec
+from pipeline.maps.fusion import FusedCells, FusedVoxels, Lattice
+from pipeline.store import compressor, new_group
+
+FORMAT_VERSION = 1
+ARTIFACTS = ("vlmap", "cfmap")
+
+
+def tile_order(cell: np.ndarray, grid: GridSpec, tile_cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """Permutation putting flat ``cell`` ids in tile-major order, and the ``(T+1,)`` tile offsets."""
+    row, col = np.divmod(np.asarray(cell, np.int64), grid.cols)
+    tiles_per_row = -(-grid.cols // tile_cells)
+    n_tiles = (-(-grid.rows // tile_cells)) * tiles_per_row
+    tile = (row // tile_cells) * tiles_per_row + col // tile_cells
+    order = np.lexsort((cell, tile))
+    start = np.searchsorted(tile[order], np.arange(n_tiles + 1), side="left").astype(np.int64)
+    return order, start
+
+
+def write_map(
+    path: Path,
+    attrs: dict,
+    grid: GridSpec,
+    lattice: Lattice,
+    cells: FusedCells,
+    *,
+    tile_cells: int,
+    voxels: FusedVoxels | None = None,
+) -> zarr.Group:
+    """Write a map store at ``path`` (must not exist). ``attrs`` = ``artifact_attrs(...)`` + extras."""
+    dim = int(cells.features.shape[1]) if cells.features.ndim == 2 else 0
+    order, start = tile_order(cells.cell, grid, tile_cells)
+    n = len(order)
+    g = new_group(path, {**attrs, "grid": grid.to_attrs(), "lattice": lattice.to_attrs(), "tile_cells": tile_cells,
+                         "n_cells": n, "n_voxels": 0 if voxels is None else len(voxels.cell),
+                         "units": {"features": "unit L2 norm", "weight": "sum of point weights",
+                                   "distance": "metres"}})
+    chunk = max(tile_cells * tile_cells, 1)
+    c_f = compressor(3, shuffle="shuffle")
+    top = g.create_group("top")
+    idx = np.full(grid.rows * grid.cols, -1, dtype=np.int32)
+    idx[cells.cell[order]] = np.arange(n, dtype=np.int32)
+
+    def arr(group, name, data, chunks):
+        a = group.create_array(name, shape=data.shape, chunks=chunks, dtype=data.dtype, compressors=c_f)
+        if data.size:
+            a[...] = data
+        return a
+
+    arr(top, "cell", cells.cell[order].astype(np.int32), (chunk,))
+    arr(top, "features", cells.features[order].numpy().astype(np.float16), (chunk, max(dim, 1)))
+    arr(top, "weight", cells.weight[order].astype(np.float32), (chunk,))
+    arr(top, "count", cells.count[order].astype(np.int32), (chunk,))
+    arr(top, "level", cells.level[order].astype(np.int16), (chunk,))
+    arr(top, "tile_start", start, (len(start),))
+    arr(top, "index", idx.reshape(grid.rows, grid.cols), (tile_cells, tile_cells))
+    if voxels is not None:
+        vx = g.create_group("voxels")
+        row, col = np.divmod(voxels.cell, grid.cols)
+        key = np.stack([row, col, voxels.level], axis=1).astype(np.int16)
+        o = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
+        arr(vx, "key", key[o], (chunk, 3))
+        arr(vx, "features", voxels.features()[o].numpy().astype(np.float16), (chunk, max(dim, 1)))
+        arr(vx, "weight", voxels.weight.cpu().numpy()[o].astype(np.float32), (chunk,))
+        arr(vx, "count", voxels.count.cpu().numpy()[o].astype(np.int32), (chunk,))
+    return g
+
+
+class SemanticMap:
+    """Read-only view of a ``vlmap.zarr`` / ``cfmap.zarr``; features are loaded once and cached.
+
+    ``cell`` ``(N,)`` int64 flat cell ids, ``index`` ``(rows, cols)`` int32, :meth:`features`
+    ``(N,D)`` float32 torch tensor (unit norm), ``grid`` :class:`GridSpec`, ``encoder`` identity dict.
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        if not (self.path / "zarr.json").is_file():
+            raise MissingInputError(f"{self.path}: semantic map not found (build it with: zipon run --only vlmap)")
+        self.group = zarr.open_group(zarr.storage.LocalStore(str(self.path), read_only=True), mode="r")
+        self.attrs = dict(self.group.attrs)
+        self.artifact = self.attrs.get("artifact")
+        if self.artifact not in ARTIFACTS:
+            raise ArtifactError(f"{self.path}: attrs.artifact is {self.artifact!r}, expected one of {ARTIFACTS}")
+        if self.attrs.get("format_version") != FORMAT_VERSION:
+            raise ArtifactError(f"{self.path}: format_version {self.attrs.get('format_version')!r}, this zipon reads "
+                                f"{FORMAT_VERSION}; rebuild it with: zipon run --force --only {self.artifact}")
+        self.grid = GridSpec.from_attrs(self.attrs["grid"])
+        self.encoder = dict(self.attrs["encoder"])
+        self.tile_cells = int(self.attrs["tile_cells"])
+        top = self.group["top"]
+        self.cell = top["cell"][...].astype(np.int64)
+        self.weight = top["weight"][...]
+        self.count = top["count"][...]
+        self.level = top["level"][...]
+        self.tile_start = top["tile_start"][...]
+        self._features: torch.Tensor | None = None
+        self._index: np.ndarray | None = None
+
+    @property
+    def n_cells(self) -> int:
+        return len(self.cell)
+
+    @property
+    def dim(self) -> int:
+        return int(self.group["top"]["features"].shape[1])
+
+    @property
+    def index(self) -> np.ndarray:
+        """``(rows, cols)`` int32 row of each cell in the compact arrays, -1 = unobserved."""
+        if self._index is None:
+            self._index = self.group["top"]["index"][...]
+        return self._index
+
+    def observed(self) -> np.ndarray:
+        """``(rows, cols)`` bool: cells with a feature."""
+        return self.index >= 0
+
+    def features(self) -> torch.Tensor:
+        """``(N,D)`` float32 unit-norm features of the observed cells (cached)."""
+        if self._features is None:
+            self._features = torch.from_numpy(self.group["top"]["features"][...].astype(np.float32))
+        return self._features
+
+    def tile(self, tile_row: int, tile_col: int) -> tuple[np.ndarray, np.ndarray]:
+        """Cells ``(n,)`` and features ``(n,D)`` float16 of one spatial tile (reads only its chunks)."""
+        per_row = -(-self.grid.cols // self.tile_cells)
+        t = tile_row * per_row + tile_col
+        s, e = int(self.tile_start[t]), int(self.tile_start[t + 1])
+        return self.cell[s:e], self.group["top"]["features"][s:e]
+
+    def features_at(self, rc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Features ``(K,D)`` float32 at ``(K,2)`` (row, col) cells and a ``(K,)`` observed mask (zeros elsewhere)."""
+        rc = np.asarray(rc, np.int64).reshape(-1, 2)
+        inside = self.grid.inside(rc)
+        rows = np.full(len(rc), -1, np.int64)
+        rows[inside] = self.index[rc[inside, 0], rc[inside, 1]]
+        ok = rows >= 0
+        out = np.zeros((len(rc), self.dim), np.float32)
+        out[ok] = self.features()[torch.from_numpy(rows[ok])].numpy()
+        return out, ok
+
+    def voxels(self) -> dict[str, np.ndarray] | None:
+        """The cfmap's sparse voxel map: ``key`` (M,3) int16 (row, col, level), ``features`` (M,D) fp16, ..."""
+        if "voxels" not in self.group:
+            return None
+        vx = self.group["voxels"]
+        return {name: vx[name][...] for name in ("key", "features", "weight", "count")}

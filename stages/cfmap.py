@@ -1,0 +1,21 @@
+"""Stage ``cfmap``: ``frames.zarr`` + ``recon.zarr`` -> ``cfmap.zarr`` (ConceptFusion-style map).
+
+Pixel features of ``encoders.cfmap`` (ConceptFusion's global + region CLIP features) fused into
+a sparse 3-D voxel map with ConceptFusion's confidence weights exp(-d^2 / 2 sigma^2), and its
+top-down projection by the same height rule as the vlmap; format in :mod:`pipeline.maps.store`.
+"""
+
+from __future__ import annotations
+
+from pipeline.maps.build import build_map
+from pipeline.maps.store import FORMAT_VERSION
+from pipeline.runner import StageContext
+from pipeline.store import artifact_attrs
+
+
+def run(ctx: StageContext) -> dict:
+    simulated = ctx.params.scenes[ctx.scene].simulated
+    ctx.log(f"fusing {ctx.inputs['frames'].name} into a sparse voxel map on {ctx.inputs['recon'].name}'s grid")
+    attrs = artifact_attrs("cfmap", FORMAT_VERSION, "cfmap", ctx.params_digest)
+    return build_map("cfmap", ctx.inputs["frames"], ctx.inputs["recon"], ctx.outputs["cfmap"], ctx.params, attrs,
+                     simulated=simulated, progress=lambda it, n, d: ctx.progress(it, total=n, description=d))

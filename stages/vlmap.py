@@ -1,0 +1,22 @@
+"""Stage ``vlmap``: ``frames.zarr`` + ``recon.zarr`` -> ``vlmap.zarr`` (VLMaps-style top-down feature map).
+
+Dense pixel features of ``encoders.vlmap`` (LSeg by default; ``encoders.simulated`` for simulated
+scenes) fused into recon's top-down grid with the height rule and count weights (VLMaps' mean);
+format and rule in :mod:`pipeline.maps.store` / :mod:`pipeline.maps.fusion`.
+"""
+
+from __future__ import annotations
+
+from pipeline.maps.build import build_map
+from pipeline.maps.store import FORMAT_VERSION
+from pipeline.runner import StageContext
+from pipeline.store import artifact_attrs
+
+
+def run(ctx: StageContext) -> dict:
+    simulated = ctx.params.scenes[ctx.scene].simulated
+    ctx.log(f"fusing {ctx.inputs['frames'].name} into {ctx.inputs['recon'].name}'s grid "
+            f"(encoder {ctx.params.encoders.simulated if simulated and ctx.params.encoders.simulated else ctx.params.encoders.vlmap})")
+    attrs = artifact_attrs("vlmap", FORMAT_VERSION, "vlmap", ctx.params_digest)
+    return build_map("vlmap", ctx.inputs["frames"], ctx.inputs["recon"], ctx.outputs["vlmap"], ctx.params, attrs,
+                     simulated=simulated, progress=lambda it, n, d: ctx.progress(it, total=n, description=d))

@@ -1,0 +1,151 @@
+"""Fusion against hand-computed cases: back-projection, the height rule, weights, voxels."""
+
+import numpy as np
+import pytest
+import torch
+
+from pipeline.geometry import GridSpec, Intrinsics
+from pipeline.maps.fusion import (BlockPoints, Lattice, TopDownAccumulator, VoxelAccumulator, depth_edges,
+                                  fill_unseen, locate_block, point_weights)
+
+GRID = GridSpec(rows=4, cols=4, cell_size_m=1.0, origin_xy=(-2.0, 2.0))
+LAT = Lattice(GRID, floor_z=0.0, min_height_m=0.0, max_height_m=3.0, level_height_m=1.0)
+
+
+def looking_down(height: float) -> np.ndarray:
+    """Camera at (0, 0, height) looking straight down: image right = +x, image down = -y."""
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2] = (1, 0, 0), (0, -1, 0), (0, 0, -1)
+    T[:3, 3] = (0, 0, height)
+    return T
+
+
+def unit(v):
+    v = np.asarray(v, np.float32)
+    return v / np.linalg.norm(v)
+
+
+def test_locate_block_hand_computed():
+    # 2x2 image, f = 1, c = 0.5: pixel (u, v) -> camera ((u - 0.5) z, (v - 0.5) z, z).
+    intr = Intrinsics(1.0, 1.0, 0.5, 0.5, 2, 2)
+    depth = np.array([[[1.0, 1.0], [1.0, 2.0]]], np.float32)
+    pts = locate_block(LAT, depth, np.ones((1, 2, 2), bool), looking_down(3.0)[None], intr,
+                       depth_min_m=0.1, depth_max_m=10.0)
+    # world points: (-0.5, 0.5, 2), (0.5, 0.5, 2), (-0.5, -0.5, 2), (1, -1, 1)
+    # cells (row, col): (1,1), (1,2), (2,1), (3,3) -> flat r*4+c; levels 2, 2, 2, 1
+    assert pts.cell.tolist() == [5, 6, 9, 15]
+    assert pts.level.tolist() == [2, 2, 2, 1]
+    np.testing.assert_allclose(pts.dist_m, [np.sqrt(1.5), np.sqrt(1.5), np.sqrt(1.5), np.sqrt(6.0)], rtol=1e-6)
+
+
+def test_locate_block_drops_out_of_range_invalid_and_out_of_band():
+    intr = Intrinsics(1.0, 1.0, 0.5, 0.5, 2, 2)
+    depth = np.array([[[0.0, 1.0], [3.5, 1.0]]], np.float32)  # invalid; ok; below floor (z=-0.5); ok
+    valid = np.array([[[True, True], [True, False]]])  # last pixel's feature invalid
+    pts = locate_block(LAT, depth, valid, looking_down(3.0)[None], intr, depth_min_m=0.1, depth_max_m=10.0)
+    assert pts.cell.tolist() == [-1, 6, -1, -1]
+    pts = locate_block(LAT, depth, np.ones((1, 2, 2), bool), looking_down(3.0)[None], intr,
+                       depth_min_m=0.1, depth_max_m=0.9)
+    assert pts.n_fused == 0
+
+
+def test_depth_edges_flags_both_sides_of_a_jump():
+    d = np.ones((1, 3, 4), np.float32)
+    d[:, :, 2:] = 2.0
+    e = depth_edges(d, 0.1)
+    assert e[0].tolist() == [[False, True, True, False]] * 3
+    assert not depth_edges(d, 0.0).any()
+
+
+def _block(cells, levels, dists=None):
+    cells = np.asarray(cells, np.int64)
+    return BlockPoints(cell=cells, level=np.asarray(levels, np.int64),
+                       dist_m=np.zeros(len(cells), np.float32) if dists is None else np.asarray(dists, np.float32))
+
+
+FEATS = {k: unit(v) for k, v in dict(a=[1, 0, 0], b=[0, 1, 0], c=[0, 0, 1], d=[1, 1, 0], e=[1, 0, 1],
+                                      f=[0, 1, 1], x=[1, 1, 1]).items()}
+
+
+def _feats(names):
+    return torch.from_numpy(np.stack([FEATS[n] for n in names]))
+
+
+def _feed(acc, order=(0, 1)):
+    # block 1: cell 5 gets a, b at level 1; cell 6 gets e at level 0; one pixel is not fused (cell -1)
+    # block 2: cell 5 gets c at level 0 (below its top: dropped) and d at level 2 (a higher top: restart);
+    #          cell 6 gets f at level 0 with weight 3
+    blocks = [
+        (_block([5, 5, 6, -1], [1, 1, 0, 0]), _feats("abex"), np.array([1, 1, 1, 1], np.float32)),
+        (_block([5, 5, 6], [0, 2, 0]), _feats("cdf"), np.array([1, 1, 3], np.float32)),
+    ]
+    for i in order:
+        acc.add(*blocks[i])
+
+
+@pytest.mark.parametrize("order", [(0, 1), (1, 0)])
+def test_top_down_rule_hand_computed_and_order_independent(order):
+    acc = TopDownAccumulator(LAT, 3)
+    _feed(acc, order)
+    out = acc.result()
+    assert out.cell.tolist() == [5, 6]
+    assert out.level.tolist() == [2, 0]
+    np.testing.assert_allclose(out.features[0].numpy(), FEATS["d"], atol=1e-6)  # only the top level survives
+    np.testing.assert_allclose(out.features[1].numpy(), unit(FEATS["e"] + 3 * FEATS["f"]), atol=1e-6)
+    assert out.count.tolist() == [1, 2]
+    np.testing.assert_allclose(out.weight, [1.0, 4.0])
+    # points added while on top (block order matters here; the result above does not)
+    assert acc.points_fused == (5 if order == (0, 1) else 3)
+
+
+def test_voxels_keep_every_level_and_project_like_the_top_down_rule():
+    vox = VoxelAccumulator(LAT, 3)
+    _feed(vox)
+    v = vox.result()
+    got = {(int(c), int(l)): (v.sum[i].numpy(), float(v.weight[i]), int(v.count[i]))
+           for i, (c, l) in enumerate(zip(v.cell, v.level))}
+    assert sorted(got) == [(5, 0), (5, 1), (5, 2), (6, 0)]
+    np.testing.assert_allclose(got[(5, 1)][0], FEATS["a"] + FEATS["b"], atol=1e-6)
+    np.testing.assert_allclose(got[(6, 0)][0], FEATS["e"] + 3 * FEATS["f"], atol=1e-6)
+    assert got[(6, 0)][1:] == (4.0, 2)
+    top = TopDownAccumulator(LAT, 3)
+    _feed(top)
+    a, b = v.top_down(), top.result()
+    assert a.cell.tolist() == b.cell.tolist() and a.level.tolist() == b.level.tolist()
+    torch.testing.assert_close(a.features, b.features)
+
+
+def test_point_weights_are_conceptfusion_confidence():
+    w = point_weights(np.array([0.0, 0.6, 1.2], np.float32), 0.6)
+    np.testing.assert_allclose(w, [1.0, np.exp(-0.5), np.exp(-2.0)], rtol=1e-6)
+    assert point_weights(np.zeros(3, np.float32), None) is None
+
+
+def test_storage_grows_past_its_first_capacity():
+    grid = GridSpec(rows=100, cols=100, cell_size_m=0.1, origin_xy=(0.0, 10.0))
+    lat = Lattice(grid, 0.0, 0.0, 1.0, 0.5)
+    acc = TopDownAccumulator(lat, 2)
+    cells = np.arange(10_000)
+    acc.add(_block(cells, np.zeros(10_000)), torch.ones(10_000, 2))
+    out = acc.result()
+    assert len(out.cell) == 10_000 and out.count.tolist() == [1] * 10_000
+
+
+def test_fill_unseen_fills_enclosed_holes_within_the_radius():
+    grid = GridSpec(rows=5, cols=5, cell_size_m=1.0, origin_xy=(0.0, 5.0))
+    lat = Lattice(grid, 0.0, 0.0, 3.0, 1.0)
+    acc = TopDownAccumulator(lat, 3)
+    ring = [r * 5 + c for r in range(4) for c in range(4) if r in (0, 3) or c in (0, 3)]  # a 4x4 ring
+    feats = ["a"] * len(ring)
+    feats[ring.index(5)] = "b"  # (1, 0): next to the hole cell (1, 1)
+    acc.add(_block(ring, [1] * len(ring)), _feats(feats))
+    fillable = np.ones((5, 5), bool)
+    fillable[2, 2] = False  # recon says free: never filled
+    out, n = fill_unseen(acc.result(), grid, fillable, radius_m=1.0)
+    # holes: (1,1), (1,2), (2,1), (2,2); (2,2) is not fillable; cells outside the ring are not holes
+    assert n == 3 and sorted(set(out.cell) - set(ring)) == [6, 7, 11]
+    i = out.cell.tolist().index(6)
+    assert out.count[i] == 0 and out.level[i] == 1
+    assert np.allclose(out.features[i].numpy(), FEATS["a"]) or np.allclose(out.features[i].numpy(), FEATS["b"])
+    out0, n0 = fill_unseen(acc.result(), grid, fillable, radius_m=0.0)
+    assert n0 == 0 and len(out0.cell) == len(ring)

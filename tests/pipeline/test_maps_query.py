@@ -1,0 +1,144 @@
+"""Queries: heatmap formula, background rule, candidates (distance, angle, order), errors, pictures."""
+
+import json
+import math
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from pipeline.config import MapsParams
+from pipeline.encoders.oracle import OracleEncoder
+from pipeline.errors import ArtifactError, InputDataError, LineageError
+from pipeline.geometry import GridSpec
+from pipeline.maps.fusion import FusedCells, Lattice
+from pipeline.maps.query import MapQuery, parse_pose
+from pipeline.maps.render import render_map_pca, render_query
+from pipeline.maps.store import FORMAT_VERSION, SemanticMap, write_map
+from pipeline.store import artifact_attrs
+
+GRID = GridSpec(rows=40, cols=40, cell_size_m=0.1, origin_xy=(0.0, 4.0))
+ENC = OracleEncoder(dim=64)
+
+
+@pytest.fixture(scope="module")
+def map_path(tmp_path_factory):
+    """All cells observed: background, two chairs (5x5 and 4x4 cells), a table and a 1-cell chair."""
+    label = np.zeros((40, 40), "<U10")
+    label[:] = "background"
+    label[5:10, 5:10] = "chair"
+    label[30:34, 30:34] = "chair"
+    label[20:25, 5:15] = "table"
+    label[35, 2] = "chair"
+    feats = np.stack([ENC.word_vector(w) for w in label.ravel()]).astype(np.float32)
+    cells = FusedCells(cell=np.arange(1600), features=torch.from_numpy(feats), weight=np.ones(1600, np.float32),
+                       count=np.ones(1600, np.int32), level=np.zeros(1600, np.int16))
+    path = tmp_path_factory.mktemp("q") / "vlmap.zarr"
+    write_map(path, artifact_attrs("vlmap", FORMAT_VERSION, "vlmap", "x", encoder=ENC.identity()), GRID,
+              Lattice(GRID, 0.0, 0.0, 2.0, 0.1), cells, tile_cells=16)
+    return path
+
+
+def _query(map_path, **kw):
+    navigable = kw.pop("navigable", None)
+    return MapQuery(SemanticMap(map_path), ENC, MapsParams(min_candidate_area_m2=0.05, **kw), navigable=navigable)
+
+
+def test_wins_and_heatmap(map_path):
+    q = _query(map_path)
+    r = q.query("chair")
+    expect = np.zeros((40, 40), bool)
+    expect[5:10, 5:10] = expect[30:34, 30:34] = True
+    expect[35, 2] = True
+    assert (r.wins == expect).all()
+    v_chair, v_bg = ENC.word_vector("chair"), ENC.word_vector("background")
+    s_bg = float(v_chair @ v_bg)
+    p_chair = 1.0 / (1.0 + 4 * math.exp((s_bg - 1.0) / 0.1))  # 4 background prompts, all 'background' for the oracle
+    p_bg_cell = 1.0 / (1.0 + 4 * math.exp((1.0 - s_bg) / 0.1))
+    assert r.heatmap[7, 7] == pytest.approx(p_chair, rel=1e-3)
+    assert r.heatmap[0, 0] == pytest.approx(p_bg_cell, rel=1e-2, abs=1e-6)
+    assert r.background == ["other", "floor", "wall", "ceiling"] and r.temperature == 0.1
+
+
+def test_candidates_sorted_by_distance_with_angles(map_path):
+    q = _query(map_path)
+    r = q.query("chair", pose=(0.05, 3.95, 0.0))  # the centre of cell (0, 0), facing east
+    assert [c.area_m2 for c in r.candidates] == pytest.approx([0.25, 0.16])  # the 1-cell chair is too small
+    a, b = r.candidates
+    assert (a.obj_id, b.obj_id) == (1, 2)
+    assert a.center_rc == (7, 7) and a.nearest_xy == pytest.approx((0.55, 3.45))
+    assert a.distance_m == pytest.approx(math.hypot(0.5, 0.5))
+    assert a.angle_rad == pytest.approx(-math.pi / 4)  # south-east of the pose: to the right
+    assert b.distance_m == pytest.approx(math.hypot(3.0, 3.0))
+    assert a.score > 0.99 and a.bbox_rc == (5, 5, 10, 10)
+    r2 = q.query("chair", pose=(0.05, 3.95, -math.pi / 4))
+    assert r2.candidates[0].angle_rad == pytest.approx(0.0, abs=1e-9)
+    # from the far corner the small chair is nearer
+    r3 = q.query("chair", pose=(3.95, 0.05, math.pi))
+    assert r3.candidates[0].center_rc in {(31, 31), (31, 32), (32, 31), (32, 32)}
+    # without a pose: by mass (score x area), the big chair first, no distances
+    r4 = q.query("chair")
+    assert r4.candidates[0].center_rc == (7, 7) and r4.candidates[0].distance_m is None
+
+
+def test_absent_and_background_queries(map_path):
+    q = _query(map_path)
+    assert q.query("sofa").candidates == []
+    r = q.query("floor")  # the same feature as every background prompt: they are left out
+    assert r.background == [] and r.wins.all()
+    json.dumps(q.query("table", pose=(1, 1, 0)).to_json())
+
+
+def test_approach_points_and_grid_checks(map_path):
+    nav = np.zeros((40, 40), bool)
+    nav[:, 20] = True
+    q = _query(map_path, navigable=nav)
+    c = q.query("table").candidates[0]
+    assert c.center_rc == (22, 9) and c.approach_xy == pytest.approx(GRID.cell_to_world(np.array([22, 20])))
+    with pytest.raises(LineageError, match="does not match the map's grid"):
+        _query(map_path, navigable=np.zeros((5, 5), bool))
+
+
+def test_encoder_mismatch_is_refused(map_path):
+    with pytest.raises(ArtifactError, match="map built with encoder 'oracle' \\(dim 64\\), query encoder is 'oracle' \\(dim 512\\)"):
+        MapQuery(SemanticMap(map_path), OracleEncoder(dim=512), MapsParams())
+
+
+def test_parse_pose():
+    assert parse_pose("1, 2.5,-0.5") == (1.0, 2.5, -0.5)
+    with pytest.raises(InputDataError, match="field --pose: got '1,2' \\(expected x,y,yaw"):
+        parse_pose("1,2")
+
+
+def test_pictures(map_path, tmp_path):
+    r = _query(map_path).query("chair", pose=(2.0, 2.0, 1.0))
+    png = render_query(r, tmp_path / "q.png")
+    img = cv2.imread(str(png))
+    assert img.shape[0] > 300 and img.shape[2] == 3
+    assert cv2.imread(str(render_map_pca(map_path, tmp_path / "pca.png"))) is not None
+
+
+def test_low_rank_scoring_gives_the_exact_wins_and_candidates(tmp_path):
+    rng = np.random.default_rng(3)
+    words = ["chair", "table", "bed", "background"]
+    table = np.stack([ENC.word_vector(w) for w in words]).astype(np.float32)
+    label = rng.integers(0, 4, 1600)
+    label[:400] = 3
+    feats = table[label] + 0.05 * rng.standard_normal((1600, 64)).astype(np.float32)
+    feats /= np.linalg.norm(feats, axis=1, keepdims=True)
+    cells = FusedCells(cell=np.arange(1600), features=torch.from_numpy(feats), weight=np.ones(1600, np.float32),
+                       count=np.ones(1600, np.int32), level=np.zeros(1600, np.int16))
+    path = tmp_path / "vlmap.zarr"
+    write_map(path, artifact_attrs("vlmap", FORMAT_VERSION, "vlmap", "x", encoder=ENC.identity()), GRID,
+              Lattice(GRID, 0.0, 0.0, 2.0, 0.1), cells, tile_cells=16)
+    exact = MapQuery(SemanticMap(path), ENC, MapsParams(query_rank=0))
+    low = MapQuery(SemanticMap(path), ENC, MapsParams(query_rank=3, query_lowrank_min_cells=10))
+    for text in ("chair", "bed", "red table"):
+        a, b = exact.query(text, (1.0, 1.0, 0.0)), low.query(text, (1.0, 1.0, 0.0))
+        assert a.wins.any() and (a.wins == b.wins).all()
+        assert [c.center_rc for c in a.candidates] == [c.center_rc for c in b.candidates]
+        can_win = a.heatmap >= 0.5
+        np.testing.assert_allclose(b.heatmap[can_win], a.heatmap[can_win], rtol=1e-5)
+        assert np.nanmax(b.heatmap[~can_win]) < 0.5
+    assert low._lowrank is not None and exact._lowrank is None
