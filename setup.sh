@@ -6,10 +6,12 @@ cd "$(dirname "$0")"
 
 if command -v apt-get >/dev/null 2>&1; then
   SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
-  # libusb: open3d imports fail without it; libgl/libgomp: opencv/open3d runtime.
-  if ! dpkg -s libusb-1.0-0 libgomp1 >/dev/null 2>&1; then
+  # libusb: open3d imports fail without it; libgomp: opencv/open3d runtime;
+  # chromium: renders the evaluation report to PNG (tests and `zipon eval` checks).
+  if ! dpkg -s libusb-1.0-0 libgomp1 chromium >/dev/null 2>&1; then
     $SUDO apt-get update -qq
-    $SUDO apt-get install -y -qq libusb-1.0-0 libgomp1 >/dev/null
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends \
+      libusb-1.0-0 libgomp1 chromium >/dev/null
   fi
 fi
 

@@ -471,8 +471,12 @@ class RoutesParams(Section):
     clearance_m: float = Field(
         0.1, ge=0, description="planned paths keep this far from non-navigable cells (beyond recon's robot radius)"
     )
-    stop_radius_m: float = Field(1.0, gt=0, description="a route ends within this distance of the goal's footprint")
-    success_m: float = Field(1.5, gt=0, description="replay succeeds within this distance of the goal (paper: 1.5)")
+    stop_radius_m: float = Field(1.0, gt=0, description="routes aim for goal-region cells within this distance of the "
+                                 "goal's footprint when the region has some (pipeline.routes.region.route_target)")
+    success_m: float = Field(1.5, gt=0, description="replay succeeds within this distance of the goal (paper: 1.5); "
+                             "the goal region is the navigable cells this close that see the goal's mass centre")
+    hfov_deg: float = Field(90.0, gt=0, le=360, description="replay succeeds only with a goal mass centre inside "
+                                                          "this horizontal field of view (paper: 90)")
 
     @model_validator(mode="after")
     def _radii(self) -> "RoutesParams":

@@ -18,3 +18,35 @@ def workspace(tmp_path):
 
     (tmp_path / "params.yaml").write_text("scenes:\n  s0: {source: simulate}\n  s1: {source: simulate}\n")
     return Workspace.resolve(tmp_path / "params.yaml")
+
+
+TINY_PARAMS = """\
+scenes:
+  tiny: {source: simulate}
+simulate: {frames: 140, width: 160, height: 120, rooms_min: 3, rooms_max: 3}
+reconstruct: {voxel_size_m: 0.05}
+encoders: {simulated: oracle, oracle: {out_size: [30, 40]}}
+maps: {cfmap_voxels: true}
+goals: {max_goals: 8}
+routes: {episodes_per_goal: 2}
+eval: {workers: 1, seeds: [0, 1]}
+"""
+
+
+@pytest.fixture(scope="session")
+def built_scene(tmp_path_factory):
+    """The start-to-finish run: a tiny simulated scene built by ``zipon run`` (every stage, real code).
+
+    Returns ``(Workspace, Params)``; tests must not modify its artifacts.
+    """
+    from pipeline.cli import main
+    from pipeline.config import load_params
+    from pipeline.paths import Workspace
+
+    root = tmp_path_factory.mktemp("smoke_ws")
+    (root / "params.yaml").write_text(TINY_PARAMS)
+    code = main(["-q", "-p", str(root / "params.yaml"), "--data-dir", str(root / "data"),
+                 "--manifests-dir", str(root / "manifests"), "run"])
+    assert code == 0, "zipon run failed on the tiny scene"
+    ws = Workspace.resolve(root / "params.yaml", data_dir=root / "data", manifests_dir=root / "manifests")
+    return ws, load_params(ws.params_path)
