@@ -481,25 +481,38 @@ def _print_eval(results: dict, out_dir: Path) -> None:
 
 @app.command()
 def demo(
-    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="dask scheduler (default: params)"),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="dask scheduler (default: params run.scheduler)"),
+    eval_seeds: int = typer.Option(1, "--eval-seeds", min=0, help="seeds of the closing evaluation (0 = skip it)"),
 ):
-    """The main job on the embedded default data: simulate the demo scenes, run every stage, render pictures.
+    """The main job on the embedded default data: simulate the demo scenes, run every stage, draw pictures,
+    evaluate the agents, and print where everything is.
 
-    Example: `zipon demo` (a few minutes on 2 cores), then open the PNGs it lists.
+    Example: `zipon demo` (a few minutes on 2 cores), then open the PNGs and report.html it lists.
     """
     from pipeline.demo import render_all
 
     ok = _run([], None, False, scheduler)
     ws, params = G.load()
+    built = [s for s in params.scenes if ws.artifact("routes", s).exists()]
     pictures = render_all(ws, params, list(params.scenes))
+    report = None
+    if ok and eval_seeds and built:
+        from orion_eval.run import run_eval
+
+        eval_dir = ws.data_dir / "eval" / "demo"
+        results = run_eval(ws, params, eval_dir, scenes=built, seeds=list(range(eval_seeds)), progress=not G.quiet)
+        _print_eval(results, eval_dir)
+        report = eval_dir / "report.html"
     table = Table(title="zipon demo: where things are")
-    table.add_column("what")
-    table.add_column("path")
+    table.add_column("what", no_wrap=True)
+    table.add_column("path", overflow="fold")
     for scene in params.scenes:
         table.add_row(f"{scene} artifacts", str(ws.artifact("frames", scene).parent))
         table.add_row(f"{scene} manifests", str(ws.manifest(scene, "x").parent))
     for p in pictures:
         table.add_row("picture", str(p))
+    if report:
+        table.add_row("evaluation report", str(report))
     out.print(table)
     if not ok:
         raise typer.Exit(1)

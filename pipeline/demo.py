@@ -1,4 +1,4 @@
-"""Pictures for ``zipon demo``: one picture per artifact that exists, written under DATA/artifacts/<scene>/renders/."""
+"""Pictures for ``zipon demo``: one picture per artifact that exists, under DATA/artifacts/<scene>/renders/."""
 
 from __future__ import annotations
 
@@ -10,11 +10,53 @@ from pipeline.pictures import frames_contact_sheet
 
 
 def render_all(ws: Workspace, params: Params, scenes: list[str]) -> list[Path]:
-    """Render what each scene has; returns the PNG paths."""
+    """Render what each scene has (frames, floor plan, grids, goals, routes, a map query); returns PNG paths."""
     written: list[Path] = []
     for scene in scenes:
         out = ws.renders(scene)
-        frames = ws.artifact("frames", scene)
-        if frames.exists():
-            written.append(frames_contact_sheet(frames, out / "frames.png"))
+        art = {name: ws.artifact(name, scene) for name in ("frames", "recon", "vlmap", "cfmap", "goals", "routes")}
+        if art["frames"].exists():
+            written.append(frames_contact_sheet(art["frames"], out / "frames.png"))
+            gt = _ground_truth(art["frames"])
+            if gt is not None:
+                from pipeline.sim.topdown import render_scene_png
+
+                written.append(render_scene_png(gt, out / "plan.png"))
+        if art["recon"].exists():
+            from pipeline.recon.render import render_recon
+
+            for what in ("navigable", "color"):
+                written.append(render_recon(art["recon"], what, out / f"{what}.png"))
+        if art["goals"].exists() and art["recon"].exists():
+            from pipeline.goals.render import render_goals
+
+            written.append(render_goals(art["recon"], art["goals"], None, "goals", out / "goals.png"))
+            if art["routes"].exists():
+                written.append(render_goals(art["recon"], art["goals"], art["routes"], "routes", out / "routes.png"))
+        for which in ("vlmap", "cfmap"):
+            if art[which].exists() and art["goals"].exists():
+                written.append(_query_picture(ws, params, scene, which, out))
     return written
+
+
+def _ground_truth(frames_path: Path):
+    from pipeline.frames import FrameStore
+    from pipeline.scene_gt import GTScene
+
+    gt = FrameStore(frames_path).ground_truth
+    return None if gt is None else GTScene.model_validate(gt)
+
+
+def _query_picture(ws: Workspace, params: Params, scene: str, which: str, out: Path) -> Path:
+    """Query the map for the class of the scene's first goal, from the recording's start pose."""
+    from pipeline.goals.store import Goals
+    from pipeline.maps.query import query_map
+    from pipeline.maps.render import render_query
+
+    goals = Goals(ws.artifact("goals", scene))
+    first = goals.document.goals[0]
+    cls = goals.objects[first.objects[0]].cls
+    start = goals.attrs.get("start_pose")
+    result = query_map(ws.artifact(which, scene), ws.artifact("recon", scene), cls,
+                       tuple(start) if start else None, params=params, frames_path=ws.artifact("frames", scene))
+    return render_query(result, out / f"query_{which}_{cls}.png")
