@@ -1,8 +1,11 @@
 """Stage ``routes``: goals + recon's navigable grid -> episodes with verified geodesic routes (``routes.zarr``).
 
-Per goal: seeded start poses at least ``routes.min_geodesic_m`` away (geodesic), the FMM shortest
-path, its discrete actions and procedural text; every route is replayed on the navigable grid and
-only verified ones are stored; unreachable goals are flagged. Format: :mod:`pipeline.routes.store`.
+Per goal: the goal region (:func:`pipeline.routes.region.goal_region`: navigable cells within
+``routes.success_m`` of a member's footprint that see its mass centre, line of sight by ray casting
+the reconstructed mesh from the recording's median camera height), seeded start poses at least
+``routes.min_geodesic_m`` away (geodesic), the FMM shortest path into the region, its discrete
+actions and procedural text; every route is replayed on the navigable grid and only verified ones
+are stored; unreachable goals (empty region, no start) are flagged. Format: :mod:`pipeline.routes.store`.
 """
 
 from __future__ import annotations
@@ -16,6 +19,8 @@ from pipeline.goals.store import Goals
 from pipeline.recon import Recon
 from pipeline.routes.actions import RouteSettings
 from pipeline.routes.episodes import GoalTarget, make_episodes
+from pipeline.routes.region import (OWN_DILATION_CELLS, ROUTE_MARGIN_CELLS, SIGHT_LEVELS, SIGHT_METHOD, MeshSight, goal_region,
+                                    recorded_camera_height, sight_levels)
 from pipeline.routes.store import ARTIFACT, FORMAT_VERSION, write_routes
 from pipeline.runner import StageContext
 from pipeline.store import artifact_attrs
@@ -31,16 +36,34 @@ def run(ctx: StageContext) -> dict:
                            f"rerun the goals stage")
     index = goals.object_index()
     keys = goals.object_keys
-    targets = [GoalTarget(g.id, np.isin(index, [keys.index(k) + 1 for k in g.object_keys]), list(g.footprints),
-                          g.mass_center, g.room_id) for g in goals.goals]
+    cam_h = recorded_camera_height(recon.poses, recon.floor_z)
+    sight = MeshSight.from_mesh(recon.mesh_path, floor_z=recon.floor_z, camera_height_m=cam_h, grid=recon.grid)
+    targets = []
+    for g in goals.goals:
+        region = np.zeros(index.shape, bool)
+        for k in g.object_keys:  # a same_goal group: any member counts
+            o = goals.objects[k]
+            region |= goal_region(recon.navigable, index == keys.index(k) + 1, recon.grid, o.mass_center,
+                                  sight_levels(o.z_range), sight, success_m=p.success_m)
+        centres = np.array([goals.objects[k].mass_center for k in g.object_keys], np.float64).reshape(-1, 2)
+        targets.append(GoalTarget(g.id, np.isin(index, [keys.index(k) + 1 for k in g.object_keys]),
+                                  list(g.footprints), centres, g.room_id, region))
     settings = RouteSettings(p.step_m, p.turn_deg, p.clearance_m, p.stop_radius_m)
     eps = make_episodes(recon.navigable, recon.grid, targets, episodes_per_goal=p.episodes_per_goal,
                         min_geodesic_m=p.min_geodesic_m, seed=p.seed, settings=settings, success_m=p.success_m,
+                        hfov_deg=p.hfov_deg,
                         progress=lambda it, description="": ctx.progress(it, total=len(targets),
                                                                           description=description))
     write_routes(ctx.outputs["routes"], eps, grid=recon.grid,
                  attrs=artifact_attrs(ARTIFACT, FORMAT_VERSION, "routes", ctx.params_digest, scene=ctx.scene),
-                 step_m=p.step_m, turn_deg=p.turn_deg, success_m=p.success_m)
+                 step_m=p.step_m, turn_deg=p.turn_deg, success_m=p.success_m,
+                 regions={t.id: t.region for t in targets},
+                 region_attrs={"definition": "navigable cells within success_m of the footprint that see the mass "
+                                             "centre (pipeline.routes.region.goal_region)",
+                               "success_m": p.success_m, "stop_radius_m": p.stop_radius_m, "margin_cells": ROUTE_MARGIN_CELLS,
+                               "hfov_deg": p.hfov_deg},
+                 sight={"method": SIGHT_METHOD, "camera_height_m": round(cam_h, 4), "levels": list(SIGHT_LEVELS),
+                        "tolerance_m": sight.tolerance, "own_dilation_cells": OWN_DILATION_CELLS})
     n = eps.generated
     for u in eps.unreachable:
         ctx.log(f"goal {u['goal']} unreachable: {u['reason']}")

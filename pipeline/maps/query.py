@@ -235,12 +235,35 @@ class MapQuery:
                            background=[self.background[i] for i in keep], temperature=self.temperature,
                            seconds=time.perf_counter() - t0, labels=labels, color=self.color)
 
+    def _observed_box(self) -> tuple[int, int, int, int]:
+        """``(r0, r1, c0, c1)`` bounding box (end exclusive) of the map's observed cells (cached)."""
+        box = self.__dict__.get("_obs_box")
+        if box is None:
+            g = self.grid
+            cells = np.asarray(self.map.cell)
+            if len(cells):
+                r, c = np.divmod(cells, g.cols)
+                box = (int(r.min()), int(r.max()) + 1, int(c.min()), int(c.max()) + 1)
+            else:
+                box = (0, 1, 0, 1)  # nothing observed: a one-cell box (no wins anywhere)
+            self.__dict__["_obs_box"] = box
+        return box
+
     def _candidates(self, wins: np.ndarray, heat: np.ndarray, pose) -> tuple[list[Candidate], np.ndarray]:
         g = self.grid
-        n, labels, stats, centroids = cv2.connectedComponentsWithStats(wins, connectivity=8, ltype=cv2.CV_32S)
+        # components only where the map has observed cells (wins are 0 elsewhere): work on that bounding box
+        r0, r1, c0, c1 = self._observed_box()
+        n, sub, stats, centroids = cv2.connectedComponentsWithStats(np.ascontiguousarray(wins[r0:r1, c0:c1]),
+                                                                    connectivity=8, ltype=cv2.CV_32S)
+        stats[:, cv2.CC_STAT_LEFT] += c0
+        stats[:, cv2.CC_STAT_TOP] += r0
+        centroids = centroids + np.array([c0, r0], np.float64)
+        labels = np.zeros(wins.shape, np.int32)
+        labels[r0:r1, c0:c1] = sub
         min_cells = max(1, math.ceil(self.params.min_candidate_area_m2 / g.cell_size_m**2 - 1e-9))
         area = stats[:, cv2.CC_STAT_AREA]
-        rr, cc = np.nonzero(labels)
+        rr, cc = np.nonzero(sub)
+        rr, cc = rr + r0, cc + c0
         lab = labels[rr, cc]
         score = np.bincount(lab, weights=heat[rr, cc], minlength=n) / np.maximum(area, 1)
         ok = (area >= min_cells) & (score >= self.params.min_candidate_score)

@@ -41,8 +41,8 @@ def follow_polyline(polyline_xy: np.ndarray, start_yaw: float, *, step_m: float 
     headings that bracket its direction: the agent walks straight and switches to the other bracket
     heading only when its cross-track error leaves ``+-band_m`` (hysteresis), so a slanted corridor
     reads as one long "go forward" rather than left/right jitter. A segment ends once the agent is
-    within ``step_m / 2`` of its end along the track. With ``face_xy`` the agent finally turns toward
-    that point (the goal's mass centre) so the goal is in view. With ``free(p, q) -> bool`` (is the
+    within ``step_m / 2`` of its end along the track. With ``face_xy`` (2,) or (K,2) the agent finally turns
+    toward that point (the goal's mass centre; of several, the nearest) so the goal is in view. With ``free(p, q) -> bool`` (is the
     straight step from p to q collision-free?) a blocked step is replaced by the nearest free lattice
     heading that still makes progress along the track (narrow doors). Ends with ``STOP``; raises
     ``ValueError`` past ``max_actions`` or when no heading is free.
@@ -89,7 +89,8 @@ def follow_polyline(polyline_xy: np.ndarray, start_yaw: float, *, step_m: float 
             yaw = start_yaw + k * turn
             pos = pos + step_m * np.array([np.cos(yaw), np.sin(yaw)])
     if face_xy is not None:
-        d = np.asarray(face_xy, dtype=np.float64) - pos
+        faces = np.asarray(face_xy, dtype=np.float64).reshape(-1, 2)  # several: the nearest one
+        d = faces[int(np.argmin(np.linalg.norm(faces - pos, axis=1)))] - pos
         if np.linalg.norm(d) > 1e-6:
             theta = float(np.arctan2(d[1], d[0]))
             turn_to(k + int(round(float(wrap_angle(theta - (start_yaw + k * turn))) / turn)))
@@ -227,19 +228,27 @@ class RoutePlanner:
             m[rc[0], rc[1]] = True
         return m
 
-    def field(self, key: object, object_mask: np.ndarray, mask_kind: str = "clear") -> np.ndarray:
-        """FMM field to the goal region on the clearance mask (``'clear'``) or the navigable mask."""
-        if (key, mask_kind) not in self._fields:
+    def field(self, key: object, object_mask: np.ndarray, mask_kind: str = "clear", *, region: bool = False
+              ) -> np.ndarray:
+        """FMM field on the clearance mask (``'clear'``) or the navigable mask to the cells within the stop
+        radius of ``object_mask`` — or, with ``region=True``, to the cells of ``object_mask`` itself (a goal
+        region / route target of :mod:`pipeline.routes.region`). Cached per ``(key, mask_kind, region)``."""
+        ck = (key, mask_kind, bool(region))
+        if ck not in self._fields:
             mask = self.plan_mask if mask_kind == "clear" else self.navigable
-            target = target_region(mask, object_mask, self.grid, self.settings.stop_radius_m)
-            self._fields[(key, mask_kind)] = geodesic_field(mask, target, self.grid)
-        return self._fields[(key, mask_kind)]
+            radius = 0.0 if region else self.settings.stop_radius_m
+            target = target_region(mask, object_mask, self.grid, radius)
+            self._fields[ck] = geodesic_field(mask, target, self.grid)
+        return self._fields[ck]
 
-    def route(self, pose_xy_yaw, object_mask: np.ndarray, *, key: object = None, face_xy=None) -> Route | None:
-        """The route from ``(x, y, yaw)`` to the goal region, or ``None`` when unreachable.
+    def route(self, pose_xy_yaw, object_mask: np.ndarray, *, key: object = None, face_xy=None,
+              region: bool = False) -> Route | None:
+        """The route from ``(x, y, yaw)`` to the goal, or ``None`` when unreachable.
 
-        Plans on the clearance mask first; a pose or goal cut off there (narrow doors) is planned on
-        the navigable mask itself. Actions are checked step by step against the navigable mask.
+        The target is the stop radius around ``object_mask``, or with ``region=True`` the cells of
+        ``object_mask`` themselves. Plans on the clearance mask first; a pose or goal cut off there
+        (narrow doors) is planned on the navigable mask itself. Actions are checked step by step
+        against the navigable mask.
         """
         x, y, yaw = (float(v) for v in pose_xy_yaw)
         key = key if key is not None else hash(np.packbits(object_mask).tobytes())
@@ -249,7 +258,7 @@ class RoutePlanner:
             return None
         failure = None
         for mask_kind in ("clear", "navigable"):
-            fld = self.field(key, object_mask, mask_kind)
+            fld = self.field(key, object_mask, mask_kind, region=region)
             mask = self.plan_mask if mask_kind == "clear" else self.navigable
             entry = start
             if not np.isfinite(fld[rc[0], rc[1]]):

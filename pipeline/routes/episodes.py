@@ -1,11 +1,16 @@
 """Episodes tau = (scene, goal, p0): seeded start poses, geodesic routes, actions, text, replay verdict.
 
-For each goal, start cells are drawn (seeded) among cells of the clearance mask whose FMM distance
-to the goal region (on that mask) is at least ``min_geodesic_m``; the heading is one of the
-``360 / turn_deg`` lattice headings. The reference length ``l`` (for SPL) is that FMM geodesic
-distance on the navigable mask from p0 to the goal region (the stored route may keep some clearance
-and be a little longer: ``path_length_m``). Every episode's actions are replayed (:mod:`pipeline.routes.verify`); only verified episodes
-are kept, the others are reported; goals with no reachable start are flagged unreachable.
+The goal region is :func:`pipeline.routes.region.goal_region` (navigable cells within the success
+distance from which the goal's mass centre is in line of sight on the reconstruction), given per
+goal; routes aim for its :func:`~pipeline.routes.region.route_target`. For each goal, start cells
+are drawn (seeded) among cells of the clearance mask that reach the target with clearance and whose
+FMM distance to the region is at least ``min_geodesic_m``; the heading is one of the
+``360 / turn_deg`` lattice headings. The reference length ``l`` (for SPL) is the FMM geodesic
+distance on the navigable mask from p0 to the goal REGION (the stored route aims a little inside
+it and may keep some clearance: ``path_length_m``). Every episode's actions are replayed
+(:mod:`pipeline.routes.verify`, which also checks that the walk ends in the region facing the
+goal); only verified episodes are kept, the others are reported; goals with an empty region or no
+reachable start are flagged unreachable.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import numpy as np
 
 from pipeline.geometry import GridSpec
 from pipeline.routes.actions import RoutePlanner, RouteSettings, route_text
+from pipeline.routes.region import route_target
 from pipeline.routes.verify import replay
 
 
@@ -24,8 +30,9 @@ class GoalTarget:
     id: str
     object_mask: np.ndarray  # (rows, cols) bool footprint of the same_goal group
     footprints: list[np.ndarray]  # world polygons
-    face_xy: np.ndarray  # mass centre the agent turns to at the end
+    face_xy: np.ndarray  # (2,) or (K,2) mass centre(s) the agent turns to at the end (the nearest)
     room_id: str | None = None
+    region: np.ndarray | None = None  # (rows, cols) bool goal region (pipeline.routes.region); None = stop radius
 
 
 @dataclass
@@ -71,20 +78,36 @@ def sample_starts(fld: np.ndarray, plan_mask: np.ndarray, grid: GridSpec, n: int
 
 def make_episodes(navigable: np.ndarray, grid: GridSpec, goals: list[GoalTarget], *, episodes_per_goal: int,
                   min_geodesic_m: float, seed: int, settings: RouteSettings = RouteSettings(),
-                  success_m: float = 1.5, progress=lambda it, **kw: it) -> EpisodeSet:
-    """Episodes for every goal (the per-goal seed is ``(seed, goal index)``)."""
+                  success_m: float = 1.5, hfov_deg: float = 90.0, progress=lambda it, **kw: it) -> EpisodeSet:
+    """Episodes for every goal (the per-goal seed is ``(seed, goal index)``).
+
+    A goal without ``region`` falls back to the cells within ``settings.stop_radius_m`` of its footprint
+    (no line-of-sight test; kept for callers without a reconstruction mesh)."""
     planner = RoutePlanner(navigable, grid, settings)
     planner.raise_failures = True  # an undrivable route is reported as rejected, with its reason
     out = EpisodeSet()
     for gi, goal in enumerate(progress(goals, description="episodes")):
         rng = np.random.default_rng([seed, gi])
-        # starts where the goal is reachable with clearance (robust to drive); l from the navigable mask
-        fld_clear = planner.field(goal.id, goal.object_mask, "clear")
-        fld = planner.field(goal.id, goal.object_mask, "navigable")
+        if goal.region is not None:
+            if not goal.region.any():
+                out.unreachable.append({"goal": goal.id, "reason": f"empty goal region: no navigable cell within "
+                                        f"{success_m} m of the object sees its mass centre"})
+                continue
+            target = route_target(goal.region, goal.object_mask, grid, stop_radius_m=settings.stop_radius_m)
+            # aim inside the region first; a start that cannot reach those cells aims at the region itself
+            aims = [((goal.id, "target"), target), ((goal.id, "region"), goal.region)]
+            fld = planner.field((goal.id, "region"), goal.region, "navigable", region=True)  # l: to the region
+            fld_clear = planner.field((goal.id, "region"), goal.region, "clear", region=True)
+        else:
+            aims = [(goal.id, goal.object_mask)]
+            fld = planner.field(goal.id, goal.object_mask, "navigable")
+            fld_clear = planner.field(goal.id, goal.object_mask, "clear")
+        as_region = goal.region is not None
         if not np.isfinite(fld_clear).any() or not (fld_clear == 0).any():
-            out.unreachable.append({"goal": goal.id, "reason": "no cell with clearance within the stop radius of the object"})
+            out.unreachable.append({"goal": goal.id, "reason": "no cell with clearance in the goal region"})
             continue
-        both = np.where(np.isfinite(fld_clear), np.minimum(fld_clear, fld), np.inf)  # l >= min on either mask
+        # starts that reach the goal with clearance (robust to drive), l (navigable mask) >= min_geodesic_m
+        both = np.where(np.isfinite(fld_clear), fld, np.inf)
         starts = sample_starts(both, planner.plan_mask, grid, episodes_per_goal, min_geodesic_m, rng,
                                settings.turn_deg)
         if not starts:
@@ -93,24 +116,32 @@ def make_episodes(navigable: np.ndarray, grid: GridSpec, goals: list[GoalTarget]
             continue
         for j, start in enumerate(starts):
             eid = f"{goal.id}/{j}"
-            try:
-                route = planner.route(start, goal.object_mask, key=goal.id, face_xy=goal.face_xy)
-            except ValueError as err:  # descent or action budget failure: report, never keep
-                out.rejected.append({"episode": eid, "reason": str(err)})
-                continue
-            if route is None:
-                out.rejected.append({"episode": eid, "reason": "no route from the start"})
-                continue
-            res = replay(route.actions, start, navigable, grid, goal.footprints, step_m=settings.step_m,
-                         turn_deg=settings.turn_deg, success_m=success_m)
             rc = grid.world_to_cell(np.asarray(start[:2]))
             reference_m = float(fld[rc[0], rc[1]])  # FMM on the navigable mask: the shortest length l
-            ep = Episode(eid, goal.id, start, reference_m, route.path.polyline_xy, route.path.length_m,
-                         route.actions, route_text(route.parts), len(route.parts), res.distance_to_goal_m,
-                         res.success, res.collisions)
-            if res.success:
+            ep, why = None, "no route from the start"
+            for key, aim in aims:
+                try:
+                    route = planner.route(start, aim, key=key, face_xy=goal.face_xy, region=as_region)
+                except ValueError as err:  # descent or action budget failure: report, never keep
+                    why = str(err)
+                    continue
+                if route is None:
+                    continue
+                res = replay(route.actions, start, navigable, grid, goal.footprints, step_m=settings.step_m,
+                             turn_deg=settings.turn_deg, success_m=success_m, region=goal.region,
+                             face_xy=goal.face_xy if as_region else None, hfov_deg=hfov_deg)
+                ep = Episode(eid, goal.id, start, reference_m, route.path.polyline_xy, route.path.length_m,
+                             route.actions, route_text(route.parts), len(route.parts), res.distance_to_goal_m,
+                             res.success, res.collisions)
+                if res.success:
+                    break
+                why = ("replay failed: " +
+                       (f"{res.collisions} collisions" if res.collisions else
+                        f"ends {res.distance_to_goal_m:.2f} m away" if res.distance_to_goal_m > success_m else
+                        "ends outside the goal region (no line of sight)" if not res.in_region else
+                        "ends not facing the goal"))
+            if ep is not None and ep.verified:
                 out.episodes.append(ep)
             else:
-                why = f"{res.collisions} collisions" if res.collisions else f"ends {res.distance_to_goal_m:.2f} m away"
-                out.rejected.append({"episode": eid, "reason": f"replay failed: {why}"})
+                out.rejected.append({"episode": eid, "reason": why})
     return out

@@ -3,8 +3,11 @@
 Independent of how the actions were made: an agent at (x, y, yaw) executes ``forward`` / ``left`` /
 ``right`` / ``stop`` on the navigable grid; a forward step collides when any point of the step
 (sampled every third of a cell) lies in a non-navigable cell or off the grid (the agent then stays
-put, as in Habitat). Success: the final position is within ``success_m`` (1.5 m) of the goal's
-footprint polygon (0 inside it) and no step collided.
+put, as in Habitat). Success: no step collided and the final position is within ``success_m``
+(1.5 m) of the goal's footprint polygon (0 inside it); given the goal ``region``
+(:func:`pipeline.routes.region.goal_region`: within the success distance AND the mass centre in
+line of sight on the reconstruction), the final cell must lie in it; given ``face_xy`` (the mass
+centres) and ``hfov_deg``, one of them must lie inside the final view (|bearing| <= hfov / 2).
 """
 
 from __future__ import annotations
@@ -27,6 +30,8 @@ class ReplayResult:
     travelled_m: float
     distance_to_goal_m: float
     success: bool
+    in_region: bool = True  # final cell inside the goal region (True when no region was given)
+    facing: bool = True  # a mass centre inside the final view (True when not checked)
 
 
 def point_polygon_distance(xy: np.ndarray, polygon_xy: np.ndarray) -> float:
@@ -37,8 +42,10 @@ def point_polygon_distance(xy: np.ndarray, polygon_xy: np.ndarray) -> float:
 
 
 def replay(actions: np.ndarray, start_xyyaw, navigable: np.ndarray, grid: GridSpec, goal_polygons: list[np.ndarray],
-           *, step_m: float = 0.25, turn_deg: float = 15.0, success_m: float = 1.5) -> ReplayResult:
-    """Execute ``actions`` from ``start_xyyaw`` and judge the outcome against any of ``goal_polygons``."""
+           *, step_m: float = 0.25, turn_deg: float = 15.0, success_m: float = 1.5, region: np.ndarray | None = None,
+           face_xy: np.ndarray | None = None, hfov_deg: float | None = None) -> ReplayResult:
+    """Execute ``actions`` from ``start_xyyaw`` and judge the outcome against any of ``goal_polygons``
+    (and the goal ``region`` ``(rows, cols)`` bool, and ``face_xy`` ``(K,2)`` within ``hfov_deg``)."""
     x, y, yaw = (float(v) for v in start_xyyaw)
     turn = np.deg2rad(turn_deg)
     nav = np.asarray(navigable, dtype=bool)
@@ -66,8 +73,17 @@ def replay(actions: np.ndarray, start_xyyaw, navigable: np.ndarray, grid: GridSp
         else:
             raise ValueError(f"unknown action code {a} at index {i}")
     dist = min((point_polygon_distance((x, y), p) for p in goal_polygons), default=float("inf"))
+    in_region = facing = True
+    if region is not None:
+        rc = grid.world_to_cell(np.array([x, y]))
+        in_region = bool(grid.inside(rc) and np.asarray(region, bool)[rc[0], rc[1]])
+    if face_xy is not None and hfov_deg is not None:
+        f = np.asarray(face_xy, np.float64).reshape(-1, 2)
+        bearing = np.arctan2(f[:, 1] - y, f[:, 0] - x) - yaw
+        bearing = np.abs(np.arctan2(np.sin(bearing), np.cos(bearing)))
+        facing = bool((bearing <= np.deg2rad(hfov_deg) / 2 + 1e-9).any())
     return ReplayResult((x, y, float(np.arctan2(np.sin(yaw), np.cos(yaw)))), collisions, first, travelled, dist,
-                        bool(collisions == 0 and dist <= success_m))
+                        bool(collisions == 0 and dist <= success_m and in_region and facing), in_region, facing)
 
 
 def _continuous_rc(grid: GridSpec, x: float, y: float) -> np.ndarray:

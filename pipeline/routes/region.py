@@ -1,0 +1,178 @@
+"""The goal region: where an episode can succeed — ONE definition for routes, episodes and the evaluator.
+
+A goal's region is the set of navigable cells
+
+- whose centre is within ``success_m`` (the paper's 1.5 m) of one of the goal's object footprints
+  (Euclidean distance between cell centres, so never farther than ``success_m`` from the footprint
+  polygon), and
+- from which that object's mass centre is in LINE OF SIGHT on the reconstruction.
+
+Line of sight (:class:`MeshSight`) is mesh ray casting on the RECONSTRUCTED mesh
+(``recon_mesh.ply``, open3d ``RaycastingScene``): a ray from the camera above the cell centre
+(``camera_height_m`` above the floor) to the mass-centre column at each of ``z_levels`` metres above
+the floor (:func:`sight_levels`: half and full height of the object). The column is in sight when
+one ray meets no surface before it (within ``tolerance_m``) or first meets a surface inside the
+object's own footprint dilated by :data:`OWN_DILATION_CELLS` cells (the object itself). The
+evaluator's success rule (:mod:`orion_eval.world`) uses the same test, so a route that ends in the
+region with the mass centre inside the 90 deg view is a success.
+
+:func:`goal_region` computes the region of one object; a same_goal group is the union over its
+members. :func:`route_target` is the part of the region a planner aims for: per connected part of
+the region, cells within ``stop_radius_m`` of the footprint and at least ``margin_cells`` inside the
+region's edge (falling back to the margin alone; specks and strips with no such cell are skipped),
+so a walk that ends up to half a step off its target still ends inside the region. The reference length ``l`` for SPL is the geodesic distance
+to the region itself.
+
+Arrays are ``(rows, cols)`` bool on a :class:`~pipeline.geometry.GridSpec`; world metres.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+from scipy import ndimage
+
+from pipeline.geometry import GridSpec
+
+SIGHT_LEVELS = (0.5, 1.0)  # fractions of the object's height sighted on its mass-centre column (1.0 = its top)
+OWN_DILATION_CELLS = 2  # a ray first hitting the footprint dilated by this many cells hits the object itself
+ROUTE_MARGIN_CELLS = 3  # route targets lie this many cells inside the region's edge (a walk ends <= ~0.15 m off)
+SIGHT_METHOD = "mesh ray casting (open3d RaycastingScene on recon_mesh.ply)"
+
+# (origins_xy (N,2), target_xy (2,), z_levels (L,), own (rows, cols) bool) -> (N,) bool
+SightFn = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+
+
+def sight_levels(z_range) -> np.ndarray:
+    """``(L,)`` heights above the floor (metres) sighted on an object spanning ``z_range`` = (z0, z1)."""
+    z0, z1 = (float(v) for v in z_range)
+    return np.array([z0 + f * (z1 - z0) for f in SIGHT_LEVELS])
+
+
+def own_cells(object_mask: np.ndarray) -> np.ndarray:
+    """The object's own cells for line of sight: its footprint dilated by :data:`OWN_DILATION_CELLS`."""
+    return ndimage.binary_dilation(np.asarray(object_mask, bool), iterations=OWN_DILATION_CELLS)
+
+
+def recorded_camera_height(poses: np.ndarray, floor_z: float, default: float = 0.88) -> float:
+    """Median camera height above the floor of the recording's ``(N,4,4)`` poses (``default`` without any)."""
+    z = np.asarray(poses)[:, 2, 3]
+    z = z[np.isfinite(z)]
+    return float(np.median(z) - floor_z) if z.size else float(default)
+
+
+class MeshSight:
+    """Line of sight by ray casting a triangle mesh (see the module docstring).
+
+    ``scene`` is an open3d ``RaycastingScene`` holding the reconstructed mesh; ``cam_z`` the world z
+    of the camera; ``floor_z`` the world z of the floor.
+    """
+
+    def __init__(self, scene, *, cam_z: float, floor_z: float, grid: GridSpec, tolerance_m: float = 0.15):
+        import open3d as o3d
+
+        self._o3d = o3d
+        self.scene, self.cam_z, self.floor_z, self.grid = scene, float(cam_z), float(floor_z), grid
+        self.tolerance = float(tolerance_m)
+
+    @classmethod
+    def from_mesh(cls, mesh_path, *, floor_z: float, camera_height_m: float, grid: GridSpec,
+                  tolerance_m: float = 0.15) -> "MeshSight":
+        import open3d as o3d
+
+        mesh = o3d.io.read_triangle_mesh(str(mesh_path))
+        scene = o3d.t.geometry.RaycastingScene()
+        v = np.asarray(mesh.vertices, dtype=np.float32)
+        t = np.asarray(mesh.triangles, dtype=np.uint32)
+        if len(t):
+            scene.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(t))
+        return cls(scene, cam_z=float(floor_z) + float(camera_height_m), floor_z=floor_z, grid=grid,
+                   tolerance_m=tolerance_m)
+
+    def __call__(self, origins_xy: np.ndarray, target_xy, z_levels, own: np.ndarray, *, every: bool = False
+                 ) -> np.ndarray:
+        """``(N,)`` bool: the column at ``target_xy`` is in sight from each of ``origins_xy`` ``(N,2)`` at one
+        (``every``: each) of ``z_levels`` (metres above the floor); ``own`` = :func:`own_cells` of the object."""
+        o = np.asarray(origins_xy, np.float64).reshape(-1, 2)
+        out = np.full(len(o), bool(every))
+        if not len(o):
+            return out
+        origins = np.column_stack([o, np.full(len(o), self.cam_z)])
+        for z in np.asarray(z_levels, np.float64).reshape(-1):
+            target = np.array([float(target_xy[0]), float(target_xy[1]), self.floor_z + float(z)])
+            d = target[None] - origins
+            length = np.linalg.norm(d, axis=1)
+            dirs = d / np.maximum(length, 1e-9)[:, None]
+            rays = np.concatenate([origins, dirs], axis=1).astype(np.float32)
+            t = self.scene.cast_rays(self._o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
+            hit = np.isfinite(t)
+            clear = ~hit | (t >= length - self.tolerance)
+            p = origins[:, :2] + dirs[:, :2] * np.where(hit, t, 0.0)[:, None]
+            rc = self.grid.world_to_cell(p)
+            inside = self.grid.inside(rc)
+            on_own = np.zeros(len(o), bool)
+            on_own[inside] = np.asarray(own, bool)[rc[inside, 0], rc[inside, 1]]
+            seen = clear | (hit & on_own)
+            out = (out & seen) if every else (out | seen)
+        return out
+
+
+def goal_region(navigable: np.ndarray, object_mask: np.ndarray, grid: GridSpec, center_xy, z_levels,
+                sight: SightFn, *, success_m: float = 1.5) -> np.ndarray:
+    """``(rows, cols)`` bool: navigable cells within ``success_m`` of ``object_mask`` from which the object's
+    mass centre ``center_xy`` (world) is in sight at one of ``z_levels`` (see the module docstring)."""
+    nav = np.asarray(navigable, bool)
+    obj = np.asarray(object_mask, bool)
+    out = np.zeros(nav.shape, bool)
+    if not obj.any():
+        return out
+    # distance transform on the object's bounding box grown by the success distance (not the whole grid)
+    pad = int(np.ceil(success_m / grid.cell_size_m)) + 1
+    rr, cc = np.nonzero(obj)
+    r0, r1 = max(int(rr.min()) - pad, 0), min(int(rr.max()) + pad + 1, nav.shape[0])
+    c0, c1 = max(int(cc.min()) - pad, 0), min(int(cc.max()) + pad + 1, nav.shape[1])
+    win = (slice(r0, r1), slice(c0, c1))
+    near = nav[win] & (ndimage.distance_transform_edt(~obj[win]) * grid.cell_size_m <= success_m + 1e-9)
+    cr, cc2 = np.nonzero(near)
+    if not len(cr):
+        return out
+    cells = np.stack([cr + r0, cc2 + c0], axis=1)
+    seen = np.asarray(sight(grid.cell_to_world(cells), np.asarray(center_xy, np.float64), z_levels, own_cells(obj)),
+                      bool)
+    out[cells[seen, 0], cells[seen, 1]] = True
+    return out
+
+
+def route_target(region: np.ndarray, object_mask: np.ndarray, grid: GridSpec, *, stop_radius_m: float,
+                 margin_cells: int = ROUTE_MARGIN_CELLS) -> np.ndarray:
+    """The cells of ``region`` a route aims for; empty only when the region is.
+
+    Per connected part of the region (8-connected): its cells within ``stop_radius_m`` of the footprint
+    and at least ``margin_cells`` inside the region's edge, else its cells that far inside. Parts with
+    no cell that far inside (specks seen through a gap, thin strips) are no target unless no part has
+    one; then the whole region is the target.
+    """
+    region = np.asarray(region, bool)
+    if not region.any():
+        return region.copy()
+    lab, n = ndimage.label(region, structure=np.ones((3, 3), bool))
+    inner = ndimage.binary_erosion(region, iterations=margin_cells) if margin_cells > 0 else region
+    obj = np.asarray(object_mask, bool)
+    close = inner & (ndimage.distance_transform_edt(~obj) * grid.cell_size_m <= stop_radius_m + 1e-9) \
+        if obj.any() else inner
+    out = np.zeros_like(region)
+    done = np.zeros(n + 1, bool)
+    for cand in (close, inner):
+        has = np.zeros(n + 1, bool)
+        has[np.unique(lab[cand])] = True
+        has[0] = False
+        take = has & ~done
+        out |= cand & take[lab]
+        done |= take
+    return out if out.any() else region.copy()
+
+
+def flat_cells(mask: np.ndarray) -> np.ndarray:
+    """``(C,)`` int64 flat (row-major) ids of a mask's True cells."""
+    return np.flatnonzero(np.asarray(mask, bool).reshape(-1)).astype(np.int64)
