@@ -448,6 +448,43 @@ def recon_eval(
     out.print_json(json.dumps({"frames": str(frames), **evaluate_holdout(frames, params.reconstruct, holdout_every)}))
 
 
+encoders_app = typer.Typer(help="Open-vocabulary encoders: list them, check that one loads and runs. "
+                           "Example: `zipon encoders check --which vlmap`", no_args_is_help=True)
+app.add_typer(encoders_app, name="encoders")
+
+
+@encoders_app.command("list")
+def encoders_list():
+    """List the encoders and which one each map stage uses. Example: `zipon encoders list`"""
+    from pipeline.encoders import ENCODERS
+
+    _, params = G.load()
+    enc = params.encoders
+    for name in sorted(ENCODERS):
+        uses = [w for w in ("vlmap", "cfmap") if getattr(enc, w) == name]
+        if enc.simulated == name:
+            uses.append("simulated scenes")
+        tag = " (diagnostic: ground truth)" if ENCODERS[name].diagnostic else ""
+        out.print(f"{name}{tag}" + (f"  <- {', '.join(uses)}" if uses else ""))
+
+
+@encoders_app.command("check")
+def encoders_check(
+    which: str = typer.Option("vlmap", "--which", help="vlmap | cfmap | an encoder name"),
+    simulated: bool = typer.Option(False, "--simulated", help="resolve as for a simulated scene"),
+):
+    """Build the configured encoder from its local weights, run one frame and one query, print its identity.
+
+    Example: `zipon encoders check --which cfmap`
+    """
+    import json
+
+    from pipeline.encoders import check_encoder
+
+    _, params = G.load()
+    out.print_json(json.dumps(check_encoder(params.encoders, which, simulated=simulated), default=str))
+
+
 @app.command("eval")
 def eval_cmd(
     out_dir: Path = typer.Option(Path("eval_out"), "--out", "-o", help="folder for results.json, report.html, episode logs"),

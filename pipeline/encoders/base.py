@@ -1,0 +1,356 @@
+"""The encoder interface: RGB images -> per-pixel features, text -> features in the same space.
+
+Contract (every implementation; checked by ``tests/pipeline/encoders/test_base.py::TestEncoderContract``):
+
+- ``encode_images(rgb, *, depth_m=None, instance=None) -> DenseFeatures``
+
+  * ``rgb``: ``(B,H,W,3)`` uint8, RGB order.
+  * ``depth_m``: optional ``(B,H,W)`` float32 metres (0 = invalid); used by region generators.
+  * ``instance``: optional ``(B,H,W)`` uint16 instance ids (0 = none); used by 'gt' regions and the oracle.
+  * returns :class:`DenseFeatures` with ``features`` ``(B,h,w,D)`` float32 (CPU torch tensor),
+    L2-normalised along D where ``valid``, zero elsewhere, and ``valid`` ``(B,h,w)`` bool.
+
+- ``encode_text(texts: list[str]) -> torch.Tensor`` ``(T,D)`` float32, L2-normalised.
+  Similarity of a cell and a query is the dot product; an encoder that was trained with a
+  temperature records it (``identity()['temperature']``: logits = dot / temperature).
+
+Resolution: a feature map of ``h x w`` cells covers the WHOLE input image, resampled with the
+pixel-corner convention (cell ``(r, c)`` covers pixels ``[r*H/h, (r+1)*H/h) x [c*W/w, (c+1)*W/w)``).
+So the intrinsics of the feature grid are ``Intrinsics.scaled(w, h)`` (see :meth:`DenseFeatures.intrinsics`),
+and depth for back-projection is depth resampled to ``(h, w)`` (:meth:`DenseFeatures.resample_depth`).
+
+Family: :class:`Encoder` (ABC) + :data:`ENCODERS` (name -> class, filled by ``@register`` in each
+implementation module: ``lseg``, ``maskclip``, ``conceptfusion``, ``torchscript``, ``oracle``).
+``bind_scene(gt)`` hands the scene's ground truth to encoders that use it (only the oracle, a
+diagnostic); it is a no-op for real encoders. Nothing downloads weights: a real encoder without
+its weights file is a :class:`ConfigError` naming the param, a missing file a
+:class:`MissingInputError` naming the file, a file that does not fit the model a ConfigError naming both.
+
+Every encoder declares ``name``, ``version``, ``dim``, ``normalization`` (always 'l2') and
+``temperature``, and a JSON-able ``identity()`` (which includes a digest of its weights file) that
+the map stages store in their attrs. Encoders are chosen by name in ``params.yaml``
+(:class:`pipeline.config.EncodersParams`) and built by :func:`build_encoder`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from pipeline.errors import ConfigError, InputDataError, MissingInputError
+
+if TYPE_CHECKING:
+    from pipeline.config import EncodersParams
+    from pipeline.geometry import Intrinsics
+    from pipeline.scene_gt import GTScene
+
+# CLIP's image normalisation (open_clip OPENAI_DATASET_MEAN/STD).
+CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
+CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
+
+
+@dataclass
+class DenseFeatures:
+    """Per-cell features of a batch of images.
+
+    ``features``: ``(B,h,w,D)`` float32 CPU tensor, unit L2 norm where ``valid``, 0 elsewhere.
+    ``valid``: ``(B,h,w)`` bool. ``image_size``: ``(H, W)`` of the input images; the ``h x w`` grid
+    covers the whole image (pixel-corner convention, see the module docstring).
+    """
+
+    features: torch.Tensor
+    valid: torch.Tensor
+    image_size: tuple[int, int]
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """``(h, w)`` of the feature grid."""
+        return int(self.features.shape[1]), int(self.features.shape[2])
+
+    @property
+    def scale(self) -> tuple[float, float]:
+        """``(sy, sx)``: feature cells per image pixel along rows / columns."""
+        return self.size[0] / self.image_size[0], self.size[1] / self.image_size[1]
+
+    def intrinsics(self, image_intrinsics: "Intrinsics") -> "Intrinsics":
+        """Intrinsics of the feature grid, given those of the input images."""
+        if (image_intrinsics.height, image_intrinsics.width) != tuple(self.image_size):
+            raise ValueError(
+                f"intrinsics are {image_intrinsics.width}x{image_intrinsics.height}, "
+                f"features were computed on {self.image_size[1]}x{self.image_size[0]} images"
+            )
+        return image_intrinsics.scaled(self.size[1], self.size[0])
+
+    def resample_depth(self, depth_m: np.ndarray) -> np.ndarray:
+        """``(B,H,W)`` metres -> ``(B,h,w)``: nearest pixel at each cell centre (no mixing across edges)."""
+        depth_m = np.asarray(depth_m)
+        H, W = self.image_size
+        h, w = self.size
+        rows = np.minimum(((np.arange(h) + 0.5) * H / h).astype(np.int64), H - 1)
+        cols = np.minimum(((np.arange(w) + 0.5) * W / w).astype(np.int64), W - 1)
+        return depth_m[:, rows[:, None], cols[None, :]]
+
+
+class Encoder(ABC):
+    """An open-vocabulary dense encoder (see the module docstring for the contract)."""
+
+    name: ClassVar[str]
+    version: ClassVar[str] = "1"
+    normalization: ClassVar[str] = "l2"
+    #: True only for the ground-truth oracle; maps record it so nobody mistakes it for perception.
+    diagnostic: ClassVar[bool] = False
+
+    def __init__(self, *, device: str = "cpu", batch_size: int = 4):
+        self.device = torch.device(device)
+        self.batch_size = int(batch_size)
+
+    # ------------------------------------------------------------------ interface
+    @classmethod
+    @abstractmethod
+    def from_params(cls, params: "EncodersParams", *, device: str) -> "Encoder":
+        """Build from the ``encoders`` section (its own sub-section plus batch size); no downloads."""
+
+    @property
+    @abstractmethod
+    def dim(self) -> int:
+        """Feature dimension D."""
+
+    @property
+    def temperature(self) -> float | None:
+        """Temperature of the training objective (logits = cosine / temperature), if any."""
+        return None
+
+    @abstractmethod
+    def _encode_batch(self, rgb: np.ndarray, depth_m: np.ndarray | None, instance: np.ndarray | None) -> DenseFeatures:
+        """One batch of at most ``batch_size`` images (inputs already checked)."""
+
+    @abstractmethod
+    def encode_text(self, texts: list[str]) -> torch.Tensor:
+        """``(T,D)`` float32 CPU tensor, L2-normalised."""
+
+    def weights_identity(self) -> dict[str, Any]:
+        """The weights the encoder runs with: ``{"weights_file": name, "weights_digest": ...}`` or ``{}``."""
+        return {}
+
+    def config_identity(self) -> dict[str, Any]:
+        """Settings that change the features (sizes, arch); recorded in :meth:`identity`."""
+        return {}
+
+    def bind_scene(self, gt: "GTScene | None") -> None:
+        """Give the encoder the scene's ground truth (only the oracle uses it; a no-op otherwise)."""
+
+    # ------------------------------------------------------------------ shared
+    def identity(self) -> dict[str, Any]:
+        """JSON-able description the maps store in their attrs."""
+        return {
+            "name": self.name,
+            "version": self.version,
+            "dim": self.dim,
+            "normalization": self.normalization,
+            "temperature": self.temperature,
+            "diagnostic": self.diagnostic,
+            **self.config_identity(),
+            **self.weights_identity(),
+        }
+
+    def encode_images(
+        self,
+        rgb: np.ndarray,
+        *,
+        depth_m: np.ndarray | None = None,
+        instance: np.ndarray | None = None,
+    ) -> DenseFeatures:
+        """Dense features of ``(B,H,W,3)`` uint8 images, computed ``batch_size`` images at a time."""
+        rgb, depth_m, instance = check_images(rgb, depth_m, instance)
+        parts = []
+        with torch.inference_mode():
+            for start in range(0, rgb.shape[0], self.batch_size):
+                sl = slice(start, start + self.batch_size)
+                parts.append(
+                    self._encode_batch(
+                        rgb[sl],
+                        None if depth_m is None else depth_m[sl],
+                        None if instance is None else instance[sl],
+                    )
+                )
+        if len(parts) == 1:
+            return parts[0]
+        return DenseFeatures(
+            torch.cat([p.features for p in parts]), torch.cat([p.valid for p in parts]), parts[0].image_size
+        )
+
+
+# ----------------------------------------------------------------------------- helpers
+
+def check_images(
+    rgb: np.ndarray, depth_m: np.ndarray | None, instance: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Validate the batch layout; raises :class:`InputDataError` naming the field."""
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 4 or rgb.shape[-1] != 3 or rgb.dtype != np.uint8 or rgb.shape[0] == 0:
+        raise InputDataError(f"got {rgb.dtype} {rgb.shape}", field="rgb", expected="(B,H,W,3) uint8 with B >= 1")
+    B, H, W, _ = rgb.shape
+    if depth_m is not None:
+        depth_m = np.asarray(depth_m, dtype=np.float32)
+        if depth_m.shape != (B, H, W):
+            raise InputDataError(f"got {depth_m.shape}", field="depth_m", expected=f"({B},{H},{W}) metres")
+    if instance is not None:
+        instance = np.asarray(instance)
+        if instance.shape != (B, H, W) or instance.dtype.kind not in "ui":
+            raise InputDataError(
+                f"got {instance.dtype} {instance.shape}", field="instance", expected=f"({B},{H},{W}) integer ids"
+            )
+    return rgb, depth_m, instance
+
+
+def resolve_device(device: str) -> str:
+    """'auto' -> 'cuda' when available else 'cpu'; 'cuda' without a GPU is a :class:`ConfigError`."""
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if device == "cuda" and not torch.cuda.is_available():
+        raise ConfigError("encoders.device: 'cuda' requested but torch sees no CUDA device (use 'cpu' or 'auto')")
+    return device
+
+
+def file_digest(path: str | Path) -> str:
+    """blake2b digest of a file's bytes (weights identity)."""
+    h = hashlib.blake2b(digest_size=16)
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 22), b""):
+            h.update(chunk)
+    return "blake2b:" + h.hexdigest()
+
+
+def require_file(path: str | Path | None, param: str, what: str) -> Path:
+    """The weights file named by ``param``; a clear error when it is unset or missing. Never downloads."""
+    if path is None:
+        raise ConfigError(
+            f"{param} is not set: {what} needs a local weights file (nothing is downloaded); "
+            f"set {param} in params.yaml"
+        )
+    p = Path(os.path.expanduser(str(path)))
+    if not p.is_file():
+        raise MissingInputError(f"{param}: weights file {p} not found ({what})")
+    return p
+
+
+def weights_error(param: str, path: Path, err: Exception) -> ConfigError:
+    """A weights file that does not fit the model: name the param, the file and the first problem."""
+    text = str(err).strip().splitlines()
+    detail = " ".join(text[:3])[:600]
+    return ConfigError(f"{param}: {path} does not match the model: {detail}")
+
+
+def to_tensor01(rgb: np.ndarray, device: torch.device) -> torch.Tensor:
+    """``(B,H,W,3)`` uint8 -> ``(B,3,H,W)`` float32 in [0, 1] on ``device``."""
+    return torch.from_numpy(np.ascontiguousarray(rgb)).to(device).permute(0, 3, 1, 2).float().div_(255.0)
+
+
+def normalize(x: torch.Tensor, mean: tuple[float, ...], std: tuple[float, ...]) -> torch.Tensor:
+    """Per-channel ``(x - mean) / std`` of a ``(B,3,H,W)`` tensor."""
+    m = torch.tensor(mean, dtype=x.dtype, device=x.device).view(1, -1, 1, 1)
+    s = torch.tensor(std, dtype=x.dtype, device=x.device).view(1, -1, 1, 1)
+    return (x - m) / s
+
+
+def l2_normalize(x: torch.Tensor, dim: int = -1, eps: float = 1e-12) -> torch.Tensor:
+    """Unit-norm along ``dim`` (zero vectors stay zero)."""
+    return x / x.norm(dim=dim, keepdim=True).clamp_min(eps)
+
+
+def resize_features(feat_bdhw: torch.Tensor, out_size: tuple[int, int] | None) -> torch.Tensor:
+    """``(B,D,h,w)`` -> ``(B,out_h,out_w,D)`` float32 CPU, L2-normalised; bilinear over the whole extent
+    (pixel-corner), antialiased when shrinking by more than 2x."""
+    if out_size is not None and tuple(feat_bdhw.shape[-2:]) != tuple(out_size):
+        # antialias only when shrinking more than 2x (plain bilinear then skips input cells entirely)
+        down = out_size[0] * 2 < feat_bdhw.shape[-2] or out_size[1] * 2 < feat_bdhw.shape[-1]
+        feat_bdhw = F.interpolate(
+            feat_bdhw.float(), size=tuple(out_size), mode="bilinear", align_corners=False, antialias=down
+        )
+    return l2_normalize(feat_bdhw.float(), dim=1).permute(0, 2, 3, 1).contiguous().cpu()
+
+
+def all_valid(feat: torch.Tensor) -> torch.Tensor:
+    """``(B,h,w)`` True everywhere for a ``(B,h,w,D)`` map."""
+    return torch.ones(feat.shape[:3], dtype=torch.bool)
+
+
+# ----------------------------------------------------------------------------- registry
+
+#: encoder name -> implementation; filled by the implementation modules (imported in __init__).
+ENCODERS: dict[str, type[Encoder]] = {}
+
+
+def register(cls: type[Encoder]) -> type[Encoder]:
+    """Class decorator: add an implementation to :data:`ENCODERS` under its ``name``."""
+    ENCODERS[cls.name] = cls
+    return cls
+
+
+def encoder_choice(params: "EncodersParams", which: str | None = None, *, simulated: bool = False) -> str:
+    """The encoder name a stage uses: ``which`` is 'vlmap', 'cfmap' or an encoder name (None = vlmap).
+
+    For a simulated scene ``encoders.simulated`` (when set) overrides the stage's choice.
+    """
+    import pipeline.encoders  # noqa: F401  (importing the package registers every implementation)
+
+    if simulated and params.simulated is not None:
+        return params.simulated
+    which = which or "vlmap"
+    if which in ("vlmap", "cfmap"):
+        return getattr(params, which)
+    if which not in ENCODERS:
+        raise ConfigError(f"encoder {which!r}: unknown (choose one of {sorted(ENCODERS)} or 'vlmap'/'cfmap')")
+    return which
+
+
+def build_encoder(params: "EncodersParams", which: str | None = None, *, simulated: bool = False) -> Encoder:
+    """Build the encoder chosen in ``params`` for a map stage (``which`` = 'vlmap' / 'cfmap') or by name.
+
+    Applies ``params.threads`` (torch CPU threads) and resolves ``params.device``.
+    """
+    name = encoder_choice(params, which, simulated=simulated)
+    if params.threads:
+        torch.set_num_threads(params.threads)
+    device = resolve_device(params.device)
+    cls = ENCODERS[name]
+    return cls.from_params(params, device=device)  # type: ignore[attr-defined]
+
+
+def check_encoder(params: "EncodersParams", which: str | None = None, *, simulated: bool = False) -> dict[str, Any]:
+    """Build the configured encoder, run it on one synthetic frame and a query; return its identity + shapes.
+
+    For a CLI ``zipon encoders check``: it proves the weights load and the output contract holds,
+    without touching any scene. The oracle is checked against a one-object synthetic scene.
+    """
+    enc = build_encoder(params, which, simulated=simulated)
+    rgb = np.zeros((1, 240, 320, 3), np.uint8)
+    rgb[:, 60:180, 80:240] = (180, 40, 40)
+    depth = np.full((1, 240, 320), 2.0, np.float32)
+    instance = np.zeros((1, 240, 320), np.uint16)
+    instance[:, 60:180, 80:240] = 1
+    if enc.diagnostic:
+        from pipeline.scene_gt import GTScene
+
+        enc.bind_scene(GTScene.model_validate({
+            "name": "check", "seed": 0, "wall_height_m": 2.5, "rooms": [], "walls": [],
+            "objects": [{"id": 1, "cls": "chair", "room": "r", "parts": [{"min": (0, 0, 0), "max": (1, 1, 1)}],
+                         "color_name": "red", "color_rgb": (180, 40, 40), "material": "wood", "size": "big"}],
+        }))
+    out = enc.encode_images(rgb, depth_m=depth, instance=instance)
+    text = enc.encode_text(["a chair"])
+    return {
+        "identity": enc.identity(),
+        "device": str(enc.device),
+        "feature_grid": list(out.size),
+        "valid_fraction": float(out.valid.float().mean()),
+        "text_shape": list(text.shape),
+    }

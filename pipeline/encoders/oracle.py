@@ -1,0 +1,202 @@
+"""``oracle``: a DIAGNOSTIC encoder for simulated scenes, built from ground truth, not a perception model.
+
+It isolates geometry and fusion from recognition: with it, a map's errors are the mapping's own.
+It is never chosen implicitly; maps built with it record ``diagnostic: true`` in their attrs.
+
+Space: every word has a deterministic random unit vector (seeded by ``seed`` and the word).
+An instance's feature is ``normalise(v(class) + color_weight * mean(v(colour words))
++ material_weight * v(material))``; instance 0 (walls, floor, nothing) is ``v('background')``.
+A query maps its known words into the same space with the same weights ("a red chair" ->
+``v(chair) + color_weight * v(red)``), so the red chair scores above the blue one; 'floor',
+'wall', 'other' ... mean background; a query with no known word gets a vector of its own
+(near-orthogonal to everything). Personal names are not the encoder's business.
+
+Imperfection on purpose: per frame, each instance takes another scene class's word with
+probability ``confusion``; each cell gets gaussian noise of std ``noise_std`` before
+renormalising. Draws are seeded by ``seed`` and the frame's instance image, so results do not
+depend on batching.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+
+from pipeline.encoders.base import DenseFeatures, Encoder, l2_normalize, register
+from pipeline.errors import ConfigError, InputDataError
+
+if TYPE_CHECKING:
+    from pipeline.config import EncodersParams
+    from pipeline.scene_gt import GTScene
+
+BACKGROUND = "background"
+BACKGROUND_WORDS = {"background", "floor", "floors", "wall", "walls", "other", "ceiling", "none", "nothing", "ground"}
+COLOR_WORDS = {
+    "red", "green", "blue", "yellow", "orange", "purple", "pink", "brown", "black", "white", "grey", "beige",
+    "dark", "light", "navy", "teal", "cream", "tan", "olive", "maroon", "gold", "silver", "violet", "cyan",
+}
+MATERIAL_WORDS = {"wood", "leather", "metal", "fabric", "glass", "plastic", "ceramic", "marble", "stone", "wool",
+                  "cotton", "steel", "velvet", "wicker", "rattan", "concrete", "paper"}
+SYNONYMS = {"gray": "grey", "wooden": "wood", "metallic": "metal", "tv": "television"}
+COMMON_CLASSES = {
+    "chair", "table", "sofa", "couch", "bed", "cabinet", "shelf", "bookshelf", "desk", "lamp", "plant", "toilet",
+    "sink", "tv", "television", "monitor", "computer", "laptop", "refrigerator", "fridge", "oven", "stove",
+    "microwave", "bathtub", "shower", "mirror", "picture", "painting", "door", "window", "pillow", "cushion",
+    "rug", "carpet", "clock", "vase", "book", "bottle", "cup", "mug", "bowl", "box", "basket", "stool", "bench",
+    "dresser", "wardrobe", "nightstand", "counter", "curtain", "towel", "trash can", "dining table",
+    "coffee table", "tv stand", "armchair", "fireplace", "piano", "printer", "keyboard",
+}
+
+
+def _words(text: str) -> list[str]:
+    return [SYNONYMS.get(w, w) for w in re.findall(r"[a-z]+", text.lower())]
+
+
+@register
+class OracleEncoder(Encoder):
+    """Ground-truth features for simulated scenes (a diagnostic); see the module docstring."""
+
+    name = "oracle"
+    version = "1"
+    diagnostic = True
+
+    def __init__(
+        self,
+        *,
+        dim: int = 512,
+        seed: int = 0,
+        color_weight: float = 0.5,
+        material_weight: float = 0.3,
+        confusion: float = 0.0,
+        noise_std: float = 0.0,
+        out_size: tuple[int, int] = (120, 160),
+        device: str = "cpu",
+        batch_size: int = 4,
+    ):
+        super().__init__(device="cpu", batch_size=batch_size)  # table look-ups: no accelerator needed
+        self._dim, self.seed = int(dim), int(seed)
+        self.color_weight, self.material_weight = float(color_weight), float(material_weight)
+        self.confusion, self.noise_std = float(confusion), float(noise_std)
+        self.out_size = tuple(out_size)
+        self._cache: dict[str, np.ndarray] = {}
+        self._gt: GTScene | None = None
+        self._classes: list[str] = []
+
+    @classmethod
+    def from_params(cls, params: "EncodersParams", *, device: str) -> "OracleEncoder":
+        p = params.oracle
+        return cls(dim=p.dim, seed=p.seed, color_weight=p.color_weight, material_weight=p.material_weight,
+                   confusion=p.confusion, noise_std=p.noise_std, out_size=p.out_size, device=device,
+                   batch_size=params.batch_size)
+
+    # ------------------------------------------------------------------ space
+    @property
+    def dim(self) -> int:
+        return self._dim
+
+    def config_identity(self) -> dict[str, Any]:
+        return {"kind": "ground-truth oracle (DIAGNOSTIC of geometry and fusion, not a perception model)",
+                "seed": self.seed, "color_weight": self.color_weight, "material_weight": self.material_weight,
+                "confusion": self.confusion, "noise_std": self.noise_std, "out_size": list(self.out_size),
+                "scene": self._gt.name if self._gt is not None else None}
+
+    def word_vector(self, word: str) -> np.ndarray:
+        """Deterministic unit vector ``(D,)`` float64 of a word (background words share one)."""
+        word = BACKGROUND if word in BACKGROUND_WORDS else word
+        if word not in self._cache:
+            h = hashlib.blake2b(f"{self.seed}\0{word}".encode(), digest_size=8).digest()
+            v = np.random.default_rng(int.from_bytes(h, "little")).standard_normal(self._dim)
+            self._cache[word] = v / np.linalg.norm(v)
+        return self._cache[word]
+
+    def _compose(self, classes: list[str], colors: list[str], materials: list[str]) -> np.ndarray:
+        v = np.zeros(self._dim)
+        for c in classes:
+            v += self.word_vector(c)
+        if colors:
+            v += self.color_weight * np.mean([self.word_vector(c) for c in colors], axis=0)
+        for m in materials:
+            v += self.material_weight * self.word_vector(m)
+        return v
+
+    def bind_scene(self, gt: "GTScene | None") -> None:
+        """Use ``gt``'s objects (instance id -> class, colour, material) for the image side."""
+        self._gt = gt
+        self._classes = sorted({" ".join(_words(o.cls)) for o in gt.objects}) if gt is not None else []
+
+    def _class_vocab(self) -> set[str]:
+        return COMMON_CLASSES | set(self._classes)
+
+    def encode_text(self, texts: list[str]) -> torch.Tensor:
+        vocab = self._class_vocab()
+        scene_colors = {w for o in (self._gt.objects if self._gt else []) for w in _words(o.color_name)}
+        scene_materials = {w for o in (self._gt.objects if self._gt else []) for w in _words(o.material)}
+        out = []
+        for text in texts:
+            words = _words(text)
+            classes, colors, materials = [], [], []
+            i = 0
+            while i < len(words):
+                for n in (3, 2, 1):  # longest class phrase first ('dining table' before 'table')
+                    phrase = " ".join(words[i : i + n])
+                    cand = [phrase] + ([phrase[:-1]] if phrase.endswith("s") else [])
+                    hit = next((c for c in cand if c in vocab or c in BACKGROUND_WORDS), None)
+                    if len(words[i : i + n]) == n and hit is not None:
+                        classes.append(hit)
+                        i += n
+                        break
+                else:
+                    w = words[i]
+                    if w in COLOR_WORDS or w in scene_colors:
+                        colors.append(w)
+                    elif w in MATERIAL_WORDS or w in scene_materials:
+                        materials.append(w)
+                    i += 1
+            v = self._compose(classes, colors, materials)
+            if not np.any(v):
+                v = self.word_vector("\0query\0" + text.strip().lower())  # unknown: a direction of its own
+            out.append(v)
+        return l2_normalize(torch.from_numpy(np.stack(out)).float())
+
+    # ------------------------------------------------------------------ images
+    def _instance_table(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """``(ids (N,), features (N+1, D))``; row 0 is background."""
+        objs = self._gt.objects
+        feats = [self.word_vector(BACKGROUND)]
+        for o in objs:
+            cls = " ".join(_words(o.cls))
+            if self.confusion > 0 and len(self._classes) > 1 and rng.random() < self.confusion:
+                others = [c for c in self._classes if c != cls]
+                cls = others[int(rng.integers(len(others)))]
+            feats.append(self._compose([cls], _words(o.color_name), _words(o.material)))
+        return np.array([o.id for o in objs], dtype=np.int64), np.stack(feats)
+
+    def _encode_batch(self, rgb: np.ndarray, depth_m, instance) -> DenseFeatures:
+        if self._gt is None:
+            raise ConfigError("the oracle encoder needs the scene's ground truth (bind_scene); it is a diagnostic "
+                              "for simulated scenes only — choose a real encoder for real data")
+        if instance is None:
+            raise InputDataError("the oracle encoder needs instance images", field="instance",
+                                 expected="(B,H,W) uint16 ids (simulated scenes)")
+        B, H, W = instance.shape
+        h, w = self.out_size
+        rows = np.minimum(((np.arange(h) + 0.5) * H / h).astype(np.int64), H - 1)
+        cols = np.minimum(((np.arange(w) + 0.5) * W / w).astype(np.int64), W - 1)
+        out = np.empty((B, h, w, self._dim), dtype=np.float32)
+        for b in range(B):
+            key = hashlib.blake2b(np.ascontiguousarray(instance[b]).tobytes(), digest_size=8).digest()
+            rng = np.random.default_rng([self.seed, int.from_bytes(key, "little")])
+            ids, table = self._instance_table(rng)
+            lut = np.zeros(max(int(instance[b].max()), int(ids.max(initial=0))) + 1, dtype=np.int64)
+            lut[ids] = np.arange(1, len(ids) + 1)  # unknown ids fall back to background (row 0)
+            cells = lut[instance[b][rows[:, None], cols[None, :]].astype(np.int64)]
+            f = table[cells]
+            if self.noise_std > 0:
+                f = f + rng.standard_normal(f.shape) * self.noise_std
+            out[b] = f / np.linalg.norm(f, axis=-1, keepdims=True).clip(1e-12)
+        feats = torch.from_numpy(out)
+        return DenseFeatures(feats, torch.ones((B, h, w), dtype=torch.bool), (H, W))

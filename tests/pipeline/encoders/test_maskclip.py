@@ -1,0 +1,61 @@
+"""MaskCLIP: the token path is open_clip's, the last block is its value path only."""
+
+from __future__ import annotations
+
+import open_clip
+import pytest
+import torch
+
+from pipeline.config import MaskClipParams
+from pipeline.encoders import build_encoder
+from pipeline.encoders.maskclip import maskclip_patch_features, vit_tokens
+from pipeline.errors import ConfigError
+from tests.pipeline.encoders.conftest import encoders_params, toy_batch
+
+
+@pytest.fixture(scope="module")
+def encoder(params):
+    return build_encoder(params, "maskclip")
+
+
+def test_token_path_is_open_clips(encoder):
+    visual = encoder.model.visual
+    x = torch.randn(2, 3, 64, 64)  # the model's native size: no position-embedding resampling
+    with torch.inference_mode():
+        tokens = vit_tokens(visual, x, len(visual.transformer.resblocks))
+        pooled = visual.ln_post(tokens[:, 0]) @ visual.proj
+        assert torch.allclose(pooled, encoder.model.encode_image(x), atol=1e-5)
+
+
+def test_last_block_is_value_path_without_query_key_attention(encoder):
+    visual = encoder.model.visual
+    x = torch.randn(2, 3, 64, 64)
+    last = visual.transformer.resblocks[-1]
+    with torch.inference_mode():
+        before = vit_tokens(visual, x, len(visual.transformer.resblocks) - 1)[:, 1:]
+        y = last.ln_1(before)
+        # attention restricted to each token itself returns out_proj(v): the MaskCLIP value path
+        n = y.shape[1]
+        self_only = torch.full((n, n), float("-inf")).fill_diagonal_(0.0)
+        v = last.attn(y, y, y, attn_mask=self_only, need_weights=False)[0]
+        expected = (visual.ln_post(v) @ visual.proj).transpose(1, 2).reshape(2, -1, 4, 4)
+        got = maskclip_patch_features(visual, x)
+    assert torch.allclose(got, expected, atol=1e-5)
+
+
+def test_patch_grid_follows_input_size(encoder):
+    rgb, _, _ = toy_batch(2)
+    out = encoder.encode_images(rgb)
+    assert out.size == (3, 4)  # input 48x64 with 16-pixel patches
+    assert encoder.dim == 32 and encoder.identity()["input_size"] == [48, 64]
+
+
+def test_default_is_vit_b32_in_the_512d_text_space():
+    assert MaskClipParams().arch == "ViT-B-32"
+    assert open_clip.get_model_config("ViT-B-32")["embed_dim"] == 512
+
+
+def test_input_size_must_fit_the_patches(tiny_clip, torchscript_files):
+    p = encoders_params(tiny_clip, torchscript_files, maskclip={"input_size": (50, 64)})
+    with pytest.raises(ConfigError, match=r"encoders\.maskclip\.input_size \(50, 64\) must be multiples"):
+        build_encoder(p, "maskclip")
