@@ -240,12 +240,28 @@ def ingest(
 
 
 @app.command("params")
-def params_cmd(defaults: bool = typer.Option(False, "--defaults", help="print every tunable with its default")):
-    """Print the resolved params (or the full defaults, a starting params.yaml). Example: `zipon params --defaults`"""
+def params_cmd(
+    defaults: bool = typer.Option(False, "--defaults", help="print every tunable with its default"),
+    write: bool = typer.Option(False, "--write", help="rewrite params.yaml in place, complete and documented"),
+):
+    """Print the resolved params (or the full defaults, a starting params.yaml); `--write` completes params.yaml.
+
+    Examples: `zipon params --defaults` · `zipon params --write` (after upgrading zipon)
+    """
     from pipeline.config import parse_params, params_yaml
 
-    params = parse_params({"scenes": {"sim_00": {"source": "simulate"}}}) if defaults else G.load()[1]
-    out.print(params_yaml(params), end="", markup=False, highlight=False, soft_wrap=True)
+    if defaults:
+        params = parse_params({"scenes": {"sim_00": {"source": "simulate"}}})
+    else:
+        ws, params = G.load()
+    text = params_yaml(params)
+    if write and not defaults:
+        from pipeline.store import write_text_atomic
+
+        write_text_atomic(ws.params_path, text)
+        out.print(f"wrote {ws.params_path}")
+        return
+    out.print(text, end="", markup=False, highlight=False, soft_wrap=True)
 
 
 @app.command("dvc")

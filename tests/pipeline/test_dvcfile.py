@@ -26,7 +26,7 @@ def test_committed_dvc_yaml_matches_the_stage_registry():
 def test_committed_params_yaml_lists_every_tunable():
     committed = yaml.safe_load((REPO / "params.yaml").read_text())
     full = yaml.safe_load(params_yaml(load_params(REPO / "params.yaml")))
-    assert committed == full, "params.yaml lacks keys (or has stale ones): regenerate with `zipon params`"
+    assert committed == full, "params.yaml lacks keys (or has stale ones): regenerate with `zipon params --write`"
 
 
 @pytest.mark.slow
