@@ -190,11 +190,19 @@ class ReconstructParams(Section):
     )
     fill_enclosed_max_m2: float = Field(
         4.0, ge=0, description="unknown regions enclosed by occupied cells only and at most this big (the unseen "
-        "inside of furniture) are marked occupied, m^2"
+        "inside of furniture) are marked occupied; bigger unknown regions get no hidden_solid inference either, m^2"
     )
     hidden_solid_max_m: float = Field(
         0.5, ge=0, description="unknown cells nearer to occupied than to free cells, and at most this far from "
         "occupied, are marked occupied (the unseen back of furniture); 0 = off, metres"
+    )
+    building_closing_m: float = Field(
+        1.0, gt=0, description="the building's inside is the observed area closed by a disc of this radius (bridges "
+        "walls hidden behind furniture); hidden_solid_max_m acts only inside it, metres"
+    )
+    occupancy_min_weight: float = Field(
+        1.0, gt=0, description="a voxel behind a surface blocks its cell (and a floor voxel marks it seen) after this "
+        "many fused frames; below min_weight because thin tops seen at grazing angles are rarely updated"
     )
     robot_radius_m: float = Field(
         0.18, ge=0, description="navigable cells are free and farther than this from any occupied cell centre"

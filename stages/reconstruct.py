@@ -52,8 +52,8 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
     t_extract = time.perf_counter() - t1
 
     t2 = time.perf_counter()
-    grids = grids_mod.build_grids(xyz, normals, colors, tsdf.iter_voxels(fusion.volume, p),
-                                  fusion.T_world_camera, grid, p, source=str(frames_path))
+    voxels = tsdf.iter_voxels(fusion.volume, p, min_weight=p.occupancy_min_weight)
+    grids = grids_mod.build_grids(xyz, normals, colors, voxels, fusion.T_world_camera, grid, p, source=str(frames_path))
     t_grids = time.perf_counter() - t2
     if grids.stats["points_outside_grid"]:
         log(f"warning: {grids.stats['points_outside_grid']} surface points lie outside the grid "
@@ -93,8 +93,8 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
         robot_radius_m=p.robot_radius_m,
         height_band_m=[p.obstacle_min_height_m, p.obstacle_max_height_m],
         tsdf={"voxel_size_m": p.voxel_size_m, "sdf_trunc_m": p.sdf_trunc_m, "min_weight": p.min_weight,
-              "depth_range_m": [p.depth_min_m, p.depth_max_m], "depth_stride": p.depth_stride,
-              "blocks": fusion.n_blocks},
+              "occupancy_min_weight": p.occupancy_min_weight, "depth_range_m": [p.depth_min_m, p.depth_max_m],
+              "depth_stride": p.depth_stride, "blocks": fusion.n_blocks},
         mesh=mesh_info, points=points_info,
         frames={"n_frames": store.n_frames, "fused": len(fusion.frames_fused), "empty": fusion.empty_frames[:100]},
         refinement=refinement,

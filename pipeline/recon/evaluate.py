@@ -1,4 +1,6 @@
-"""Held-out depth error: fuse all frames but every ``holdout_every``-th, render depth at the held-out poses.
+"""Accuracy of a reconstruction: held-out depth error, and grid IoU against a simulated scene's ground truth.
+
+Held-out depth error: fuse all frames but every ``holdout_every``-th, render depth at the held-out poses.
 
 ``python -m pipeline.recon.evaluate FRAMES_ZARR [--holdout-every N]`` prints one JSON line.
 Depth is ray-cast from the extracted mesh (open3d ``RaycastingScene`` with
@@ -18,6 +20,34 @@ from pipeline.config import ReconstructParams
 from pipeline.errors import InputDataError
 from pipeline.frames import FrameStore
 from pipeline.recon import tsdf
+
+
+def grid_accuracy(recon, gt, p: ReconstructParams) -> dict:
+    """IoU of the occupied / free / navigable grids of ``recon`` (:class:`pipeline.recon.Recon`) against ``gt``.
+
+    Ground truth on the same grid: occupied = :meth:`GTScene.occupancy` over the robot's height band
+    (cell centre inside a wall or object part overlapping the band); free = inside a room and not
+    occupied; navigable = free and clear of occupied cells by ``robot_radius_m`` (the same
+    :func:`navigable_mask`). Also the floor error (m), the fraction of GT floor cells observed
+    (free or occupied: 240 frames do not see a whole apartment), and the error cell counts.
+    """
+    from pipeline.recon.grids import FREE, OCCUPIED, navigable_mask
+
+    g = recon.grid
+    g_occ = gt.occupancy(g, p.obstacle_min_height_m, p.obstacle_max_height_m)
+    g_floor = gt.floor_mask(g)
+    g_free = g_floor & ~g_occ
+    g_nav = navigable_mask(g_free, g_occ, g.cell_size_m, p.robot_radius_m)
+    occ = recon.occupancy
+
+    def iou(a, b):
+        return round(float((a & b).sum() / max((a | b).sum(), 1)), 4)
+
+    return {"iou_occupied": iou(occ == OCCUPIED, g_occ), "iou_free": iou(occ == FREE, g_free),
+            "iou_navigable": iou(recon.navigable, g_nav), "floor_error_m": round(abs(recon.floor_z - gt.floor_z), 4),
+            "gt_floor_observed": round(float(((occ != 0) & g_floor).sum() / max(g_floor.sum(), 1)), 4),
+            "occupied_false_pos": int((~g_occ & (occ == OCCUPIED)).sum()),
+            "occupied_false_neg": int((g_occ & (occ != OCCUPIED)).sum()), "gt_occupied": int(g_occ.sum())}
 
 
 def holdout_indices(n_frames: int, holdout_every: int) -> np.ndarray:

@@ -3,19 +3,25 @@
 All grids live on one :class:`pipeline.geometry.GridSpec` (north-up; it alone maps world x, y to
 row, col). Definitions (heights are above the estimated floor ``floor_z``):
 
-- **occupied** (code 2): some observed voxel of the cell-centre column with height in
-  ``[obstacle_min_height_m, obstacle_max_height_m]`` touches geometry (behind a surface, or less
-  than half a voxel in front of it); or a surface point of that band, moved half a cell into the
-  solid along its normal, lies in the cell (:func:`surface_occupancy`). The grid origin is snapped so that every cell centre is a voxel-lattice
-  column, which makes the test "is the cell centre inside geometry" — the rasterisation the
-  ground truth uses (:meth:`GTScene.occupancy`). Vertical structures thinner than a voxel between
-  cell centres can be missed.
+- **occupied** (code 2): some voxel of the cell-centre column with height in
+  ``[obstacle_min_height_m, obstacle_max_height_m]``, observed at least ``occupancy_min_weight``
+  times, lies behind a surface (negative TSDF); or a surface point of that band, moved half a cell
+  into the solid along its normal, lies in the cell (:func:`surface_occupancy`). Voxels seen once
+  count: the inside of a thin table top seen at grazing angles is rarely within the truncation band.
+  The grid origin is snapped so that every cell centre is a voxel-lattice column, which makes the
+  test "is the cell centre inside geometry" — the rasterisation the ground truth uses
+  (:meth:`GTScene.occupancy`). Vertical structures thinner than a voxel between cell centres can
+  be missed.
   A 3x3 closing fills unobserved one-cell gaps between occupied cells (never observed floor).
   Unknown regions walled in by occupied cells alone (the unseen inside of a cabinet) become
   occupied when smaller than ``fill_enclosed_max_m2``; unknown cells closer to occupied than to
-  free cells (and within ``hidden_solid_max_m``: the unseen back of furniture) become occupied.
-- **free** (code 1): not occupied, and the floor was observed at the cell centre (solid voxel
-  within ``floor_tolerance_m`` of the floor).
+  free cells (and within ``hidden_solid_max_m``: the unseen back of furniture) become occupied when
+  they lie inside the building (:func:`building_mask`: the observed area closed by
+  ``building_closing_m``) in an unknown region no bigger than ``fill_enclosed_max_m2``, never in
+  the unknown world outside it or in a room never entered.
+- **free** (code 1): not occupied, and the floor was observed at the cell centre (a voxel observed
+  ``occupancy_min_weight`` times, behind or within half a voxel of a surface, within
+  ``floor_tolerance_m`` of the floor).
 - **unknown** (code 0): everything else (navchat's codes: 0 unknown, 1 free, 2 occupied).
 - **navigable**: free and farther than ``robot_radius_m`` from every occupied cell centre
   (:func:`navigable_mask`; ground truth is dilated with the same function).
@@ -32,7 +38,7 @@ from dataclasses import dataclass, field
 from typing import Iterable
 
 import numpy as np
-from scipy.ndimage import binary_closing, binary_dilation, distance_transform_edt, label
+from scipy.ndimage import binary_closing, binary_dilation, binary_fill_holes, distance_transform_edt, label
 
 from pipeline.config import GridParams, ReconstructParams
 from pipeline.errors import ConfigError, InputDataError, StageError
@@ -146,22 +152,41 @@ def enclosed_unknown(occupied: np.ndarray, free: np.ndarray, cell_size_m: float,
     return keep[labels]
 
 
-def hidden_solid(occupied: np.ndarray, free: np.ndarray, cell_size_m: float, max_dist_m: float) -> np.ndarray:
-    """Unknown cells nearer to an occupied cell than to any free cell, within ``max_dist_m`` of it.
+def building_mask(occupied: np.ndarray, free: np.ndarray, cell_size_m: float, closing_m: float) -> np.ndarray:
+    """``(rows, cols)`` bool: the observed area closed by a disc of radius ``closing_m``, holes filled.
+
+    Walls hidden behind furniture are never seen, so the unknown inside of a wardrobe standing
+    against an outer wall touches the unknown world outside; closing the observed area bridges such
+    gaps (up to ``2 * closing_m`` wide) and separates the building's inside from the outside.
+    Computed with two distance transforms (a disc closing) and a hole fill.
+    """
+    r = closing_m / cell_size_m
+    pad = int(np.ceil(r)) + 1  # room around the grid, so the erosion sees the unobserved world past its edge
+    seen = np.pad(occupied | free, pad)
+    dilated = distance_transform_edt(~seen) <= r
+    closed = distance_transform_edt(dilated) > r
+    return binary_fill_holes(closed | seen)[pad:-pad, pad:-pad]
+
+
+def hidden_solid(occupied: np.ndarray, free: np.ndarray, cell_size_m: float, max_dist_m: float,
+                 closing_m: float = 1.0, max_region_m2: float = np.inf) -> np.ndarray:
+    """Unknown cells inside the building nearer to an occupied cell than to any free cell, within ``max_dist_m``.
 
     The back of a wardrobe seen only from the front is never observed; its cells lie behind the
-    observed face, closer to it than to the free floor in front. Unknown regions touching the grid
-    border (outside the building) are left alone. ``max_dist_m = 0`` turns this off.
+    observed face, closer to it than to the free floor in front. Unknown cells outside the building
+    (:func:`building_mask` with ``closing_m``) are left alone, and so are unknown regions (4-connected)
+    larger than ``max_region_m2``: a room never entered is not the back of a piece of furniture.
+    ``max_dist_m = 0`` turns this off.
     """
     if max_dist_m <= 0 or not occupied.any() or not free.any():
         return np.zeros_like(occupied)
-    unknown = ~occupied & ~free
-    labels, _ = label(unknown)
-    outside = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
-    unknown &= ~np.isin(labels, outside[outside > 0])  # the unknown world around the building stays unknown
+    unknown = ~occupied & ~free & building_mask(occupied, free, cell_size_m, closing_m)
+    labels, n = label(unknown)
+    small = np.bincount(labels.ravel(), minlength=n + 1) * cell_size_m**2 <= max_region_m2
+    small[0] = False
     d_occ = distance_transform_edt(~occupied) * cell_size_m
     d_free = distance_transform_edt(~free) * cell_size_m
-    return unknown & (d_occ < d_free) & (d_occ <= max_dist_m)
+    return small[labels] & (d_occ < d_free) & (d_occ <= max_dist_m)
 
 
 def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.ndarray, np.ndarray]],
@@ -171,17 +196,18 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
     n = int(round(grid.cell_size_m / v))
     # Lattice index of the centre column of cell (0, 0); centres repeat every n voxels.
     k0 = np.round(np.array([grid.origin_xy[0] / v + 0.5 * n, grid.origin_xy[1] / v - 0.5 * n])).astype(np.int64)
-    # A lattice point "touches" geometry when behind a surface or within half a voxel in front of it.
+    # The floor is seen where a lattice point lies behind it or within half a voxel in front of it;
+    # an obstacle needs a lattice point strictly behind a surface (a cell centre inside the solid).
     touch = 0.5 * v / p.sdf_trunc_m
     occupied = np.zeros((grid.rows, grid.cols), dtype=bool)
     floor_seen = np.zeros_like(occupied)
     for lattice, tsdf in voxels:
         centre = ((lattice[:, 0] - k0[0]) % n == 0) & ((lattice[:, 1] - k0[1]) % n == 0) & (tsdf < touch)
-        lat = lattice[centre]
+        lat, behind = lattice[centre], tsdf[centre] < 0
         rc = grid.world_to_cell(lat[:, :2].astype(np.float64) * v)
         z = lat[:, 2].astype(np.float64) * v - floor_z
         inside = grid.inside(rc)
-        occ = inside & (z >= p.obstacle_min_height_m) & (z <= p.obstacle_max_height_m)
+        occ = inside & behind & (z >= p.obstacle_min_height_m) & (z <= p.obstacle_max_height_m)
         occupied[rc[occ, 0], rc[occ, 1]] = True
         flo = inside & (np.abs(z) <= p.floor_tolerance_m)
         floor_seen[rc[flo, 0], rc[flo, 1]] = True
@@ -274,7 +300,8 @@ def build_grids(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray,
     # Close one-cell gaps in sparsely sampled tops (grazing views), but never over observed floor.
     occupied |= binary_closing(occupied, structure=np.ones((3, 3), bool)) & ~floor_seen
     occupied |= enclosed_unknown(occupied, floor_seen & ~occupied, grid.cell_size_m, p.fill_enclosed_max_m2)
-    hidden = hidden_solid(occupied, floor_seen & ~occupied, grid.cell_size_m, p.hidden_solid_max_m)
+    hidden = hidden_solid(occupied, floor_seen & ~occupied, grid.cell_size_m, p.hidden_solid_max_m,
+                          p.building_closing_m, p.fill_enclosed_max_m2)
     occupied |= hidden
     free = floor_seen & ~occupied
     occupancy = np.full(occupied.shape, UNKNOWN, np.uint8)

@@ -11,6 +11,7 @@ point ``k * voxel_size_m`` (positive in front of a surface, negative behind it, 
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, Iterable, Iterator
 
@@ -19,7 +20,7 @@ import open3d as o3d
 
 from pipeline.config import ReconstructParams
 from pipeline.errors import InputDataError
-from pipeline.frames import FrameStore
+from pipeline.frames import FrameBlock, FrameStore
 from pipeline.geometry import Intrinsics, invert_pose
 
 o3c = o3d.core
@@ -63,10 +64,54 @@ def strided(intr: Intrinsics, stride: int) -> Intrinsics:
 
 
 def prepare_depth(depth_mm: np.ndarray, p: ReconstructParams) -> np.ndarray:
-    """``(H,W)`` uint16 mm -> strided, range-limited uint16 mm (0 = invalid)."""
-    d = depth_mm[:: p.depth_stride, :: p.depth_stride]
+    """``(..., H, W)`` uint16 mm -> strided, range-limited, C-contiguous uint16 mm (0 = invalid).
+
+    Works on one frame or a whole block at once (one vectorised pass, one allocation).
+    """
+    d = depth_mm[..., :: p.depth_stride, :: p.depth_stride]
     lo, hi = int(round(p.depth_min_m * 1000)), int(round(p.depth_max_m * 1000))
-    return np.ascontiguousarray(np.where((d >= lo) & (d <= hi), d, 0).astype(np.uint16))
+    return np.ascontiguousarray(np.where((d >= lo) & (d <= hi), d, np.uint16(0)), dtype=np.uint16)
+
+
+@dataclass
+class PreparedBlock:
+    """A frame block ready to fuse: depth ``(B,h,w)`` uint16 mm and rgb ``(B,h,w,3)`` uint8 at the fusion stride."""
+
+    start: int
+    depth_mm: np.ndarray
+    rgb: np.ndarray
+    T_world_camera: np.ndarray  # (B,4,4) float64, native byte order
+    has_depth: np.ndarray  # (B,) bool: some depth pixel is valid
+
+
+def prepare_block(block: FrameBlock, p: ReconstructParams) -> PreparedBlock:
+    """Depth range limiting and striding of a whole block (see :func:`prepare_depth`)."""
+    depth = prepare_depth(block.depth_mm, p)
+    s = p.depth_stride
+    rgb = block.rgb if s == 1 else np.ascontiguousarray(block.rgb[:, ::s, ::s])
+    return PreparedBlock(block.start, depth, rgb, block.T_world_camera.astype(np.float64),
+                         depth.reshape(len(depth), -1).any(axis=1))
+
+
+def prefetched(blocks: Iterator[FrameBlock], p: ReconstructParams) -> Iterator[PreparedBlock]:
+    """:func:`prepare_block` of each block, reading and preparing the next block in a background thread.
+
+    Zarr's decompression and numpy release the GIL, so reading block k+1 overlaps fusing block k.
+    """
+    it = iter(blocks)
+
+    def next_prepared():
+        block = next(it, None)
+        return None if block is None else prepare_block(block, p)
+
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="recon-read") as pool:
+        pending = pool.submit(next_prepared)
+        while True:
+            prepared = pending.result()
+            if prepared is None:
+                return
+            pending = pool.submit(next_prepared)
+            yield prepared
 
 
 def integration_K(intr: Intrinsics) -> np.ndarray:
@@ -98,11 +143,14 @@ def pinhole_rays(intr: Intrinsics, T_world_camera: np.ndarray) -> o3d.core.Tenso
 
 def integrate(volume: o3d.t.geometry.VoxelBlockGrid, depth_mm: np.ndarray, rgb: np.ndarray,
               T_world_camera: np.ndarray, intr: Intrinsics, p: ReconstructParams) -> None:
-    """Fuse one prepared frame: depth ``(h,w)`` uint16 mm, rgb ``(h,w,3)`` uint8, intrinsics of that size."""
-    depth = o3d.t.geometry.Image(o3c.Tensor(depth_mm))
-    color = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(rgb)))
+    """Fuse one prepared frame: depth ``(h,w)`` uint16 mm, rgb ``(h,w,3)`` uint8, intrinsics of that size.
+
+    The images are handed to open3d without copies (``Tensor.from_numpy`` of contiguous arrays).
+    """
+    depth = o3d.t.geometry.Image(o3c.Tensor.from_numpy(np.ascontiguousarray(depth_mm)))
+    color = o3d.t.geometry.Image(o3c.Tensor.from_numpy(np.ascontiguousarray(rgb)))
     K = o3c.Tensor(intr.K, o3c.float64)
-    extrinsic = o3c.Tensor(invert_pose(T_world_camera), o3c.float64)
+    extrinsic = o3c.Tensor(invert_pose(np.asarray(T_world_camera, dtype=np.float64)), o3c.float64)
     trunc_mult = p.sdf_trunc_m / p.voxel_size_m
     coords = volume.compute_unique_block_coordinates(depth, K, extrinsic, 1000.0, p.depth_max_m, trunc_mult)
     volume.integrate(coords, depth, color, o3c.Tensor(integration_K(intr)), extrinsic, 1000.0, p.depth_max_m,
@@ -131,17 +179,16 @@ def fuse(store: FrameStore, p: ReconstructParams, *, frames: Iterable[int] | Non
     fusion = Fusion(volume=new_volume(p))
     blocks = store.iter_blocks(p.block_frames, start=start, stop=stop)
     n_blocks = -(-(stop - start) // p.block_frames)
-    for block in (progress(blocks, n_blocks) if progress else blocks):
-        for j in range(len(block)):
+    prepared = prefetched(blocks, p)
+    for block in (progress(prepared, n_blocks) if progress else prepared):
+        for j in range(len(block.depth_mm)):
             i = block.start + j
             if wanted is not None and not wanted[i]:
                 continue
-            depth = prepare_depth(block.depth_mm[j], p)
-            if not depth.any():
+            if not block.has_depth[j]:
                 fusion.empty_frames.append(i)
                 continue
-            rgb = block.rgb[j, :: p.depth_stride, :: p.depth_stride]
-            T = block.T_world_camera[j].astype(np.float64)  # zarr gives explicit "<f8", open3d wants native
+            depth, rgb, T = block.depth_mm[j], block.rgb[j], block.T_world_camera[j]
             if refiner is not None:
                 T = refiner(fusion.volume, depth, rgb, T, intr, i)
             integrate(fusion.volume, depth, rgb, T, intr, p)
@@ -181,9 +228,9 @@ def extract_points(volume: o3d.t.geometry.VoxelBlockGrid, p: ReconstructParams
     return xyz, normals, np.clip(np.round(colors * scale), 0, 255).astype(np.uint8)
 
 
-def iter_voxels(volume: o3d.t.geometry.VoxelBlockGrid, p: ReconstructParams, *, blocks_per_chunk: int = 1024
-                ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-    """Observed voxels (weight >= ``min_weight``) in chunks of blocks, so memory stays bounded.
+def iter_voxels(volume: o3d.t.geometry.VoxelBlockGrid, p: ReconstructParams, *, blocks_per_chunk: int = 1024,
+                min_weight: float | None = None) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Observed voxels (weight >= ``min_weight``, default ``p.min_weight``) in chunks of blocks (bounded memory).
 
     Yields integer lattice coordinates ``(M,3)`` int32 (world point = ``k * voxel_size_m``) and
     truncated SDF values ``(M,)`` float32.
@@ -197,7 +244,7 @@ def iter_voxels(volume: o3d.t.geometry.VoxelBlockGrid, p: ReconstructParams, *, 
         xyz, idx = volume.voxel_coordinates_and_flattened_indices(buf)
         idx = idx.reshape((-1,))
         weight = weight_all[idx].numpy()
-        keep = weight >= p.min_weight
+        keep = weight >= (p.min_weight if min_weight is None else min_weight)
         if not keep.any():
             continue
         tsdf = tsdf_all[idx].numpy()[keep]

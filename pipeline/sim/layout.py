@@ -160,14 +160,15 @@ def _wall_boxes(outline: Rect, splits, doors: list[Door], height: float):
 def assign_types(rng: np.random.Generator, rooms: list[Rect]) -> list[str]:
     """Largest room -> living room, smallest -> bathroom, the rest from :data:`ROOM_TYPES` in random order."""
     n = len(rooms)
-    types = list(ROOM_TYPES[:n]) if n <= len(ROOM_TYPES) else list(ROOM_TYPES) + ["bedroom"] * (n - len(ROOM_TYPES))
+    # The middle rooms take the other types in ROOM_TYPES order (extra rooms are bedrooms).
+    others = list(ROOM_TYPES)
+    others.remove("living room")
+    others.remove("bathroom")  # the first one; a large apartment keeps its second bathroom
+    rest = (others + ["bedroom"] * n)[: max(n - 2, 0)]
     by_area = sorted(range(n), key=lambda i: rooms[i].area)
     out = [""] * n
     out[by_area[-1]] = "living room"
     out[by_area[0]] = "bathroom"
-    rest = [t for t in types]
-    rest.remove("living room")
-    rest.remove("bathroom")
     order = rng.permutation(by_area[1:-1])
     for idx, t in zip(order, rest):
         out[int(idx)] = t

@@ -96,3 +96,22 @@ def test_an_empty_scene_is_a_stage_error_not_an_empty_map():
     with pytest.raises(StageError, match="frames.zarr: the fused volume has no surface"):
         build_grids(empty, empty, np.zeros((0, 3), np.uint8), iter(()), {0: np.eye(4)}, GridParams(),
                     ReconstructParams(), source="frames.zarr")
+
+
+def test_furniture_against_an_unseen_outer_wall_is_filled_but_an_unentered_room_is_not():
+    from pipeline.recon.grids import building_mask, hidden_solid
+
+    occ = np.zeros((60, 60), bool)
+    occ[5, 5:55] = occ[54, 5:55] = occ[5:55, 5] = occ[5:55, 54] = True  # building walls
+    occ[5, 20:30] = False  # the north wall behind a wardrobe is never seen ...
+    occ[12, 20:30] = occ[5:13, 20] = occ[5:13, 29] = True  # ... only the wardrobe's front and sides
+    occ[30, 5:55] = True  # a wall with a room south of it that was never entered
+    free = np.zeros_like(occ)
+    free[13:30, 6:54] = True
+    free[6:12, 6:20] = free[6:12, 30:54] = True
+    inside = building_mask(occ, free, cell_size_m=0.05, closing_m=1.0)
+    assert inside[6:12, 21:29].all() and not inside[:4].any() and not inside[:, :4].any()
+    hidden = hidden_solid(occ, free, 0.05, 0.5, closing_m=1.0, max_region_m2=1.0)
+    assert hidden[6:12, 21:29].all()  # the wardrobe's unseen inside, though it touches the outside world
+    assert not hidden[31:54].any()  # the room never entered (2.3 m^2 unknown) stays unknown
+    assert not hidden[:5].any()

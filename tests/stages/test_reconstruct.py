@@ -1,4 +1,4 @@
-"""The reconstruct stage end to end on a ray-cast two-room scene with known ground truth."""
+"""The reconstruct stage end to end on a two-room scene rendered by the simulator, with known ground truth."""
 
 from pathlib import Path
 
@@ -8,7 +8,8 @@ import pytest
 from pipeline.config import GridParams, ReconstructParams, parse_params
 from pipeline.errors import InputDataError, StageError
 from pipeline.paths import Workspace
-from pipeline.recon import FREE, OCCUPIED, Recon, navigable_mask
+from pipeline.recon import Recon
+from pipeline.recon.evaluate import grid_accuracy
 from pipeline.runner import StageContext
 from stages import STAGES
 from stages.reconstruct import reconstruct, run
@@ -36,21 +37,11 @@ def gt_footprint(built, instance_id):
     return gt.instance_footprints(recon.grid) == instance_id
 
 
-def _iou(a, b):
-    return (a & b).sum() / (a | b).sum()
-
-
 def test_grids_match_the_ground_truth_floor_plan(built):
     summary, recon, gt, params, _ = built
-    p = params.reconstruct
-    assert abs(recon.floor_z - FLOOR_Z) <= 0.02
-    gt_occ = gt.occupancy(recon.grid, p.obstacle_min_height_m, p.obstacle_max_height_m)
-    gt_free = gt.floor_mask(recon.grid) & ~gt_occ
-    gt_nav = navigable_mask(gt_free, gt_occ, recon.grid.cell_size_m, p.robot_radius_m)
-    occ = recon.occupancy
-    figures = {"iou_occupied": _iou(occ == OCCUPIED, gt_occ), "iou_free": _iou(occ == FREE, gt_free),
-               "iou_navigable": _iou(recon.navigable, gt_nav), "floor_error_m": abs(recon.floor_z - FLOOR_Z)}
+    figures = grid_accuracy(recon, gt, params.reconstruct)
     print(figures)
+    assert figures["floor_error_m"] <= 0.02
     assert figures["iou_occupied"] >= 0.9
     assert figures["iou_free"] >= 0.9
     assert figures["iou_navigable"] >= 0.9

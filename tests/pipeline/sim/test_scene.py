@@ -88,3 +88,14 @@ def test_topdown_png(scenes, tmp_path):
     x0, x1, y0, y1 = scenes["demo"].bounds_xy()
     assert img.shape[1] == pytest.approx((x1 - x0 + 1.6) * 40, abs=2)
     assert img.shape[0] == pytest.approx((y1 - y0 + 1.6) * 40, abs=2)
+
+
+def test_every_allowed_room_count_gets_a_layout():
+    """simulate.rooms_min/max allow 2..10 rooms; each count yields a living room and a bathroom."""
+    import numpy as np
+
+    from pipeline.sim.layout import Rect, assign_types
+
+    for n in range(2, 11):
+        types = assign_types(np.random.default_rng(n), [Rect(0.0, 0.0, 1.0 + i, 1.0) for i in range(n)])
+        assert len(types) == n and "living room" in types and "bathroom" in types and "" not in types
