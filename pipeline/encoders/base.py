@@ -136,9 +136,17 @@ class Encoder(ABC):
     def encode_text(self, texts: list[str]) -> torch.Tensor:
         """``(T,D)`` float32 CPU tensor, L2-normalised."""
 
+    #: the local weights file an implementation loaded (None: no weights, e.g. the oracle)
+    weights: Path | None = None
+    _weights_digest: str | None = None
+
     def weights_identity(self) -> dict[str, Any]:
         """The weights the encoder runs with: ``{"weights_file": name, "weights_digest": ...}`` or ``{}``."""
-        return {}
+        if self.weights is None:
+            return {}
+        if self._weights_digest is None:
+            self._weights_digest = file_digest(self.weights)
+        return {"weights_file": Path(self.weights).name, "weights_digest": self._weights_digest}
 
     def config_identity(self) -> dict[str, Any]:
         """Settings that change the features (sizes, arch); recorded in :meth:`identity`."""
@@ -186,6 +194,18 @@ class Encoder(ABC):
         return DenseFeatures(
             torch.cat([p.features for p in parts]), torch.cat([p.valid for p in parts]), parts[0].image_size
         )
+
+
+class OpenClipText:
+    """Text side and temperature of an open_clip model (``self.model``, ``self._tokenize``, ``self.device``)."""
+
+    @property
+    def temperature(self) -> float:
+        return float(1.0 / self.model.logit_scale.exp().item())
+
+    def encode_text(self, texts: list[str]) -> torch.Tensor:
+        with torch.inference_mode():
+            return l2_normalize(self.model.encode_text(self._tokenize(list(texts)).to(self.device)).float()).cpu()
 
 
 # ----------------------------------------------------------------------------- helpers

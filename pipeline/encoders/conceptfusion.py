@@ -26,7 +26,7 @@ from pipeline.encoders.base import (
     CLIP_STD,
     DenseFeatures,
     Encoder,
-    file_digest,
+    OpenClipText,
     l2_normalize,
     normalize,
     register,
@@ -81,7 +81,7 @@ def cut_crops(x: torch.Tensor, boxes: list[torch.Tensor], size: tuple[int, int])
 
 
 @register
-class ConceptFusionEncoder(Encoder):
+class ConceptFusionEncoder(OpenClipText, Encoder):
     """ConceptFusion global+local CLIP features on regions; see the module docstring."""
 
     name = "conceptfusion"
@@ -108,7 +108,6 @@ class ConceptFusionEncoder(Encoder):
         self.softmax_temperature = float(softmax_temperature)
         self.out_size = tuple(out_size)
         self._tokenize = clip_tokens(arch)
-        self._digest: str | None = None
 
     @classmethod
     def from_params(cls, params: "EncodersParams", *, device: str) -> "ConceptFusionEncoder":
@@ -123,25 +122,10 @@ class ConceptFusionEncoder(Encoder):
     def dim(self) -> int:
         return int(self.model.visual.output_dim)
 
-    @property
-    def temperature(self) -> float:
-        return float(1.0 / self.model.logit_scale.exp().item())
-
     def config_identity(self) -> dict[str, Any]:
         rp: RegionParams = self.regions.params
         return {"arch": self.arch, "crop_size": list(self.crop_size), "softmax_temperature": self.softmax_temperature,
                 "out_size": list(self.out_size), "regions": rp.model_dump(mode="json")}
-
-    def weights_identity(self) -> dict[str, Any]:
-        if self.weights is None:
-            return {}
-        if self._digest is None:
-            self._digest = file_digest(self.weights)
-        return {"weights_file": self.weights.name, "weights_digest": self._digest}
-
-    def encode_text(self, texts: list[str]) -> torch.Tensor:
-        with torch.inference_mode():
-            return l2_normalize(self.model.encode_text(self._tokenize(list(texts)).to(self.device)).float()).cpu()
 
     def _clip(self, crops: torch.Tensor) -> torch.Tensor:
         """``(N,3,S,S)`` [0,1] crops -> ``(N,D)`` image features, ``CROPS_PER_PASS`` at a time."""

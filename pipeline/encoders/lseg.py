@@ -26,7 +26,6 @@ from pipeline.encoders.base import (
     DenseFeatures,
     Encoder,
     all_valid,
-    file_digest,
     normalize,
     register,
     require_file,
@@ -112,7 +111,6 @@ class LSegEncoder(Encoder):
         self.stride = max(2, int(crop_size * stride_rate) // 2 * 2)  # even: windows align on the half-res grid
         self.out_size = tuple(out_size)
         self._tokenize = tokenizer()
-        self._digest: str | None = None
 
     @classmethod
     def from_params(cls, params: "EncodersParams", *, device: str) -> "LSegEncoder":
@@ -140,13 +138,6 @@ class LSegEncoder(Encoder):
     def config_identity(self) -> dict[str, Any]:
         return {"arch": self.net.arch.name, "crop_size": self.crop_size, "base_size": self.base_size,
                 "stride": self.stride, "out_size": list(self.out_size)}
-
-    def weights_identity(self) -> dict[str, Any]:
-        if self.weights is None:
-            return {}
-        if self._digest is None:
-            self._digest = file_digest(self.weights)
-        return {"weights_file": self.weights.name, "weights_digest": self._digest}
 
     def encode_text(self, texts: list[str]) -> torch.Tensor:
         with torch.inference_mode():

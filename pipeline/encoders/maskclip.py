@@ -24,9 +24,8 @@ from pipeline.encoders.base import (
     CLIP_STD,
     DenseFeatures,
     Encoder,
+    OpenClipText,
     all_valid,
-    file_digest,
-    l2_normalize,
     normalize,
     register,
     require_file,
@@ -101,7 +100,7 @@ def maskclip_patch_features(visual: nn.Module, x: torch.Tensor) -> torch.Tensor:
 
 
 @register
-class MaskClipEncoder(Encoder):
+class MaskClipEncoder(OpenClipText, Encoder):
     """MaskCLIP dense features of an open_clip ViT; see the module docstring."""
 
     name = "maskclip"
@@ -128,7 +127,6 @@ class MaskClipEncoder(Encoder):
         self.input_size = tuple(input_size)
         self.out_size = tuple(out_size) if out_size is not None else None
         self._tokenize = clip_tokens(arch)
-        self._digest: str | None = None
 
     @classmethod
     def from_params(cls, params: "EncodersParams", *, device: str) -> "MaskClipEncoder":
@@ -142,24 +140,9 @@ class MaskClipEncoder(Encoder):
     def dim(self) -> int:
         return int(self.model.visual.output_dim)
 
-    @property
-    def temperature(self) -> float:
-        return float(1.0 / self.model.logit_scale.exp().item())
-
     def config_identity(self) -> dict[str, Any]:
         return {"arch": self.arch, "input_size": list(self.input_size),
                 "out_size": list(self.out_size) if self.out_size else None}
-
-    def weights_identity(self) -> dict[str, Any]:
-        if self.weights is None:
-            return {}
-        if self._digest is None:
-            self._digest = file_digest(self.weights)
-        return {"weights_file": self.weights.name, "weights_digest": self._digest}
-
-    def encode_text(self, texts: list[str]) -> torch.Tensor:
-        with torch.inference_mode():
-            return l2_normalize(self.model.encode_text(self._tokenize(list(texts)).to(self.device)).float()).cpu()
 
     def preprocess(self, rgb: np.ndarray) -> torch.Tensor:
         """``(B,H,W,3)`` uint8 -> ``(B,3,*input_size)`` CLIP-normalised tensor on the device."""

@@ -55,8 +55,6 @@ def render_goals(recon_path, goals_path, routes_path, what: str, out_png, *, cro
             cv2.fillPoly(overlay, [_px(grid, fp)], tuple(int(c) for c in col))
     img = cv2.addWeighted(overlay, 0.6, img, 0.4, 0)
     if what == "routes" and routes_path is not None:
-        from pipeline.routes.store import Routes
-
         routes = Routes(routes_path)
         gcol = {g.id: tuple(int(c) for c in col) for g, col in zip(goals.goals, colors)}
         for e in routes.episodes:

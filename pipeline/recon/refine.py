@@ -40,7 +40,6 @@ class PoseRefiner:
 
     def __call__(self, volume, depth_mm: np.ndarray, rgb: np.ndarray, T_recorded: np.ndarray, intr: Intrinsics,
                  index: int) -> np.ndarray:
-        p = self.p
         if self.prev_refined is None:
             T_pred = T_recorded
         else:
