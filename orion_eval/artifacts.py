@@ -127,9 +127,9 @@ class Artifacts:
         """Ego camera height above the floor: ``eval.camera_height_m`` or the recording's median."""
         if self.params.eval.camera_height_m is not None:
             return float(self.params.eval.camera_height_m)
-        z = self.recon.poses[:, 2, 3]
-        z = z[np.isfinite(z)]
-        return float(np.median(z) - self.recon.floor_z) if z.size else 0.88
+        from pipeline.routes.region import recorded_camera_height
+
+        return recorded_camera_height(self.recon.poses, self.recon.floor_z)  # what the routes stage sighted from
 
     @cached_property
     def room_of_cell(self) -> tuple[np.ndarray, list[str]]:

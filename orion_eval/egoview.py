@@ -4,7 +4,8 @@ open3d's ``RaycastingScene`` casts one ray per pixel centre (camera direction ``
 (v-cy)/fy, 1)``, so the hit distance is the z-depth, as in :mod:`pipeline.sim.render`); colour is
 the barycentric mix of the hit triangle's vertex colours. For simulated scenes an instance image
 is added by looking up which ground-truth object part box contains each hit point (within
-``tolerance_m``): only the diagnostic ``oracle`` encoder reads it.
+``tolerance_m``): only the diagnostic ``oracle`` encoder reads it. Line of sight is the routes
+module's :class:`pipeline.routes.region.MeshSight` on the same ray-casting scene (:meth:`EgoRenderer.sight`).
 """
 
 from __future__ import annotations
@@ -64,6 +65,12 @@ class EgoRenderer:
                               np.array([i for i, _ in parts], np.uint16),
                               np.array([np.prod(np.subtract(p.max, p.min)) for _, p in parts], np.float32))
 
+    def sight(self, grid):
+        """The shared line-of-sight test (:class:`pipeline.routes.region.MeshSight`) on this mesh and camera."""
+        from pipeline.routes.region import MeshSight
+
+        return MeshSight(self.scene, cam_z=self.cam_z, floor_z=self.floor_z, grid=grid)
+
     def T_world_camera(self, pose) -> np.ndarray:
         x, y, yaw = (float(v) for v in pose)
         T = camera_pose_from_base(x, y, yaw, 0.0)
@@ -104,25 +111,3 @@ class EgoRenderer:
         out = np.zeros(hit.shape, np.uint16)
         out[hit] = np.where(np.isfinite(cost[np.arange(len(p)), k]), ids[k], 0)
         return out
-
-
-def sight_lines(renderer: EgoRenderer, origins_xy: np.ndarray, target_xyz: np.ndarray, own: np.ndarray, grid,
-                tolerance_m: float = 0.15) -> np.ndarray:
-    """``(N,)`` bool: the segment from the camera above each ``origins_xy`` ``(N,2)`` to ``target_xyz`` ``(3,)``
-    (world) meets no surface before the target, or first meets one inside ``own`` ``(rows, cols)`` cells
-    (the target object's own, dilated footprint), by ray casting the reconstructed mesh."""
-    o = np.asarray(origins_xy, np.float64).reshape(-1, 2)
-    if not len(o):
-        return np.zeros(0, bool)
-    origins = np.column_stack([o, np.full(len(o), renderer.cam_z)])
-    d = np.asarray(target_xyz, np.float64)[None] - origins
-    length = np.linalg.norm(d, axis=1)
-    rays = np.concatenate([origins, d / np.maximum(length, 1e-9)[:, None]], axis=1).astype(np.float32)
-    t = renderer.scene.cast_rays(renderer._o3d.core.Tensor(rays))["t_hit"].numpy()
-    clear = ~np.isfinite(t) | (t >= length - tolerance_m)
-    hit = origins + rays[:, 3:] * np.where(np.isfinite(t), t, 0.0)[:, None]
-    rc = grid.world_to_cell(hit[:, :2])
-    inside = grid.inside(rc)
-    on_own = np.zeros(len(o), bool)
-    on_own[inside] = own[rc[inside, 0], rc[inside, 1]]
-    return clear | (np.isfinite(t) & on_own)

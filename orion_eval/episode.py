@@ -55,11 +55,13 @@ class EpisodeRun:
     dialogue: list = field(default_factory=list)
     events: list = field(default_factory=list)
 
+    memory: object = None  # an ORION memory carried across the scene's goals, or None (fresh)
+
     def __post_init__(self):
         x, y, yaw = self.task.start
         self.body = Body(float(x), float(y), float(yaw))
         self.body.poses.append((round(x, 4), round(y, 4), round(yaw, 4)))
-        self.modules = Modules(self)
+        self.modules = Modules(self, memory=self.memory)
 
     def act(self, action: int) -> None:
         if self.body.steps >= self.max_steps:
@@ -118,13 +120,14 @@ def sit(success: float, talk_turns: int) -> float:
     return float(success / max(1, int(talk_turns)))
 
 
-def run_episode(ctx, task: Task, agent, goal, *, rng: np.random.Generator, llm_user=None) -> dict:
-    """Run one episode to its end; returns :meth:`EpisodeRun.result`. ``llm_user(goal)`` makes an LLM user."""
+def run_episode(ctx, task: Task, agent, goal, *, rng: np.random.Generator, llm_user=None, memory=None) -> dict:
+    """Run one episode to its end; returns :meth:`EpisodeRun.result`. ``llm_user(goal)`` makes an LLM user;
+    ``memory`` (a :class:`~orion_eval.memory.MemoryMaps`) is the agent's memory carried from earlier goals."""
     ep = ctx.params.eval
     user = SimulatedUser(ctx, goal, task.feedback, rng)
     if llm_user is not None:
         user.llm = llm_user(goal)
-    run = EpisodeRun(ctx, task, user, ep.max_steps, ep.max_talk_turns)
+    run = EpisodeRun(ctx, task, user, ep.max_steps, ep.max_talk_turns, memory=memory)
     try:
         agent.run(run.modules, user.instruction(), goal.name)
         reason = "gave up"

@@ -10,6 +10,11 @@ Text features: the configured encoder's text feature concatenated with a determi
 bag-of-words feature (each word a seeded random unit vector), each half weighted 1/sqrt(2). The
 lexical half keeps personal names apart ("Alice's chair" vs "Bob's chair"), which class-level
 encoders (and the oracle) map to the same point. Maps are sparse: only painted cells are stored.
+
+Regions are keyed by place, not by an episode's object ids: :meth:`MemoryMaps.region_key` gives the
+region whose centre is within ``merge_m`` of an object's centre (or a new one), so one memory is
+carried across the goals of a scene (as in the paper) and each episode maps remembered regions
+back into its own object registry.
 """
 
 from __future__ import annotations
@@ -34,13 +39,25 @@ def lexical_feature(text: str, dim: int = 256) -> np.ndarray:
 class MemoryMaps:
     """Sparse positive/negative feature maps over the grid's flat cell ids."""
 
-    def __init__(self, encode_text, *, threshold: float = 0.95):
+    def __init__(self, encode_text, *, threshold: float = 0.95, merge_m: float = 0.6):
         self.encode_text = encode_text  # list[str] -> (T,D) unit features
         self.threshold = float(threshold)
         self._feat: dict[str, np.ndarray] = {}
         # per map: flat cell -> [sum (D,), count]
         self.maps: dict[str, dict[int, list]] = {"pos": {}, "neg": {}}
-        self.regions: dict[int, np.ndarray] = {}  # obj_id -> flat cells
+        self.regions: dict[int, np.ndarray] = {}  # region key -> flat cells
+        self.centers: dict[int, np.ndarray] = {}  # region key -> (2,) world centre
+        self.merge_m = float(merge_m)
+
+    def region_key(self, center_xy) -> int:
+        """The key of the remembered region centred within ``merge_m`` of ``center_xy`` (else a new key)."""
+        c = np.asarray(center_xy, np.float64)
+        for k in sorted(self.centers):
+            if np.linalg.norm(self.centers[k] - c) <= self.merge_m:
+                return k
+        k = len(self.centers) + 1
+        self.centers[k] = c.copy()
+        return k
 
     def feature(self, text: str) -> np.ndarray:
         if text not in self._feat:
@@ -49,7 +66,7 @@ class MemoryMaps:
         return self._feat[text]
 
     def update(self, obj_id: int, cells: np.ndarray, pos_str: str | None, neg_str: str | None) -> None:
-        """Paint ``pos_str`` / ``neg_str`` on the flat ``cells`` of object ``obj_id``."""
+        """Paint ``pos_str`` / ``neg_str`` on the flat ``cells`` of region ``obj_id`` (a :meth:`region_key`)."""
         cells = np.unique(np.asarray(cells, np.int64))
         self.regions[obj_id] = cells
         for which, text in (("pos", pos_str), ("neg", neg_str)):

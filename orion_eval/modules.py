@@ -32,6 +32,12 @@ from pipeline.routes.actions import FORWARD, LEFT, RIGHT, wrap_angle
 MERGE_M = 0.6
 
 
+def new_memory(ctx) -> MemoryMaps:
+    """An empty ORION memory on the scene's ORION map text encoder."""
+    return MemoryMaps(lambda texts: ctx.arts.map_query(ctx.params.eval.orion_map).text_features(texts).numpy(),
+                      merge_m=MERGE_M)
+
+
 @dataclass
 class ObjectEntry:
     obj_id: int
@@ -45,12 +51,12 @@ class ObjectEntry:
 class Modules:
     """The ORION API for one episode (see the module docstring)."""
 
-    def __init__(self, run):
+    def __init__(self, run, memory: MemoryMaps | None = None):
         self.run = run  # EpisodeRun: body, ctx, act(), talk()
         self.ctx = run.ctx
         self.objects: dict[int, ObjectEntry] = {}
-        self.memory = MemoryMaps(lambda texts: self.ctx.arts.map_query(self.ctx.params.eval.orion_map)
-                                 .text_features(texts).numpy())
+        # a memory carried across the goals of a scene (evaluate_scene), else a fresh one
+        self.memory = memory if memory is not None else new_memory(self.ctx)
         self._explored = None
 
     # ------------------------------------------------------------------ registry
@@ -111,8 +117,8 @@ class Modules:
         return self._follow(route)
 
     def goto_object(self, obj_id: int) -> bool:
-        """Walk to the nearest place within the stop radius of an object's cells that sees it, face its centre;
-        False when unreachable."""
+        """Walk into the object's goal region (the routes module's definition: within the success distance of
+        its cells, centre in line of sight), face its centre; False when unreachable."""
         e = self.objects[obj_id]
         g = self.ctx.grid
         mask = np.zeros(g.rows * g.cols, bool)
@@ -121,8 +127,8 @@ class Modules:
         # sight the object's centre column at half and full height of its reconstructed top surface
         h = self.ctx.arts.height.reshape(-1)[e.cells] if len(e.cells) else np.array([np.nan])
         top = float(np.clip(np.nanmedian(h), 0.1, 2.0)) if np.isfinite(h).any() else 0.6
-        view = self.ctx.viewpoints(key, mask.reshape(g.rows, g.cols), e.center_xy, (0.5 * top, top))
-        route = self.ctx.view_planner.route(self.pose, view, key=key, face_xy=e.center_xy)
+        region, view = self.ctx.goal_target(key, mask.reshape(g.rows, g.cols), e.center_xy, (0.5 * top, top))
+        route = self.ctx.view_planner.route(self.pose, view, key=key, face_xy=e.center_xy, end_mask=region)
         return self._follow(route)
 
     # ------------------------------------------------------------------ semantic map
@@ -214,12 +220,16 @@ class Modules:
 
     # ------------------------------------------------------------------ memory
     def update_memory(self, obj_id: int, pos_str: str | None, neg_str: str | None) -> None:
-        self.memory.update(obj_id, self.objects[obj_id].cells, pos_str, neg_str)
+        e = self.objects[obj_id]
+        self.memory.update(self.memory.region_key(e.center_xy), e.cells, pos_str, neg_str)
 
     def retrieve_memory(self, obj_str: str) -> tuple[list[tuple[int, float, float]], list[int]]:
-        """(positive hits as (obj_id, distance, angle), negative obj_ids) of ``obj_str``."""
+        """(positive hits as (obj_id, distance, angle), negative obj_ids) of ``obj_str``; remembered regions
+        (possibly from earlier goals of the scene) are registered as this episode's objects."""
         pos, neg = self.memory.retrieve(obj_str)
-        return self._triples(pos), neg
+        mem = self.memory
+        as_ids = lambda keys: [self.register(mem.centers[k], mem.regions[k], "memory", text=obj_str) for k in keys]  # noqa: E731
+        return self._triples(as_ids(pos)), as_ids(neg)
 
     # ------------------------------------------------------------------ interaction
     def talk(self, content: str) -> str:

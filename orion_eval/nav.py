@@ -43,13 +43,17 @@ class NavPlanner:
             m[rc[0], rc[1]] = True
         return m
 
-    def route(self, pose, target_mask: np.ndarray, *, key, face_xy=None) -> Route | None:
-        """Route from ``pose`` (x, y, yaw) to within ``settings.stop_radius_m`` of ``target_mask`` (full grid)."""
+    def route(self, pose, target_mask: np.ndarray, *, key, face_xy=None, end_mask: np.ndarray | None = None
+              ) -> Route | None:
+        """Route from ``pose`` (x, y, yaw) to within ``settings.stop_radius_m`` of ``target_mask`` (full grid);
+        a walk that cannot finish in the target finishes inside ``end_mask`` (full grid) when given."""
         sub = self.crop(target_mask)
         if not sub.any():
             return None
+        end = None if end_mask is None else self.crop(end_mask)
         try:
-            return self.planner.route(pose, sub, key=key, face_xy=None if face_xy is None else np.asarray(face_xy))
+            return self.planner.route(pose, sub, key=key, face_xy=None if face_xy is None else np.asarray(face_xy),
+                                      region=self.settings.stop_radius_m == 0, end_mask=end)
         except ValueError:  # descent stuck or action budget exceeded: treat as unreachable
             return None
 

@@ -2,10 +2,13 @@
 
 The unit of work is one scene (:func:`evaluate_scene`, a pure function of the artifacts and params
 returning its episode results); scenes are mapped over ``eval.workers`` processes with dask, the
-serial path calling the same function. Per goal and seed the episode is
-``routes.for_goal(goal)[seed % n]`` with its start heading turned by 90 deg per pass over the goal's
-episodes (:func:`orion_eval.episode.start_pose`); the user's draws are seeded by
-``(seed, goal index, setting index)``. Results are identical for identical inputs.
+serial path calling the same function. Within a scene, each (seed, setting, method) run visits the
+scene's goals in the fixed goals.zarr order, and an agent with ``persistent_memory`` (ORION) carries
+its memory from one goal to the next, as in the paper (corrective feedback helps only when a wrong
+object found for one goal is the right object of a later goal); the other methods have no memory.
+Per goal and seed the episode is ``routes.for_goal(goal)[seed % n]`` with its start heading turned
+by 90 deg per pass over the goal's episodes (:func:`orion_eval.episode.start_pose`); the user's
+draws are seeded by ``(seed, goal index, setting index)``. Results are identical for identical inputs.
 """
 
 from __future__ import annotations
@@ -28,19 +31,21 @@ from pipeline.paths import Workspace
 
 
 def scene_tasks(arts: Artifacts, methods, feedback, seeds) -> list[tuple[Task, object]]:
-    """(task, goal view) pairs of one scene in a fixed order (goal, seed, setting, method)."""
+    """(task, goal view) pairs of one scene in a fixed order (seed, setting, method, goal): the goals of one
+    (seed, setting, method) run are consecutive, in goals.zarr order (the order memory is carried in)."""
     out = []
     routes, goals = arts.routes, arts.goals
-    for goal in goals.goals:
-        eps = routes.for_goal(goal.id)
-        if not eps:
-            continue  # unreachable goal: reported by the routes stage, not an episode
-        for seed in seeds:
-            e = eps[seed % len(eps)]
-            p0 = start_pose(e.start, seed, len(eps))
-            for fb in feedback:
-                for method in methods:
-                    out.append((Task(arts.scene, method, fb, int(seed), goal.id, e.id, p0, float(e.geodesic_m)), goal))
+    for seed in seeds:
+        for fb in feedback:
+            for method in methods:
+                for goal in goals.goals:
+                    eps = routes.for_goal(goal.id)
+                    if not eps:
+                        continue  # unreachable goal: reported by the routes stage, not an episode
+                    e = eps[seed % len(eps)]
+                    p0 = start_pose(e.start, seed, len(eps))
+                    out.append((Task(arts.scene, method, fb, int(seed), goal.id, e.id, p0, float(e.geodesic_m)),
+                                goal))
     return out
 
 
@@ -63,10 +68,19 @@ def evaluate_scene(ws: Workspace, params: Params, scene: str, methods, feedback,
     agents = {m: (LLMAgent(client) if m == "llm" else build_agent(m, params)) for m in methods}
     goal_index = {g.id: i for i, g in enumerate(arts.goals.goals)}
     results = []
+    memories: dict[tuple, object] = {}  # (method, setting, seed) -> the memory carried across the scene's goals
     for task, goal in scene_tasks(arts, methods, feedback, seeds):
         rng = np.random.default_rng([task.seed, goal_index[goal.id], FEEDBACK_SETTINGS.index(task.feedback)])
+        memory = None
+        if getattr(agents[task.method], "persistent_memory", False):
+            from orion_eval.modules import new_memory
+
+            key = (task.method, task.feedback, task.seed)
+            if key not in memories:
+                memories[key] = new_memory(ctx)
+            memory = memories[key]
         t0 = time.perf_counter()
-        res = run_episode(ctx, task, agents[task.method], goal, rng=rng, llm_user=llm_user)
+        res = run_episode(ctx, task, agents[task.method], goal, rng=rng, llm_user=llm_user, memory=memory)
         res["seconds"] = round(time.perf_counter() - t0, 5)
         results.append(res)
     if log_dir is not None:

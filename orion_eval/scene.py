@@ -1,7 +1,9 @@
 """Everything one scene's episodes share, built once per scene (per worker process) and cached.
 
 :class:`SceneContext` holds the artifacts, the planner, the world, the success rule, the ego-view
-renderer and the detection encoder (both built on first use), and pose-independent caches: map
+renderer and the detection encoder (both built on first use), route targets (the routes module's goal
+region: stored for ground-truth goals, computed with the same function for found objects), and
+pose-independent caches: map
 query results per (map, text), ego views per pose, detections per (pose, text). Agents are
 deterministic, so episodes that share a prefix (the same start in several feedback settings)
 reuse the work.
@@ -16,6 +18,7 @@ from functools import cached_property
 import cv2
 import numpy as np
 import torch
+from scipy import ndimage
 
 from orion_eval.artifacts import Artifacts
 from orion_eval.nav import NavPlanner
@@ -56,12 +59,12 @@ class SceneContext:
         self.world = World(self.navigable, self.grid, step_m=rp.step_m, turn_deg=rp.turn_deg)
         self.planner = NavPlanner(self.navigable, self.grid,
                                   RouteSettings(rp.step_m, rp.turn_deg, ep.clearance_m, ep.stop_radius_m))
-        # the user's procedural feedback uses the routes stage's own settings
+        # the user's procedural feedback uses the routes stage's own settings, to the stored goal region
         self.user_planner = NavPlanner(self.navigable, self.grid,
-                                       RouteSettings(rp.step_m, rp.turn_deg, rp.clearance_m, rp.stop_radius_m))
+                                       RouteSettings(rp.step_m, rp.turn_deg, rp.clearance_m, 0.0))
         self.success = SuccessRule(self.grid, arts.height, arts.camera_height_m, rule=ep.success_rule,
                                    distance_m=ep.success_distance_m, hfov_deg=ep.hfov_deg, sight=self.sight)
-        # viewpoints are explicit target cells: a zero stop radius keeps the region to those cells
+        # route targets (pipeline.routes.region) are explicit cells: a zero stop radius keeps them as they are
         self.view_planner = NavPlanner(self.navigable, self.grid,
                                        RouteSettings(rp.step_m, rp.turn_deg, ep.clearance_m, 0.0))
         self._map_cache: dict[tuple[str, str], list[MapObject]] = {}
@@ -83,52 +86,89 @@ class SceneContext:
             cache[keys] = np.isin(self.object_index, [order.index(k) + 1 for k in keys])
         return cache[keys]
 
-    # ------------------------------------------------------------------ sight and viewpoints
+    # ------------------------------------------------------------------ sight and goal regions
+    @cached_property
+    def mesh_sight(self):
+        """The routes module's line-of-sight test (:class:`pipeline.routes.region.MeshSight`) on the recon mesh."""
+        return self.renderer.sight(self.grid)
+
     def sight(self, origins_xy, target_xy, z_levels, own, *, every: bool = False) -> np.ndarray:
         """``(N,)`` bool: the target column is in sight from each origin at one (``every``: each) of
         ``z_levels`` (metres above the floor)."""
-        from orion_eval.egoview import sight_lines
+        return self.mesh_sight(origins_xy, target_xy, z_levels, own, every=every)
 
-        out = np.full(len(origins_xy), every)
-        for z in z_levels:
-            xyz = (float(target_xy[0]), float(target_xy[1]), self.arts.recon.floor_z + float(z))
-            seen = sight_lines(self.renderer, origins_xy, xyz, own, self.grid)
-            out = (out & seen) if every else (out | seen)
-        return out
-
-    def viewpoints(self, key, object_mask: np.ndarray, center_xy, z_levels=(0.3, 0.6)) -> np.ndarray:
-        """Full-grid mask of plannable cells within ``eval.stop_radius_m`` of ``object_mask`` from which the object's
-        centre column is in sight at every one of ``z_levels``; when none sees it, such cells up to 0.1 m inside the success distance; else
-        every cell within the stop radius. Cells 3 cells deep inside the seeing region are preferred. Cached
-        per ``key``."""
-        cache = self.__dict__.setdefault("_viewpoints", {})
+    def goal_target(self, key, object_mask: np.ndarray, center_xy, z_levels) -> tuple[np.ndarray, np.ndarray]:
+        """Full-grid ``(region, target)`` for an object the agent found (map candidate, detection): the
+        routes module's :func:`~pipeline.routes.region.goal_region` (``eval.success_distance_m``, the same
+        line of sight as the success rule) and its :func:`~pipeline.routes.region.route_target`
+        (``eval.stop_radius_m``), which a walk aims for and the region it finishes in. Cached per ``key``."""
+        cache = self.__dict__.setdefault("_goal_targets", {})
         if key not in cache:
-            from pipeline.routes.fmm import target_region
-            from scipy import ndimage
+            from pipeline.routes.region import goal_region, route_target
 
-            p = self.planner
-            own = ndimage.binary_dilation(np.asarray(object_mask, bool), iterations=2)
-            full = np.zeros((self.grid.rows, self.grid.cols), bool)
             ep = self.params.eval
-            # the stop radius first; when nothing there sees the object, up to just inside the success distance
-            for k, radius in enumerate((ep.stop_radius_m, max(ep.stop_radius_m, ep.success_distance_m - 0.1))):
-                region = target_region(p.planner.plan_mask, p.crop(object_mask), p.crop_grid, radius)
-                rr, cc = np.nonzero(region)
-                ok = self.sight(p.crop_grid.cell_to_world(np.stack([rr, cc], axis=1)), center_xy, z_levels, own,
-                                every=True) if len(rr) else np.zeros(0, bool)
-                if k == 0:
-                    fallback = (rr, cc)
-                if ok.any():
-                    full[rr[ok] + p.window[0].start, cc[ok] + p.window[1].start] = True
-                    # prefer cells deep inside the seeing region: the walk ends within half a step of its goal
-                    core = ndimage.binary_erosion(full, iterations=3)
-                    full = core if core.any() else full
-                    break
-            else:
-                rr, cc = fallback
-                full[rr + p.window[0].start, cc + p.window[1].start] = True
-            cache[key] = full
+            region = goal_region(self.navigable, object_mask, self.grid, center_xy, z_levels, self.sight,
+                                 success_m=ep.success_distance_m)
+            cache[key] = (region, route_target(region, object_mask, self.grid, stop_radius_m=ep.stop_radius_m))
         return cache[key]
+
+    def route_to_goal(self, planner, pose, goal, *, key, face_xy):
+        """Route into a ground-truth goal's stored region, as the routes stage plans it: to the first of its
+        :func:`~pipeline.routes.region.route_aims` (route target, narrower margins, the region) whose walk
+        ends 2 cells inside the region (erosion), else the first ending in it, else the first
+        reachable; None when unreachable."""
+        from pipeline.routes.region import route_aims
+
+        region = self.stored_goal_region(goal)
+        aims = self.__dict__.setdefault("_stored_aims", {})
+        if goal.id not in aims:
+            aims[goal.id] = route_aims(region, self.footprint_mask(goal.object_keys), self.grid,
+                                       stop_radius_m=self.params.routes.stop_radius_m)
+        inner = self.__dict__.setdefault("_stored_inner", {})
+        if goal.id not in inner:  # cells 2 steps inside the region: the exact pose is well inside it
+            inner[goal.id] = ndimage.binary_erosion(region, iterations=2)
+        best, best_rank = None, -1
+        for aim, mask in aims[goal.id]:
+            route = planner.route(pose, mask, key=(key, aim, goal.id), face_xy=face_xy, end_mask=region)
+            if route is None:
+                continue
+            rank = 2 if self.ends_in(route, pose, inner[goal.id]) else int(self.ends_in(route, pose, region))
+            if rank == 2:
+                return route
+            if rank > best_rank:
+                best, best_rank = route, rank
+        return best
+
+    def ends_in(self, route, pose, mask: np.ndarray) -> bool:
+        """Whether walking ``route`` from ``pose`` in this scene's world ends in a cell of ``mask``."""
+        from orion_eval.world import Body
+
+        body = Body(*(float(v) for v in pose))
+        for a in route.actions.tolist():
+            if a == 0:
+                break
+            self.world.act(body, a)
+        rc = self.grid.world_to_cell(np.array([body.x, body.y]))
+        return bool(self.grid.inside(rc) and mask[rc[0], rc[1]])
+
+    def stored_goal_region(self, goal) -> np.ndarray:
+        """Full-grid goal region of a GROUND-TRUTH goal as stored by the routes stage (cached per goal)."""
+        cache = self.__dict__.setdefault("_stored_regions", {})
+        if goal.id not in cache:
+            cache[goal.id] = self.arts.routes.goal_region(goal.id)
+        return cache[goal.id]
+
+    def stored_goal_target(self, goal) -> np.ndarray:
+        """Full-grid route target of a GROUND-TRUTH goal: the goal region stored by the routes stage
+        (``routes.zarr``), cut to its route target with the routes stage's stop radius. Cached per goal."""
+        cache = self.__dict__.setdefault("_stored_targets", {})
+        if goal.id not in cache:
+            from pipeline.routes.region import route_target
+
+            region = self.stored_goal_region(goal)
+            cache[goal.id] = route_target(region, self.footprint_mask(goal.object_keys), self.grid,
+                                          stop_radius_m=self.params.routes.stop_radius_m)
+        return cache[goal.id]
 
     # ------------------------------------------------------------------ maps
     def map_objects(self, which: str, text: str) -> list[MapObject]:

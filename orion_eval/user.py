@@ -55,8 +55,8 @@ class SimulatedUser:
     def procedural(self, pose) -> str | None:
         """The route in words from ``pose`` when navchat's rule allows sending it, else None."""
         ctx, g = self.ctx, self.goal
-        mask = ctx.footprint_mask(g.object_keys)
-        route = ctx.user_planner.route(pose, mask, key=("goal", g.id), face_xy=g.mass_center)
+        # into the routes stage's goal region: the route never ends behind a wall
+        route = ctx.route_to_goal(ctx.user_planner, pose, g, key="user", face_xy=g.mass_center)
         if route is None:
             return None
         if not procedural_allowed(route.parts, ctx.arts.room_at(pose[:2]), g.room_id):

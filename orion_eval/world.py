@@ -13,11 +13,12 @@ Success (``eval.success_rule``):
 - ``navchat``: navchat's tighter bands on (distance, |bearing|): (0.6 m, 45 deg), (1.2 m, 30 deg),
   (1.4 m, 15 deg — standing in for "enough goal pixels near the image centre"), plus line of sight.
 
-Line of sight: rays from the camera (above the agent) to the goal's mass-centre column, at half
-and the top of the object, cast against the RECONSTRUCTED mesh (:func:`orion_eval.egoview.sight_lines`):
-in sight when one ray reaches the target or first hits the goal's own footprint (dilated two
-cells). Without a mesh, a 2.5-D test on the height grid stands in (a cell blocks when its top is
-above the segment there).
+Line of sight: the routes module's one definition (:class:`pipeline.routes.region.MeshSight`,
+the same test that defines the goal region the routes and the human agent aim for): rays from the
+camera (above the agent) to the goal's mass-centre column, at half and the top of the object, cast
+against the RECONSTRUCTED mesh; in sight when one ray reaches the target or first hits the goal's
+own footprint (dilated two cells). Without a mesh, a 2.5-D test on the height grid stands in (a
+cell blocks when its top is above the segment there).
 Any member of a same_goal group counts.
 """
 
@@ -27,16 +28,15 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
 
 from pipeline.geometry import GridSpec
 from pipeline.routes.actions import FORWARD, LEFT, RIGHT, STOP, wrap_angle
 from pipeline.routes.fmm import segment_free
+from pipeline.routes.region import SIGHT_LEVELS, own_cells, sight_levels
 from pipeline.routes.verify import point_polygon_distance
 
 ACTION_WORDS = {FORWARD: "MoveForward", LEFT: "TurnLeft", RIGHT: "TurnRight", STOP: "Stop"}
 NAVCHAT_BANDS = ((0.6, 45.0), (1.2, 30.0), (1.4, 15.0))
-SIGHT_LEVELS = (0.5, 1.0)  # fractions of the object height sighted on its mass-centre column (1.0 = its top)
 
 
 @dataclass
@@ -114,8 +114,8 @@ class SuccessRule:
         self.sight = sight  # (origins (N,2), target_xy, z_levels, own) -> (N,) bool; None = 2.5-D height grid
 
     def geometry(self, footprints, mass_centers, z_ranges, footprint_mask: np.ndarray) -> GoalGeometry:
-        own = ndimage.binary_dilation(np.asarray(footprint_mask, bool), iterations=2)
-        z_levels = np.array([[z0 + f * (z1 - z0) for f in SIGHT_LEVELS] for z0, z1 in np.asarray(z_ranges, float)])
+        own = own_cells(footprint_mask)
+        z_levels = np.array([sight_levels(z) for z in np.asarray(z_ranges, float)]).reshape(-1, len(SIGHT_LEVELS))
         return GoalGeometry(tuple(np.asarray(f, np.float64) for f in footprints),
                             np.asarray(mass_centers, np.float64).reshape(-1, 2), z_levels, own)
 

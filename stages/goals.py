@@ -2,7 +2,9 @@
 
 Personalized goals g = (type, name, room, FB) with the four kinds of feedback, on the recon grid.
 Landmark line of sight uses the GT walls when the scene is simulated, else recon's occupied cells
-outside object footprints; procedural text starts from the recording's first camera pose. A user
+outside object footprints; procedural text starts from the recording's first camera pose and
+ends in the goal region the routes stage uses (:func:`pipeline.routes.region.group_region`, line of
+sight on ``recon_mesh.ply``), planned as the routes stage plans its episodes. A user
 edit (``goals.edits[scene]``, written by ``zipon goals import``) replaces the generated document
 after it is checked against the scene's objects. Format: :mod:`pipeline.goals.store`.
 """
@@ -25,6 +27,7 @@ from pipeline.goals.schema import document_digest, load_document
 from pipeline.goals.store import ARTIFACT, FORMAT_VERSION, write_goals
 from pipeline.recon import OCCUPIED, Recon
 from pipeline.routes.actions import RoutePlanner, RouteSettings
+from pipeline.routes.region import MeshSight, group_region, recorded_camera_height
 from pipeline.runner import StageContext
 from pipeline.scene_gt import GTScene
 from pipeline.store import artifact_attrs
@@ -62,6 +65,24 @@ def wall_grid(objset: ObjectSet, recon: Recon, gt: GTScene | None, object_index:
         return gt.occupancy(grid, 0.05, gt.wall_height_m, objects=False)
     near_obj = ndimage.binary_dilation(object_index > 0, iterations=max(1, int(round(0.15 / grid.cell_size_m))))
     return (recon.occupancy == OCCUPIED) & ~near_obj
+
+
+def region_function(recon: Recon, objset: ObjectSet, success_m: float):
+    """``(members, object_index, keys) -> (rows, cols)`` bool goal region, exactly as the routes stage
+    computes it (:func:`pipeline.routes.region.group_region`; line of sight by ray casting
+    ``recon_mesh.ply`` from the recording's median camera height). The mesh is read on first use."""
+    objects = {o.key: o for o in objset.objects}
+    state: dict = {}
+
+    def region(members, object_index, keys):
+        if "sight" not in state:
+            cam_h = recorded_camera_height(recon.poses, recon.floor_z)
+            state["sight"] = MeshSight.from_mesh(recon.mesh_path, floor_z=recon.floor_z, camera_height_m=cam_h,
+                                                 grid=recon.grid)
+        return group_region(recon.navigable, object_index, list(keys), members, objects, recon.grid,
+                            state["sight"], success_m=success_m)
+
+    return region
 
 
 def start_pose(frames: FrameStore) -> tuple[float, float, float] | None:
@@ -104,7 +125,7 @@ def run(ctx: StageContext) -> dict:
     walls = wall_grid(objset, recon, gt, object_index)
     pose0 = start_pose(frames)
     res = build_goals(objset, grid, walls, planner=planner, start_pose=pose0, settings=settings, edits=edits,
-                      edits_path=edits_path)
+                      edits_path=edits_path, goal_region=region_function(recon, objset, rp.success_m))
     write_goals(ctx.outputs["goals"], document=res.document, objset=objset, landmarks=res.landmarks,
                 object_index=res.object_index, grid=grid,
                 attrs=artifact_attrs(ARTIFACT, FORMAT_VERSION, "goals", ctx.params_digest),

@@ -19,8 +19,8 @@ from pipeline.goals.store import Goals
 from pipeline.recon import Recon
 from pipeline.routes.actions import RouteSettings
 from pipeline.routes.episodes import GoalTarget, make_episodes
-from pipeline.routes.region import (OWN_DILATION_CELLS, ROUTE_MARGIN_CELLS, SIGHT_LEVELS, SIGHT_METHOD, MeshSight, goal_region,
-                                    recorded_camera_height, sight_levels)
+from pipeline.routes.region import (OWN_DILATION_CELLS, ROUTE_MARGIN_CELLS, SIGHT_LEVELS, SIGHT_METHOD, MeshSight,
+                                    group_region, recorded_camera_height)
 from pipeline.routes.store import ARTIFACT, FORMAT_VERSION, write_routes
 from pipeline.runner import StageContext
 from pipeline.store import artifact_attrs
@@ -40,11 +40,9 @@ def run(ctx: StageContext) -> dict:
     sight = MeshSight.from_mesh(recon.mesh_path, floor_z=recon.floor_z, camera_height_m=cam_h, grid=recon.grid)
     targets = []
     for g in goals.goals:
-        region = np.zeros(index.shape, bool)
-        for k in g.object_keys:  # a same_goal group: any member counts
-            o = goals.objects[k]
-            region |= goal_region(recon.navigable, index == keys.index(k) + 1, recon.grid, o.mass_center,
-                                  sight_levels(o.z_range), sight, success_m=p.success_m)
+        # a same_goal group: any member counts
+        region = group_region(recon.navigable, index, keys, g.object_keys, goals.objects, recon.grid, sight,
+                              success_m=p.success_m)
         centres = np.array([goals.objects[k].mass_center for k in g.object_keys], np.float64).reshape(-1, 2)
         targets.append(GoalTarget(g.id, np.isin(index, [keys.index(k) + 1 for k in g.object_keys]),
                                   list(g.footprints), centres, g.room_id, region))

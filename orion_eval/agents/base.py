@@ -75,6 +75,7 @@ class Agent(ABC):
     """A scripted policy over the ORION modules."""
 
     name: str = ""
+    persistent_memory: bool = False  # True: evaluate_scene carries the agent's memory across a scene's goals
 
     def __init__(self, params):
         self.params = params  # the whole Params

@@ -2,22 +2,23 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from orion_eval.agents.base import Agent, register
 
 
 @register
 class HumanAgent(Agent):
-    """Knows the goal (ground truth): FMM route to the nearest cell that sees the goal within the stop radius,
-    face its mass centre, Talk."""
+    """Knows the goal (ground truth): FMM route into the goal region the routes stage stored (within the
+    success distance, mass centre in line of sight), face the nearest member's mass centre, Talk."""
 
     name = "human"
 
     def run(self, m, instruction: str, goal_name: str) -> None:
         goal = m.run.user.goal  # the upper bound may look at the ground truth
         ctx = m.ctx
-        geo = m.run.user.geometry
-        view = ctx.viewpoints(("goal", goal.id), ctx.footprint_mask(goal.object_keys), goal.mass_center,
-                              tuple(geo.z_levels[0]))
-        route = ctx.view_planner.route(m.pose, view, key=("goal-view", goal.id), face_xy=goal.mass_center)
+        centres = np.array([ctx.arts.goals.objects[k].mass_center for k in goal.object_keys], np.float64)
+        # into the routes stage's goal region (pipeline.routes.region), planned as the routes stage plans
+        route = ctx.route_to_goal(ctx.view_planner, m.pose, goal, key="human", face_xy=centres)
         m._follow(route)
         m.talk(f"I am at {goal_name}.")

@@ -15,6 +15,7 @@ from orion_eval.agents.maps import MapAgent
 @register
 class OrionAgent(MapAgent):
     name = "orion"
+    persistent_memory = True  # the memory is carried across the goals of a scene (evaluate_scene)
 
     def __init__(self, params):
         super().__init__(params)

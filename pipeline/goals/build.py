@@ -81,9 +81,11 @@ def select_groups(objset: ObjectSet, groups: list[tuple[str, ...]], s: GoalSetti
 
 def build_goals(objset: ObjectSet, grid: GridSpec, walls: np.ndarray, *, planner=None,
                 start_pose: tuple[float, float, float] | None = None, settings: GoalSettings = GoalSettings(),
-                edits: GoalsDocument | None = None, edits_path=None) -> GoalsResult:
+                edits: GoalsDocument | None = None, edits_path=None, goal_region=None) -> GoalsResult:
     """Personalized goals of one scene; with ``edits`` the user's document replaces the generated one
-    after it is checked against the scene's objects."""
+    after it is checked against the scene's objects. ``goal_region(members, object_index, keys)`` ->
+    ``(rows, cols)`` bool goal region of a same_goal group (the routes stage's definition; used by the
+    procedural feedback), or None."""
     if not objset.objects:
         raise StageError(f"scene {objset.scene}: no objects to make goals from")
     rng = np.random.default_rng(settings.seed)
@@ -106,6 +108,8 @@ def build_goals(objset: ObjectSet, grid: GridSpec, walls: np.ndarray, *, planner
     ctx = FeedbackContext(objects=by_key, identities=identities, rooms=rooms, goals=drafts, grid=grid,
                           walls=np.asarray(walls, dtype=bool), object_index=object_index, object_keys=keys,
                           planner=planner, start_pose=start_pose,
+                          goal_region=None if goal_region is None else
+                          (lambda members: goal_region(members, object_index, keys)),
                           settings={"landmark_radius_m": settings.landmark_radius_m,
                                     "max_landmarks": settings.max_landmarks,
                                     "landmark_min_area_m2": settings.landmark_min_area_m2})

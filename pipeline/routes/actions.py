@@ -17,12 +17,14 @@ import re
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from pipeline.geometry import GridSpec
 from pipeline.routes.fmm import (GeodesicPath, geodesic_field, planning_mask, segment_free, shortest_path,
                                  target_region)
 
 STOP, FORWARD, LEFT, RIGHT = 0, 1, 2, 3
+DEEP_CELLS = 2  # a walk finishes this many cells inside its aim when a few more steps get it there
 ACTION_NAMES = {STOP: "stop", FORWARD: "forward", LEFT: "left", RIGHT: "right"}
 _LETTER = {FORWARD: "f", LEFT: "l", RIGHT: "r"}
 
@@ -34,7 +36,7 @@ def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
 
 def follow_polyline(polyline_xy: np.ndarray, start_yaw: float, *, step_m: float = 0.25, turn_deg: float = 15.0,
                     face_xy: np.ndarray | None = None, band_m: float = 0.08, max_actions: int = 2000,
-                    free=None) -> np.ndarray:
+                    free=None, goal=None, max_extra_steps: int = 2) -> np.ndarray:
     """Actions ``(A,)`` uint8 that drive a (x, y, yaw) agent from ``polyline_xy[0]`` along the polyline.
 
     Headings are limited to ``start_yaw + k * turn_deg``. Each segment is tracked with the two lattice
@@ -44,8 +46,14 @@ def follow_polyline(polyline_xy: np.ndarray, start_yaw: float, *, step_m: float 
     within ``step_m / 2`` of its end along the track. With ``face_xy`` (2,) or (K,2) the agent finally turns
     toward that point (the goal's mass centre; of several, the nearest) so the goal is in view. With ``free(p, q) -> bool`` (is the
     straight step from p to q collision-free?) a blocked step is replaced by the nearest free lattice
-    heading that still makes progress along the track (narrow doors). Ends with ``STOP``; raises
-    ``ValueError`` past ``max_actions`` or when no heading is free.
+    heading that still makes progress along the track (narrow doors). With ``goal(p)`` (world point ->
+    ``True`` / 3: deep in the cells aimed for, 2: in them, 1: in cells where ending is acceptable (the
+    goal region around an inner target), ``False`` / 0: outside) a walk that stops short of the
+    polyline's end (the last segment ends up to half a step early, plus the cross-track band) walks on
+    along the last segment, up to ``max_extra_steps`` more steps, and ends at the first position with the best
+    value; the positions are simulated exactly as the agent moves, so a goal reached here is reached
+    on replay. Ends with ``STOP``; raises ``ValueError`` past ``max_actions``
+    or when no heading is free.
     """
     pts = np.asarray(polyline_xy, dtype=np.float64)
     turn = np.deg2rad(turn_deg)
@@ -57,6 +65,10 @@ def follow_polyline(polyline_xy: np.ndarray, start_yaw: float, *, step_m: float 
         d = int(round(float(wrap_angle((k_new - k) * turn)) / turn))
         actions.extend([LEFT] * d if d > 0 else [RIGHT] * (-d))
         k += d
+
+    def set_heading(k_new: int) -> None:
+        nonlocal k
+        k = k_new
 
     def lattice(theta: float) -> tuple[int, int]:
         rel = k + float(wrap_angle(theta - (start_yaw + k * turn))) / turn
@@ -88,6 +100,10 @@ def follow_polyline(polyline_xy: np.ndarray, start_yaw: float, *, step_m: float 
             actions.append(FORWARD)
             yaw = start_yaw + k * turn
             pos = pos + step_m * np.array([np.cos(yaw), np.sin(yaw)])
+    if goal is not None and len(pts) > 1:
+        pos = _finish_in_goal(pts, pos, goal, max_extra_steps, step_m=step_m, start_yaw=start_yaw, turn=turn,
+                              free=free, heading=lambda: k, set_heading=set_heading, turn_to=turn_to,
+                              actions=actions)
     if face_xy is not None:
         faces = np.asarray(face_xy, dtype=np.float64).reshape(-1, 2)  # several: the nearest one
         d = faces[int(np.argmin(np.linalg.norm(faces - pos, axis=1)))] - pos
@@ -98,6 +114,50 @@ def follow_polyline(polyline_xy: np.ndarray, start_yaw: float, *, step_m: float 
         raise ValueError(f"route needs more than {max_actions} actions")
     actions.append(STOP)
     return np.asarray(actions, dtype=np.uint8)
+
+
+def _finish_in_goal(pts, pos, goal, max_steps, *, step_m, start_yaw, turn, free, heading, set_heading, turn_to,
+                    actions) -> np.ndarray:
+    """Extra steps (see :func:`follow_polyline`) from ``pos`` into the goal; returns the final position.
+
+    The agent walks on along the last non-empty segment's direction ``u`` (the lattice heading bracketing
+    ``u`` it already has, else the nearest; with ``free``, the nearest free heading still making progress
+    along ``u``): the polyline enters the goal there, so on along it lies the goal's inside. At most
+    ``max_steps`` steps, stopping once ``goal`` is reached (``True`` or 3) or no step is free; then the
+    walk is cut back to the first position with the best ``goal`` value seen, so the extra steps never
+    end anywhere worse than where the polyline left the agent."""
+    segs = np.diff(pts, axis=0)
+    lens = np.linalg.norm(segs, axis=1)
+    if not (lens > 1e-9).any():
+        return pos
+    u = segs[np.flatnonzero(lens > 1e-9)[-1]]
+    u = u / np.linalg.norm(u)
+
+    def value(q) -> float:
+        v = goal(q)
+        return 3.0 if v is True or v is np.True_ else float(v)
+
+    trail = [(value(pos), pos, len(actions), heading())]  # (goal value, position, actions so far, heading)
+    for _ in range(max_steps):
+        if trail[-1][0] >= 3.0:
+            break
+        k = heading()
+        rel = k + float(wrap_angle(float(np.arctan2(u[1], u[0])) - (start_yaw + k * turn))) / turn
+        bracket = (int(np.floor(rel + 1e-9)), int(np.ceil(rel - 1e-9)))
+        k_step = k if k in bracket else bracket[0]
+        if free is not None:
+            k_step = _free_heading(k_step, bracket, pos, u, start_yaw, turn, step_m, free)
+            if k_step is None:
+                break
+        turn_to(k_step)
+        actions.append(FORWARD)
+        yaw = start_yaw + heading() * turn
+        pos = pos + step_m * np.array([np.cos(yaw), np.sin(yaw)])
+        trail.append((value(pos), pos, len(actions), heading()))
+    _, pos, n, k = max(trail, key=lambda t: t[0])  # the first of the best
+    del actions[n:]
+    set_heading(k)
+    return pos
 
 
 def _free_heading(k, bracket, pos, u, start_yaw, turn, step_m, free) -> int | None:
@@ -219,6 +279,7 @@ class RoutePlanner:
         self.navigable = np.asarray(navigable, dtype=bool)
         self.plan_mask = planning_mask(self.navigable, grid, settings.clearance_m)
         self._fields: dict[object, np.ndarray] = {}
+        self._goals: dict[object, np.ndarray] = {}  # cells a route must end in, per (key, region)
         self.raise_failures = False  # True: a route found but not drivable raises instead of returning None
 
     def goal_mask(self, goal_xy: np.ndarray) -> np.ndarray:
@@ -242,13 +303,17 @@ class RoutePlanner:
         return self._fields[ck]
 
     def route(self, pose_xy_yaw, object_mask: np.ndarray, *, key: object = None, face_xy=None,
-              region: bool = False) -> Route | None:
+              region: bool = False, end_mask: np.ndarray | None = None) -> Route | None:
         """The route from ``(x, y, yaw)`` to the goal, or ``None`` when unreachable.
 
         The target is the stop radius around ``object_mask``, or with ``region=True`` the cells of
         ``object_mask`` themselves. Plans on the clearance mask first; a pose or goal cut off there
         (narrow doors) is planned on the navigable mask itself. Actions are checked step by step
-        against the navigable mask.
+        against the navigable mask. The walk finishes :data:`DEEP_CELLS` inside the target where a few
+        more steps along the last segment get it there (:func:`follow_polyline`'s ``goal``: the polyline
+        ends on the target's first cell, where stopping half a step early leaves the agent outside it),
+        else in the target or in ``end_mask`` ``(rows, cols)`` bool when given (the goal region around
+        an inner target).
         """
         x, y, yaw = (float(v) for v in pose_xy_yaw)
         key = key if key is not None else hash(np.packbits(object_mask).tobytes())
@@ -275,9 +340,12 @@ class RoutePlanner:
                 path = GeodesicPath(xy, path.geodesic_m + float(np.hypot(*(entry - start))),
                                     GeodesicPath.polyline_length(xy))
             s = self.settings
+            aim, deep = self.goal_cells(key, object_mask, region=region)
             try:
                 actions = follow_polyline(path.polyline_xy, yaw, step_m=s.step_m, turn_deg=s.turn_deg,
-                                          face_xy=face_xy, free=self.step_free)
+                                          face_xy=face_xy, free=self.step_free,
+                                          goal=lambda p: 3 if self._in(deep, p) else 2 if self._in(aim, p) else
+                                          int(end_mask is not None and self._in(end_mask, p)))
             except ValueError as err:  # boxed in on this mask: try the next one
                 failure = err
                 continue
@@ -285,6 +353,23 @@ class RoutePlanner:
         if failure is not None and self.raise_failures:
             raise failure
         return None
+
+    def goal_cells(self, key: object, object_mask: np.ndarray, *, region: bool = False
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """``(aim, deep)`` ``(rows, cols)`` bool: the cells a route aims for (the navigable cells of
+        ``object_mask`` (``region``) or within the stop radius of it) and those :data:`DEEP_CELLS` inside
+        them (the aim itself where none are), where a walk finishes when it can. Cached per ``(key, region)``."""
+        ck = (key, bool(region))
+        if ck not in self._goals:
+            radius = 0.0 if region else self.settings.stop_radius_m
+            aim = target_region(self.navigable, object_mask, self.grid, radius)
+            deep = ndimage.binary_erosion(aim, iterations=DEEP_CELLS)
+            self._goals[ck] = (aim, deep if deep.any() else aim)
+        return self._goals[ck]
+
+    def _in(self, mask: np.ndarray, xy: np.ndarray) -> bool:
+        rc = self.grid.world_to_cell(np.asarray(xy, np.float64))
+        return bool(self.grid.inside(rc) and mask[rc[0], rc[1]])
 
     def step_free(self, p: np.ndarray, q: np.ndarray) -> bool:
         """Is the straight move from world point ``p`` to ``q`` inside the navigable mask?"""

@@ -2,7 +2,8 @@
 
 The goal region is :func:`pipeline.routes.region.goal_region` (navigable cells within the success
 distance from which the goal's mass centre is in line of sight on the reconstruction), given per
-goal; routes aim for its :func:`~pipeline.routes.region.route_target`. For each goal, start cells
+goal; routes aim for its :func:`~pipeline.routes.region.route_aims` (the route target, then narrower
+margins, then the region; the first whose replay verifies). For each goal, start cells
 are drawn (seeded) among cells of the clearance mask that reach the target with clearance and whose
 FMM distance to the region is at least ``min_geodesic_m``; the heading is one of the
 ``360 / turn_deg`` lattice headings. The reference length ``l`` (for SPL) is the FMM geodesic
@@ -21,7 +22,7 @@ import numpy as np
 
 from pipeline.geometry import GridSpec
 from pipeline.routes.actions import RoutePlanner, RouteSettings, route_text
-from pipeline.routes.region import route_target
+from pipeline.routes.region import route_aims
 from pipeline.routes.verify import replay
 
 
@@ -93,9 +94,10 @@ def make_episodes(navigable: np.ndarray, grid: GridSpec, goals: list[GoalTarget]
                 out.unreachable.append({"goal": goal.id, "reason": f"empty goal region: no navigable cell within "
                                         f"{success_m} m of the object sees its mass centre"})
                 continue
-            target = route_target(goal.region, goal.object_mask, grid, stop_radius_m=settings.stop_radius_m)
-            # aim inside the region first; a start that cannot reach those cells aims at the region itself
-            aims = [((goal.id, "target"), target), ((goal.id, "region"), goal.region)]
+            # aim inside the region first (route_aims: the route target, narrower margins, the region
+            # itself); an aim a start cannot reach, or whose replay fails, gives way to the next
+            aims = [((goal.id, name), mask) for name, mask in
+                    route_aims(goal.region, goal.object_mask, grid, stop_radius_m=settings.stop_radius_m)]
             fld = planner.field((goal.id, "region"), goal.region, "navigable", region=True)  # l: to the region
             fld_clear = planner.field((goal.id, "region"), goal.region, "clear", region=True)
         else:
@@ -121,7 +123,8 @@ def make_episodes(navigable: np.ndarray, grid: GridSpec, goals: list[GoalTarget]
             ep, why = None, "no route from the start"
             for key, aim in aims:
                 try:
-                    route = planner.route(start, aim, key=key, face_xy=goal.face_xy, region=as_region)
+                    route = planner.route(start, aim, key=key, face_xy=goal.face_xy, region=as_region,
+                                          end_mask=goal.region)  # the walk finishes inside the region
                 except ValueError as err:  # descent or action budget failure: report, never keep
                     why = str(err)
                     continue

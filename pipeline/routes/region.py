@@ -173,6 +173,65 @@ def route_target(region: np.ndarray, object_mask: np.ndarray, grid: GridSpec, *,
     return out if out.any() else region.copy()
 
 
+def route_aims(region: np.ndarray, object_mask: np.ndarray, grid: GridSpec, *, stop_radius_m: float
+               ) -> list[tuple[str, np.ndarray]]:
+    """``[(name, (rows, cols) bool)]``: what a route into ``region`` aims for, in order — its
+    :func:`route_target` with :data:`ROUTE_MARGIN_CELLS`, then with smaller margins (regions whose
+    reachable parts are narrow), then the region itself; identical masks are listed once. A planner
+    takes the first it can reach (the routes stage: the first whose replay verifies)."""
+    out: list[tuple[str, np.ndarray]] = []
+    for m in range(ROUTE_MARGIN_CELLS, 0, -1):
+        t = route_target(region, object_mask, grid, stop_radius_m=stop_radius_m, margin_cells=m)
+        if not any(np.array_equal(t, o) for _, o in out):
+            out.append(("target" if m == ROUTE_MARGIN_CELLS else f"target{m}", t))
+    if not any(np.array_equal(np.asarray(region, bool), o) for _, o in out):
+        out.append(("region", np.asarray(region, bool)))
+    return out
+
+
+def group_region(navigable: np.ndarray, object_index: np.ndarray, object_keys: list[str], members, objects,
+                 grid: GridSpec, sight: SightFn, *, success_m: float = 1.5) -> np.ndarray:
+    """``(rows, cols)`` bool goal region of a same_goal group: the union of :func:`goal_region` over
+    ``members`` (object keys). ``object_index`` ``(rows, cols)`` int: 1 + index into ``object_keys``;
+    ``objects`` maps a key to a record with ``mass_center`` (world xy) and ``z_range`` (metres above
+    the floor). The routes stage and the goals stage's procedural feedback both call this."""
+    region = np.zeros(np.asarray(navigable).shape, bool)
+    for k in members:
+        o = objects[k]
+        region |= goal_region(navigable, object_index == object_keys.index(k) + 1, grid, o.mass_center,
+                              sight_levels(o.z_range), sight, success_m=success_m)
+    return region
+
+
+def route_into_region(planner, pose, region: np.ndarray, object_mask: np.ndarray, *, key, face_xy,
+                      stop_radius_m: float):
+    """The route from ``pose`` (x, y, yaw) into a goal region, planned as the routes stage plans it: to
+    the first of its :func:`route_aims` whose walk (replayed on the planner's grid) ends inside the
+    region (2 cells in, by erosion; else the first ending in it, else the first reachable), facing
+    the nearest of ``face_xy``. ``planner`` is a
+    :class:`pipeline.routes.actions.RoutePlanner`; None when the region is empty or unreachable."""
+    from pipeline.routes.verify import replay
+
+    if not np.asarray(region, bool).any():
+        return None
+    inner = ndimage.binary_erosion(region, iterations=2)  # 2 cells inside: the exact pose is well inside it
+    best, best_rank = None, -1
+    s = planner.settings
+    for aim, mask in route_aims(region, object_mask, planner.grid, stop_radius_m=stop_radius_m):
+        route = planner.route(pose, mask, key=(key, aim), face_xy=face_xy, region=True, end_mask=region)
+        if route is None:
+            continue
+        end = replay(route.actions, pose, planner.navigable, planner.grid, [], step_m=s.step_m,
+                     turn_deg=s.turn_deg, region=inner)
+        rank = 2 if end.in_region else int(region[planner.grid.world_to_cell(np.array(end.final_xyyaw[:2]))[0],
+                                                   planner.grid.world_to_cell(np.array(end.final_xyyaw[:2]))[1]])
+        if rank == 2:
+            return route
+        if rank > best_rank:
+            best, best_rank = route, rank
+    return best
+
+
 def flat_cells(mask: np.ndarray) -> np.ndarray:
     """``(C,)`` int64 flat (row-major) ids of a mask's True cells."""
     return np.flatnonzero(np.asarray(mask, bool).reshape(-1)).astype(np.int64)

@@ -68,6 +68,31 @@ def test_every_stored_route_replays_to_its_goal(built):
         assert e.instruction == routes.records[routes.episodes.index(e)]["instruction"]
 
 
+def test_procedural_feedback_ends_in_the_routes_goal_region(built):
+    from pipeline.recon import Recon
+    from pipeline.routes.actions import RoutePlanner, RouteSettings
+    from pipeline.routes.region import route_into_region
+    from pipeline.routes.verify import replay
+
+    tmp, _, _, recon_path, *_ = built
+    routes, goals, recon = Routes(tmp / "routes.zarr"), Goals(tmp / "goals.zarr"), Recon(recon_path)
+    rp = parse_params({"scenes": {"house": {"source": "simulate"}}}).routes
+    planner = RoutePlanner(recon.navigable, recon.grid, RouteSettings(rp.step_m, rp.turn_deg, rp.clearance_m,
+                                                                      rp.stop_radius_m))
+    start = tuple(goals.attrs["start_pose"])
+    said = 0
+    for g in goals.goals:
+        region = routes.goal_region(g.id)
+        route = route_into_region(planner, start, region, goals.footprint_mask(g.object_keys), key=g.id,
+                                  face_xy=g.mass_centers, stop_radius_m=rp.stop_radius_m)
+        text = route.text if route is not None and route.parts else None
+        assert g.feedback["procedural"] == text  # the goals stage plans into the same stored region
+        if text:
+            said += 1
+            assert replay(route.actions, start, recon.navigable, recon.grid, list(g.footprints), region=region).success
+    assert said >= 5
+
+
 def test_export_roundtrips_exactly_and_edits_survive_rerun(built):
     tmp, ws, frames, recon, *_ = built
     out = tmp / "export.yaml"

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, Callable, ClassVar
 
 import numpy as np
 
@@ -49,6 +49,9 @@ class FeedbackContext:
     object_keys: list[str]
     planner: Any = None  # pipeline.routes.actions.RoutePlanner, or None (no navigable grid)
     start_pose: tuple[float, float, float] | None = None  # x, y, yaw of the recording's start
+    # members -> (rows, cols) bool goal region (pipeline.routes.region.group_region, as the routes stage
+    # stores it); None = no reconstruction mesh: routes end within the planner's stop radius instead
+    goal_region: Callable[[tuple[str, ...]], np.ndarray] | None = None
     settings: dict = field(default_factory=dict)  # the goals params (landmark radius, ...)
 
     def footprint_mask(self, keys: tuple[str, ...]) -> np.ndarray:

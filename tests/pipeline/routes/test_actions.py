@@ -39,3 +39,19 @@ def test_planner_unreachable_returns_none_and_room_rule():
     parts = planner.route((0.3, 0.5, 0.0), planner.goal_mask(np.array([5.5, 4.8]))).parts
     assert procedural_allowed(parts, "hall", "bedroom_1") and not procedural_allowed(parts, "bedroom_1", "bedroom_1")
     assert not procedural_allowed(parts * 2, "hall", "bedroom_1")
+
+
+def test_a_walk_that_stops_short_of_its_target_finishes_inside_it():
+    from pipeline.routes.verify import replay
+
+    nav, grid = corridor_grid()
+    xy = grid.cell_to_world(np.argwhere(np.ones(nav.shape, bool))).reshape(*nav.shape, 2)
+    target = nav & (xy[..., 0] >= 3.0) & (xy[..., 0] <= 4.0) & (xy[..., 1] <= 1.0)
+    start = (0.45, 0.5, 0.0)
+    # the polyline ends on the target's first cell (x 3.025); the walk alone stops half a step short of it
+    path_end = RoutePlanner(nav, grid).route(start, target, region=True).path.polyline_xy[-1]
+    alone = replay(follow_polyline(np.array([start[:2], path_end]), 0.0), start, nav, grid, [], region=target)
+    assert not alone.in_region and alone.final_xyyaw[0] == pytest.approx(2.95)
+    route = RoutePlanner(nav, grid).route(start, target, region=True)
+    res = replay(route.actions, start, nav, grid, [], region=target)
+    assert res.in_region and res.collisions == 0 and res.final_xyyaw[0] == pytest.approx(3.2)  # one more step: 2+ cells inside
