@@ -60,7 +60,7 @@ STAGES: dict[str, StageSpec] = {
         StageSpec(
             name="goals",
             entry="stages.goals:run",
-            inputs=("frames", "recon"),
+            inputs=("frames", "recon", "recon_mesh"),
             outputs=("goals",),
             params=("goals", "routes", "scene"),
             code=("stages.goals", "pipeline.goals", "pipeline.routes", "pipeline.scene_gt"),
@@ -69,7 +69,7 @@ STAGES: dict[str, StageSpec] = {
         StageSpec(
             name="routes",
             entry="stages.routes:run",
-            inputs=("goals", "recon"),
+            inputs=("goals", "recon", "recon_mesh"),
             outputs=("routes",),
             params=("routes",),
             code=("stages.routes", "pipeline.routes", "pipeline.goals.store", "pipeline.goals.schema",
