@@ -33,9 +33,39 @@ from pipeline.scene_gt import GTScene  # noqa: E402
 from pipeline.store import artifact_attrs  # noqa: E402
 
 
-def evaluate(kind, frames, recon, map_path, params, n_poses):
+def with_levels(mq):
+    """``mq`` scoring each cell by its best voxel level (:class:`pipeline.maps.levels.LevelScorer`).
+
+    A measurement shim until ``MapQuery.query`` calls ``LevelScorer.cell_scores`` itself (see
+    pipeline/maps/levels.py): it replaces the top-down ``(s, bg_max, bg_lse)`` through the two
+    private steps of the current query.
+    """
+    import types
+
+    from pipeline.maps.levels import LevelScorer
+
+    scorer = LevelScorer(mq.map)
+    cls = type(mq)
+
+    def background_for(self, q):
+        bg_max, bg_lse, keep = cls._background_for(self, q)
+        s = cls._scores(self, q, bg_max, bg_lse)
+        bg = self._bg_feats[keep] if keep else None
+        self._level_s, bg_max, bg_lse = scorer.cell_scores(q, bg, self.temperature, s, bg_max, bg_lse)
+        return bg_max, bg_lse, keep
+
+    mq._background_for = types.MethodType(background_for, mq)
+    mq._scores = types.MethodType(lambda self, q, bg_max, bg_lse: self._level_s, mq)
+    return mq
+
+
+def evaluate(kind, frames, recon, map_path, params, n_poses, levels: bool = False):
     gt = GTScene.model_validate(FrameStore(frames).ground_truth)
     mq = open_query(map_path, params, recon_path=recon, frames_path=frames)
+    if levels:
+        from pipeline.maps.query import MapQuery
+
+        mq = with_levels(MapQuery(mq.map, mq.encoder, mq.params, navigable=Recon(recon).navigable, gt=gt))
     poses = sample_poses(Recon(recon).navigable, mq.grid, n_poses, seed=1)
     return evaluate_map(mq, gt, poses)
 
@@ -76,10 +106,10 @@ def fixture_settings(n_poses: int, n_frames: int, width: int, height: int):
                                   "frames": n_frames, "image": f"{width}x{height}", **fig}), flush=True)
 
 
-def workspace_scenes(path: Path, n_poses: int):
+def workspace_scenes(path: Path, n_poses: int, overrides: list[str] = ()):
     from pipeline.paths import Workspace
 
-    params = load_params(path, ["encoders.simulated=oracle"])
+    params = load_params(path, ["encoders.simulated=oracle", *overrides])
     ws = Workspace.resolve(path)
     for scene, src in params.scenes.items():
         if not src.simulated:
@@ -89,9 +119,11 @@ def workspace_scenes(path: Path, n_poses: int):
             m = ws.artifact(kind, scene)
             if not m.exists():
                 continue
-            fig = evaluate(kind, frames, recon, m, params, n_poses)
-            print(json.dumps({"bench": "quality", "scene": scene, "setting": "workspace (clean oracle)", "map": kind,
-                              **fig}), flush=True)
+            for levels in (False, True) if kind == "cfmap" else (False,):
+                fig = evaluate(kind, frames, recon, m, params, n_poses, levels)
+                print(json.dumps({"bench": "quality", "scene": scene, "setting": "workspace (clean oracle)",
+                                  "map": kind, "query": "max over levels" if levels else "top-down",
+                                  "overrides": list(overrides), **fig}), flush=True)
 
 
 def main():
@@ -102,11 +134,13 @@ def main():
     ap.add_argument("--height", type=int, default=240)
     ap.add_argument("--workspace", type=Path, default=None, help="params.yaml of a built workspace")
     ap.add_argument("--no-fixture", action="store_true")
+    ap.add_argument("--set", action="append", default=[], help="params override for --workspace, e.g. "
+                    "maps.min_candidate_score=0.7 (repeatable)")
     a = ap.parse_args()
     if not a.no_fixture:
         fixture_settings(a.poses, a.frames, a.width, a.height)
     if a.workspace is not None:
-        workspace_scenes(a.workspace, a.poses)
+        workspace_scenes(a.workspace, a.poses, a.set)
 
 
 if __name__ == "__main__":

@@ -24,12 +24,15 @@ that column ever lands above level ``k``.
   same rule, so the cfmap's top-down equals a TopDownAccumulator fed the same points.
 
 Both grow their feature storage by doubling (memory bounded by the observed cells/voxels, never
-by the number of frames) and add a whole block with one ``index_add_`` (pixels that are not
-fused go to a scratch row), so no Python loop runs over pixels or points.
+by the number of frames) and add a whole block with one sparse one-hot x dense product over the
+slots the block touches (pixels that are not fused are empty rows), so no Python loop runs over
+pixels or points. Means are taken as ``sum / weight`` before normalising (ConceptFusion weights
+reach 1e-15 at 5 m).
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -129,8 +132,7 @@ def locate_block(
         keep &= ~depth_edges(depth_m, max_depth_jump)
     pts_cam = np.stack([backproject(depth_m[b], intr) for b in range(B)])  # (B,h,w,3)
     T = np.asarray(T_world_camera, dtype=np.float32)
-    pts = np.einsum("bij,bhwj->bhwi", T[:, :3, :3], pts_cam) + T[:, None, None, :3, 3]
-    pts = pts.reshape(-1, 3)
+    pts = (np.matmul(pts_cam.reshape(B, h * w, 3), T[:, :3, :3].transpose(0, 2, 1)) + T[:, None, :3, 3]).reshape(-1, 3)
     rc = lattice.grid.world_to_cell(pts[:, :2])
     level = np.floor((pts[:, 2] - (lattice.floor_z + lattice.min_height_m)) / lattice.level_height_m).astype(np.int64)
     keep = keep.reshape(-1) & lattice.grid.inside(rc) & (level >= 0) & (level < lattice.levels)
@@ -161,9 +163,9 @@ class _SlotStore:
     def slots(self, keys: torch.Tensor) -> torch.Tensor:
         """Slots ``(P,)`` of ``keys`` ``(P,)`` int64 (repeats allowed); new keys get new slots in ascending order."""
         slot = self.slot_of[keys]
-        missing = slot < 0
-        if bool(missing.any()):
-            new_keys = torch.unique(keys[missing])  # only keys never seen: small after the first blocks
+        missing = torch.nonzero(slot < 0).squeeze(1)
+        if len(missing):
+            new_keys = _distinct(keys[missing], self.slot_of)  # only keys never seen: few after the first blocks
             need = self.used + len(new_keys)
             if need > self.sum.shape[0]:
                 self._grow(need)
@@ -186,22 +188,67 @@ class _SlotStore:
             setattr(self, name, new)
 
     def add(self, target: torch.Tensor, features: torch.Tensor, weights: torch.Tensor | None) -> None:
-        """``index_add_`` rows of ``features`` ``(P,D)`` into slots ``target`` ``(P,)`` (0 = scratch)."""
-        n = self.sum.shape[0]
-        counts = torch.bincount(target, minlength=n)
-        if weights is None:
-            self.sum.index_add_(0, target, features)
-            self.weight += counts
-        else:
-            self.sum.index_add_(0, target, features * weights[:, None])
-            self.weight += torch.bincount(target, weights=weights.double(), minlength=n)
-        self.count += counts
+        """Add rows of ``features`` ``(P,D)`` (times ``weights`` ``(P,)``) into slots ``target`` ``(P,)`` (0 = skip).
+
+        One sparse x dense product: a ``(P, K)`` one-hot matrix (one non-zero per fused point, its
+        weight, in the column of its slot among the ``K`` slots the block touches) transposed times
+        the features. It reads each feature row once and needs no ``features * weights`` copy; on
+        CPU it is about 1.5x faster than ``index_add_`` (benchmarks/bench_maps.py).
+        """
+        fused = target > 0
+        keep = torch.nonzero(fused).squeeze(1)
+        if not len(keep):
+            return
+        t = target[keep]
+        touched = _distinct(t, self._scratch_index())
+        self._pos[touched] = torch.arange(len(touched), device=self.device)
+        local = self._pos[t]
+        k = len(touched)
+        w = torch.ones(len(keep), dtype=torch.float32, device=self.device) if weights is None else weights[keep]
+        crow = torch.zeros(len(target) + 1, dtype=torch.int64, device=self.device)
+        torch.cumsum(fused, 0, out=crow[1:])  # rows of points that are not fused stay empty (never read)
+        with warnings.catch_warnings():  # "sparse CSR support is in beta": the product used here is stable
+            warnings.simplefilter("ignore", UserWarning)
+            onehot = torch.sparse_csr_tensor(crow, local, w, size=(len(target), k))
+        self.sum[touched] += onehot.t() @ features
+        counts = torch.bincount(local, minlength=k)
+        self.weight[touched] += counts if weights is None else torch.bincount(local, weights=w.double(), minlength=k)
+        self.count[touched] += counts
+
+    def _scratch_index(self) -> torch.Tensor:
+        """An int64 scratch array over the slots (grown with them)."""
+        if getattr(self, "_pos", None) is None or self._pos.shape[0] < self.sum.shape[0]:
+            self._pos = torch.full((self.sum.shape[0],), -1, dtype=torch.int64, device=self.device)
+        return self._pos
 
     def observed(self) -> tuple[np.ndarray, np.ndarray]:
         """Keys and slots of every allocated row, keys ascending."""
         keys = self.keys[1 : self.used].cpu().numpy()
         order = np.argsort(keys, kind="stable")
         return keys[order], order + 1
+
+
+def _distinct(values: torch.Tensor, scratch: torch.Tensor) -> torch.Tensor:
+    """Distinct ``values`` ``(P,)`` int64, ascending, in O(P) + a sort of the distinct ones only.
+
+    ``scratch`` is any int tensor indexable by ``values``; its entries at ``values`` are overwritten.
+    Each value's entry keeps the position of one of its occurrences (whichever write lands last), so
+    exactly one occurrence per value sees its own position.
+    """
+    pos = torch.arange(len(values), device=values.device)
+    scratch[values] = pos.to(scratch.dtype)
+    return torch.sort(values[scratch[values].long() == pos]).values
+
+
+def _unit_means(sums: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """``(N,D)`` float32 unit-norm weighted means of ``sums`` ``(N,D)`` with total weights ``weight`` ``(N,)``.
+
+    Dividing by the weight first matters: ConceptFusion weights ``exp(-d^2 / 2 sigma^2)`` reach 1e-15
+    at 5 m, and ``normalize`` clamps norms below 1e-12, which would shrink such a cell's feature
+    towards zero instead of giving it unit norm.
+    """
+    w = weight.to(torch.float64).clamp_min(1e-300)[:, None]
+    return torch.nn.functional.normalize((sums.to(torch.float64) / w).float(), dim=1)
 
 
 def _flat_features(features: torch.Tensor, device: torch.device) -> torch.Tensor:
@@ -292,7 +339,7 @@ class FusedCells:
 
     @classmethod
     def from_sums(cls, cell, sums, weight, count, level) -> "FusedCells":
-        feats = torch.nn.functional.normalize(sums.float(), dim=1)
+        feats = _unit_means(sums, weight)
         return cls(np.asarray(cell, np.int64), feats.cpu(), weight.cpu().numpy().astype(np.float32),
                    count.cpu().numpy().astype(np.int32), level.cpu().numpy().astype(np.int16))
 
@@ -308,7 +355,7 @@ class FusedVoxels:
     count: torch.Tensor  # (M,) int64
 
     def features(self) -> torch.Tensor:
-        return torch.nn.functional.normalize(self.sum.float(), dim=1).cpu()
+        return _unit_means(self.sum, self.weight).cpu()
 
     def top_down(self) -> FusedCells:
         """Project with the height rule: each cell takes its highest voxel."""

@@ -110,8 +110,9 @@ def write_map(
 class SemanticMap:
     """Read-only view of a ``vlmap.zarr`` / ``cfmap.zarr``; features are loaded once and cached.
 
-    ``cell`` ``(N,)`` int64 flat cell ids, ``index`` ``(rows, cols)`` int32, :meth:`features`
-    ``(N,D)`` float32 torch tensor (unit norm), ``grid`` :class:`GridSpec`, ``encoder`` identity dict.
+    ``cell`` ``(N,)`` int64 flat cell ids, ``index`` ``(rows, cols)`` int32, :meth:`features16`
+    ``(N,D)`` float16 (cached, as stored), :meth:`features` its float32 upcast, :meth:`dot` chunked
+    float32 scores, ``grid`` :class:`GridSpec`, ``encoder`` identity dict.
     """
 
     def __init__(self, path: str | Path):
@@ -158,10 +159,36 @@ class SemanticMap:
         return self.index >= 0
 
     def features(self) -> torch.Tensor:
-        """``(N,D)`` float32 unit-norm features of the observed cells (cached)."""
+        """``(N,D)`` float32 unit-norm features of the observed cells (a fresh upcast of :meth:`features16`).
+
+        Not cached: a full fp32 copy is 737 MB for a 600x600x512 map. Callers that score many
+        queries should keep :meth:`features16` and use :meth:`dot` (upcast per chunk).
+        """
+        return self.features16().to(torch.float32)
+
+    def features16(self) -> torch.Tensor:
+        """``(N,D)`` float16 unit-norm features as stored (cached; half the memory of fp32)."""
         if self._features is None:
-            self._features = torch.from_numpy(self.group["top"]["features"][...].astype(np.float32))
+            self._features = torch.from_numpy(np.ascontiguousarray(self.group["top"]["features"][...]))
         return self._features
+
+    def dot(self, text: torch.Tensor, rows: np.ndarray | torch.Tensor | None = None,
+            chunk_rows: int = 65536) -> torch.Tensor:
+        """``(N,T)`` (or ``(len(rows),T)``) float32 scores ``features @ text.T`` for ``text`` ``(T,D)`` or ``(D,)``,
+        upcasting ``chunk_rows`` rows of the fp16 features at a time (as fast as an fp32 product, half the memory)."""
+        from pipeline.maps.levels import chunked_scores
+
+        t = text[None] if text.ndim == 1 else text
+        f = self.features16()
+        if rows is not None:
+            f = f[torch.as_tensor(rows, dtype=torch.int64)]
+        out = chunked_scores(f, t, chunk_rows)
+        return out[:, 0] if text.ndim == 1 else out
+
+    @property
+    def has_voxels(self) -> bool:
+        """True for a cfmap that stores its sparse voxel map (level-aware queries: :mod:`pipeline.maps.levels`)."""
+        return "voxels" in self.group
 
     def tile(self, tile_row: int, tile_col: int) -> tuple[np.ndarray, np.ndarray]:
         """Cells ``(n,)`` and features ``(n,D)`` float16 of one spatial tile (reads only its chunks)."""
@@ -178,7 +205,7 @@ class SemanticMap:
         rows[inside] = self.index[rc[inside, 0], rc[inside, 1]]
         ok = rows >= 0
         out = np.zeros((len(rc), self.dim), np.float32)
-        out[ok] = self.features()[torch.from_numpy(rows[ok])].numpy()
+        out[ok] = self.features16()[torch.from_numpy(rows[ok])].to(torch.float32).numpy()
         return out, ok
 
     def voxels(self) -> dict[str, np.ndarray] | None:

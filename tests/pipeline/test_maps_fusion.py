@@ -149,3 +149,39 @@ def test_fill_unseen_fills_enclosed_holes_within_the_radius():
     assert np.allclose(out.features[i].numpy(), FEATS["a"]) or np.allclose(out.features[i].numpy(), FEATS["b"])
     out0, n0 = fill_unseen(acc.result(), grid, fillable, radius_m=0.0)
     assert n0 == 0 and len(out0.cell) == len(ring)
+
+
+@pytest.mark.parametrize("acc_cls", [TopDownAccumulator, VoxelAccumulator])
+def test_far_points_keep_unit_features(acc_cls):
+    # ConceptFusion weights at 5 m are ~1e-15: the weighted mean must still be a unit vector
+    # (normalising the raw sums would clamp their ~1e-15 norm at 1e-12 and shrink the feature).
+    acc = acc_cls(LAT, 3)
+    dist = np.array([5.0, 5.0, 4.8], np.float32)
+    acc.add(_block([5, 5, 6], [1, 1, 1], dist), _feats("aba"), point_weights(dist, 0.6))
+    out = acc.result() if acc_cls is TopDownAccumulator else acc.result().top_down()
+    np.testing.assert_allclose(out.features.norm(dim=1).numpy(), [1.0, 1.0], rtol=1e-5)
+    np.testing.assert_allclose(out.features[0].numpy(), unit(FEATS["a"] + FEATS["b"]), atol=1e-6)
+    np.testing.assert_allclose(out.features[1].numpy(), FEATS["a"], atol=1e-6)
+
+
+def test_sparse_product_matches_index_add_with_weights():
+    # the accumulator's one-hot sparse product against a direct index_add_ reference
+    rng = np.random.default_rng(3)
+    grid = GridSpec(rows=20, cols=20, cell_size_m=1.0, origin_xy=(0.0, 20.0))
+    lat = Lattice(grid, 0.0, 0.0, 4.0, 1.0)
+    cell = rng.integers(-1, 400, 5000)
+    level = rng.integers(0, 4, 5000)
+    feats = torch.from_numpy(rng.standard_normal((5000, 6)).astype(np.float32))
+    w = rng.random(5000).astype(np.float32)
+    vox = VoxelAccumulator(lat, 6)
+    vox.add(_block(cell[:2500], level[:2500]), feats[:2500], w[:2500])
+    vox.add(_block(cell[2500:], level[2500:]), feats[2500:], w[2500:])
+    v = vox.result()
+    key = np.where(cell >= 0, level * 400 + cell, -1)
+    keys = np.unique(key[key >= 0])
+    ref = torch.zeros(len(keys), 6, dtype=torch.float64).index_add_(
+        0, torch.from_numpy(np.searchsorted(keys, key[key >= 0])), (feats[key >= 0] * torch.from_numpy(w[key >= 0])[:, None]).double())
+    assert (v.level * 400 + v.cell).tolist() == keys.tolist()
+    np.testing.assert_allclose(v.sum.numpy(), ref.numpy(), atol=1e-4)
+    np.testing.assert_allclose(v.count.numpy(), np.bincount(np.searchsorted(keys, key[key >= 0])), atol=0)
+

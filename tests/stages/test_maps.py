@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import torch
 
 from pipeline.config import parse_params
 from pipeline.maps.evaluate import evaluate_map, sample_poses
@@ -78,3 +79,61 @@ def test_queries_find_every_class(built, name):
     top = r.candidates[0]
     assert top.gt_class == "box" and top.gt_instance == 3 and top.approach_xy is not None
     assert r.to_json()["candidates"][0]["gt_class"] == "box"
+
+
+@pytest.fixture(scope="module")
+def picture_room(tmp_path_factory):
+    """The box room with a 2 cm picture on the north wall, thinner than a cell and under the wall's top."""
+    from pipeline.geometry import Intrinsics
+    from pipeline.maps.build import build_map
+    from pipeline.scene_gt import Box, GTObject
+    from pipeline.store import artifact_attrs
+    from tests.fixtures.recon_scenes import box_room_gt, box_room_poses, render_frames, write_frames
+
+    tmp = tmp_path_factory.mktemp("picture")
+    base = box_room_gt()
+    picture = GTObject(id=4, cls="picture", room="living_room_1", parts=[Box(min=(2.0, 2.98, 1.0), max=(2.8, 3.0, 1.4))],
+                       color_name="yellow", color_rgb=(220, 200, 40), material="paper", size="small")
+    gt = base.model_copy(update={"objects": [*base.objects, picture]})
+    intr = Intrinsics.from_hfov(160, 120, 90.0)
+    poses = box_room_poses(48)
+    rgb, depth, inst = render_frames(gt, poses, intr)
+    frames = write_frames(tmp / "frames.zarr", gt, rgb, depth, poses, intr, instance=inst)
+    params = _params()
+    reconstruct(frames, tmp / "recon.zarr", tmp / "recon_mesh.ply", tmp / "recon_points.ply", params.reconstruct,
+                params.grid)
+    build_map("cfmap", frames, tmp / "recon.zarr", tmp / "cfmap.zarr", params, artifact_attrs("cfmap", 1, "cfmap", "t"),
+              simulated=True)
+    return tmp, frames, gt, params
+
+
+def test_level_aware_scores_find_a_picture_on_a_wall(picture_room):
+    from scipy.ndimage import binary_dilation
+
+    from pipeline.maps.evaluate import class_masks
+    from pipeline.maps.levels import LevelScorer
+
+    tmp, frames, gt, params = picture_room
+    mq = open_query(tmp / "cfmap.zarr", params, recon_path=tmp / "recon.zarr", frames_path=frames)
+    m, T = mq.map, mq.temperature
+    pic = class_masks(gt, m.grid)["picture"]
+    assert pic.any() and not (gt.instance_footprints(m.grid) == 4).any()  # thinner than a cell: no footprint
+    near = binary_dilation(pic, iterations=1)[m.cell // m.grid.cols, m.cell % m.grid.cols]
+    q = mq.text_features(["picture"])[0]
+    bg = mq.text_features(list(params.maps.background))
+    bg_s = m.dot(bg).numpy()
+    top_s, top_max, top_lse = m.dot(q).numpy(), bg_s.max(1), torch.logsumexp(torch.from_numpy(bg_s) / T, 1).numpy()
+
+    def wins(s, bmax, blse):
+        return (s > bmax) & (1.0 / (1.0 + np.exp(blse - s / T)) >= params.maps.min_probability)
+
+    top = wins(top_s, top_max, top_lse)
+    best = wins(*LevelScorer(m).cell_scores(q, bg, T, top_s, top_max, top_lse))
+    print("picture cells winning: top-down", int((top & near).sum()), "best level", int((best & near).sum()))
+    assert (best & near).sum() >= 8 and (best & near).sum() > (top & near).sum()  # 0.8 m wide: most of 16 cells
+    assert not (best & ~near).any()  # and nothing else in the room
+    # every other class is still found through its top level
+    for cls in ("table", "cabinet", "box"):
+        qc = mq.text_features([cls])[0]
+        s, bmax, blse = LevelScorer(m).cell_scores(qc, bg, T, m.dot(qc).numpy(), top_max, top_lse)
+        assert wins(s, bmax, blse).sum() >= 0.5 * class_masks(gt, m.grid)[cls].sum()
