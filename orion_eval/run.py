@@ -28,6 +28,7 @@ from orion_eval.user import FEEDBACK_SETTINGS
 from pipeline.config import Params
 from pipeline.errors import ConfigError
 from pipeline.paths import Workspace
+from pipeline.store import write_text_atomic
 
 
 def scene_tasks(arts: Artifacts, methods, feedback, seeds) -> list[tuple[Task, object]]:
@@ -153,7 +154,7 @@ def run_eval(ws: Workspace, params: Params, out_dir: Path, scenes=None, methods=
                       "success_rule": params.eval.success_rule, "max_talk_turns": params.eval.max_talk_turns,
                       "encoders": {s: _encoder_names(ws, params, s) for s in scenes}}
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "results.json").write_text(json.dumps(results, indent=2, sort_keys=True) + "\n")
+    write_text_atomic(out_dir / "results.json", json.dumps(results, indent=2, sort_keys=True) + "\n")
     if report:
         from orion_eval.report import write_report
 
