@@ -48,7 +48,7 @@ def build_map(
     recon = Recon(recon_path)
     if fs.n_frames != len(recon.fused):
         raise StageError(f"{recon_path}: holds {len(recon.fused)} poses but {frames_path} has {fs.n_frames} frames "
-                         f"(recon from another frame store? rerun: zipon run --force --only reconstruct)")
+                         f"(recon from another frame store? rerun: zipon run --force --stage reconstruct)")
     poses = recon.poses
     usable = recon.fused & np.isfinite(poses).all(axis=(1, 2))
     encoder = build_encoder(params.encoders, kind, simulated=simulated)

@@ -52,7 +52,7 @@ class LevelScorer:
         vx = smap.voxels()
         if vx is None:
             raise ArtifactError(f"{smap.path}: no voxels/ group; level-aware queries need a cfmap built with "
-                                f"maps.cfmap_voxels: true (rebuild: zipon run --force --only cfmap)")
+                                f"maps.cfmap_voxels: true (rebuild: zipon run --force --stage cfmap)")
         key = vx["key"].astype(np.int64)
         row = smap.index[key[:, 0], key[:, 1]].astype(np.int64)  # compact row of the voxel's cell
         ok = row >= 0

@@ -118,7 +118,7 @@ class SemanticMap:
     def __init__(self, path: str | Path):
         self.path = Path(path)
         if not (self.path / "zarr.json").is_file():
-            raise MissingInputError(f"{self.path}: semantic map not found (build it with: zipon run --only vlmap)")
+            raise MissingInputError(f"{self.path}: semantic map not found (build it with: zipon run --stage vlmap)")
         self.group = zarr.open_group(zarr.storage.LocalStore(str(self.path), read_only=True), mode="r")
         self.attrs = dict(self.group.attrs)
         self.artifact = self.attrs.get("artifact")
@@ -126,7 +126,7 @@ class SemanticMap:
             raise ArtifactError(f"{self.path}: attrs.artifact is {self.artifact!r}, expected one of {ARTIFACTS}")
         if self.attrs.get("format_version") != FORMAT_VERSION:
             raise ArtifactError(f"{self.path}: format_version {self.attrs.get('format_version')!r}, this zipon reads "
-                                f"{FORMAT_VERSION}; rebuild it with: zipon run --force --only {self.artifact}")
+                                f"{FORMAT_VERSION}; rebuild it with: zipon run --force --stage {self.artifact}")
         self.grid = GridSpec.from_attrs(self.attrs["grid"])
         self.encoder = dict(self.attrs["encoder"])
         self.tile_cells = int(self.attrs["tile_cells"])
