@@ -196,6 +196,10 @@ class ReconstructParams(Section):
         0.5, ge=0, description="unknown cells nearer to occupied than to free cells, and at most this far from "
         "occupied, are marked occupied (the unseen back of furniture); 0 = off, metres"
     )
+    hidden_free_max_height_m: float = Field(
+        0.5, ge=0, description="hidden_solid_max_m leaves a cell unknown when empty space was observed at its centre "
+        "between obstacle_min_height_m and this height (a gap behind furniture seen from above), metres"
+    )
     building_closing_m: float = Field(
         1.0, gt=0, description="the building's inside is the observed area closed by a disc of this radius (bridges "
         "walls hidden behind furniture); hidden_solid_max_m acts only inside it, metres"

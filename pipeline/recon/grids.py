@@ -16,7 +16,9 @@ row, col). Definitions (heights are above the estimated floor ``floor_z``):
   Unknown regions walled in by occupied cells alone (the unseen inside of a cabinet) become
   occupied when smaller than ``fill_enclosed_max_m2``; unknown cells closer to occupied than to
   free cells (and within ``hidden_solid_max_m``: the unseen back of furniture) become occupied when
-  they lie inside the building (:func:`building_mask`: the observed area closed by
+  no air low above the floor was seen at the cell centre (a positive-TSDF voxel below
+  ``hidden_free_max_height_m``: a gap between furniture and a wall seen from above) and they lie
+  inside the building (:func:`building_mask`: the observed area closed by
   ``building_closing_m``) in an unknown region no bigger than ``fill_enclosed_max_m2``, never in
   the unknown world outside it or in a room never entered.
 - **free** (code 1): not occupied, and the floor was observed at the cell centre (a voxel observed
@@ -190,8 +192,13 @@ def hidden_solid(occupied: np.ndarray, free: np.ndarray, cell_size_m: float, max
 
 
 def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.ndarray, np.ndarray]],
-                     p: ReconstructParams) -> tuple[np.ndarray, np.ndarray]:
-    """``occupied`` and ``floor_seen`` ``(rows, cols)`` bool from observed voxels (see module doc)."""
+                     p: ReconstructParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``occupied``, ``floor_seen`` and ``low_air`` ``(rows, cols)`` bool from observed voxels (see module doc).
+
+    ``low_air``: a voxel of the cell-centre column between ``obstacle_min_height_m`` and
+    ``hidden_free_max_height_m`` was observed in front of a surface (positive TSDF): the space low
+    above the floor there was seen empty, so the cell is no unseen inside of furniture.
+    """
     v = p.voxel_size_m
     n = int(round(grid.cell_size_m / v))
     # Lattice index of the centre column of cell (0, 0); centres repeat every n voxels.
@@ -201,17 +208,21 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
     touch = 0.5 * v / p.sdf_trunc_m
     occupied = np.zeros((grid.rows, grid.cols), dtype=bool)
     floor_seen = np.zeros_like(occupied)
+    low_air = np.zeros_like(occupied)
     for lattice, tsdf in voxels:
-        centre = ((lattice[:, 0] - k0[0]) % n == 0) & ((lattice[:, 1] - k0[1]) % n == 0) & (tsdf < touch)
-        lat, behind = lattice[centre], tsdf[centre] < 0
+        centre = ((lattice[:, 0] - k0[0]) % n == 0) & ((lattice[:, 1] - k0[1]) % n == 0)
+        lat, t = lattice[centre], tsdf[centre]
         rc = grid.world_to_cell(lat[:, :2].astype(np.float64) * v)
         z = lat[:, 2].astype(np.float64) * v - floor_z
         inside = grid.inside(rc)
-        occ = inside & behind & (z >= p.obstacle_min_height_m) & (z <= p.obstacle_max_height_m)
+        band = inside & (z >= p.obstacle_min_height_m)
+        occ = band & (t < 0) & (z <= p.obstacle_max_height_m)
         occupied[rc[occ, 0], rc[occ, 1]] = True
-        flo = inside & (np.abs(z) <= p.floor_tolerance_m)
+        air = band & (t > 0) & (z <= p.hidden_free_max_height_m)
+        low_air[rc[air, 0], rc[air, 1]] = True
+        flo = inside & (t < touch) & (np.abs(z) <= p.floor_tolerance_m)
         floor_seen[rc[flo, 0], rc[flo, 1]] = True
-    return occupied, floor_seen
+    return occupied, floor_seen, low_air
 
 
 def surface_occupancy(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.ndarray, p: ReconstructParams
@@ -287,7 +298,7 @@ def build_grids(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray,
             path=source, field="pose", frame=i,
             expected="poses within the mapped area; a wrong pose, or a larger grid (grid.rows/cols/cell_size_m)",
         )
-    occupied, floor_seen = column_occupancy(grid, floor_z, voxels, p)
+    occupied, floor_seen, low_air = column_occupancy(grid, floor_z, voxels, p)
     occupied |= surface_occupancy(grid, floor_z, xyz, normals, p)
     height, color, outside = top_surface(grid, floor_z, xyz, colors, p)
     outside_fraction = outside / xyz.shape[0]
@@ -301,7 +312,7 @@ def build_grids(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray,
     occupied |= binary_closing(occupied, structure=np.ones((3, 3), bool)) & ~floor_seen
     occupied |= enclosed_unknown(occupied, floor_seen & ~occupied, grid.cell_size_m, p.fill_enclosed_max_m2)
     hidden = hidden_solid(occupied, floor_seen & ~occupied, grid.cell_size_m, p.hidden_solid_max_m,
-                          p.building_closing_m, p.fill_enclosed_max_m2)
+                          p.building_closing_m, p.fill_enclosed_max_m2) & ~low_air
     occupied |= hidden
     free = floor_seen & ~occupied
     occupancy = np.full(occupied.shape, UNKNOWN, np.uint8)

@@ -5,7 +5,9 @@ import pytest
 
 from pipeline.config import GridParams, ReconstructParams
 from pipeline.errors import ConfigError, StageError
-from pipeline.recon.grids import enclosed_unknown, estimate_floor, lattice_ratio, navigable_mask, place_grid
+from pipeline.geometry import GridSpec
+from pipeline.recon.grids import (column_occupancy, enclosed_unknown, estimate_floor, lattice_ratio, navigable_mask,
+                                   place_grid)
 
 
 def _plane(rng, n, z, x=(0, 4), y=(0, 3)):
@@ -115,3 +117,21 @@ def test_furniture_against_an_unseen_outer_wall_is_filled_but_an_unentered_room_
     assert hidden[6:12, 21:29].all()  # the wardrobe's unseen inside, though it touches the outside world
     assert not hidden[31:54].any()  # the room never entered (2.3 m^2 unknown) stays unknown
     assert not hidden[:5].any()
+
+
+def test_column_occupancy_reads_cell_centre_columns_and_sees_low_air_behind_furniture():
+    # 4x4 cells of 5 cm, voxels of 2.5 cm: the centre of cell (r, c) is lattice (2c + 1, 7 - 2r).
+    grid = GridSpec(4, 4, 0.05, (0.0, 0.2))
+    p = ReconstructParams()
+    lattice = np.array([
+        [1, 7, 12],    # cell (0, 0), 0.30 m, behind a surface: occupied
+        [3, 5, 12],    # cell (1, 1), 0.30 m, in front of a surface: air low above the floor was seen
+        [5, 3, 40],    # cell (2, 2), 1.00 m, in front of a surface: above hidden_free_max_height_m
+        [7, 1, 0],     # cell (3, 3), on the floor: floor seen
+        [6, 1, 12],    # between cell centres: ignored
+    ], dtype=np.int32)
+    tsdf = np.array([-0.4, 0.6, 0.6, -0.1, -0.9], dtype=np.float32)
+    occupied, floor_seen, low_air = column_occupancy(grid, 0.0, [(lattice, tsdf)], p)
+    assert np.argwhere(occupied).tolist() == [[0, 0]]
+    assert np.argwhere(low_air).tolist() == [[1, 1]]
+    assert np.argwhere(floor_seen).tolist() == [[3, 3]]
