@@ -192,6 +192,7 @@ def simulate(
     `zipon ingest DATA/raw/sim_00.mcap --scene sim_00`, or list them in params.yaml with `source: simulate`.
     """
     from pipeline.sim import simulate_scene
+    from pipeline.store import new_tmp_dir, publish, remove
 
     ws, params = G.load()
     sim = params.simulate.model_copy(update={k: v for k, v in (("frames", frames), ("seed", seed)) if v is not None})
@@ -199,8 +200,6 @@ def simulate(
     target.mkdir(parents=True, exist_ok=True)
     for i in range(scenes):
         name = f"{prefix}{i:02d}"
-        from pipeline.store import new_tmp_dir, publish, remove
-
         tmp = new_tmp_dir(target / ".tmp", name)
         try:
             summary = simulate_scene(name, sim, tmp / f"{name}.mcap")

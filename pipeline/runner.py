@@ -168,8 +168,12 @@ def input_digests(ws: Workspace, params: Params, stages: dict[str, StageSpec], s
     return out
 
 
-def staleness(ws: Workspace, params: Params, stages: dict[str, StageSpec], spec: StageSpec, scene: str) -> str:
-    """Why the stage must run ('' when its outputs are up to date)."""
+def staleness(ws: Workspace, params: Params, stages: dict[str, StageSpec], spec: StageSpec, scene: str,
+              current: dict[str, str] | None = None) -> str:
+    """Why the stage must run ('' when its outputs are up to date).
+
+    ``current``: the input digests when the caller already has them (raw logs are hashed once per run).
+    """
     man = Manifest.read(ws.manifest(scene, spec.name))
     if man is None:
         return "never run"
@@ -180,10 +184,11 @@ def staleness(ws: Workspace, params: Params, stages: dict[str, StageSpec], spec:
         return "code changed"
     if man.params_digest != digest_value(stage_params(params, spec, scene)):
         return "params changed"
-    try:
-        current = input_digests(ws, params, stages, spec, scene)
-    except MissingInputError:
-        return "input missing"
+    if current is None:
+        try:
+            current = input_digests(ws, params, stages, spec, scene)
+        except MissingInputError:
+            return "input missing"
     if current != man.inputs:
         changed = sorted(k for k in set(current) | set(man.inputs) if current.get(k) != man.inputs.get(k))
         return f"input changed: {', '.join(changed)}"
@@ -220,7 +225,8 @@ def run_stage(
     blocked = [o for o in (upstream or []) if o.status in ("failed", "blocked")]
     if blocked:
         return Outcome(scene, stage, "blocked", reason=f"upstream {blocked[0].stage} {blocked[0].status}")
-    reason = "forced" if force else staleness(ws, params, stages, spec, scene)
+    in_digests = input_digests(ws, params, stages, spec, scene)
+    reason = "forced" if force else staleness(ws, params, stages, spec, scene, in_digests)
     if not reason:
         return Outcome(scene, stage, "skipped", reason="up to date")
     t0 = time.perf_counter()
@@ -232,7 +238,6 @@ def run_stage(
             name: (source_path(ws, params, scene) if name == SOURCE else ws.artifact(name, scene))
             for name in spec.inputs
         }
-        in_digests = input_digests(ws, params, stages, spec, scene)
         outputs = {name: tmp / ws.artifact(name, scene).name for name in spec.outputs}
         sp = stage_params(params, spec, scene)
         ctx = StageContext(scene, stage, params, ws, inputs, outputs, digest_value(sp), show_progress)

@@ -20,6 +20,7 @@ from pipeline.config import IngestParams, digest_value
 from pipeline.errors import InputDataError
 from pipeline.frames import ARTIFACT, FORMAT_VERSION, FrameStoreWriter
 from pipeline.readers import FrameMatcher, open_reader
+from pipeline.readers.matcher import index_ranges
 from pipeline.store import artifact_attrs, remove
 
 
@@ -56,7 +57,7 @@ def ingest(source: Path, out_path: Path, params: IngestParams, fmt: str = "auto"
         empty = np.flatnonzero(frac == 0).tolist()
         summary["depth_valid_fraction"] = {"min": float(frac.min()) if frac.size else 0.0,
                                            "mean": float(frac.mean()) if frac.size else 0.0}
-        summary["frames_without_valid_depth"] = {"count": len(empty), "ranges": _ranges(empty)}
+        summary["frames_without_valid_depth"] = {"count": len(empty), "ranges": index_ranges(empty)}
         if summary["matched_frames"] == 0:
             raise InputDataError(f"no frame could be matched: {_describe(summary)}", path=label,
                                  expected="colour frames with depth within max_rgb_depth_dt_s and pose coverage")
@@ -107,12 +108,6 @@ class _BackgroundAppender:
         self.thread.join()
         if self.error is not None and exc[0] is None:
             raise self.error
-
-
-def _ranges(indices: list[int]) -> list[list[int]]:
-    from pipeline.readers.matcher import _ranges as r
-
-    return r(indices)
 
 
 def _describe(summary: dict) -> str:

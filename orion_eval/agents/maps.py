@@ -40,18 +40,20 @@ class MapAgent(Agent):
             if not m.goto_object(oid):
                 continue
             fb = parse_feedback(m.talk(f"Is this {goal_name}?"))
-            self.absorb(m, fb, oid, goal_name)
-            if fb.description:
-                query, order = fb.description, "score"
-            if fb.landmarks:
-                anchors = [m.objects[t[0]].center_xy for lm in fb.landmarks for t in m.retrieve_map(lm, self.which)]
-                order = "landmark" if anchors else order
+            query, order, anchors = self.rerank(m, fb, query, order, anchors)
             if fb.route:
                 self.follow_route(m, fb.route)
                 order = "distance" if order != "score" else order
 
-    def absorb(self, m, fb, oid: int, goal_name: str) -> None:
-        """What the agent keeps of a reply beyond the rejection (nothing here; ORION uses memory)."""
+    def rerank(self, m, fb, query: str, order: str, anchors: list) -> tuple[str, str, list]:
+        """Feedback that re-ranks the candidates: a description re-queries the map and ranks by score;
+        landmarks rank by distance to the landmarks' map candidates. Returns ``(query, order, anchors)``."""
+        if fb.description:
+            query, order = fb.description, "score"
+        if fb.landmarks:
+            anchors = [m.objects[t[0]].center_xy for lm in fb.landmarks for t in m.retrieve_map(lm, self.which)]
+            order = "landmark" if anchors else order
+        return query, order, anchors
 
 
 @register

@@ -49,10 +49,6 @@ class OrionAgent(MapAgent):
             rejected.append(m.objects[oid].center_xy)
             fb = parse_feedback(m.talk(f"Is this {goal_name}?"))
             m.update_memory(oid, fb.corrected_as, goal_name)
-            if fb.description:
-                query, order = fb.description, "score"
-            if fb.landmarks:
-                anchors = [m.objects[t[0]].center_xy for lm in fb.landmarks for t in m.retrieve_map(lm, self.which)]
-                order = "landmark" if anchors else order
+            query, order, anchors = self.rerank(m, fb, query, order, anchors)
             if fb.route:
                 self.follow_route(m, fb.route)

@@ -71,7 +71,7 @@ class _LinkTrack:
             del self.stamps[:i], self.poses[:i]
 
 
-def _ranges(indices: list[int]) -> list[list[int]]:
+def index_ranges(indices: list[int]) -> list[list[int]]:
     """Sorted ints -> ``[[first, last], ...]`` runs (compact, complete)."""
     out: list[list[int]] = []
     for i in indices:
@@ -280,7 +280,7 @@ class FrameMatcher:
             "messages": dict(sorted(self.counts.items())),
             "matched_frames": self.n_out,
             "unmatched": {s: dict(sorted(c.items())) for s, c in self.unmatched.items()},
-            "unmatched_rgb_message_ranges": {k: _ranges(v) for k, v in sorted(self.unmatched_rgb_index.items())},
+            "unmatched_rgb_message_ranges": {k: index_ranges(v) for k, v in sorted(self.unmatched_rgb_index.items())},
             "pose": {"chain": [lk.name for lk in self.info.pose_chain],
                      "static_links": [lk.name for lk in self.info.pose_chain if lk.static is not None],
                      **{f"frames_{k}": v for k, v in sorted(self.pose_how.items())}},

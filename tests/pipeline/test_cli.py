@@ -37,3 +37,22 @@ def test_unknown_scene_is_named(tmp_path, capsys):
 
 def test_usage_error_exit_code(capsys):
     assert main(["run", "--no-such-option"]) == 2
+
+
+def test_simulate_then_ingest_from_the_command_line(tmp_path, capsys):
+    """`zipon simulate` writes MCAP logs; `zipon ingest` turns one into a frame store with its manifest."""
+    from pipeline.frames import FrameStore
+    from pipeline.manifest import Manifest
+
+    (tmp_path / "params.yaml").write_text("scenes: {}\n")
+    base = ["-q", "-p", str(tmp_path / "params.yaml"), "--data-dir", str(tmp_path / "data"),
+            "-S", "simulate.width=160", "-S", "simulate.height=120", "-S", "simulate.rooms_min=2",
+            "-S", "simulate.rooms_max=2"]
+    assert main(base + ["simulate", "--scenes", "1", "--frames", "5", "--seed", "3", "--out", str(tmp_path / "logs")]) == 0
+    log = tmp_path / "logs" / "sim_00.mcap"
+    assert log.is_file() and not any((tmp_path / "logs" / ".tmp").iterdir())
+    assert main(base + ["ingest", str(log), "--scene", "cli_scene"]) == 0
+    store = FrameStore(tmp_path / "data" / "artifacts" / "cli_scene" / "frames.zarr")
+    assert store.n_frames == 5 and store.intrinsics.width == 160 and store.ground_truth is not None
+    man = Manifest.read(tmp_path / "manifests" / "cli_scene" / "ingest.json")
+    assert man.summary["matched_frames"] == 5
