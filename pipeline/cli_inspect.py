@@ -177,17 +177,27 @@ def _fmt(v) -> str:
 def recon_eval(
     frames: Path = typer.Argument(..., help="a frames.zarr (any sequence)"),
     holdout_every: int = typer.Option(10, "--holdout-every", min=2, help="hold out every N-th frame"),
+    recon: Optional[Path] = typer.Option(None, "--recon", help="score this recon.zarr's grids against the ground "
+                                         "truth the frames carry (simulated scenes) instead"),
 ):
     """Fuse all but every N-th frame, ray-cast depth at the held-out poses, print the depth error as JSON.
 
-    Example: `zipon recon-eval data/artifacts/tum/frames.zarr --holdout-every 6`
+    With `--recon`, print the grids' IoU against the simulator's ground truth instead.
+    Examples: `zipon recon-eval data/artifacts/tum/frames.zarr --holdout-every 6`;
+    `zipon recon-eval data/artifacts/sim_00/frames.zarr --recon data/artifacts/sim_00/recon.zarr`
     """
     import json
 
     from pipeline.recon.evaluate import evaluate_holdout
 
     _, params = G.load()
-    out.print_json(json.dumps({"frames": str(frames), **evaluate_holdout(frames, params.reconstruct, holdout_every)}))
+    if recon is None:
+        figures = evaluate_holdout(frames, params.reconstruct, holdout_every)
+    else:
+        from pipeline.recon.evaluate import evaluate_grids
+
+        figures = evaluate_grids(frames, recon, params.reconstruct)
+    out.print_json(json.dumps({"frames": str(frames), **figures}))
 
 
 encoders_app = typer.Typer(help="Open-vocabulary encoders: list them, check that one loads and runs. "

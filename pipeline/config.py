@@ -197,12 +197,17 @@ class ReconstructParams(Section):
         "occupied, are marked occupied (the unseen back of furniture); 0 = off, metres"
     )
     hidden_free_max_height_m: float = Field(
-        0.5, ge=0, description="hidden_solid_max_m leaves a cell unknown when empty space was observed at its centre "
-        "between obstacle_min_height_m and this height (a gap behind furniture seen from above), metres"
+        0.8, ge=0, description="hidden_solid_max_m leaves a cell unknown when empty space was observed at its centre "
+        "between obstacle_min_height_m and this height (a gap behind furniture seen from above); keep it below the "
+        "camera height, whose view over low furniture sees the air above it, metres"
     )
     building_closing_m: float = Field(
         1.0, gt=0, description="the building's inside is the observed area closed by a disc of this radius (bridges "
         "walls hidden behind furniture); hidden_solid_max_m acts only inside it, metres"
+    )
+    surface_min_points: int = Field(
+        3, ge=1, description="a cell is occupied by surface points (moved half a cell into the solid) only when at "
+        "least this many land in it; a face passing just outside the cell centre sends one or two"
     )
     occupancy_min_weight: float = Field(
         1.0, gt=0, description="a voxel behind a surface blocks its cell (and a floor voxel marks it seen) after this "

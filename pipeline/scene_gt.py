@@ -94,6 +94,27 @@ class GTScene(_Model):
             _paint_box(occ, grid, box)
         return occ
 
+    def ambiguous(self, grid: GridSpec, z_min: float, z_max: float, *, tol_m: float = 1e-6) -> np.ndarray:
+        """``(rows, cols)`` bool: cells whose centre lies on a footprint edge of a box :meth:`occupancy` paints.
+
+        A face through a cell centre (a wall at x = 1.30 m and centres every 5 cm) makes the cell's
+        "centre inside" label a matter of floating-point rounding, on either side; accuracy figures
+        leave these cells out (:func:`pipeline.recon.evaluate.grid_accuracy`).
+        """
+        out = np.zeros((grid.rows, grid.cols), dtype=bool)
+        centres = grid.cell_to_world(np.stack([np.zeros(grid.cols, int), np.arange(grid.cols)], axis=1))
+        xs = centres[:, 0]
+        ys = grid.cell_to_world(np.stack([np.arange(grid.rows), np.zeros(grid.rows, int)], axis=1))[:, 1]
+        for box in list(self.walls) + [p for o in self.objects for p in o.parts]:
+            if box.max[2] < self.floor_z + z_min or box.min[2] > self.floor_z + z_max:
+                continue
+            in_x = (xs >= box.min[0] - tol_m) & (xs <= box.max[0] + tol_m)
+            in_y = (ys >= box.min[1] - tol_m) & (ys <= box.max[1] + tol_m)
+            on_x = (np.abs(xs - box.min[0]) <= tol_m) | (np.abs(xs - box.max[0]) <= tol_m)
+            on_y = (np.abs(ys - box.min[1]) <= tol_m) | (np.abs(ys - box.max[1]) <= tol_m)
+            out |= (in_y[:, None] & on_x[None, :]) | (on_y[:, None] & in_x[None, :])
+        return out
+
     def floor_mask(self, grid: GridSpec) -> np.ndarray:
         """``(rows, cols)`` bool: cells whose centre lies inside some room polygon."""
         import cv2

@@ -105,3 +105,13 @@ def test_bad_scene_and_stage_are_clear_errors(built_scene, capsys):
     ws, _ = built_scene
     assert cli(ws, "stage", "reconstrukt", "--scene", "tiny") == 1
     assert "unknown stage 'reconstrukt'" in capsys.readouterr().err
+
+
+def test_recon_eval_scores_the_built_grids_against_the_ground_truth(built_scene, capsys):
+    ws, _ = built_scene
+    frames, recon = ws.artifact("frames", "tiny"), ws.artifact("recon", "tiny")
+    capsys.readouterr()
+    assert cli(ws, "recon-eval", str(frames), "--recon", str(recon)) == 0
+    figures = json.loads(capsys.readouterr().out)
+    assert figures["recon"] == str(recon) and figures["floor_error_m"] <= 0.02
+    assert 0.5 < figures["iou_occupied"] <= figures["iou_occupied_seen"] <= 1.0

@@ -28,26 +28,53 @@ def grid_accuracy(recon, gt, p: ReconstructParams) -> dict:
     Ground truth on the same grid: occupied = :meth:`GTScene.occupancy` over the robot's height band
     (cell centre inside a wall or object part overlapping the band); free = inside a room and not
     occupied; navigable = free and clear of occupied cells by ``robot_radius_m`` (the same
-    :func:`navigable_mask`). Also the floor error (m), the fraction of GT floor cells observed
-    (free or occupied: 240 frames do not see a whole apartment), and the error cell counts.
+    :func:`navigable_mask`). Cells whose centre lies exactly on a box face
+    (:meth:`GTScene.ambiguous`: their label is floating-point rounding) are left out of the
+    occupied and free figures and counted in ``gt_ambiguous_cells``. Also the floor error (m), the
+    fraction of GT floor cells observed (free or occupied: 240 frames do not see a whole
+    apartment), the error cell counts, and ``iou_occupied_seen`` / ``iou_free_seen``: the same
+    IoU inside the area the walk saw (:func:`pipeline.recon.grids.building_mask` of the
+    reconstruction, with ``building_closing_m``), which separates accuracy from coverage.
     """
-    from pipeline.recon.grids import FREE, OCCUPIED, navigable_mask
+    from pipeline.recon.grids import FREE, OCCUPIED, building_mask, navigable_mask
 
     g = recon.grid
     g_occ = gt.occupancy(g, p.obstacle_min_height_m, p.obstacle_max_height_m)
     g_floor = gt.floor_mask(g)
     g_free = g_floor & ~g_occ
     g_nav = navigable_mask(g_free, g_occ, g.cell_size_m, p.robot_radius_m)
+    counted = ~gt.ambiguous(g, p.obstacle_min_height_m, p.obstacle_max_height_m)
     occ = recon.occupancy
+    seen = building_mask(occ == OCCUPIED, occ == FREE, g.cell_size_m, p.building_closing_m)
 
-    def iou(a, b):
-        return round(float((a & b).sum() / max((a | b).sum(), 1)), 4)
+    def iou(a, b, where=True):
+        return round(float((a & b & where).sum() / max(((a | b) & where).sum(), 1)), 4)
 
-    return {"iou_occupied": iou(occ == OCCUPIED, g_occ), "iou_free": iou(occ == FREE, g_free),
+    return {"iou_occupied": iou(occ == OCCUPIED, g_occ, counted), "iou_free": iou(occ == FREE, g_free, counted),
             "iou_navigable": iou(recon.navigable, g_nav), "floor_error_m": round(abs(recon.floor_z - gt.floor_z), 4),
             "gt_floor_observed": round(float(((occ != 0) & g_floor).sum() / max(g_floor.sum(), 1)), 4),
-            "occupied_false_pos": int((~g_occ & (occ == OCCUPIED)).sum()),
-            "occupied_false_neg": int((g_occ & (occ != OCCUPIED)).sum()), "gt_occupied": int(g_occ.sum())}
+            "occupied_false_pos": int((~g_occ & (occ == OCCUPIED) & counted).sum()),
+            "occupied_false_neg": int((g_occ & (occ != OCCUPIED) & counted).sum()), "gt_occupied": int(g_occ.sum()),
+            "gt_ambiguous_cells": int((~counted).sum()),
+            "iou_occupied_seen": iou(occ == OCCUPIED, g_occ, counted & seen),
+            "iou_free_seen": iou(occ == FREE, g_free, counted & seen)}
+
+
+def evaluate_grids(frames_path: str | Path, recon_path: str | Path, params: ReconstructParams | None = None) -> dict:
+    """:func:`grid_accuracy` of ``recon_path`` against the ground truth ``frames_path`` carries (simulated scenes).
+
+    Raises :class:`InputDataError` when the frames carry none (real logs: use the held-out depth error).
+    """
+    from pipeline.recon import Recon
+    from pipeline.scene_gt import GTScene
+
+    raw = FrameStore(Path(frames_path)).ground_truth
+    if not raw:
+        raise InputDataError("these frames carry no ground truth to score grids against (a real log?)",
+                             path=frames_path, field="attrs.ground_truth",
+                             expected="frames ingested from a simulated log; for real logs use the held-out depth error")
+    return {"recon": str(recon_path), **grid_accuracy(Recon(Path(recon_path)), GTScene.model_validate(raw),
+                                                      params or ReconstructParams())}
 
 
 def holdout_indices(n_frames: int, holdout_every: int) -> np.ndarray:

@@ -5,13 +5,15 @@ row, col). Definitions (heights are above the estimated floor ``floor_z``):
 
 - **occupied** (code 2): some voxel of the cell-centre column with height in
   ``[obstacle_min_height_m, obstacle_max_height_m]``, observed at least ``occupancy_min_weight``
-  times, lies behind a surface (negative TSDF); or a surface point of that band, moved half a cell
-  into the solid along its normal, lies in the cell (:func:`surface_occupancy`). Voxels seen once
-  count: the inside of a thin table top seen at grazing angles is rarely within the truncation band.
-  The grid origin is snapped so that every cell centre is a voxel-lattice column, which makes the
-  test "is the cell centre inside geometry" — the rasterisation the ground truth uses
-  (:meth:`GTScene.occupancy`). Vertical structures thinner than a voxel between cell centres can
-  be missed.
+  times, lies behind a surface (negative TSDF); or the column shows the top of a solid whose inside
+  was never observed (:func:`solid_tops`: a voxel just in front of a surface below it, nothing
+  observed under it — a thin table top or seat seen only at grazing angles from above, whose
+  inside fusion never reaches); or ``surface_min_points`` surface points of that band, moved half
+  a cell into the solid along their normals, lie in the cell (:func:`surface_occupancy`).
+  Voxels seen once count. The grid origin is snapped so that every cell centre is a
+  voxel-lattice column, which makes the test "is the cell centre inside geometry" — the
+  rasterisation the ground truth uses (:meth:`GTScene.occupancy`). Vertical structures thinner
+  than a voxel between cell centres can be missed.
   A 3x3 closing fills unobserved one-cell gaps between occupied cells (never observed floor).
   Unknown regions walled in by occupied cells alone (the unseen inside of a cabinet) become
   occupied when smaller than ``fill_enclosed_max_m2``; unknown cells closer to occupied than to
@@ -53,6 +55,10 @@ _UP_COS = 0.9  # normals within ~25 deg of +z count as horizontal, upward-facing
 _FLOOR_BIN_M = 0.01
 _FLOOR_MIN_POINTS = 50
 _FLOOR_PEAK_FRACTION = 0.3  # the floor is the lowest bin holding >= 30% of the tallest bin
+# solid_tops: a voxel closer than 0.9 truncation distances in front of a surface, with the voxel
+# above it at least 0.1 farther (a horizontal surface below; a vertical face keeps tsdf constant).
+_SOLID_TOP_MAX_TSDF = 0.9
+_SOLID_TOP_MIN_RISE = 0.1
 
 
 @dataclass
@@ -195,9 +201,12 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
                      p: ReconstructParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``occupied``, ``floor_seen`` and ``low_air`` ``(rows, cols)`` bool from observed voxels (see module doc).
 
-    ``low_air``: a voxel of the cell-centre column between ``obstacle_min_height_m`` and
-    ``hidden_free_max_height_m`` was observed in front of a surface (positive TSDF): the space low
-    above the floor there was seen empty, so the cell is no unseen inside of furniture.
+    ``occupied``: a voxel of the cell-centre column in the obstacle band lies behind a surface
+    (negative TSDF), or the column shows the top of a solid seen only from above
+    (:func:`solid_tops`). ``low_air``: a voxel of the cell-centre column between
+    ``obstacle_min_height_m`` and ``hidden_free_max_height_m`` was observed in front of a surface
+    (positive TSDF): the space low above the floor there was seen empty, so the cell is no unseen
+    inside of furniture.
     """
     v = p.voxel_size_m
     n = int(round(grid.cell_size_m / v))
@@ -206,9 +215,13 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
     # The floor is seen where a lattice point lies behind it or within half a voxel in front of it;
     # an obstacle needs a lattice point strictly behind a surface (a cell centre inside the solid).
     touch = 0.5 * v / p.sdf_trunc_m
+    # Band levels (voxel z index relative to the floor), one level of margin each side for solid_tops.
+    lo = int(np.ceil(p.obstacle_min_height_m / v - 1e-9)) - 1
+    hi = int(np.floor(p.obstacle_max_height_m / v + 1e-9)) + 1
     occupied = np.zeros((grid.rows, grid.cols), dtype=bool)
     floor_seen = np.zeros_like(occupied)
     low_air = np.zeros_like(occupied)
+    keys, values = [], []
     for lattice, tsdf in voxels:
         centre = ((lattice[:, 0] - k0[0]) % n == 0) & ((lattice[:, 1] - k0[1]) % n == 0)
         lat, t = lattice[centre], tsdf[centre]
@@ -222,26 +235,65 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
         low_air[rc[air, 0], rc[air, 1]] = True
         flo = inside & (t < touch) & (np.abs(z) <= p.floor_tolerance_m)
         floor_seen[rc[flo, 0], rc[flo, 1]] = True
+        level = np.round(z / v).astype(np.int64)
+        near = inside & (level >= lo) & (level <= hi)
+        keys.append((rc[near, 0].astype(np.int64) * grid.cols + rc[near, 1]) * (hi - lo + 1) + (level[near] - lo))
+        values.append(t[near])
+    if keys:
+        key, t = np.concatenate(keys), np.concatenate(values)
+        tops = solid_tops(key, t, hi - lo + 1, first=1, last=hi - lo - 1)
+        occupied.ravel()[np.unique(tops)] = True
     return occupied, floor_seen, low_air
+
+
+def solid_tops(key: np.ndarray, tsdf: np.ndarray, levels: int, first: int, last: int) -> np.ndarray:
+    """Flat cell indices whose column shows the top of a solid whose inside was never observed.
+
+    ``key = cell * levels + level`` of observed voxels (unique), ``tsdf`` their values; levels
+    ``first..last`` are tested. A thin top (a table's 4 cm board, a seat) seen only at grazing
+    angles from a camera above it has no observed voxel behind its surface: rays reach its
+    inside more than the truncation distance behind the surface, so fusion never updates it,
+    and the column test finds no negative voxel. Its column reads: a voxel close in front of a
+    surface (``0 < tsdf < _SOLID_TOP_MAX_TSDF``), a voxel above it farther from the surface (``tsdf``
+    rising by at least ``_SOLID_TOP_MIN_RISE``: the surface lies below, not beside), and below it a
+    voxel never observed or behind a surface. The floor is excluded by the band; a vertical face
+    (``tsdf`` constant along the column) never qualifies.
+    """
+    order = np.argsort(key, kind="stable")
+    key, tsdf = key[order], tsdf[order]
+    level = key % levels
+    cand = np.flatnonzero((tsdf > 0) & (tsdf < _SOLID_TOP_MAX_TSDF) & (level >= first) & (level <= last))
+    if cand.size == 0:
+        return np.zeros(0, np.int64)
+
+    def lookup(k):
+        i = np.minimum(np.searchsorted(key, k), key.size - 1)
+        found = key[i] == k
+        return found, np.where(found, tsdf[i], np.nan)
+
+    seen_above, t_above = lookup(key[cand] + 1)
+    seen_below, t_below = lookup(key[cand] - 1)
+    top = seen_above & (t_above >= tsdf[cand] + _SOLID_TOP_MIN_RISE) & (~seen_below | (t_below < 0))
+    return key[cand[top]] // levels
 
 
 def surface_occupancy(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.ndarray, p: ReconstructParams
                       ) -> np.ndarray:
-    """``(rows, cols)`` bool: cells holding a surface point of the obstacle band, moved half a cell into the solid.
+    """``(rows, cols)`` bool: cells holding ``surface_min_points`` surface points of the band, moved half a cell in.
 
     Normals point out of solids (toward the cameras), so a point moved by half a cell against its
     normal lies in a cell whose centre is inside the solid: the same rasterisation as the column
-    test, for surfaces whose voxels were thinned out by fusion (thin table tops seen at grazing
-    angles, chair legs).
+    test, for surfaces whose voxels were thinned out by fusion (chair legs, thin panels). A face
+    passing a few millimetres outside a cell centre sends a stray point or two into that cell;
+    ``surface_min_points`` keeps those out.
     """
     z_rel = xyz[:, 2] - floor_z
     band = (z_rel >= p.obstacle_min_height_m) & (z_rel <= p.obstacle_max_height_m)
     moved = xyz[band, :2] - 0.5 * grid.cell_size_m * normals[band, :2]
     rc = grid.world_to_cell(moved)
     rc = rc[grid.inside(rc)]
-    occupied = np.zeros((grid.rows, grid.cols), dtype=bool)
-    occupied[rc[:, 0], rc[:, 1]] = True
-    return occupied
+    counts = np.bincount(rc[:, 0] * grid.cols + rc[:, 1], minlength=grid.rows * grid.cols)
+    return (counts >= p.surface_min_points).reshape(grid.rows, grid.cols)
 
 
 def top_surface(grid: GridSpec, floor_z: float, xyz: np.ndarray, colors: np.ndarray, p: ReconstructParams

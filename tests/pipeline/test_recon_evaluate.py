@@ -6,7 +6,7 @@ import pytest
 
 from pipeline.config import ReconstructParams
 from pipeline.errors import InputDataError
-from pipeline.recon.evaluate import evaluate_holdout, holdout_indices
+from pipeline.recon.evaluate import evaluate_grids, evaluate_holdout, holdout_indices
 from tests.fixtures.recon_scenes import write_tum_frames
 
 TUM = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real" / "tum_fr1_rpy_head30"
@@ -26,3 +26,11 @@ def test_real_tum_holdout_depth_error_is_within_3cm(tmp_path):
     assert result["frames_held_out"] == [3, 9, 15, 21, 27] and result["frames_fused"] == 25
     assert result["median_abs_error_m"] <= 0.03
     assert result["coverage"] > 0.7 and result["pixels"] > 500_000
+
+
+@pytest.mark.skipif(not TUM.is_dir(), reason="real data folder not present")
+def test_grid_scores_need_ground_truth(tmp_path):
+    frames = write_tum_frames(tmp_path / "tum.zarr", TUM)
+    with pytest.raises(InputDataError, match="carry no ground truth") as err:
+        evaluate_grids(frames, tmp_path / "recon.zarr")
+    assert "attrs.ground_truth" in str(err.value)

@@ -7,7 +7,7 @@ from pipeline.config import GridParams, ReconstructParams
 from pipeline.errors import ConfigError, StageError
 from pipeline.geometry import GridSpec
 from pipeline.recon.grids import (column_occupancy, enclosed_unknown, estimate_floor, lattice_ratio, navigable_mask,
-                                   place_grid)
+                                   place_grid, surface_occupancy)
 
 
 def _plane(rng, n, z, x=(0, 4), y=(0, 3)):
@@ -135,3 +135,53 @@ def test_column_occupancy_reads_cell_centre_columns_and_sees_low_air_behind_furn
     assert np.argwhere(occupied).tolist() == [[0, 0]]
     assert np.argwhere(low_air).tolist() == [[1, 1]]
     assert np.argwhere(floor_seen).tolist() == [[3, 3]]
+
+
+def _column(cell_rc, levels_tsdf, grid):
+    """Lattice voxels of one cell-centre column (see the lattice note above) at ``{level: tsdf}``."""
+    r, c = cell_rc
+    lattice = np.array([[2 * c + 1, 2 * (grid.rows - r) - 1, k] for k in levels_tsdf], dtype=np.int32)
+    return lattice, np.array(list(levels_tsdf.values()), dtype=np.float32)
+
+
+def test_a_thin_top_seen_only_from_above_occupies_its_cell_but_a_face_beside_the_cell_does_not():
+    grid = GridSpec(4, 4, 0.05, (0.0, 0.2))
+    p = ReconstructParams()  # voxels 2.5 cm: a 4 cm table top at 0.72-0.76 m holds level 29 (0.725 m)
+    # Cell (0, 0): a table top seen at grazing angles. Its inside (level 29) was never updated; the
+    # voxel above the board is close in front of it, the air above that farther; the space under
+    # the table was seen empty from the side.
+    top = _column((0, 0), {24: 1.0, 25: 1.0, 26: 1.0, 30: 0.5, 31: 1.0, 32: 1.0}, grid)
+    # Cell (1, 1): a wall face passing just outside the cell centre: tsdf small and constant upward,
+    # the column under it seen too except one level (an occluded strip).
+    face = _column((1, 1), {12: 0.1, 13: 0.1, 15: 0.1, 16: 0.1, 17: 0.1}, grid)
+    # Cell (2, 2): the floor (level 0) seen through free space: the band starts at 0.1 m.
+    floor = _column((2, 2), {0: -0.1, 1: 0.3, 2: 0.6, 3: 1.0}, grid)
+    # Cell (3, 3): air everywhere.
+    air = _column((3, 3), {k: 1.0 for k in range(4, 60)}, grid)
+    chunks = [top, face, floor, air]
+    occupied, _, _ = column_occupancy(grid, 0.0, chunks, p)
+    assert np.argwhere(occupied).tolist() == [[0, 0]]
+    # The rule looks across chunk boundaries: the voxel above the top in another chunk still counts.
+    split = [(top[0][:4], top[1][:4]), (top[0][4:], top[1][4:])]
+    assert column_occupancy(grid, 0.0, split, p)[0][0, 0]
+    # A top whose inside was observed behind the surface is occupied by the plain column test;
+    # one with the voxel below seen in front of a surface (air under a sheet seen edge-on) is not a top.
+    seen_inside = _column((0, 0), {29: -0.3, 30: 0.5, 31: 1.0}, grid)
+    air_below = _column((0, 0), {29: 0.9, 30: 0.5, 31: 1.0}, grid)
+    assert column_occupancy(grid, 0.0, [seen_inside], p)[0][0, 0]
+    assert not column_occupancy(grid, 0.0, [air_below], p)[0].any()
+
+
+def test_surface_points_need_several_to_occupy_a_cell():
+    grid = GridSpec(4, 4, 0.05, (0.0, 0.2))
+    p = ReconstructParams()
+    # A face at x = 0.078 m, normal +x, inside toward -x: moved half a cell in, points land in
+    # cell column 1 (x 0.05-0.10); two stray points of a face at x = 0.128 land in column 2.
+    face = np.c_[np.full(5, 0.078), np.linspace(0.06, 0.14, 5), np.full(5, 0.5)]
+    stray = np.array([[0.128, 0.11, 0.5], [0.128, 0.11, 0.7]])
+    xyz = np.vstack([face, stray])
+    normals = np.tile([1.0, 0.0, 0.0], (len(xyz), 1))
+    occ = surface_occupancy(grid, 0.0, xyz, normals, p)
+    assert p.surface_min_points == 3
+    assert occ[:, 1].sum() >= 1 and not occ[:, 2].any()
+    assert surface_occupancy(grid, 0.0, xyz, normals, p.model_copy(update={"surface_min_points": 1}))[:, 2].any()
