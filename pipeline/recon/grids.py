@@ -23,6 +23,10 @@ row, col). Definitions (heights are above the estimated floor ``floor_z``):
   inside the building (:func:`building_mask`: the observed area closed by
   ``building_closing_m``) in an unknown region no bigger than ``fill_enclosed_max_m2``, never in
   the unknown world outside it or in a room never entered.
+  Last, an occupied cell whose centre lies in front of the vertical faces passing within 0.4 cell
+  of it (the median signed distance of their extracted surface points, :func:`in_front_of_faces`)
+  is cleared: voxel signs near faces are blurred by a few millimetres (grazing views, views past
+  convex corners), the interpolated surface much less.
 - **free** (code 1): not occupied, and the floor was observed at the cell centre (a voxel observed
   ``occupancy_min_weight`` times, behind or within half a voxel of a surface, within
   ``floor_tolerance_m`` of the floor).
@@ -43,6 +47,7 @@ from typing import Iterable
 
 import numpy as np
 from scipy.ndimage import binary_closing, binary_dilation, binary_fill_holes, distance_transform_edt, label
+from scipy.spatial import cKDTree
 
 from pipeline.config import GridParams, ReconstructParams
 from pipeline.errors import ConfigError, InputDataError, StageError
@@ -59,6 +64,10 @@ _FLOOR_PEAK_FRACTION = 0.3  # the floor is the lowest bin holding >= 30% of the 
 # above it at least 0.1 farther (a horizontal surface below; a vertical face keeps tsdf constant).
 _SOLID_TOP_MAX_TSDF = 0.9
 _SOLID_TOP_MIN_RISE = 0.1
+# in_front_of_faces: side-facing points (|n_z| < 0.3) within 0.4 cell of a centre (the nearest 64: a face's
+# points over the band's height, at least 5) vote; an upward/downward-facing point within 5 mm of the
+# centre means a top or underside over it.
+_FACE_NZ, _FACE_RADIUS_CELLS, _FACE_K, _FACE_MIN_POINTS, _FLAT_NZ, _FLAT_RADIUS_M = 0.3, 0.4, 64, 5, 0.7, 0.005
 
 
 @dataclass
@@ -197,9 +206,19 @@ def hidden_solid(occupied: np.ndarray, free: np.ndarray, cell_size_m: float, max
     return small[labels] & (d_occ < d_free) & (d_occ <= max_dist_m)
 
 
+@dataclass
+class Columns:
+    """What the cell-centre voxel columns show (:func:`column_occupancy`), ``(rows, cols)`` arrays."""
+
+    occupied: np.ndarray  # bool: solid in the obstacle band (a negative voxel, or a solid top)
+    floor_seen: np.ndarray  # bool: the floor was observed at the centre
+    low_air: np.ndarray  # bool: air observed low above the floor (below hidden_free_max_height_m)
+    solid_z: np.ndarray  # (rows, cols, 2) float32: lowest / highest solid evidence, m above the floor; NaN none
+
+
 def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.ndarray, np.ndarray]],
-                     p: ReconstructParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``occupied``, ``floor_seen`` and ``low_air`` ``(rows, cols)`` bool from observed voxels (see module doc).
+                     p: ReconstructParams) -> Columns:
+    """The cell-centre columns of observed voxels (see the module doc and :class:`Columns`).
 
     ``occupied``: a voxel of the cell-centre column in the obstacle band lies behind a surface
     (negative TSDF), or the column shows the top of a solid seen only from above
@@ -218,36 +237,46 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
     # Band levels (voxel z index relative to the floor), one level of margin each side for solid_tops.
     lo = int(np.ceil(p.obstacle_min_height_m / v - 1e-9)) - 1
     hi = int(np.floor(p.obstacle_max_height_m / v + 1e-9)) + 1
-    occupied = np.zeros((grid.rows, grid.cols), dtype=bool)
-    floor_seen = np.zeros_like(occupied)
-    low_air = np.zeros_like(occupied)
+    levels = hi - lo + 1
+    cells = grid.rows * grid.cols
+    floor_seen = np.zeros(cells, dtype=bool)
+    low_air = np.zeros(cells, dtype=bool)
+    solid_lo = np.full(cells, levels, dtype=np.int64)  # level index, ``levels`` = none
+    solid_hi = np.full(cells, -1, dtype=np.int64)
     keys, values = [], []
     for lattice, tsdf in voxels:
         centre = ((lattice[:, 0] - k0[0]) % n == 0) & ((lattice[:, 1] - k0[1]) % n == 0)
         lat, t = lattice[centre], tsdf[centre]
         rc = grid.world_to_cell(lat[:, :2].astype(np.float64) * v)
-        z = lat[:, 2].astype(np.float64) * v - floor_z
         inside = grid.inside(rc)
+        flat = np.where(inside, rc[:, 0] * grid.cols + rc[:, 1], 0)
+        z = lat[:, 2].astype(np.float64) * v - floor_z
+        level = np.round(z / v).astype(np.int64)
         band = inside & (z >= p.obstacle_min_height_m)
         occ = band & (t < 0) & (z <= p.obstacle_max_height_m)
-        occupied[rc[occ, 0], rc[occ, 1]] = True
-        air = band & (t > 0) & (z <= p.hidden_free_max_height_m)
-        low_air[rc[air, 0], rc[air, 1]] = True
-        flo = inside & (t < touch) & (np.abs(z) <= p.floor_tolerance_m)
-        floor_seen[rc[flo, 0], rc[flo, 1]] = True
-        level = np.round(z / v).astype(np.int64)
+        np.minimum.at(solid_lo, flat[occ], level[occ] - lo)
+        np.maximum.at(solid_hi, flat[occ], level[occ] - lo)
+        low_air[flat[band & (t > 0) & (z <= p.hidden_free_max_height_m)]] = True
+        floor_seen[flat[inside & (t < touch) & (np.abs(z) <= p.floor_tolerance_m)]] = True
         near = inside & (level >= lo) & (level <= hi)
-        keys.append((rc[near, 0].astype(np.int64) * grid.cols + rc[near, 1]) * (hi - lo + 1) + (level[near] - lo))
+        keys.append(flat[near] * levels + (level[near] - lo))
         values.append(t[near])
     if keys:
-        key, t = np.concatenate(keys), np.concatenate(values)
-        tops = solid_tops(key, t, hi - lo + 1, first=1, last=hi - lo - 1)
-        occupied.ravel()[np.unique(tops)] = True
-    return occupied, floor_seen, low_air
+        tops = solid_tops(np.concatenate(keys), np.concatenate(values), levels, first=1, last=levels - 2)
+        top_cell, top_level = tops // levels, tops % levels - 1  # the solid lies just below the voxel
+        np.minimum.at(solid_lo, top_cell, top_level)
+        np.maximum.at(solid_hi, top_cell, top_level)
+    occupied = solid_hi >= 0
+    solid_z = np.full((cells, 2), np.nan, dtype=np.float32)
+    solid_z[occupied, 0] = (solid_lo[occupied] + lo) * v
+    solid_z[occupied, 1] = (solid_hi[occupied] + lo) * v
+    shape = (grid.rows, grid.cols)
+    return Columns(occupied.reshape(shape), floor_seen.reshape(shape), low_air.reshape(shape),
+                   solid_z.reshape(shape + (2,)))
 
 
 def solid_tops(key: np.ndarray, tsdf: np.ndarray, levels: int, first: int, last: int) -> np.ndarray:
-    """Flat cell indices whose column shows the top of a solid whose inside was never observed.
+    """Keys (``cell * levels + level``) of voxels just above the top of a solid whose inside was never observed.
 
     ``key = cell * levels + level`` of observed voxels (unique), ``tsdf`` their values; levels
     ``first..last`` are tested. A thin top (a table's 4 cm board, a seat) seen only at grazing
@@ -274,7 +303,7 @@ def solid_tops(key: np.ndarray, tsdf: np.ndarray, levels: int, first: int, last:
     seen_above, t_above = lookup(key[cand] + 1)
     seen_below, t_below = lookup(key[cand] - 1)
     top = seen_above & (t_above >= tsdf[cand] + _SOLID_TOP_MIN_RISE) & (~seen_below | (t_below < 0))
-    return key[cand[top]] // levels
+    return key[cand[top]]
 
 
 def surface_occupancy(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.ndarray, p: ReconstructParams
@@ -294,6 +323,60 @@ def surface_occupancy(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: 
     rc = rc[grid.inside(rc)]
     counts = np.bincount(rc[:, 0] * grid.cols + rc[:, 1], minlength=grid.rows * grid.cols)
     return (counts >= p.surface_min_points).reshape(grid.rows, grid.cols)
+
+
+def in_front_of_faces(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.ndarray, candidates: np.ndarray,
+                      solid_z: np.ndarray, p: ReconstructParams) -> np.ndarray:
+    """``(rows, cols)`` bool: ``candidates`` whose centre lies in front of the vertical faces passing by it.
+
+    The column and surface tests read voxel signs, which fusion blurs by a few millimetres near
+    faces (grazing views, views past convex corners); a face passing just outside a cell centre then
+    occupies the cell. The extracted surface is sharper (interpolated zero crossings): for each
+    candidate, the side-facing surface points of the band within 0.4 cell of its centre (xy) vote
+    with their signed distance to the centre along their normals; a positive median (the centre is
+    in front) clears it — provided the voting faces span the heights where the column saw solid
+    (``solid_z`` from :class:`Columns`: a seat under a backrest keeps its cell). Cells with an
+    upward- or downward-facing point over the centre (a top) keep their evidence, as do cells with
+    fewer than five nearby points (inside thick solids).
+    """
+    out = np.zeros((grid.rows, grid.cols), dtype=bool)
+    rc = np.argwhere(candidates)
+    z_rel = xyz[:, 2] - floor_z
+    band = (z_rel >= p.obstacle_min_height_m) & (z_rel <= p.obstacle_max_height_m)
+    side = band & (np.abs(normals[:, 2]) < _FACE_NZ)
+    flat = band & (np.abs(normals[:, 2]) >= _FLAT_NZ)
+    if rc.size == 0 or side.sum() < _FACE_MIN_POINTS:
+        return out
+    centres = grid.cell_to_world(rc)
+    pts = xyz[side, :2].astype(np.float64)
+    pts_z = z_rel[side]
+    nxy = normals[side, :2].astype(np.float64)
+    nxy /= np.linalg.norm(nxy, axis=1, keepdims=True)
+    k = min(_FACE_K, len(pts))
+    dist, idx = cKDTree(pts).query(centres, k=k, distance_upper_bound=_FACE_RADIUS_CELLS * grid.cell_size_m)
+    dist, idx = dist.reshape(len(rc), k), idx.reshape(len(rc), k)
+    near = np.isfinite(dist)
+    j = np.where(near, idx, 0)
+    signed = np.where(near, np.einsum("nkd,nkd->nk", centres[:, None, :] - pts[j], nxy[j]), np.nan)
+    face_z = np.where(near, pts_z[j], np.nan)
+    enough = near.sum(axis=1) >= _FACE_MIN_POINTS
+    median = np.full(len(rc), np.nan)
+    median[enough] = np.nanmedian(signed[enough], axis=1)
+    front = enough & (median > 0)
+    # Solid seen in the column must lie within the heights of the voting faces (one voxel of slack).
+    solid = solid_z[rc[:, 0], rc[:, 1]]
+    has_solid = np.isfinite(solid[:, 0])
+    z_lo = np.full(len(rc), np.inf)
+    z_hi = np.full(len(rc), -np.inf)
+    z_lo[enough] = np.nanmin(face_z[enough], axis=1)
+    z_hi[enough] = np.nanmax(face_z[enough], axis=1)
+    spanned = (solid[:, 0] >= z_lo - p.voxel_size_m) & (solid[:, 1] <= z_hi + p.voxel_size_m)
+    front &= ~has_solid | spanned
+    if flat.any():
+        flat_dist, _ = cKDTree(xyz[flat, :2].astype(np.float64)).query(centres, k=1, distance_upper_bound=_FLAT_RADIUS_M)
+        front &= ~np.isfinite(flat_dist)
+    out[rc[front, 0], rc[front, 1]] = True
+    return out
 
 
 def top_surface(grid: GridSpec, floor_z: float, xyz: np.ndarray, colors: np.ndarray, p: ReconstructParams
@@ -350,8 +433,9 @@ def build_grids(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray,
             path=source, field="pose", frame=i,
             expected="poses within the mapped area; a wrong pose, or a larger grid (grid.rows/cols/cell_size_m)",
         )
-    occupied, floor_seen, low_air = column_occupancy(grid, floor_z, voxels, p)
-    occupied |= surface_occupancy(grid, floor_z, xyz, normals, p)
+    columns = column_occupancy(grid, floor_z, voxels, p)
+    floor_seen, low_air = columns.floor_seen, columns.low_air
+    occupied = columns.occupied | surface_occupancy(grid, floor_z, xyz, normals, p)
     height, color, outside = top_surface(grid, floor_z, xyz, colors, p)
     outside_fraction = outside / xyz.shape[0]
     if outside_fraction > p.max_outside_fraction:
@@ -366,6 +450,8 @@ def build_grids(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray,
     hidden = hidden_solid(occupied, floor_seen & ~occupied, grid.cell_size_m, p.hidden_solid_max_m,
                           p.building_closing_m, p.fill_enclosed_max_m2) & ~low_air
     occupied |= hidden
+    # Last, so that no rule above fills a cell an observed face passes in front of.
+    occupied &= ~in_front_of_faces(grid, floor_z, xyz, normals, occupied, columns.solid_z, p)
     free = floor_seen & ~occupied
     occupancy = np.full(occupied.shape, UNKNOWN, np.uint8)
     occupancy[free] = FREE

@@ -169,7 +169,13 @@ def plan_actions(gt: GTScene, radius_m: float, min_actions: int) -> tuple[np.nda
         cands = [(dist[node[tuple(fs.grid.world_to_cell(views[k][v]))]], k, v) for k, v in queue]
         d, k, v = min(cands)
         if not np.isfinite(d):
-            raise StageError(f"scene {gt.name}: room {gt.rooms[k].id} is not reachable from {visited[0]}")
+            # Furniture can cut a pocket off a room; look from the room's most open reachable spot instead.
+            reachable = np.isfinite(dist[np.maximum(node, 0)]) & (node >= 0) & (fs.room_of_cell == k)
+            if not reachable.any():
+                raise StageError(f"scene {gt.name}: room {gt.rooms[k].id} is not reachable from {visited[0]}")
+            cells = np.argwhere(reachable)
+            views[k][v] = fs.grid.cell_to_world(cells[int(np.argmax(fs.clearance_m[reachable]))])
+            continue
         queue.remove((k, v))
         goal = int(node[tuple(fs.grid.world_to_cell(views[k][v]))])
         path = [goal]

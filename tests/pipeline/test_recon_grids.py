@@ -6,8 +6,8 @@ import pytest
 from pipeline.config import GridParams, ReconstructParams
 from pipeline.errors import ConfigError, StageError
 from pipeline.geometry import GridSpec
-from pipeline.recon.grids import (column_occupancy, enclosed_unknown, estimate_floor, lattice_ratio, navigable_mask,
-                                   place_grid, surface_occupancy)
+from pipeline.recon.grids import (column_occupancy, enclosed_unknown, estimate_floor, in_front_of_faces, lattice_ratio,
+                                   navigable_mask, place_grid, surface_occupancy)
 
 
 def _plane(rng, n, z, x=(0, 4), y=(0, 3)):
@@ -131,10 +131,11 @@ def test_column_occupancy_reads_cell_centre_columns_and_sees_low_air_behind_furn
         [6, 1, 12],    # between cell centres: ignored
     ], dtype=np.int32)
     tsdf = np.array([-0.4, 0.6, 0.6, -0.1, -0.9], dtype=np.float32)
-    occupied, floor_seen, low_air = column_occupancy(grid, 0.0, [(lattice, tsdf)], p)
-    assert np.argwhere(occupied).tolist() == [[0, 0]]
-    assert np.argwhere(low_air).tolist() == [[1, 1]]
-    assert np.argwhere(floor_seen).tolist() == [[3, 3]]
+    columns = column_occupancy(grid, 0.0, [(lattice, tsdf)], p)
+    assert np.argwhere(columns.occupied).tolist() == [[0, 0]]
+    assert np.argwhere(columns.low_air).tolist() == [[1, 1]]
+    assert np.argwhere(columns.floor_seen).tolist() == [[3, 3]]
+    assert np.allclose(columns.solid_z[0, 0], 0.3) and np.isnan(columns.solid_z[1:]).all()
 
 
 def _column(cell_rc, levels_tsdf, grid):
@@ -159,17 +160,18 @@ def test_a_thin_top_seen_only_from_above_occupies_its_cell_but_a_face_beside_the
     # Cell (3, 3): air everywhere.
     air = _column((3, 3), {k: 1.0 for k in range(4, 60)}, grid)
     chunks = [top, face, floor, air]
-    occupied, _, _ = column_occupancy(grid, 0.0, chunks, p)
-    assert np.argwhere(occupied).tolist() == [[0, 0]]
+    columns = column_occupancy(grid, 0.0, chunks, p)
+    assert np.argwhere(columns.occupied).tolist() == [[0, 0]]
+    assert np.allclose(columns.solid_z[0, 0], 0.725)  # the board, under the voxel in front of it
     # The rule looks across chunk boundaries: the voxel above the top in another chunk still counts.
     split = [(top[0][:4], top[1][:4]), (top[0][4:], top[1][4:])]
-    assert column_occupancy(grid, 0.0, split, p)[0][0, 0]
+    assert column_occupancy(grid, 0.0, split, p).occupied[0, 0]
     # A top whose inside was observed behind the surface is occupied by the plain column test;
     # one with the voxel below seen in front of a surface (air under a sheet seen edge-on) is not a top.
     seen_inside = _column((0, 0), {29: -0.3, 30: 0.5, 31: 1.0}, grid)
     air_below = _column((0, 0), {29: 0.9, 30: 0.5, 31: 1.0}, grid)
-    assert column_occupancy(grid, 0.0, [seen_inside], p)[0][0, 0]
-    assert not column_occupancy(grid, 0.0, [air_below], p)[0].any()
+    assert column_occupancy(grid, 0.0, [seen_inside], p).occupied[0, 0]
+    assert not column_occupancy(grid, 0.0, [air_below], p).occupied.any()
 
 
 def test_surface_points_need_several_to_occupy_a_cell():
@@ -185,3 +187,31 @@ def test_surface_points_need_several_to_occupy_a_cell():
     assert p.surface_min_points == 3
     assert occ[:, 1].sum() >= 1 and not occ[:, 2].any()
     assert surface_occupancy(grid, 0.0, xyz, normals, p.model_copy(update={"surface_min_points": 1}))[:, 2].any()
+
+
+def _face(x, y, z_lo, z_hi, normal=(1.0, 0.0, 0.0)):
+    """Surface points of a vertical face at ``x`` (lattice-spaced over y +- 1 cm and heights), with their normal."""
+    ys, zs = np.meshgrid(y + np.array([-0.01, 0.0, 0.01]), np.arange(z_lo, z_hi + 1e-9, 0.025))
+    xyz = np.c_[np.full(ys.size, x), ys.ravel(), zs.ravel()]
+    return xyz, np.tile(normal, (len(xyz), 1))
+
+
+def test_a_face_passing_just_outside_a_cell_centre_clears_the_cell_unless_solid_was_seen_elsewhere_in_it():
+    grid = GridSpec(4, 4, 0.05, (0.0, 0.2))  # cell (r, c) centre: x = 0.025 + 0.05 c, y = 0.175 - 0.05 r
+    p = ReconstructParams()
+    faces = [
+        _face(0.070, 0.125, 0.1, 1.5),   # cell (1, 1): solid at x < 0.070, the centre 5 mm in front
+        _face(0.130, 0.125, 0.1, 1.5),   # cell (1, 2): solid at x < 0.130, the centre 5 mm inside
+        _face(0.070, 0.075, 0.45, 0.6),  # cell (2, 1): a backrest face above a seat seen solid below it
+        _face(0.120, 0.075, 0.1, 1.5),   # cell (2, 2): in front of a face, but a top lies over the centre
+        (np.array([[0.125, 0.075, 0.7]]), np.array([[0.0, 0.0, 1.0]])),
+    ]
+    xyz = np.vstack([f[0] for f in faces])
+    normals = np.vstack([f[1] for f in faces])
+    candidates = np.zeros((4, 4), bool)
+    candidates[1:3, 1:3] = True
+    solid_z = np.full((4, 4, 2), np.nan, np.float32)
+    solid_z[1, 1] = (0.2, 1.4)  # spurious solid along the face's whole height
+    solid_z[2, 1] = (0.1, 0.4)  # the seat, below the backrest's face
+    cleared = in_front_of_faces(grid, 0.0, xyz, normals, candidates, solid_z, p)
+    assert np.argwhere(cleared).tolist() == [[1, 1]]

@@ -99,3 +99,19 @@ def test_every_allowed_room_count_gets_a_layout():
     for n in range(2, 11):
         types = assign_types(np.random.default_rng(n), [Rect(0.0, 0.0, 1.0 + i, 1.0) for i in range(n)])
         assert len(types) == n and "living room" in types and "bathroom" in types and "" not in types
+
+
+def test_a_pocket_cut_off_by_furniture_does_not_stop_the_walk():
+    from pipeline.sim.trajectory import free_space, plan_actions
+
+    # sim_05 with three rooms: a fridge, a plant, chairs and two cabinets cut the kitchen's far end off its
+    # doorway, and the kitchen's most open spot lies in that pocket.
+    sp = SimulateParams(frames=160, width=160, height=120, rooms_min=3, rooms_max=3)
+    gt = generate_scene("sim_05", sp)
+    fs = free_space(gt, sp.robot_radius_m)
+    _, n_components = ndimage.label(fs.navigable, structure=np.ones((3, 3)))
+    assert n_components > 1
+    states, visited = plan_actions(gt, sp.robot_radius_m, 160)
+    assert {r.id for r in gt.rooms} <= set(visited) and len(states) > 160
+    cells = fs.grid.world_to_cell(states[:, :2])
+    assert fs.navigable[cells[:, 0], cells[:, 1]].all()
