@@ -6,9 +6,10 @@ row, col). Definitions (heights are above the estimated floor ``floor_z``):
 - **occupied** (code 2): some voxel of the cell-centre column with height in
   ``[obstacle_min_height_m, obstacle_max_height_m]``, observed at least ``occupancy_min_weight``
   times, lies behind a surface (negative TSDF); or the column shows the top of a solid whose inside
-  was never observed (:func:`solid_tops`: a voxel just in front of a surface below it, nothing
-  observed under it — a thin table top or seat seen only at grazing angles from above, whose
-  inside fusion never reaches); or ``surface_min_points`` surface points of that band, moved half
+  was never observed (:func:`solid_tops`: a voxel just in front of a surface below it with nothing
+  observed under it, or a patch of columns with a run of at most 7.5 cm never observed between seen
+  air — a thin table top or seat seen only at grazing angles from above, whose inside fusion never
+  reaches); or ``surface_min_points`` surface points of that band, moved half
   a cell into the solid along their normals, lie in the cell (:func:`surface_occupancy`).
   Voxels seen once count. The grid origin is snapped so that every cell centre is a
   voxel-lattice column, which makes the test "is the cell centre inside geometry" — the
@@ -64,6 +65,8 @@ _FLOOR_PEAK_FRACTION = 0.3  # the floor is the lowest bin holding >= 30% of the 
 # above it at least 0.1 farther (a horizontal surface below; a vertical face keeps tsdf constant).
 _SOLID_TOP_MAX_TSDF = 0.9
 _SOLID_TOP_MIN_RISE = 0.1
+_SLAB_MAX_M = 0.075  # solid_tops: an unobserved run at most this tall between seen free space is a thin board
+_SLAB_MIN_AREA_M2 = 0.25  # ... where such cells form a patch at least this big
 # in_front_of_faces: side-facing points (|n_z| < 0.3) within 0.4 cell of a centre (the nearest 64: a face's
 # points over the band's height, at least 5) vote; an upward/downward-facing point within 5 mm of the
 # centre means a top or underside over it.
@@ -234,8 +237,10 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
     # The floor is seen where a lattice point lies behind it or within half a voxel in front of it;
     # an obstacle needs a lattice point strictly behind a surface (a cell centre inside the solid).
     touch = 0.5 * v / p.sdf_trunc_m
-    # Band levels (voxel z index relative to the floor), one level of margin each side for solid_tops.
-    lo = int(np.ceil(p.obstacle_min_height_m / v - 1e-9)) - 1
+    # Band levels (voxel z index relative to the floor) with the margins solid_tops looks into:
+    # one level above, a slab's unobserved gap and the voxel under it below.
+    max_gap = max(1, int(round(_SLAB_MAX_M / v)))
+    lo = int(np.ceil(p.obstacle_min_height_m / v - 1e-9)) - (max_gap + 1)
     hi = int(np.floor(p.obstacle_max_height_m / v + 1e-9)) + 1
     levels = hi - lo + 1
     cells = grid.rows * grid.cols
@@ -262,7 +267,15 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
         keys.append(flat[near] * levels + (level[near] - lo))
         values.append(t[near])
     if keys:
-        tops = solid_tops(np.concatenate(keys), np.concatenate(values), levels, first=1, last=levels - 2)
+        tops, slabs = solid_tops(np.concatenate(keys), np.concatenate(values), levels, first=max_gap + 1,
+                                 last=levels - 2, max_gap=max_gap)
+        # A board spans many cells; a lone unobserved gap in seen free space is no board.
+        slab_cells = np.zeros(cells, dtype=bool)
+        slab_cells[slabs // levels] = True
+        labels, n = label(slab_cells.reshape(grid.rows, grid.cols), structure=np.ones((3, 3), bool))
+        big = np.bincount(labels.ravel(), minlength=n + 1) * grid.cell_size_m**2 >= _SLAB_MIN_AREA_M2
+        big[0] = False
+        tops = np.concatenate([tops, slabs[big[labels.ravel()[slabs // levels]]]])
         top_cell, top_level = tops // levels, tops % levels - 1  # the solid lies just below the voxel
         np.minimum.at(solid_lo, top_cell, top_level)
         np.maximum.at(solid_hi, top_cell, top_level)
@@ -275,23 +288,29 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
                    solid_z.reshape(shape + (2,)))
 
 
-def solid_tops(key: np.ndarray, tsdf: np.ndarray, levels: int, first: int, last: int) -> np.ndarray:
+def solid_tops(key: np.ndarray, tsdf: np.ndarray, levels: int, first: int, last: int, max_gap: int) -> np.ndarray:
     """Keys (``cell * levels + level``) of voxels just above the top of a solid whose inside was never observed.
 
     ``key = cell * levels + level`` of observed voxels (unique), ``tsdf`` their values; levels
-    ``first..last`` are tested. A thin top (a table's 4 cm board, a seat) seen only at grazing
-    angles from a camera above it has no observed voxel behind its surface: rays reach its
-    inside more than the truncation distance behind the surface, so fusion never updates it,
-    and the column test finds no negative voxel. Its column reads: a voxel close in front of a
-    surface (``0 < tsdf < _SOLID_TOP_MAX_TSDF``), a voxel above it farther from the surface (``tsdf``
-    rising by at least ``_SOLID_TOP_MIN_RISE``: the surface lies below, not beside), and below it a
-    voxel never observed or behind a surface. The floor is excluded by the band; a vertical face
-    (``tsdf`` constant along the column) never qualifies.
+    ``first..last`` are tested (``first > max_gap``). A thin top (a table's 4 cm board, a seat)
+    seen only at grazing angles from a camera above it has no observed voxel behind its surface:
+    rays reach its inside more than the truncation distance behind the surface, so fusion never
+    updates it, and the column test finds no negative voxel. Two signatures mark it:
+
+    - a voxel close in front of a surface (``0 < tsdf < _SOLID_TOP_MAX_TSDF``), the voxel above it
+      farther from the surface (``tsdf`` rising by at least ``_SOLID_TOP_MIN_RISE``: the surface lies
+      below, not beside), and below it a voxel never observed or behind a surface;
+    - a slab: a voxel seen in front of a surface, then 1 to ``max_gap`` voxels never observed, then a
+      voxel seen in front of a surface again (the space above and under the board was seen, the
+      board itself never: views so grazing that even the voxel above it reads far from a surface).
+
+    The floor is excluded by the band; a vertical face (``tsdf`` constant along the column) and the
+    unseen space behind furniture (a tall unobserved run) never qualify.
     """
     order = np.argsort(key, kind="stable")
     key, tsdf = key[order], tsdf[order]
     level = key % levels
-    cand = np.flatnonzero((tsdf > 0) & (tsdf < _SOLID_TOP_MAX_TSDF) & (level >= first) & (level <= last))
+    cand = np.flatnonzero((tsdf > 0) & (level >= first) & (level <= last))
     if cand.size == 0:
         return np.zeros(0, np.int64)
 
@@ -300,10 +319,18 @@ def solid_tops(key: np.ndarray, tsdf: np.ndarray, levels: int, first: int, last:
         found = key[i] == k
         return found, np.where(found, tsdf[i], np.nan)
 
-    seen_above, t_above = lookup(key[cand] + 1)
-    seen_below, t_below = lookup(key[cand] - 1)
-    top = seen_above & (t_above >= tsdf[cand] + _SOLID_TOP_MIN_RISE) & (~seen_below | (t_below < 0))
-    return key[cand[top]]
+    k, t = key[cand], tsdf[cand]
+    seen_above, t_above = lookup(k + 1)
+    seen_below, t_below = lookup(k - 1)
+    top = ((t < _SOLID_TOP_MAX_TSDF) & seen_above & (t_above >= t + _SOLID_TOP_MIN_RISE)
+           & (~seen_below | (t_below < 0)))
+    slab = np.zeros_like(top)
+    unseen_run = ~seen_below
+    for gap in range(1, max_gap + 1):
+        seen, t_under = lookup(k - gap - 1)
+        slab |= unseen_run & seen & (t_under > 0)
+        unseen_run &= ~seen
+    return k[top], k[slab & ~top]
 
 
 def surface_occupancy(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.ndarray, p: ReconstructParams

@@ -215,3 +215,24 @@ def test_a_face_passing_just_outside_a_cell_centre_clears_the_cell_unless_solid_
     solid_z[2, 1] = (0.1, 0.4)  # the seat, below the backrest's face
     cleared = in_front_of_faces(grid, 0.0, xyz, normals, candidates, solid_z, p)
     assert np.argwhere(cleared).tolist() == [[1, 1]]
+
+
+def test_an_unseen_board_between_seen_air_is_solid_where_it_spans_a_patch():
+    grid = GridSpec(20, 20, 0.05, (0.0, 1.0))  # cell (r, c) centre: lattice (2c + 1, 39 - 2r)
+    p = ReconstructParams()
+
+    def columns(cells, levels_tsdf):
+        lattice = np.array([[2 * c + 1, 39 - 2 * r, k] for r, c in cells for k in levels_tsdf], dtype=np.int32)
+        return lattice, np.tile(np.array(list(levels_tsdf.values()), np.float32), len(cells))
+
+    # A table top at 0.70-0.74 m over 12 x 12 cells (0.36 m^2): levels 28 and 29 never observed, the
+    # air above and under it seen only at angles so grazing that it reads far from any surface.
+    board = {k: 1.0 for k in (*range(20, 28), 30, 31, 32)}
+    table = [(r, c) for r in range(2, 14) for c in range(2, 14)]
+    lone = [(17, 17)]  # the same gap in one cell: no board
+    # Under a shelf: air seen above, a tall unobserved run (the shadow of furniture), air low down.
+    shadow = [(r, c) for r in range(15, 20) for c in range(2, 14)]
+    chunks = [columns(table, board), columns(lone, board), columns(shadow, {k: 1.0 for k in (*range(4, 10), 30, 31)})]
+    occupied = column_occupancy(grid, 0.0, chunks, p).occupied
+    assert occupied[2:14, 2:14].all()
+    assert occupied.sum() == len(table)
