@@ -57,6 +57,10 @@ class SimulateParams(Section):
     depth_min_m: float = Field(0.1, ge=0, description="nearest valid depth, metres")
     depth_max_m: float = Field(10.0, gt=0, description="farthest valid depth, metres")
     fps: float = Field(10.0, gt=0, description="frame rate of the recorded camera streams, Hz")
+    min_actions_per_frame: float = Field(
+        2.0, gt=0, description="the walk takes at least this many actions (15 deg turns, 0.25 m steps) per recorded "
+        "frame, revisiting rooms from further viewpoints: more sees more of the apartment with the same frames"
+    )
     pose_rate_hz: float = Field(30.0, gt=0, description="rate of the pose / tf streams, Hz")
     depth_noise_m: float = Field(0.0, ge=0, description="std of depth noise at 1 m (grows with depth^2), metres")
     pose_jitter_m: float = Field(0.0, ge=0, description="std of recorded-position noise, metres")

@@ -53,7 +53,8 @@ class SimulatedRecording:
         self.params = params
         self.gt = gt if gt is not None else generate_scene(scene, params)
         self.intrinsics = Intrinsics.from_hfov(params.width, params.height, params.hfov_deg)
-        states, self.visited = plan_actions(self.gt, params.robot_radius_m, params.frames)
+        min_actions = int(np.ceil(params.min_actions_per_frame * params.frames))
+        states, self.visited = plan_actions(self.gt, params.robot_radius_m, min_actions)
         self.actions = len(states) - 1
         self.states = states
         key_ns, key_T, self.frame_ns, self.frame_T = sample_trajectory(

@@ -73,12 +73,26 @@ def test_client_bounds_requests_and_sends_the_protocol():
 def test_llm_agent_and_user_drive_an_episode(tiny_scene):
     ws, params = tiny_scene
     ctx = SceneContext(Artifacts(ws, params, "tiny"))
-    goal = [g for g in ctx.arts.goals.goals if ctx.arts.routes.for_goal(g.id)][0]
-    ep = ctx.arts.routes.for_goal(goal.id)[0]
-    probe = EpisodeRun(ctx, Task("tiny", "llm", "yesno", 0, goal.id, ep.id, ep.start, ep.geodesic_m),
-                       SimulatedUser(ctx, goal, "yesno", np.random.default_rng(0)), 2000, 5)
-    ids = [i for i, _, _ in probe.modules.retrieve_map(goal.name, "vlmap")
-           if ctx.footprint_mask(goal.object_keys).reshape(-1)[probe.modules.objects[i].cells].any()]
+
+    def new_run(goal, ep):
+        return EpisodeRun(ctx, Task("tiny", "llm", "yesno", 0, goal.id, ep.id, ep.start, ep.geodesic_m),
+                          SimulatedUser(ctx, goal, "yesno", np.random.default_rng(0)), 2000, 5)
+
+    def reaching_candidates(goal, ep):
+        """Map candidates on the goal whose approach the user confirms (some see the goal from its back)."""
+        probe = new_run(goal, ep)
+        found = []
+        for i, _, _ in probe.modules.retrieve_map(goal.name, "vlmap"):
+            if not ctx.footprint_mask(goal.object_keys).reshape(-1)[probe.modules.objects[i].cells].any():
+                continue
+            run = new_run(goal, ep)
+            run.modules.retrieve_map(goal.name, "vlmap")
+            if run.modules.goto_object(i) and run.user.judge(run.body.pose)["success"]:
+                found.append(i)
+        return found
+
+    goal, ep, ids = next((g, e, ids) for g in ctx.arts.goals.goals for e in ctx.arts.routes.for_goal(g.id)[:1]
+                         if (ids := reaching_candidates(g, e)))
     replies = [
         json.dumps({"thought": "where is it", "action": "retrieve_map", "args": {"obj_str": goal.name}}),
         json.dumps({"thought": "go", "action": "goto_object", "args": {"obj_id": ids[0]}}),
