@@ -71,6 +71,7 @@ _SLAB_MIN_AREA_M2 = 0.25  # ... where such cells form a patch at least this big
 # points over the band's height, at least 5) vote; an upward/downward-facing point within 5 mm of the
 # centre means a top or underside over it.
 _FACE_NZ, _FACE_RADIUS_CELLS, _FACE_K, _FACE_MIN_POINTS, _FLAT_NZ, _FLAT_RADIUS_M = 0.3, 0.4, 64, 5, 0.7, 0.005
+_FACE_BLOCK = 8192  # candidate cells per block (~40 MB of neighbour arrays)
 
 
 @dataclass
@@ -254,17 +255,17 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
         lat, t = lattice[centre], tsdf[centre]
         rc = grid.world_to_cell(lat[:, :2].astype(np.float64) * v)
         inside = grid.inside(rc)
-        flat = np.where(inside, rc[:, 0] * grid.cols + rc[:, 1], 0)
+        cell = np.where(inside, rc[:, 0] * grid.cols + rc[:, 1], 0)
         z = lat[:, 2].astype(np.float64) * v - floor_z
         level = np.round(z / v).astype(np.int64)
         band = inside & (z >= p.obstacle_min_height_m)
         occ = band & (t < 0) & (z <= p.obstacle_max_height_m)
-        np.minimum.at(solid_lo, flat[occ], level[occ] - lo)
-        np.maximum.at(solid_hi, flat[occ], level[occ] - lo)
-        low_air[flat[band & (t > 0) & (z <= p.hidden_free_max_height_m)]] = True
-        floor_seen[flat[inside & (t < touch) & (np.abs(z) <= p.floor_tolerance_m)]] = True
+        np.minimum.at(solid_lo, cell[occ], level[occ] - lo)
+        np.maximum.at(solid_hi, cell[occ], level[occ] - lo)
+        low_air[cell[band & (t > 0) & (z <= p.hidden_free_max_height_m)]] = True
+        floor_seen[cell[inside & (t < touch) & (np.abs(z) <= p.floor_tolerance_m)]] = True
         near = inside & (level >= lo) & (level <= hi)
-        keys.append(flat[near] * levels + (level[near] - lo))
+        keys.append(cell[near] * levels + (level[near] - lo))
         values.append(t[near])
     if keys:
         tops, slabs = solid_tops(np.concatenate(keys), np.concatenate(values), levels, first=max_gap + 1,
@@ -288,8 +289,12 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
                    solid_z.reshape(shape + (2,)))
 
 
-def solid_tops(key: np.ndarray, tsdf: np.ndarray, levels: int, first: int, last: int, max_gap: int) -> np.ndarray:
+def solid_tops(key: np.ndarray, tsdf: np.ndarray, levels: int, first: int, last: int, max_gap: int
+               ) -> tuple[np.ndarray, np.ndarray]:
     """Keys (``cell * levels + level``) of voxels just above the top of a solid whose inside was never observed.
+
+    Returns ``(tops, slabs)``: the keys of the two signatures below (a key in both is a top);
+    slabs still need the patch test of :func:`column_occupancy`.
 
     ``key = cell * levels + level`` of observed voxels (unique), ``tsdf`` their values; levels
     ``first..last`` are tested (``first > max_gap``). A thin top (a table's 4 cm board, a seat)
@@ -312,7 +317,7 @@ def solid_tops(key: np.ndarray, tsdf: np.ndarray, levels: int, first: int, last:
     level = key % levels
     cand = np.flatnonzero((tsdf > 0) & (level >= first) & (level <= last))
     if cand.size == 0:
-        return np.zeros(0, np.int64)
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
 
     def lookup(k):
         i = np.minimum(np.searchsorted(key, k), key.size - 1)
@@ -364,45 +369,50 @@ def in_front_of_faces(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: 
     in front) clears it — provided the voting faces span the heights where the column saw solid
     (``solid_z`` from :class:`Columns`: a seat under a backrest keeps its cell). Cells with an
     upward- or downward-facing point over the centre (a top) keep their evidence, as do cells with
-    fewer than five nearby points (inside thick solids).
+    fewer than five nearby points (inside thick solids). Candidates go in blocks (bounded memory).
     """
     out = np.zeros((grid.rows, grid.cols), dtype=bool)
-    rc = np.argwhere(candidates)
     z_rel = xyz[:, 2] - floor_z
     band = (z_rel >= p.obstacle_min_height_m) & (z_rel <= p.obstacle_max_height_m)
     side = band & (np.abs(normals[:, 2]) < _FACE_NZ)
     flat = band & (np.abs(normals[:, 2]) >= _FLAT_NZ)
-    if rc.size == 0 or side.sum() < _FACE_MIN_POINTS:
+    if not candidates.any() or side.sum() < _FACE_MIN_POINTS:
         return out
-    centres = grid.cell_to_world(rc)
     pts = xyz[side, :2].astype(np.float64)
     pts_z = z_rel[side]
     nxy = normals[side, :2].astype(np.float64)
     nxy /= np.linalg.norm(nxy, axis=1, keepdims=True)
+    side_tree = cKDTree(pts)
+    flat_tree = cKDTree(xyz[flat, :2].astype(np.float64)) if flat.any() else None
     k = min(_FACE_K, len(pts))
-    dist, idx = cKDTree(pts).query(centres, k=k, distance_upper_bound=_FACE_RADIUS_CELLS * grid.cell_size_m)
-    dist, idx = dist.reshape(len(rc), k), idx.reshape(len(rc), k)
-    near = np.isfinite(dist)
-    j = np.where(near, idx, 0)
-    signed = np.where(near, np.einsum("nkd,nkd->nk", centres[:, None, :] - pts[j], nxy[j]), np.nan)
-    face_z = np.where(near, pts_z[j], np.nan)
-    enough = near.sum(axis=1) >= _FACE_MIN_POINTS
-    median = np.full(len(rc), np.nan)
-    median[enough] = np.nanmedian(signed[enough], axis=1)
-    front = enough & (median > 0)
-    # Solid seen in the column must lie within the heights of the voting faces (one voxel of slack).
-    solid = solid_z[rc[:, 0], rc[:, 1]]
-    has_solid = np.isfinite(solid[:, 0])
-    z_lo = np.full(len(rc), np.inf)
-    z_hi = np.full(len(rc), -np.inf)
-    z_lo[enough] = np.nanmin(face_z[enough], axis=1)
-    z_hi[enough] = np.nanmax(face_z[enough], axis=1)
-    spanned = (solid[:, 0] >= z_lo - p.voxel_size_m) & (solid[:, 1] <= z_hi + p.voxel_size_m)
-    front &= ~has_solid | spanned
-    if flat.any():
-        flat_dist, _ = cKDTree(xyz[flat, :2].astype(np.float64)).query(centres, k=1, distance_upper_bound=_FLAT_RADIUS_M)
-        front &= ~np.isfinite(flat_dist)
-    out[rc[front, 0], rc[front, 1]] = True
+    all_rc = np.argwhere(candidates)
+    for start in range(0, len(all_rc), _FACE_BLOCK):
+        rc = all_rc[start : start + _FACE_BLOCK]
+        centres = grid.cell_to_world(rc)
+        dist, idx = side_tree.query(centres, k=k, distance_upper_bound=_FACE_RADIUS_CELLS * grid.cell_size_m)
+        dist, idx = dist.reshape(len(rc), k), idx.reshape(len(rc), k)
+        near = np.isfinite(dist)
+        j = np.where(near, idx, 0)
+        signed = np.where(near, np.einsum("nkd,nkd->nk", centres[:, None, :] - pts[j], nxy[j]), np.nan)
+        face_z = np.where(near, pts_z[j], np.nan)
+        enough = near.sum(axis=1) >= _FACE_MIN_POINTS
+        if not enough.any():
+            continue
+        median = np.full(len(rc), np.nan)
+        median[enough] = np.nanmedian(signed[enough], axis=1)
+        front = enough & (median > 0)
+        # Solid seen in the column must lie within the heights of the voting faces (one voxel of slack).
+        solid = solid_z[rc[:, 0], rc[:, 1]]
+        z_lo = np.full(len(rc), np.inf)
+        z_hi = np.full(len(rc), -np.inf)
+        z_lo[enough] = np.nanmin(face_z[enough], axis=1)
+        z_hi[enough] = np.nanmax(face_z[enough], axis=1)
+        spanned = (solid[:, 0] >= z_lo - p.voxel_size_m) & (solid[:, 1] <= z_hi + p.voxel_size_m)
+        front &= ~np.isfinite(solid[:, 0]) | spanned
+        if flat_tree is not None:
+            flat_dist, _ = flat_tree.query(centres, k=1, distance_upper_bound=_FLAT_RADIUS_M)
+            front &= ~np.isfinite(flat_dist)
+        out[rc[front, 0], rc[front, 1]] = True
     return out
 
 

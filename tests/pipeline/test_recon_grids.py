@@ -171,6 +171,7 @@ def test_a_thin_top_seen_only_from_above_occupies_its_cell_but_a_face_beside_the
     seen_inside = _column((0, 0), {29: -0.3, 30: 0.5, 31: 1.0}, grid)
     air_below = _column((0, 0), {29: 0.9, 30: 0.5, 31: 1.0}, grid)
     assert column_occupancy(grid, 0.0, [seen_inside], p).occupied[0, 0]
+    assert column_occupancy(grid, 0.0, [_column((0, 0), {29: -0.3}, grid)], p).occupied[0, 0]  # nothing in front
     assert not column_occupancy(grid, 0.0, [air_below], p).occupied.any()
 
 
