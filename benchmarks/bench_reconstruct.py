@@ -8,7 +8,10 @@ reconstruction in fresh worker processes (so peak RSS is per run) on:
 - ``every10``: every 10th frame (140 of 1,400), the reference run: the same rooms, a tenth of the frames;
 - ``all``: every frame;
 - ``--also FRAMES_ZARR ...``: every frame of other stores too (e.g. the 240-frame demo scenes), so
-  accuracy is reported per scene.
+  accuracy is reported per scene;
+- ``--sweep N``: N small apartments (``sim_02`` ... , 3 rooms, 160 frames at 160x120: the test
+  suite's scene and its siblings), then one ``"run": "sweep"`` line with the mean / min IoU and how
+  many scenes reach 0.9 — accuracy across layouts, not one lucky scene.
 
 Peak RSS should follow the TSDF volume (blocks), not the frame count. Each run prints frames/s of
 fusion, seconds of extraction and of the grids, peak RSS, the 1-minute load average (the machine
@@ -33,19 +36,23 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
-def prepare(workdir: Path, scene: str, n_frames: int) -> Path:
+SWEEP_SIM = {"width": 160, "height": 120, "rooms_min": 3, "rooms_max": 3}
+
+
+def prepare(workdir: Path, scene: str, n_frames: int, small: bool = False) -> Path:
     from pipeline.config import IngestParams, SimulateParams
     from pipeline.sim import simulate_scene
     from stages.ingest import ingest_path
 
-    frames = workdir / f"{scene}_{n_frames}.zarr"
+    tag = f"{scene}_{n_frames}" + ("_small" if small else "")
+    frames = workdir / f"{tag}.zarr"
     if frames.exists():
         return frames
     workdir.mkdir(parents=True, exist_ok=True)
-    log = workdir / f"{scene}_{n_frames}.mcap"
+    log = workdir / f"{tag}.mcap"
     t0 = time.perf_counter()
     if not log.exists():
-        simulate_scene(scene, SimulateParams(frames=n_frames), log)
+        simulate_scene(scene, SimulateParams(frames=n_frames, **(SWEEP_SIM if small else {})), log)
     t1 = time.perf_counter()
     ingest_path(log, frames, IngestParams(), "mcap", log=lambda m: None)
     print(json.dumps({"step": "prepare", "scene": scene, "frames": n_frames,
@@ -91,6 +98,7 @@ def main() -> None:
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/zipon_bench_reconstruct"))
     ap.add_argument("--worker-every", type=int, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--also", type=Path, nargs="*", default=[], help="more frames.zarr stores to reconstruct in full")
+    ap.add_argument("--sweep", type=int, default=0, help="also N small apartments sim_02.. (3 rooms, 160 frames)")
     ap.add_argument("--frames-path", type=Path, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--out-dir", type=Path, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -101,10 +109,24 @@ def main() -> None:
     env = {**os.environ, "OMP_NUM_THREADS": str(args.threads)}
     runs = [(frames, 10, args.workdir / "out_every10"), (frames, 1, args.workdir / "out_every1")]
     runs += [(path, 1, args.workdir / f"out_also{k}") for k, path in enumerate(args.also)]
+    sweep = [prepare(args.workdir, f"sim_{k + 2:02d}", 160, small=True) for k in range(args.sweep)]
+    runs += [(path, 1, args.workdir / f"out_sweep{k}") for k, path in enumerate(sweep)]
+    swept = []
     for path, every, out_dir in runs:
         shutil.rmtree(out_dir, ignore_errors=True)
-        subprocess.run([sys.executable, __file__, "--worker-every", str(every), "--frames-path", str(path),
-                        "--out-dir", str(out_dir)], check=True, env=env)
+        done = subprocess.run([sys.executable, __file__, "--worker-every", str(every), "--frames-path", str(path),
+                               "--out-dir", str(out_dir)], check=True, env=env, stdout=subprocess.PIPE, text=True)
+        print(done.stdout, end="", flush=True)
+        if path in sweep:
+            swept.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    if swept:
+        summary = {"run": "sweep", "scenes": len(swept)}
+        for key in ("iou_occupied", "iou_free", "iou_navigable"):
+            values = [r[key] for r in swept]
+            summary.update({f"{key}_mean": round(sum(values) / len(values), 4), f"{key}_min": min(values),
+                            f"{key}_scenes_ge_0.9": sum(v >= 0.9 for v in values)})
+        summary["floor_error_m_max"] = max(r["floor_error_m"] for r in swept)
+        print(json.dumps(summary), flush=True)
 
 
 if __name__ == "__main__":
