@@ -218,6 +218,7 @@ class Columns:
     floor_seen: np.ndarray  # bool: the floor was observed at the centre
     low_air: np.ndarray  # bool: air observed low above the floor (below hidden_free_max_height_m)
     solid_z: np.ndarray  # (rows, cols, 2) float32: lowest / highest solid evidence, m above the floor; NaN none
+    tops_only: np.ndarray  # bool: occupied by a solid top alone (solid_tops), no voxel behind a surface
 
 
 def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.ndarray, np.ndarray]],
@@ -249,6 +250,7 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
     low_air = np.zeros(cells, dtype=bool)
     solid_lo = np.full(cells, levels, dtype=np.int64)  # level index, ``levels`` = none
     solid_hi = np.full(cells, -1, dtype=np.int64)
+    top_cells = np.zeros(cells, dtype=bool)
     keys, values = [], []
     for lattice, tsdf in voxels:
         centre = ((lattice[:, 0] - k0[0]) % n == 0) & ((lattice[:, 1] - k0[1]) % n == 0)
@@ -267,6 +269,7 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
         near = inside & (level >= lo) & (level <= hi)
         keys.append(cell[near] * levels + (level[near] - lo))
         values.append(t[near])
+    behind_surface = solid_hi >= 0
     if keys:
         tops, slabs = solid_tops(np.concatenate(keys), np.concatenate(values), levels, first=max_gap + 1,
                                  last=levels - 2, max_gap=max_gap)
@@ -280,13 +283,14 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
         top_cell, top_level = tops // levels, tops % levels - 1  # the solid lies just below the voxel
         np.minimum.at(solid_lo, top_cell, top_level)
         np.maximum.at(solid_hi, top_cell, top_level)
+        top_cells[top_cell] = True
     occupied = solid_hi >= 0
     solid_z = np.full((cells, 2), np.nan, dtype=np.float32)
     solid_z[occupied, 0] = (solid_lo[occupied] + lo) * v
     solid_z[occupied, 1] = (solid_hi[occupied] + lo) * v
     shape = (grid.rows, grid.cols)
     return Columns(occupied.reshape(shape), floor_seen.reshape(shape), low_air.reshape(shape),
-                   solid_z.reshape(shape + (2,)))
+                   solid_z.reshape(shape + (2,)), (top_cells & ~behind_surface).reshape(shape))
 
 
 def solid_tops(key: np.ndarray, tsdf: np.ndarray, levels: int, first: int, last: int, max_gap: int
@@ -488,7 +492,8 @@ def build_grids(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray,
                           p.building_closing_m, p.fill_enclosed_max_m2) & ~low_air
     occupied |= hidden
     # Last, so that no rule above fills a cell an observed face passes in front of.
-    occupied &= ~in_front_of_faces(grid, floor_z, xyz, normals, occupied, columns.solid_z, p)
+    cleared = in_front_of_faces(grid, floor_z, xyz, normals, occupied, columns.solid_z, p)
+    occupied &= ~cleared
     free = floor_seen & ~occupied
     occupancy = np.full(occupied.shape, UNKNOWN, np.uint8)
     occupancy[free] = FREE
@@ -505,6 +510,8 @@ def build_grids(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray,
         "cells_unknown": int((occupancy == UNKNOWN).sum()),
         "cells_navigable": int(navigable.sum()),
         "cells_inferred_occupied": int(hidden.sum()),
+        "cells_occupied_by_tops": int((columns.tops_only & occupied).sum()),
+        "cells_cleared_in_front_of_faces": int(cleared.sum()),
         "points_outside_grid": outside,
         "points_outside_fraction": round(float(outside_fraction), 6),
     }

@@ -163,6 +163,7 @@ def test_a_thin_top_seen_only_from_above_occupies_its_cell_but_a_face_beside_the
     columns = column_occupancy(grid, 0.0, chunks, p)
     assert np.argwhere(columns.occupied).tolist() == [[0, 0]]
     assert np.allclose(columns.solid_z[0, 0], 0.725)  # the board, under the voxel in front of it
+    assert np.argwhere(columns.tops_only).tolist() == [[0, 0]]
     # The rule looks across chunk boundaries: the voxel above the top in another chunk still counts.
     split = [(top[0][:4], top[1][:4]), (top[0][4:], top[1][4:])]
     assert column_occupancy(grid, 0.0, split, p).occupied[0, 0]
