@@ -7,8 +7,8 @@ row, col). Definitions (heights are above the estimated floor ``floor_z``):
   ``[obstacle_min_height_m, obstacle_max_height_m]``, observed at least ``occupancy_min_weight``
   times, lies behind a surface (negative TSDF); or the column shows the top of a solid whose inside
   was never observed (:func:`solid_tops`: a voxel just in front of a surface below it with nothing
-  observed under it, or a patch of columns with a run of at most 7.5 cm never observed between seen
-  air — a thin table top or seat seen only at grazing angles from above, whose inside fusion never
+  observed under it, or a flat patch of columns with a run of at most 7.5 cm never observed between
+  seen air — a thin table top or seat seen only at grazing angles from above, whose inside fusion never
   reaches); or ``surface_min_points`` surface points of that band, moved half
   a cell into the solid along their normals, lie in the cell (:func:`surface_occupancy`).
   Voxels seen once count. The grid origin is snapped so that every cell centre is a
@@ -273,13 +273,7 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
     if keys:
         tops, slabs = solid_tops(np.concatenate(keys), np.concatenate(values), levels, first=max_gap + 1,
                                  last=levels - 2, max_gap=max_gap)
-        # A board spans many cells; a lone unobserved gap in seen free space is no board.
-        slab_cells = np.zeros(cells, dtype=bool)
-        slab_cells[slabs // levels] = True
-        labels, n = label(slab_cells.reshape(grid.rows, grid.cols), structure=np.ones((3, 3), bool))
-        big = np.bincount(labels.ravel(), minlength=n + 1) * grid.cell_size_m**2 >= _SLAB_MIN_AREA_M2
-        big[0] = False
-        tops = np.concatenate([tops, slabs[big[labels.ravel()[slabs // levels]]]])
+        tops = np.concatenate([tops, board_slabs(slabs, levels, grid)])
         top_cell, top_level = tops // levels, tops % levels - 1  # the solid lies just below the voxel
         np.minimum.at(solid_lo, top_cell, top_level)
         np.maximum.at(solid_hi, top_cell, top_level)
@@ -340,6 +334,26 @@ def solid_tops(key: np.ndarray, tsdf: np.ndarray, levels: int, first: int, last:
         slab |= unseen_run & seen & (t_under > 0)
         unseen_run &= ~seen
     return k[top], k[slab & ~top]
+
+
+def board_slabs(slabs: np.ndarray, levels: int, grid: GridSpec) -> np.ndarray:
+    """The slab keys (:func:`solid_tops`) that form a board: a flat patch of at least ``_SLAB_MIN_AREA_M2``.
+
+    A board is horizontal, so its slabs sit at one level (one voxel of slack); a lone unobserved
+    gap in seen free space, or gaps at scattered heights, are no board.
+    """
+    cell, level = slabs // levels, slabs % levels
+    keep = np.zeros(len(slabs), dtype=bool)
+    for at in np.unique(level):
+        near = np.abs(level - at) <= 1
+        mask = np.zeros(grid.rows * grid.cols, dtype=bool)
+        mask[cell[near]] = True
+        labels, n = label(mask.reshape(grid.rows, grid.cols), structure=np.ones((3, 3), bool))
+        big = np.bincount(labels.ravel(), minlength=n + 1) * grid.cell_size_m**2 >= _SLAB_MIN_AREA_M2
+        big[0] = False
+        here = level == at
+        keep[here] |= big[labels.ravel()[cell[here]]]
+    return slabs[keep]
 
 
 def surface_occupancy(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.ndarray, p: ReconstructParams

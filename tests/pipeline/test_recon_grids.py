@@ -238,3 +238,7 @@ def test_an_unseen_board_between_seen_air_is_solid_where_it_spans_a_patch():
     occupied = column_occupancy(grid, 0.0, chunks, p).occupied
     assert occupied[2:14, 2:14].all()
     assert occupied.sum() == len(table)
+    # The same patch with its gaps at heights 10 cm apart row by row: no flat board, nothing solid.
+    low = {k: 1.0 for k in (*range(20, 24), 26, 27, 28)}  # the gap at levels 24-25 instead of 28-29
+    rows = [columns([(r, c) for c in range(2, 14)], board if r % 2 else low) for r in range(2, 14)]
+    assert not column_occupancy(grid, 0.0, rows, p).occupied.any()
