@@ -63,9 +63,7 @@ def prepare(workdir: Path, scene: str, n_frames: int, small: bool = False) -> Pa
 def worker(frames_path: Path, every: int, out_dir: Path) -> None:
     from pipeline.config import GridParams, ReconstructParams
     from pipeline.frames import FrameStore
-    from pipeline.recon import Recon
-    from pipeline.recon.evaluate import grid_accuracy
-    from pipeline.scene_gt import GTScene
+    from pipeline.recon.evaluate import evaluate_grids
     from stages.reconstruct import reconstruct
 
     p, grid = ReconstructParams(), GridParams()
@@ -77,9 +75,8 @@ def worker(frames_path: Path, every: int, out_dir: Path) -> None:
                     p, grid, frames=sel)
     total = time.perf_counter() - t0
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    r = Recon(out_dir / "recon.zarr")
-    gt_raw = store.ground_truth
-    acc = grid_accuracy(r, GTScene.model_validate(gt_raw), p) if gt_raw else {}
+    acc = evaluate_grids(frames_path, out_dir / "recon.zarr", p) if store.ground_truth else {}
+    acc.pop("recon", None)
     print(json.dumps({
         "run": "all" if every == 1 else f"every{every}", "frames": str(frames_path), "frames_fused": s["frames_fused"],
         "threads": int(os.environ.get("OMP_NUM_THREADS", "0")), "fuse_frames_per_s": s["frames_per_s"],

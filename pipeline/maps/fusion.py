@@ -187,7 +187,7 @@ class _SlotStore:
             new[: old.shape[0]] = old
             setattr(self, name, new)
 
-    def add(self, target: torch.Tensor, features: torch.Tensor, weights: torch.Tensor | None) -> None:
+    def add(self, target: torch.Tensor, features: torch.Tensor, weights: np.ndarray | None) -> None:
         """Add rows of ``features`` ``(P,D)`` (times ``weights`` ``(P,)``) into slots ``target`` ``(P,)`` (0 = skip).
 
         One sparse x dense product: a ``(P, K)`` one-hot matrix (one non-zero per fused point, its
@@ -204,7 +204,10 @@ class _SlotStore:
         self._pos[touched] = torch.arange(len(touched), device=self.device)
         local = self._pos[t]
         k = len(touched)
-        w = torch.ones(len(keep), dtype=torch.float32, device=self.device) if weights is None else weights[keep]
+        if weights is None:
+            w = torch.ones(len(keep), dtype=torch.float32, device=self.device)
+        else:
+            w = torch.from_numpy(np.asarray(weights, np.float32)).to(self.device)[keep]
         crow = torch.zeros(len(target) + 1, dtype=torch.int64, device=self.device)
         torch.cumsum(fused, 0, out=crow[1:])  # rows of points that are not fused stay empty (never read)
         with warnings.catch_warnings():  # "sparse CSR support is in beta": the product used here is stable
@@ -289,8 +292,7 @@ class TopDownAccumulator:
             on_top = level == self.top[slot]
             target[fused] = torch.where(on_top, slot, torch.zeros_like(slot))
             self.points_fused += int(on_top.sum())
-        w = None if weights is None else torch.from_numpy(np.asarray(weights, np.float32)).to(dev)
-        self.store.add(target, _flat_features(features, dev), w)
+        self.store.add(target, _flat_features(features, dev), weights)
 
     def result(self) -> "FusedCells":
         keys, slots = self.store.observed()
@@ -316,8 +318,7 @@ class VoxelAccumulator:
             key = torch.from_numpy(points.level).to(dev)[fused] * self.lattice.cells + cell[fused]
             target[fused] = self.store.slots(key)
             self.points_fused += int(fused.sum())
-        w = None if weights is None else torch.from_numpy(np.asarray(weights, np.float32)).to(dev)
-        self.store.add(target, _flat_features(features, dev), w)
+        self.store.add(target, _flat_features(features, dev), weights)
 
     def result(self) -> "FusedVoxels":
         keys, slots = self.store.observed()

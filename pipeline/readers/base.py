@@ -190,6 +190,17 @@ def native_intrinsics(fx: float, fy: float, cx: float, cy: float, first_image: P
     return scaled, f"{what} for 640x480, rescaled to the images' {w}x{h}: {scaled.to_dict()}"
 
 
+def read_depth16(path: Path, frame: int, expected: str) -> np.ndarray:
+    """A single-channel 16-bit depth PNG as stored (no unit conversion); anything else raises :class:`InputDataError`."""
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None or img.dtype != np.uint16 or img.ndim != 2:
+        raise InputDataError("depth image is not a single-channel 16-bit PNG", path=path, frame=frame,
+                             expected=expected)
+    return img
+
+
 def read_image(path: Path, *, flags: int, frame: int, what: str) -> np.ndarray:
     """Load an image file with OpenCV; unreadable files raise :class:`InputDataError`."""
     import cv2

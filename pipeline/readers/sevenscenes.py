@@ -18,7 +18,7 @@ import numpy as np
 
 from pipeline.errors import InputDataError
 from pipeline.readers.base import (DEPTH, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, frame_stamps_ns,
-                                   native_intrinsics, read_image, register)
+                                   native_intrinsics, read_depth16, read_image, register)
 
 SEVEN_SCENES_INTRINSICS = (585.0, 585.0, 320.0, 240.0)
 INVALID_DEPTH = 65535
@@ -85,8 +85,5 @@ class SevenScenesReader(Reader):
 
     @staticmethod
     def _depth(file: Path, k: int) -> np.ndarray:
-        img = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
-        if img is None or img.dtype != np.uint16 or img.ndim != 2:
-            raise InputDataError("depth image is not a single-channel 16-bit PNG", path=file, frame=k,
-                                 expected="uint16 millimetres")
+        img = read_depth16(file, k, "uint16 millimetres")
         return np.where(img == INVALID_DEPTH, 0, img).astype(np.uint16)

@@ -20,7 +20,8 @@ import numpy as np
 from pipeline.errors import InputDataError
 from pipeline.geometry import Intrinsics
 from pipeline.readers.base import (DEPTH, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, parse_stamp_ns,
-                                   native_intrinsics, pose_from_tq_checked, read_image, register)
+                                   native_intrinsics, pose_from_tq_checked, read_depth16, read_image,
+                                   register)
 
 # (fx, fy, cx, cy) published for each Kinect of the benchmark, 640x480.
 TUM_INTRINSICS = {"fr1": (517.3, 516.5, 318.6, 255.3), "fr2": (520.9, 521.0, 325.1, 249.7),
@@ -117,8 +118,5 @@ class TumReader(Reader):
 
     @staticmethod
     def _depth(file: Path, k: int) -> np.ndarray:
-        img = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
-        if img is None or img.dtype != np.uint16 or img.ndim != 2:
-            raise InputDataError("depth image is not a single-channel 16-bit PNG", path=file, frame=k,
-                                 expected="uint16 depth at 5000 per metre")
+        img = read_depth16(file, k, "uint16 depth at 5000 per metre")
         return img

@@ -21,6 +21,18 @@ def _ingest(path, tmp_path, **params):
     return FrameStore(out), summary
 
 
+def _write_c_log(path, rec, *, intrinsics=None, q_override=None):
+    """``rec`` on /c/... topics frame by frame; ``intrinsics(i)`` / ``q_override(i)`` alter frame ``i``."""
+    log = RawLog(path)
+    for i in range(len(rec)):
+        s = int(rec.stamps[i])
+        log.image("/c/color/image_raw", s, rec.rgb[i], "rgb8")
+        log.image("/c/depth/image_raw", s, rec.depth_mm[i], "16UC1")
+        log.camera_info("/c/color/camera_info", s, intrinsics(i) if intrinsics else rec.intrinsics)
+        log.pose("/c/pose", s, rec.poses[i], q_override=q_override(i) if q_override else None)
+    log.close()
+
+
 def _gt() -> GTScene:
     return GTScene(name="t", seed=3, wall_height_m=2.5,
                    rooms=[GTRoom(id="bedroom_1", type="bedroom", polygon=[(0, 0), (3, 0), (3, 3)])], walls=[],
@@ -181,15 +193,8 @@ def test_camera_info_changes(tmp_path):
     from pipeline.geometry import Intrinsics
 
     rec = make_recording(3)
-    log = RawLog(tmp_path / "log.mcap")
-    for i in range(3):
-        s = int(rec.stamps[i])
-        log.image("/c/color/image_raw", s, rec.rgb[i], "rgb8")
-        log.image("/c/depth/image_raw", s, rec.depth_mm[i], "16UC1")
-        intr = rec.intrinsics if i < 2 else Intrinsics(10, 10, 32, 24, 64, 48)
-        log.camera_info("/c/color/camera_info", s, intr)
-        log.pose("/c/pose", s, rec.poses[i])
-    log.close()
+    _write_c_log(tmp_path / "log.mcap", rec, intrinsics=lambda i: rec.intrinsics if i < 2 else
+                 Intrinsics(10, 10, 32, 24, 64, 48))
     with pytest.raises(InputDataError, match=r"topic /c/color/camera_info; field k/width/height; frame 2: CameraInfo "
                                              r"changed"):
         _ingest(tmp_path / "log.mcap", tmp_path)
@@ -201,14 +206,7 @@ def test_camera_info_changes(tmp_path):
 ])
 def test_bad_pose(tmp_path, q, message):
     rec = make_recording(3)
-    log = RawLog(tmp_path / "log.mcap")
-    for i in range(3):
-        s = int(rec.stamps[i])
-        log.image("/c/color/image_raw", s, rec.rgb[i], "rgb8")
-        log.image("/c/depth/image_raw", s, rec.depth_mm[i], "16UC1")
-        log.camera_info("/c/color/camera_info", s, rec.intrinsics)
-        log.pose("/c/pose", s, rec.poses[i], q_override=q if i == 1 else None)
-    log.close()
+    _write_c_log(tmp_path / "log.mcap", rec, q_override=lambda i: q if i == 1 else None)
     with pytest.raises(InputDataError, match=message):
         _ingest(tmp_path / "log.mcap", tmp_path)
 
