@@ -23,6 +23,7 @@ from scipy import ndimage
 from orion_eval.artifacts import Artifacts
 from orion_eval.nav import NavPlanner
 from orion_eval.world import SuccessRule, World
+from pipeline.encoders.base import cached_text_features
 from pipeline.routes.actions import RouteSettings
 
 
@@ -216,11 +217,7 @@ class SceneContext:
         return e
 
     def text_features(self, texts: list[str]) -> torch.Tensor:
-        missing = [t for t in dict.fromkeys(texts) if t not in self._text_cache]
-        if missing:
-            for t, f in zip(missing, self.encoder.encode_text(missing).float()):
-                self._text_cache[t] = f
-        return torch.stack([self._text_cache[t] for t in texts])
+        return cached_text_features(self.encoder, self._text_cache, texts)
 
     def pose_key(self, pose) -> tuple[int, int, int]:
         x, y, yaw = pose

@@ -210,6 +210,15 @@ class OpenClipText:
 
 # ----------------------------------------------------------------------------- helpers
 
+def cached_text_features(encoder: "Encoder", cache: dict[str, torch.Tensor], texts: list[str]) -> torch.Tensor:
+    """``(T,D)`` float32 text features of ``texts``; prompts missing from ``cache`` are encoded in one call and kept."""
+    missing = [t for t in dict.fromkeys(texts) if t not in cache]
+    if missing:
+        for t, f in zip(missing, encoder.encode_text(missing).float()):
+            cache[t] = f
+    return torch.stack([cache[t] for t in texts])
+
+
 def check_images(
     rgb: np.ndarray, depth_m: np.ndarray | None, instance: np.ndarray | None
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:

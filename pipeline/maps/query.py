@@ -41,6 +41,7 @@ import cv2
 import numpy as np
 import torch
 
+from pipeline.encoders.base import cached_text_features
 from pipeline.errors import ArtifactError, LineageError
 from pipeline.geometry import GridSpec
 from pipeline.maps.store import SemanticMap
@@ -149,11 +150,7 @@ class MapQuery:
     # ------------------------------------------------------------------ text
     def text_features(self, texts: list[str]) -> torch.Tensor:
         """``(T,D)`` float32 unit text features (cached per prompt)."""
-        missing = [t for t in dict.fromkeys(texts) if t not in self._text]
-        if missing:
-            for t, f in zip(missing, self.encoder.encode_text(missing).float()):
-                self._text[t] = f
-        return torch.stack([self._text[t] for t in texts])
+        return cached_text_features(self.encoder, self._text, texts)
 
     def _background_for(self, q: torch.Tensor) -> tuple[np.ndarray, np.ndarray, list[int]]:
         """Per-cell max and logsumexp(/T) of the background scores, leaving out prompts equal to ``q``."""
