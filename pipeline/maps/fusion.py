@@ -259,14 +259,13 @@ def _flat_features(features: torch.Tensor, device: torch.device) -> torch.Tensor
     return f.to(device=device, dtype=torch.float32)
 
 
-class TopDownAccumulator:
-    """Streaming top-down fusion with the top-level rule (see the module docstring)."""
+class _Accumulator:
+    """Shared streaming part of the accumulators: a slot store over ``n_keys`` keys and the block loop."""
 
-    def __init__(self, lattice: Lattice, dim: int, *, device: str | torch.device = "cpu"):
+    def __init__(self, lattice: Lattice, dim: int, n_keys: int, device: str | torch.device):
         self.lattice, self.dim = lattice, dim
         self.device = torch.device(device)
-        self.store = _SlotStore(dim, lattice.cells, self.device)
-        self.top = torch.full((self.store.sum.shape[0],), -1, dtype=torch.int64, device=self.device)
+        self.store = _SlotStore(dim, n_keys, self.device)
         self.points_fused = 0
 
     def add(self, points: BlockPoints, features: torch.Tensor, weights: np.ndarray | None = None) -> None:
@@ -276,23 +275,38 @@ class TopDownAccumulator:
         fused = cell >= 0
         target = torch.zeros_like(cell)
         if bool(fused.any()):
-            level = torch.from_numpy(points.level).to(dev)[fused]
-            slot = self.store.slots(cell[fused])
-            if self.top.shape[0] < self.store.sum.shape[0]:
-                grown = torch.full((self.store.sum.shape[0],), -1, dtype=torch.int64, device=dev)
-                grown[: self.top.shape[0]] = self.top
-                self.top = grown
-            n = self.store.used
-            block_top = torch.full((n,), -1, dtype=torch.int64, device=dev).scatter_reduce_(0, slot, level, "amax")
-            restart = torch.nonzero(block_top > self.top[:n]).squeeze(1)
-            self.store.sum[restart] = 0
-            self.store.weight[restart] = 0
-            self.store.count[restart] = 0
-            self.top[restart] = block_top[restart]
-            on_top = level == self.top[slot]
-            target[fused] = torch.where(on_top, slot, torch.zeros_like(slot))
-            self.points_fused += int(on_top.sum())
+            target[fused] = self._slots(cell[fused], torch.from_numpy(points.level).to(dev)[fused])
         self.store.add(target, _flat_features(features, dev), weights)
+
+    def _slots(self, cell: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
+        """Store slots of the in-grid points (0 = not fused); counts them in ``points_fused``."""
+        raise NotImplementedError
+
+
+class TopDownAccumulator(_Accumulator):
+    """Streaming top-down fusion with the top-level rule (see the module docstring)."""
+
+    def __init__(self, lattice: Lattice, dim: int, *, device: str | torch.device = "cpu"):
+        super().__init__(lattice, dim, lattice.cells, device)
+        self.top = torch.full((self.store.sum.shape[0],), -1, dtype=torch.int64, device=self.device)
+
+    def _slots(self, cell: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
+        dev = self.device
+        slot = self.store.slots(cell)
+        if self.top.shape[0] < self.store.sum.shape[0]:
+            grown = torch.full((self.store.sum.shape[0],), -1, dtype=torch.int64, device=dev)
+            grown[: self.top.shape[0]] = self.top
+            self.top = grown
+        n = self.store.used
+        block_top = torch.full((n,), -1, dtype=torch.int64, device=dev).scatter_reduce_(0, slot, level, "amax")
+        restart = torch.nonzero(block_top > self.top[:n]).squeeze(1)
+        self.store.sum[restart] = 0
+        self.store.weight[restart] = 0
+        self.store.count[restart] = 0
+        self.top[restart] = block_top[restart]
+        on_top = level == self.top[slot]
+        self.points_fused += int(on_top.sum())
+        return torch.where(on_top, slot, torch.zeros_like(slot))
 
     def result(self) -> "FusedCells":
         keys, slots = self.store.observed()
@@ -300,25 +314,15 @@ class TopDownAccumulator:
         return FusedCells.from_sums(keys, self.store.sum[s], self.store.weight[s], self.store.count[s], self.top[s])
 
 
-class VoxelAccumulator:
+class VoxelAccumulator(_Accumulator):
     """Sparse 3-D voxel feature map on the lattice (every level kept; ConceptFusion-style)."""
 
     def __init__(self, lattice: Lattice, dim: int, *, device: str | torch.device = "cpu"):
-        self.lattice, self.dim = lattice, dim
-        self.device = torch.device(device)
-        self.store = _SlotStore(dim, lattice.cells * lattice.levels, self.device)
-        self.points_fused = 0
+        super().__init__(lattice, dim, lattice.cells * lattice.levels, device)
 
-    def add(self, points: BlockPoints, features: torch.Tensor, weights: np.ndarray | None = None) -> None:
-        dev = self.device
-        cell = torch.from_numpy(points.cell).to(dev)
-        fused = cell >= 0
-        target = torch.zeros_like(cell)
-        if bool(fused.any()):
-            key = torch.from_numpy(points.level).to(dev)[fused] * self.lattice.cells + cell[fused]
-            target[fused] = self.store.slots(key)
-            self.points_fused += int(fused.sum())
-        self.store.add(target, _flat_features(features, dev), weights)
+    def _slots(self, cell: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
+        self.points_fused += len(cell)
+        return self.store.slots(level * self.lattice.cells + cell)
 
     def result(self) -> "FusedVoxels":
         keys, slots = self.store.observed()
