@@ -138,6 +138,10 @@ class IngestParams(Section):
         2.0, gt=0, description="a colour frame is decided once any stream is this far ahead of it (bounds memory "
         "when a stream stalls or stops), seconds"
     )
+    depth_camera_info: str | None = Field(
+        None, description="CameraInfo of the depth camera (auto: the one in the depth topic's namespace); depth "
+        "on another frame or with other intrinsics than colour is registered into the colour camera"
+    )
     tum_camera: Literal["auto", "fr1", "fr2", "fr3"] = Field(
         "auto", description="TUM RGB-D intrinsics set; 'auto' reads freiburg1/2/3 (fr1/2/3) from the folder name, "
         "else fr1"
@@ -185,6 +189,18 @@ class ReconstructParams(Section):
     )
     obstacle_min_height_m: float = Field(
         0.1, ge=0, description="geometry above floor + this (and below obstacle_max_height_m) blocks a cell"
+    )
+    world_up: Literal["dataset", "auto", "+z", "-z", "+y", "-y", "+x", "-x"] = Field(
+        "dataset", description="the source world's up axis, rotated to zipon's +z: 'dataset' = the reader's "
+        "documented convention (7-Scenes -y, everything else +z), 'auto' = the normal of the dominant floor plane "
+        "seen in the first world_up_auto_frames frames (logged and stored in frames.zarr attrs world_up)"
+    )
+    world_up_auto_frames: int = Field(
+        48, gt=0, description="frames at the start of the log that world_up 'auto' looks for the floor in"
+    )
+    pose_orthonormal_tol: float = Field(
+        1e-3, gt=0, description="poses stored as matrices (7-Scenes, Replica, ScanNet) whose rotation is orthonormal "
+        "within this are re-orthonormalised (SVD); beyond it they are refused (real 7-Scenes: ~2.5e-4)"
     )
     obstacle_max_height_m: float = Field(
         1.5, gt=0, description="top of the robot's height band above the floor, metres"

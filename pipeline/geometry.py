@@ -82,6 +82,27 @@ def check_rigid(T: np.ndarray, *, tol: float = 1e-4, path=None, topic=None, firs
                              expected=f"a finite rotation+translation (orthonormality within {tol})")
 
 
+def nearest_rigid(T: np.ndarray, *, tol: float, path=None, frame: int | None = None) -> np.ndarray:
+    """Re-orthonormalise a ``(4,4)`` pose read as a matrix: its rotation replaced by the nearest rotation (SVD).
+
+    Poses stored as printed matrices (7-Scenes, Replica, ScanNet) are orthonormal only to their print
+    precision (real 7-Scenes: ~2.5e-4). Within ``tol`` (:func:`rigid_error`) the pose is projected;
+    beyond it, or NaN, :class:`InputDataError` names ``path`` and ``frame``.
+    """
+    T = np.asarray(T, dtype=np.float64)
+    err = float(rigid_error(T))
+    if not err <= tol:
+        what = "contains NaN/inf" if not np.isfinite(err) else f"is not rigid (error {err:.2e})"
+        raise InputDataError(f"pose {what}", path=path, frame=frame,
+                             expected=f"a rotation orthonormal within ingest.pose_orthonormal_tol = {tol} "
+                                      "(re-orthonormalised by SVD below it)")
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    out = np.eye(4)
+    out[:3, :3] = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    out[:3, 3] = T[:3, 3]
+    return out
+
+
 def interpolate_poses(stamps_ns: np.ndarray, poses: np.ndarray, query_ns: np.ndarray) -> np.ndarray:
     """Poses at ``query_ns`` by linear translation and spherical rotation interpolation.
 
@@ -138,6 +159,47 @@ def habitat_to_world(T_habitat_body: np.ndarray, camera_height_m: float) -> np.n
     out[..., :3, :3] = R_ZUP_FROM_HABITAT @ T_hab_cam_gl[..., :3, :3] @ R_GL_FROM_CV
     out[..., :3, 3] = np.einsum("ij,...j->...i", R_ZUP_FROM_HABITAT, T_hab_cam_gl[..., :3, 3])
     out[..., 3, 3] = 1.0
+    return out
+
+
+# Source-world "up" directions an importer may state (ingest.world_up).
+WORLD_UP_AXES = {"+x": (1.0, 0.0, 0.0), "-x": (-1.0, 0.0, 0.0), "+y": (0.0, 1.0, 0.0), "-y": (0.0, -1.0, 0.0),
+                 "+z": (0.0, 0.0, 1.0), "-z": (0.0, 0.0, -1.0)}
+
+
+def R_zup_from_up(up) -> np.ndarray:
+    """``(3,3)`` rotation from a source world whose up is ``up`` into zipon's z-up world.
+
+    ``up``: an axis name of :data:`WORLD_UP_AXES` or a vector ``(3,)``. For an axis the rotation is a
+    signed permutation: ``up`` -> +z, the first source axis across it (x, else y) -> +x, and +y
+    completes a right-handed frame (so ``-y`` (7-Scenes) maps (x, y, z) -> (x, z, -y), ``+y``
+    (Habitat) equals :data:`R_ZUP_FROM_HABITAT`). A vector is snapped to its nearest axis that way,
+    then tilted onto +z by the smallest rotation.
+    """
+    u = np.asarray(WORLD_UP_AXES[up] if isinstance(up, str) else up, dtype=np.float64)
+    u = u / np.linalg.norm(u)
+    axis = np.zeros(3)
+    k = int(np.argmax(np.abs(u)))
+    axis[k] = np.sign(u[k])
+    x_new = np.eye(3)[0] if k != 0 else np.eye(3)[1]
+    R_axis = np.stack([x_new, np.cross(axis, x_new), axis])
+    v = R_axis @ u  # close to +z
+    c = float(v[2])
+    w = np.cross(v, [0.0, 0.0, 1.0])
+    s = float(np.linalg.norm(w))
+    if s < 1e-15:
+        return R_axis
+    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]]) / s
+    theta = np.arctan2(s, c)
+    R_tilt = np.eye(3) + np.sin(theta) * K + (1.0 - np.cos(theta)) * (K @ K)
+    return R_tilt @ R_axis
+
+
+def rotate_world(R_new_old: np.ndarray, T_old_camera: np.ndarray) -> np.ndarray:
+    """Poses ``(...,4,4)`` re-expressed in a rotated world: ``T_new = [R 0; 0 1] @ T_old``."""
+    T = np.asarray(T_old_camera, dtype=np.float64)
+    out = T.copy()
+    out[..., :3, :] = np.einsum("ij,...jk->...ik", R_new_old, T[..., :3, :])
     return out
 
 

@@ -4,7 +4,8 @@ Reads ``ctx.inputs['source']`` with the reader of ``params.scenes[scene].format`
 matches colour, depth and pose by time (:mod:`pipeline.readers.matcher`), and streams frame blocks
 into :class:`pipeline.frames.FrameStoreWriter`. The matching report (counts per stream, matched and
 unmatched frames by reason, tolerances) is logged, stored in the store's attrs ``matching`` and
-returned as the stage summary. Depth outside ``[depth_min_m, depth_max_m]`` is stored as 0.
+returned as the stage summary. Depth outside ``[depth_min_m, depth_max_m]`` is stored as 0. Poses are
+turned into the z-up world (:mod:`pipeline.readers.world_up`, ``ingest.world_up``; attrs ``world_up``).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from pipeline.errors import InputDataError
 from pipeline.frames import ARTIFACT, FORMAT_VERSION, FrameStoreWriter
 from pipeline.readers import FrameMatcher, open_reader
 from pipeline.readers.matcher import index_ranges
+from pipeline.readers.world_up import WorldUp
 from pipeline.store import artifact_attrs, remove
 
 
@@ -34,6 +36,10 @@ def ingest(source: Path, out_path: Path, params: IngestParams, fmt: str = "auto"
     log(f"reading {label} as {reader.name}: {info.intrinsics.width}x{info.intrinsics.height}, "
         f"pose from {' -> '.join(lk.name for lk in info.pose_chain)}")
     matcher = FrameMatcher(info, params, label)
+    world = WorldUp(params, reader.world_up, info.intrinsics, source=label, log=log)
+    if info.ground_truth is not None and not world.identity:
+        raise InputDataError(f"ingest.world_up {params.world_up!r} would rotate a log that carries ground truth",
+                             path=label, field="ingest.world_up", expected="'dataset' or '+z' for simulated logs")
     attrs = artifact_attrs(
         ARTIFACT, FORMAT_VERSION, "ingest", params_digest,
         depth_unit="mm", depth_range_m=[params.depth_min_m, params.depth_max_m],
@@ -67,7 +73,7 @@ def ingest(source: Path, out_path: Path, params: IngestParams, fmt: str = "auto"
                                  topic=info.where.get("depth"), field="depth",
                                  expected="depth in millimetres (16UC1) or metres (32FC1) inside "
                                           "ingest.depth_min_m..depth_max_m")
-        writer.close(matching=summary)
+        writer.close(matching=summary, world_up=world.record())
     except BaseException:
         remove(out_path)
         raise

@@ -24,7 +24,7 @@ import numpy as np
 
 from pipeline.config import IngestParams
 from pipeline.errors import InputDataError, MissingInputError
-from pipeline.geometry import Intrinsics, pose_from_tq
+from pipeline.geometry import Intrinsics, nearest_rigid, pose_from_tq
 
 # Stream names of samples.
 RGB, DEPTH, INSTANCE, POSE = "rgb", "depth", "instance", "pose"
@@ -91,6 +91,8 @@ class Reader(ABC):
     """A raw format. Subclasses are registered with :func:`register` and built by :func:`open_reader`."""
 
     name: ClassVar[str]
+    # The up axis of the dataset's world as documented by the dataset (ingest.world_up 'dataset').
+    world_up: ClassVar[str] = "+z"
 
     def __init__(self, path: Path, params: IngestParams):
         self.path = Path(path)
@@ -211,3 +213,15 @@ def read_image(path: Path, *, flags: int, frame: int, what: str) -> np.ndarray:
     if img.ndim == 3:
         img = np.ascontiguousarray(img[..., [2, 1, 0]])
     return img
+
+
+def read_pose_matrix(file: Path, frame: int, tol: float) -> np.ndarray:
+    """A 4x4 camera-to-world matrix from a text file, re-orthonormalised within ``tol``
+    (:func:`pipeline.geometry.nearest_rigid`); errors name the file and frame."""
+    try:
+        T = np.loadtxt(file, dtype=np.float64)
+    except ValueError as err:
+        raise InputDataError(f"pose is not numeric ({err})", path=file, frame=frame, expected="a 4x4 matrix") from None
+    if T.shape != (4, 4):
+        raise InputDataError(f"pose has shape {T.shape}", path=file, frame=frame, expected="a 4x4 matrix")
+    return nearest_rigid(T, tol=tol, path=file, frame=frame)

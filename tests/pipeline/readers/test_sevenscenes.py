@@ -1,17 +1,27 @@
-"""7-Scenes reader: synthesised stamps, invalid depth, malformed folders."""
+"""7-Scenes reader: synthesised stamps, invalid depth, released (slightly skewed) poses in a y-down world,
+malformed folders, and a rendered sequence through ingest -> reconstruct -> render."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
+from pipeline.cli import main
 from pipeline.config import IngestParams
 from pipeline.errors import InputDataError
 from pipeline.frames import FrameStore
+from pipeline.geometry import rigid_error
 from stages.ingest import ingest_path
-from tests.fixtures.raw_datasets import make_recording, write_7scenes
+from tests.fixtures.raw_datasets import make_recording, write_7scenes, write_7scenes_rendered
 
 QUIET = {"log": lambda m: None}
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    """The box room rendered as a released 7-Scenes sequence (24 frames, 320x240)."""
+    return write_7scenes_rendered(tmp_path_factory.mktemp("sevenscenes"))
 
 
 def test_stamps_from_folder_fps_and_invalid_depth(tmp_path):
@@ -25,6 +35,57 @@ def test_stamps_from_folder_fps_and_invalid_depth(tmp_path):
     assert any("10.0 Hz" in c for c in fs.attrs["provenance"]["conversions"])
 
 
+def test_released_poses_are_reorthonormalised_and_turned_z_up(tmp_path):
+    rec = make_recording(5)
+    root = write_7scenes(tmp_path, rec, skew=2e-4, fmt="%.7e")
+    on_disk = np.loadtxt(root / "frame-000003.pose.txt")
+    assert 1e-4 < rigid_error(on_disk) < 1e-3  # as released: not rigid to the matcher's 1e-4
+    ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
+    fs = FrameStore(tmp_path / "f.zarr")
+    assert rigid_error(fs.poses()).max() < 1e-12
+    assert np.abs(fs.poses() - rec.poses).max() < 1e-3  # y-down world -> the recording's z-up world
+    assert fs.poses()[:, 2, 3] == pytest.approx(np.full(5, 0.88), abs=1e-6)  # camera height is world z
+    up = fs.attrs["world_up"]
+    assert up["setting"] == "dataset" and up["source_up"] == "-y"
+    assert np.allclose(up["R_zup_from_source"], [[1, 0, 0], [0, 0, 1], [0, -1, 0]])
+
+
+def test_stated_world_up_overrides_the_dataset(tmp_path):
+    rec = make_recording(3)
+    root = write_7scenes(tmp_path, rec)
+    ingest_path(root, tmp_path / "f.zarr", IngestParams(world_up="+z"), **QUIET)
+    fs = FrameStore(tmp_path / "f.zarr")
+    assert fs.poses()[:, 1, 3] == pytest.approx(np.full(3, -0.88))  # left as the dataset's frame: height on -y
+    assert fs.attrs["world_up"]["how"] == "stated by ingest.world_up: +z up"
+
+
+def test_jpg_colour(tmp_path):
+    rec = make_recording(3)
+    root = write_7scenes(tmp_path, rec, ext="jpg")
+    ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
+    fs = FrameStore(tmp_path / "f.zarr")
+    assert fs.n_frames == 3
+    on_disk = np.stack([cv2.imread(str(root / f"frame-{i:06d}.color.jpg"))[..., ::-1] for i in range(3)])
+    assert np.array_equal(fs.group["rgb"][:], on_disk)  # decoded JPEG, BGR -> RGB
+
+
+def test_skew_beyond_tolerance_is_refused_naming_the_file(tmp_path):
+    root = write_7scenes(tmp_path, make_recording(3), skew=2e-4, fmt="%.7e")
+    with pytest.raises(InputDataError, match=r"file .*frame-000000\.pose\.txt; frame 0: pose is not rigid "
+                                             r"\(error .*\) \(expected a rotation orthonormal within "
+                                             r"ingest\.pose_orthonormal_tol = 1e-05"):
+        ingest_path(root, tmp_path / "f.zarr", IngestParams(pose_orthonormal_tol=1e-5), **QUIET)
+    assert not (tmp_path / "f.zarr").exists()
+
+
+def test_non_rigid_pose(tmp_path):
+    rec = make_recording(3)
+    rec.poses[2, :3, :3] *= 1.5
+    root = write_7scenes(tmp_path, rec)
+    with pytest.raises(InputDataError, match=r"file .*frame-000002\.pose\.txt; frame 2: pose is not rigid"):
+        ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
+
+
 def test_missing_depth_file(tmp_path):
     root = write_7scenes(tmp_path, make_recording(3))
     (root / "frame-000001.depth.png").unlink()
@@ -33,9 +94,38 @@ def test_missing_depth_file(tmp_path):
         ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
 
 
-def test_non_rigid_pose(tmp_path):
-    rec = make_recording(3)
-    rec.poses[2, :3, :3] *= 1.5
+def test_auto_world_up_finds_the_floor(rendered, tmp_path):
+    root, poses, _ = rendered
+    logs = []
+    ingest_path(root, tmp_path / "f.zarr", IngestParams(world_up="auto"), log=logs.append)
+    fs = FrameStore(tmp_path / "f.zarr")
+    est = fs.attrs["world_up"]["estimate"]
+    assert est["nearest_axis"] == "-y" and est["tilt_deg"] < 0.1
+    assert any(m.startswith("world_up auto: floor-plane normal") for m in logs)
+    # z-up as the simulator's world: optical axes and heights agree (heading is kept by the smallest rotation)
+    assert np.abs(fs.poses()[:, 2, :] - poses[:, 2, :]).max() < 3e-3
+
+
+def test_auto_world_up_without_a_level_plane_is_refused(tmp_path):
+    rec = make_recording(4)  # random depth: no plane anywhere
     root = write_7scenes(tmp_path, rec)
-    with pytest.raises(InputDataError, match=r"topic frame-\*\.pose\.txt; frame 2: pose is not rigid"):
-        ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
+    with pytest.raises(InputDataError, match=r"field ingest\.world_up: world_up auto: .*set ingest\.world_up"):
+        ingest_path(root, tmp_path / "f.zarr", IngestParams(world_up="auto"), **QUIET)
+    assert not (tmp_path / "f.zarr").exists()
+
+
+def test_released_sequence_ingest_reconstruct_render(rendered, tmp_path, capsys):
+    """A 7-Scenes sequence as released goes through ingest -> reconstruct -> render with no hand edits."""
+    root, _, gt = rendered
+    (tmp_path / "params.yaml").write_text(f"scenes:\n  kitchen: {{source: {root}}}\n"
+                                          "reconstruct: {voxel_size_m: 0.05, depth_stride: 2}\n")
+    base = ["-q", "-p", str(tmp_path / "params.yaml"), "--data-dir", str(tmp_path / "data"),
+            "--manifests-dir", str(tmp_path / "manifests")]
+    assert main(base + ["run", "-s", "kitchen", "--stage", "ingest", "--stage", "reconstruct"]) == 0
+    assert main(base + ["render", "kitchen", "--what", "navigable", "-o", str(tmp_path / "nav.png")]) == 0
+    assert (tmp_path / "nav.png").stat().st_size > 1000
+    from pipeline.recon.store import Recon
+
+    recon = Recon(tmp_path / "data" / "artifacts" / "kitchen" / "recon.zarr")
+    assert abs(recon.floor_z - gt.floor_z) < 0.03
+    assert recon.navigable.sum() * recon.grid.cell_size_m ** 2 > 3.0  # m^2 of the 18 m^2 box room

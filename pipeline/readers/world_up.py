@@ -1,0 +1,163 @@
+"""World up at ingest: every reader's world turned so that +z is up (``ingest.world_up``).
+
+zipon's world is z-up (DESIGN.md); datasets are not: 7-Scenes' world is the first Kinect frame
+(y down), Habitat's is y up. ``ingest.world_up`` states the source world's up axis:
+
+- ``dataset`` (default): the reader's documented convention (:attr:`Reader.world_up`);
+- ``+z``, ``-z``, ``+y``, ``-y``, ``+x``, ``-x``: stated by the user;
+- ``auto``: gravity estimated as the normal of the dominant horizontal plane (the floor, or a table
+  top in close-up sequences: both are level) in the first ``ingest.world_up_auto_frames`` frames.
+  The cameras' mean image-up direction is the prior that tells floors from walls; the plane is fit
+  by SVD to the points of the most populated height band, twice refined. What was chosen is logged.
+
+The rotation comes from :func:`pipeline.geometry.R_zup_from_up` (the one module that owns frame
+conventions) and is applied to every pose (:func:`pipeline.geometry.rotate_world`); it is stored
+in ``frames.zarr`` attrs ``world_up`` with how it was obtained.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from typing import Callable, Iterable, Iterator
+
+import numpy as np
+
+from pipeline.config import IngestParams
+from pipeline.errors import InputDataError
+from pipeline.frames import FrameBlock
+from pipeline.geometry import WORLD_UP_AXES, Intrinsics, R_zup_from_up, rotate_world
+
+PRIOR_MAX_ANGLE_DEG = 35.0  # surface normals this close to the cameras' mean up may be the floor
+PLANE_BAND_M = 0.03  # half-height of the band of points fit as the plane
+MIN_PLANE_POINTS = 500
+SAMPLE_COLUMNS = 96  # depth sampled on a grid about this many pixels wide
+
+
+@dataclass(frozen=True)
+class UpEstimate:
+    """Gravity up in the source world, from the dominant horizontal plane."""
+
+    up: np.ndarray  # (3,) unit vector, source world
+    nearest_axis: str
+    tilt_deg: float  # angle between ``up`` and ``nearest_axis``
+    plane_points: int
+    frames: int
+
+    def describe(self) -> str:
+        u = ", ".join(f"{v:+.4f}" for v in self.up)
+        return (f"floor-plane normal ({u}) from {self.plane_points} points in {self.frames} frames: "
+                f"nearest axis {self.nearest_axis}, tilted {self.tilt_deg:.2f} deg from it")
+
+
+def _nearest_axis(u: np.ndarray) -> tuple[str, float]:
+    name = max(WORLD_UP_AXES, key=lambda k: float(np.dot(WORLD_UP_AXES[k], u)))
+    tilt = float(np.degrees(np.arccos(np.clip(np.dot(WORLD_UP_AXES[name], u), -1.0, 1.0))))
+    return name, tilt
+
+
+def estimate_up(depth_mm: np.ndarray, T_world_camera: np.ndarray, intr: Intrinsics, *, source: str = "",
+                max_frames: int = 16) -> UpEstimate:
+    """Up ``(3,)`` of the world of ``T_world_camera`` ``(N,4,4)`` from depth ``(N,H,W)`` uint16 mm.
+
+    Raises :class:`InputDataError` when no level plane can be found (say the axis with ``ingest.world_up``).
+    """
+    n = len(depth_mm)
+    advice = "a level floor or table seen from above; or set ingest.world_up to the dataset's up axis"
+    prior = (-T_world_camera[:, :3, 1]).mean(axis=0)  # image up (-y optical) averaged over the frames
+    if n == 0 or np.linalg.norm(prior) < 0.3:
+        raise InputDataError("world_up auto: the cameras' image-up directions disagree, no prior for gravity",
+                             path=source, field="ingest.world_up", expected=advice)
+    prior /= np.linalg.norm(prior)
+    pick = np.unique(np.round(np.linspace(0, n - 1, min(n, max_frames))).astype(int))
+    stride = max(1, intr.width // SAMPLE_COLUMNS)
+    z = depth_mm[pick, ::stride, ::stride].astype(np.float64) * 1e-3
+    u = np.arange(0, intr.width, stride, dtype=np.float64)
+    v = np.arange(0, intr.height, stride, dtype=np.float64)
+    P = np.stack(np.broadcast_arrays((u[None, None, :] - intr.cx) / intr.fx * z,
+                                     (v[None, :, None] - intr.cy) / intr.fy * z, z), axis=-1)  # (F,h,w,3)
+    dx = P[:, :-1, 1:] - P[:, :-1, :-1]
+    dy = P[:, 1:, :-1] - P[:, :-1, :-1]
+    p = P[:, :-1, :-1]
+    zc = z[:, :-1, :-1]
+    step = 4.0 * stride * zc / min(intr.fx, intr.fy)  # neighbours farther apart: a depth edge, not a surface
+    ok = ((zc > 0) & (z[:, :-1, 1:] > 0) & (z[:, 1:, :-1] > 0)
+          & (np.linalg.norm(dx, axis=-1) < step) & (np.linalg.norm(dy, axis=-1) < step))
+    normal = np.cross(dx, dy)
+    normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
+    normal = np.where((np.einsum("...i,...i->...", normal, p) > 0)[..., None], -normal, normal)  # face the camera
+    R, t = T_world_camera[pick, :3, :3], T_world_camera[pick, :3, 3]
+    n_w = np.einsum("fij,fhwj->fhwi", R, normal)[ok]
+    p_w = (np.einsum("fij,fhwj->fhwi", R, p) + t[:, None, None, :])[ok]
+    cand = n_w @ prior > np.cos(np.radians(PRIOR_MAX_ANGLE_DEG))
+    if cand.sum() < MIN_PLANE_POINTS:
+        raise InputDataError(f"world_up auto: only {int(cand.sum())} depth samples face up in the first {n} frames",
+                             path=source, field="ingest.world_up", expected=advice)
+    up = n_w[cand].mean(axis=0)
+    up /= np.linalg.norm(up)
+    for _ in range(3):  # mode of heights along the current up, plane fit, again with the refined up
+        sel = n_w @ up > np.cos(np.radians(15.0))
+        h = p_w[sel] @ up
+        bins = np.floor((h - h.min()) / 0.02).astype(np.int64)
+        counts = np.convolve(np.bincount(bins), np.ones(3), mode="same")
+        h0 = h.min() + (int(np.argmax(counts)) + 0.5) * 0.02
+        pts = p_w[sel][np.abs(h - h0) < PLANE_BAND_M]
+        if len(pts) < MIN_PLANE_POINTS:
+            raise InputDataError(f"world_up auto: the densest level band holds {len(pts)} points", path=source,
+                                 field="ingest.world_up", expected=advice)
+        normal_fit = np.linalg.svd(pts - pts.mean(axis=0), full_matrices=False)[2][-1]
+        up = normal_fit if normal_fit @ up > 0 else -normal_fit
+    axis, tilt = _nearest_axis(up)
+    return UpEstimate(up=up, nearest_axis=axis, tilt_deg=tilt, plane_points=len(pts), frames=len(pick))
+
+
+class WorldUp:
+    """The world-up conversion of one ingest: :meth:`apply` rotates the poses of every block."""
+
+    def __init__(self, params: IngestParams, dataset_up: str, intrinsics: Intrinsics, *, source: str = "",
+                 log: Callable[[str], None] = print):
+        self.setting = params.world_up
+        self.auto_frames = params.world_up_auto_frames
+        self.intrinsics, self.source, self.log = intrinsics, source, log
+        self.estimate: UpEstimate | None = None
+        self.source_up = dataset_up if self.setting == "dataset" else self.setting
+        self.R = None if self.setting == "auto" else R_zup_from_up(self.source_up)
+
+    @property
+    def identity(self) -> bool:
+        return self.setting != "auto" and self.source_up == "+z"
+
+    def apply(self, blocks: Iterable[FrameBlock]) -> Iterator[FrameBlock]:
+        blocks = iter(blocks)
+        pending: list[FrameBlock] = []
+        if self.R is None:  # auto: hold the first frames back until the floor is found in them
+            held = 0
+            for b in blocks:
+                pending.append(b)
+                held += len(b)
+                if held >= self.auto_frames:
+                    break
+            if pending:
+                depth = np.concatenate([b.depth_mm for b in pending])[: self.auto_frames]
+                poses = np.concatenate([b.T_world_camera for b in pending])[: self.auto_frames]
+                self.estimate = estimate_up(depth, poses, self.intrinsics, source=self.source)
+                self.R = R_zup_from_up(self.estimate.up)
+                self.log(f"world_up auto: {self.estimate.describe()}; rotated onto +z")
+        for b in itertools.chain(pending, blocks):
+            b.T_world_camera = rotate_world(self.R, b.T_world_camera)
+            yield b
+
+    def record(self) -> dict:
+        """What goes into frames.zarr attrs ``world_up``."""
+        rec = {"setting": self.setting,
+               "source_up": self.source_up if self.estimate is None else self.estimate.up.tolist(),
+               "R_zup_from_source": None if self.R is None else self.R.tolist()}
+        if self.setting == "dataset":
+            rec["how"] = f"the reader's documented convention: the dataset's world has {self.source_up} up"
+        elif self.estimate is not None:
+            rec["how"] = f"estimated: {self.estimate.describe()}"
+            rec["estimate"] = {"nearest_axis": self.estimate.nearest_axis, "tilt_deg": self.estimate.tilt_deg,
+                               "plane_points": self.estimate.plane_points, "frames": self.estimate.frames}
+        else:
+            rec["how"] = f"stated by ingest.world_up: {self.source_up} up"
+        return rec
