@@ -51,8 +51,9 @@ def scene_tasks(arts: Artifacts, methods, feedback, seeds) -> list[tuple[Task, o
 
 
 def evaluate_scene(ws: Workspace, params: Params, scene: str, methods, feedback, seeds,
-                   log_dir: Path | None = None, threads: int = 1) -> list[dict]:
-    """All episodes of one scene (the unit of work); writes ``log_dir/<scene>.episodes.jsonl.gz`` when given."""
+                   log_dir: Path | None = None, threads: int = 1, agent_classes: dict | None = None) -> list[dict]:
+    """All episodes of one scene (the unit of work); writes ``log_dir/<scene>.episodes.jsonl.gz`` when given.
+    ``agent_classes`` maps method names to user :class:`~orion_eval.agents.Agent` subclasses (beside the registry)."""
     from pipeline.runner import limit_native_threads
 
     limit_native_threads(threads)
@@ -66,7 +67,9 @@ def evaluate_scene(ws: Workspace, params: Params, scene: str, methods, feedback,
         client = ChatClient.from_params(lp)
         if lp.roles in ("user", "both"):
             llm_user = lambda goal: LLMUser(client, goal)  # noqa: E731
-    agents = {m: (LLMAgent(client) if m == "llm" else build_agent(m, params)) for m in methods}
+    extra = agent_classes or {}
+    agents = {m: (LLMAgent(client) if m == "llm" else extra[m](params) if m in extra else build_agent(m, params))
+              for m in methods}
     goal_index = {g.id: i for i, g in enumerate(arts.goals.goals)}
     results = []
     memories: dict[tuple, object] = {}  # (method, setting, seed) -> the memory carried across the scene's goals
@@ -92,7 +95,7 @@ def evaluate_scene(ws: Workspace, params: Params, scene: str, methods, feedback,
     return results
 
 
-def _resolve(params: Params, scenes, methods, feedback, seeds):
+def _resolve(params: Params, scenes, methods, feedback, seeds, agent_classes=None):
     ep = params.eval
     scenes = list(scenes or ep.scenes or params.scenes)
     unknown = [s for s in scenes if s not in params.scenes]
@@ -102,7 +105,7 @@ def _resolve(params: Params, scenes, methods, feedback, seeds):
 
     methods = list(methods or ep.methods)
     llm_agent = bool(ep.llm.base_url) and ep.llm.roles in ("agent", "both")
-    bad = [m for m in methods if m not in AGENTS and not (m == "llm" and llm_agent)]
+    bad = [m for m in methods if m not in AGENTS and m not in (agent_classes or {}) and not (m == "llm" and llm_agent)]
     if bad:
         raise ConfigError(f"--methods: unknown method(s) {bad}; choose from {sorted(AGENTS)} "
                           f"(and 'llm' when eval.llm.base_url is set with roles agent/both)")
@@ -115,12 +118,16 @@ def _resolve(params: Params, scenes, methods, feedback, seeds):
 
 
 def run_eval(ws: Workspace, params: Params, out_dir: Path, scenes=None, methods=None, feedback=None, seeds=None,
-             *, progress: bool = True, report: bool = True) -> dict:
-    """Evaluate, write ``out_dir/results.json`` (+ episode logs, + the HTML report) and return the results."""
+             *, progress: bool = True, report: bool = True, agent_classes: dict | None = None) -> dict:
+    """Evaluate, write ``out_dir/results.json`` (+ episode logs, + the HTML report) and return the results.
+
+    ``agent_classes`` {name: Agent subclass} adds user agents to the registry's for this run (``methods``
+    names them); they must be importable by name when ``eval.workers`` > 1 (worker processes).
+    """
     from orion_eval.metrics import summarize
 
     out_dir = Path(out_dir)
-    scenes, methods, feedback, seeds = _resolve(params, scenes, methods, feedback, seeds)
+    scenes, methods, feedback, seeds = _resolve(params, scenes, methods, feedback, seeds, agent_classes)
     for s in scenes:  # fail early, before any worker starts, on missing or mismatched artifacts
         Artifacts(ws, params, s)
     if params.eval.llm.base_url:
@@ -133,8 +140,8 @@ def run_eval(ws: Workspace, params: Params, out_dir: Path, scenes=None, methods=
     if workers > 1:
         import dask
 
-        tasks = [dask.delayed(evaluate_scene, pure=False)(ws, params, s, methods, feedback, seeds, log_dir)
-                 for s in scenes]
+        tasks = [dask.delayed(evaluate_scene, pure=False)(ws, params, s, methods, feedback, seeds, log_dir,
+                                                          agent_classes=agent_classes) for s in scenes]
         per_scene = dask.compute(*tasks, scheduler="processes", num_workers=workers)
     else:
         per_scene = []
@@ -143,7 +150,8 @@ def run_eval(ws: Workspace, params: Params, out_dir: Path, scenes=None, methods=
                 from rich.console import Console
 
                 Console(stderr=True).print(f"[dim]eval:[/dim] scene {s}")
-            per_scene.append(evaluate_scene(ws, params, s, methods, feedback, seeds, log_dir))
+            per_scene.append(evaluate_scene(ws, params, s, methods, feedback, seeds, log_dir,
+                                            agent_classes=agent_classes))
     episodes = [r for rs in per_scene for r in rs]
     seconds = time.perf_counter() - t0
     results = summarize(episodes, methods=methods, feedback=feedback, seeds=seeds, scenes=scenes,

@@ -47,6 +47,29 @@ FORMAT_VERSION = 1
 ARTIFACTS = ("vlmap", "cfmap")
 
 
+# group -> array -> (zarr dimension_names, attrs giving units and meaning), so `xarray.open_zarr(path, group="top")`
+# names every axis; the dense (y, x, feature) grid in metres is `zipon.open(...)[scene].vlmap.to_xarray()`.
+ARRAY_DIMS: dict[str, dict[str, tuple[tuple[str, ...], dict]]] = {
+    "top": {
+        "cell": (("cell",), {"units": "1", "long_name": "flat cell index row * cols + col (tile-major order)"}),
+        "features": (("cell", "feature"), {"units": "1", "long_name": "L2-normalised weighted mean feature"}),
+        "weight": (("cell",), {"units": "1", "long_name": "sum of point weights fused into the cell"}),
+        "count": (("cell",), {"units": "points", "long_name": "points fused into the cell (0 = filled)"}),
+        "level": (("cell",), {"units": "levels", "long_name": "height level of the cell's top",
+                              "formula": "z = floor_z + min_height_m + level * level_height_m (attrs.lattice)"}),
+        "tile_start": (("tile_edge",), {"units": "1", "long_name": "first row of each spatial tile in top/*"}),
+        "index": (("row", "col"), {"units": "1", "long_name": "row of top/* for each grid cell, -1 = unobserved",
+                                   "orientation": GridSpec.ORIENTATION}),
+    },
+    "voxels": {
+        "key": (("voxel", "rcl"), {"units": "1", "long_name": "(row, col, level) of each voxel"}),
+        "features": (("voxel", "feature"), {"units": "1", "long_name": "L2-normalised weighted mean feature"}),
+        "weight": (("voxel",), {"units": "1", "long_name": "sum of point weights fused into the voxel"}),
+        "count": (("voxel",), {"units": "points", "long_name": "points fused into the voxel"}),
+    },
+}
+
+
 def tile_order(cell: np.ndarray, grid: GridSpec, tile_cells: int) -> tuple[np.ndarray, np.ndarray]:
     """Permutation putting flat ``cell`` ids in tile-major order, and the ``(T+1,)`` tile offsets."""
     row, col = np.divmod(np.asarray(cell, np.int64), grid.cols)
@@ -83,7 +106,10 @@ def write_map(
     idx[cells.cell[order]] = np.arange(n, dtype=np.int32)
 
     def arr(group, name, data, chunks):
-        a = group.create_array(name, shape=data.shape, chunks=chunks, dtype=data.dtype, compressors=c_f)
+        dims, meaning = ARRAY_DIMS[group.basename][name]
+        a = group.create_array(name, shape=data.shape, chunks=chunks, dtype=data.dtype, compressors=c_f,
+                               dimension_names=dims)
+        a.attrs.update(meaning)
         if data.size:
             a[...] = data
         return a

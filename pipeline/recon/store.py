@@ -47,6 +47,16 @@ MESH_SUFFIX = "_mesh.ply"
 POINTS_SUFFIX = "_points.ply"
 UNITS = {"height": "m above floor_z", "floor_z": "m (world z)", "grid": "m", "color": "8-bit RGB"}
 
+# array -> (zarr dimension_names, units and meaning) so `xarray.open_zarr(recon.zarr)` names every axis
+ARRAY_DIMS: dict[str, tuple[tuple[str, ...], dict]] = {
+    "occupancy": (("row", "col"), {"units": "1", "long_name": "0 unknown, 1 free, 2 occupied"}),
+    "navigable": (("row", "col"), {"units": "1", "long_name": "free and clear of obstacles by robot_radius_m"}),
+    "color": (("row", "col", "rgb"), {"units": "8-bit RGB", "long_name": "colour of the highest surface"}),
+    "height": (("row", "col"), {"units": "m", "long_name": "height of the highest surface above floor_z"}),
+    "pose": (("frame", "pose_row", "pose_col"), {"units": "m", "long_name": "T_world_camera used for fusion"}),
+    "fused": (("frame",), {"units": "1", "long_name": "frame went into the volume"}),
+}
+
 
 def write_recon(path: Path, grids: Grids, poses: np.ndarray, fused: np.ndarray, attrs: dict) -> None:
     """Write a new ``recon.zarr`` at ``path`` (``attrs`` from :func:`pipeline.store.artifact_attrs` + figures)."""
@@ -71,10 +81,11 @@ def write_recon(path: Path, grids: Grids, poses: np.ndarray, fused: np.ndarray, 
         "fused": (fused.astype(bool), (max(len(fused), 1),), c, {}),
     }
     for name, (data, chunks, codec, a) in arrays.items():
+        dims, meaning = ARRAY_DIMS[name]
         arr = group.create_array(name, shape=data.shape, chunks=chunks, dtype=data.dtype, compressors=codec,
-                                 fill_value=np.nan if data.dtype == np.float32 else 0)
+                                 fill_value=np.nan if data.dtype == np.float32 else 0, dimension_names=dims)
         arr[...] = data
-        arr.attrs.update(a)
+        arr.attrs.update({**meaning, **a})
 
 
 def canonical_mesh(mesh: o3d.geometry.TriangleMesh) -> o3d.geometry.TriangleMesh:
