@@ -65,3 +65,8 @@ class LineageError(ZiponError, ValueError):
 
 class StageError(ZiponError, RuntimeError):
     """A stage could not produce a meaningful output (e.g. an empty scene)."""
+
+
+class LockedError(ZiponError, RuntimeError):
+    """Another live process holds the lock on the outputs this command would write; the message
+    names its pid and host."""

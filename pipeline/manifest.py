@@ -37,8 +37,12 @@ class Manifest(BaseModel):
     timing: dict[str, Any] = Field(default_factory=dict, description="started (UTC ISO), seconds, host")
     layout: dict[str, str] = Field(default_factory=dict, description="artifact path templates of this zipon")
 
+    def text(self) -> str:
+        """The file's exact text (a publication journal carries it, see :mod:`pipeline.publication`)."""
+        return json.dumps(self.model_dump(mode="json"), indent=2, sort_keys=True) + "\n"
+
     def write(self, path: Path) -> None:
-        write_text_atomic(path, json.dumps(self.model_dump(mode="json"), indent=2, sort_keys=True) + "\n")
+        write_text_atomic(path, self.text())
 
     @classmethod
     def read(cls, path: Path) -> "Manifest | None":

@@ -11,6 +11,8 @@ Layout under the data root (``--data-dir`` / ``ZIPON_DATA``, default ``<workspac
         goals.zarr / routes.zarr       stages ``goals`` / ``routes``
         renders/                       PNG pictures (not artifacts; never hashed)
         .tmp/                          stage outputs being written (removed on success)
+        .<stage>.lock                  held while a run builds that stage (pipeline.locks)
+        .<stage>.publish.json          publication journal, present only while one is in flight
     manifests/<scene>/<stage>.json     committed provenance (``--manifests-dir``)
 
 The same templates are saved into every manifest so a dataset documents its own layout.
@@ -36,6 +38,8 @@ ARTIFACTS: dict[str, str] = {
 }
 RENDERS = "artifacts/{scene}/renders"
 TMP = "artifacts/{scene}/.tmp"
+LOCK = "artifacts/{scene}/.{stage}.lock"
+JOURNAL = "artifacts/{scene}/.{stage}.publish.json"
 MANIFEST = "{scene}/{stage}.json"
 
 ENV_DATA = "ZIPON_DATA"
@@ -84,6 +88,12 @@ class Workspace:
 
     def tmp_dir(self, scene: str) -> Path:
         return self.data_dir / TMP.format(scene=scene)
+
+    def lock(self, scene: str, stage: str) -> Path:
+        return self.data_dir / LOCK.format(scene=scene, stage=stage)
+
+    def journal(self, scene: str, stage: str) -> Path:
+        return self.data_dir / JOURNAL.format(scene=scene, stage=stage)
 
     def relative(self, path: Path) -> str:
         """A path as recorded in manifests: relative to the data root when inside it."""

@@ -26,7 +26,9 @@ from pipeline.config import Params, digest_value
 from pipeline.errors import MissingInputError, StageError, ZiponError
 from pipeline.manifest import Manifest, OutputRecord
 from pipeline.paths import ARTIFACTS, Workspace
-from pipeline.store import content_digest, files_digest, new_tmp_dir, publish, remove, sweep_tmp
+from pipeline.locks import output_lock
+from pipeline.publication import check_inputs_unchanged, publish_outputs, recover
+from pipeline.store import content_digest, files_digest, new_tmp_dir, remove, sweep_tmp
 
 SOURCE = "source"  # the pseudo-input naming a scene's raw data (a log, a folder)
 
@@ -209,7 +211,19 @@ def limit_native_threads(n: int) -> None:
         pass
 
 
-def run_stage(
+def run_stage(ws: Workspace, params: Params, stages: dict[str, StageSpec], scene: str, stage: str, **kw) -> Outcome:
+    """:func:`_run_stage` holding the (scene, stage) lock (:mod:`pipeline.locks`; fails fast with
+    :class:`~pipeline.errors.LockedError`), after finishing or undoing a publication a killed run
+    left and sweeping its temporary folders (:mod:`pipeline.publication`)."""
+    outputs = [ws.artifact(name, scene) for name in stages[stage].outputs]
+    with output_lock(ws.lock(scene, stage), f"scene {scene} stage {stage}"):
+        recover(ws.journal(scene, stage), outputs, ws.manifest(scene, stage))
+        sweep_tmp(ws.tmp_dir(scene), label=stage)
+        check_inputs_unchanged(ws, scene, stage, upstream_stages(stages, params, scene, stage))
+        return _run_stage(ws, params, stages, scene, stage, **kw)
+
+
+def _run_stage(
     ws: Workspace,
     params: Params,
     stages: dict[str, StageSpec],
@@ -220,7 +234,7 @@ def run_stage(
     show_progress: bool = True,
     upstream: list[Outcome] | None = None,
 ) -> Outcome:
-    """Run one stage of one scene if it is stale (or ``force``); publish atomically; write its manifest."""
+    """Run one stage of one scene if it is stale (or ``force``); publish its outputs and manifest as one set."""
     spec = stages[stage]
     blocked = [o for o in (upstream or []) if o.status in ("failed", "blocked")]
     if blocked:
@@ -231,7 +245,6 @@ def run_stage(
         return Outcome(scene, stage, "skipped", reason="up to date")
     t0 = time.perf_counter()
     started = datetime.now(timezone.utc).isoformat(timespec="seconds")
-    sweep_tmp(ws.tmp_dir(scene))
     tmp = new_tmp_dir(ws.tmp_dir(scene), stage)
     try:
         inputs = {
@@ -255,9 +268,10 @@ def run_stage(
             timing={"started": started, "seconds": round(seconds, 3), "host": socket.gethostname(),
                     "python": platform.python_version()},
         )
-        for name, path in outputs.items():
-            publish(path, ws.artifact(name, scene))
-        man.write(ws.manifest(scene, stage))
+        check_inputs_unchanged(ws, scene, stage, upstream_stages(stages, params, scene, stage),
+                               {("raw_log" if k == SOURCE else k): v for k, v in in_digests.items()})
+        publish_outputs(ws.journal(scene, stage), {ws.artifact(n, scene): p for n, p in outputs.items()},
+                        ws.manifest(scene, stage), man)
         return Outcome(scene, stage, "ran", reason=reason, seconds=seconds, summary=summary)
     finally:
         remove(tmp)

@@ -1,8 +1,10 @@
-"""Artifact stores: zarr v3 helpers, deterministic content digests, atomic publication.
+"""Artifact stores: zarr v3 helpers, deterministic content digests, temporary folders, atomic writes.
 
-A stage never writes where readers look. It writes under ``artifacts/<scene>/.tmp/`` and the
-runner publishes the finished outputs with :func:`publish` (rename into place), so a crash
-leaves the previous version intact and nothing half-written that looks finished.
+A stage never writes where readers look. It writes in a folder of ``artifacts/<scene>/.tmp/`` made
+by :func:`new_tmp_dir` (named after its owner: label, host, pid), and the runner publishes the
+finished outputs with their manifest as one set (:mod:`pipeline.publication`), so a crash leaves
+one whole version and nothing half-written that looks finished. :func:`sweep_tmp` removes the
+folders of dead processes of this host only.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ import hashlib
 import json
 import os
 import shutil
+import socket
 import uuid
 from pathlib import Path
 from typing import Any
@@ -144,27 +147,47 @@ def files_digest(paths: list[Path]) -> str:
 # ----------------------------------------------------------------------------- atomic writes
 
 def new_tmp_dir(base: Path, label: str) -> Path:
-    """A fresh private folder under ``base`` for a stage's outputs-in-progress."""
-    path = Path(base) / f"{label}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    """A fresh private folder ``<label>@<host>-<pid>-<token>`` under ``base`` for outputs in progress.
+
+    The name records its owner, so :func:`sweep_tmp` on any machine of a cluster removes only
+    folders of dead processes on its own host.
+    """
+    path = Path(base) / f"{label}@{socket.gethostname()}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     path.mkdir(parents=True)
     return path
 
 
-def sweep_tmp(base: Path) -> list[Path]:
-    """Remove leftovers of killed runs: ``<label>-<pid>-<token>`` folders whose process is gone."""
+def tmp_owner(path: Path) -> tuple[str, str, int] | None:
+    """``(label, host, pid)`` of a folder made by :func:`new_tmp_dir`, or ``None`` for any other name."""
+    head, sep, tail = Path(path).name.rpartition("@")
+    parts = tail.rsplit("-", 2)
+    if not sep or len(parts) != 3 or not parts[1].isdigit():
+        return None
+    return head, parts[0], int(parts[1])
+
+
+def sweep_tmp(base: Path, label: str | None = None) -> list[Path]:
+    """Remove leftovers of killed runs: folders of ``base`` (of ``label`` only, when given) whose
+    owner was a process of this host that is gone. Another host's folders are never touched, since
+    its processes cannot be probed from here; nor are names :func:`new_tmp_dir` did not make.
+    """
     removed = []
     base = Path(base)
     if not base.is_dir():
         return removed
-    for path in base.iterdir():
-        parts = path.name.rsplit("-", 2)
-        if len(parts) == 3 and parts[1].isdigit() and not _pid_alive(int(parts[1])):
+    host = socket.gethostname()
+    for path in sorted(base.iterdir()):
+        owner = tmp_owner(path)
+        if owner is None or owner[1] != host or (label is not None and owner[0] != label):
+            continue
+        if not _pid_alive(owner[2]):
             remove(path)
             removed.append(path)
     return removed
 
 
 def _pid_alive(pid: int) -> bool:
+    """Whether a process ``pid`` exists on this host (one we may not signal counts as alive)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -175,10 +198,11 @@ def _pid_alive(pid: int) -> bool:
 
 
 def publish(tmp_path: Path, final_path: Path) -> None:
-    """Move a finished output into place, replacing any previous version.
+    """Move ONE finished file or folder into place, replacing any previous version.
 
     The old version is first renamed aside (same filesystem, atomic), then the new one is
     renamed in, then the old one is deleted: readers see the old or the new, never a mix.
+    A stage's outputs are published as one set by :mod:`pipeline.publication` instead.
     """
     tmp_path, final_path = Path(tmp_path), Path(final_path)
     final_path.parent.mkdir(parents=True, exist_ok=True)
@@ -199,9 +223,33 @@ def remove(path: Path) -> None:
         path.unlink()
 
 
+def fsync_dir(path: Path) -> None:
+    """Make the entries of folder ``path`` (creations, renames) durable; a no-op where folders
+    cannot be opened (Windows)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # some filesystems refuse fsync on folders; renames there are as durable as they get
+        pass
+    finally:
+        os.close(fd)
+
+
 def write_text_atomic(path: Path, text: str) -> None:
+    """Write ``path`` whole or not at all (temporary file, fsync, rename, fsync of the folder)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        remove(tmp)
+        raise
+    fsync_dir(path.parent)

@@ -87,7 +87,7 @@ def test_killed_run_leaves_no_finished_looking_store(workspace, tmp_path):
     proc.wait()
     assert content_digest(frames) == before  # previous version intact
     leftovers = list(workspace.tmp_dir("s0").iterdir())
-    assert leftovers and all(p.name.startswith("ingest-") for p in leftovers)  # only under .tmp/
+    assert leftovers and all(p.name.startswith("ingest@") for p in leftovers)  # only under .tmp/
     # the next run is not fooled (still up to date) and a forced run sweeps the dead run's leftovers
     params = load_params(workspace.params_path, ["simulate.frames=8"])
     assert staleness(workspace, params, TOY_STAGES, TOY_STAGES["ingest"], "s0") == ""

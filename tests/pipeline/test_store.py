@@ -1,8 +1,14 @@
+import os
+import socket
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
 from pipeline.errors import ArtifactError, MissingInputError
-from pipeline.store import artifact_attrs, compressor, content_digest, new_group, open_group, publish
+from pipeline.store import (artifact_attrs, compressor, content_digest, new_group, new_tmp_dir, open_group, publish,
+                            sweep_tmp, tmp_owner)
 
 
 def _store(path, values, level=3):
@@ -41,3 +47,27 @@ def test_publish_replaces_atomically(tmp_path):
     publish(tmp_path / "new.zarr", tmp_path / "final.zarr")
     assert content_digest(tmp_path / "final.zarr") == want
     assert sorted(p.name for p in tmp_path.iterdir()) == ["final.zarr"]
+
+
+def test_tmp_dirs_record_their_owner(tmp_path):
+    path = new_tmp_dir(tmp_path, "ingest")
+    assert tmp_owner(path) == ("ingest", socket.gethostname(), os.getpid())
+    assert tmp_owner(tmp_path / "notes") is None and tmp_owner(tmp_path / "a-12-ff") is None
+
+
+def test_sweep_removes_only_dead_local_owners(tmp_path):
+    host = socket.gethostname()
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    dead_pid = int(dead.stdout)  # a process of this host that has exited
+    mine = new_tmp_dir(tmp_path, "ingest")
+    gone = tmp_path / f"ingest@{host}-{dead_pid}-0badf00d"
+    gone_other_label = tmp_path / f"vlmap@{host}-{dead_pid}-0badf00d"
+    remote = tmp_path / f"ingest@node-17.cluster-{dead_pid}-0badf00d"  # another host: its pids mean nothing here
+    foreign = tmp_path / "user-notes"
+    for p in (gone, gone_other_label, remote, foreign):
+        p.mkdir()
+        (p / "x").write_text("x")
+    assert sweep_tmp(tmp_path, label="ingest") == [gone]
+    assert sweep_tmp(tmp_path) == [gone_other_label]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([mine.name, remote.name, foreign.name])
+    assert (remote / "x").read_text() == "x"

@@ -1,0 +1,68 @@
+"""Locks on a (scene, stage) output set, so two runs on one data root never build the same outputs.
+
+Granularity: one lock per (scene, stage), at ``artifacts/<scene>/.<stage>.lock`` (see
+:mod:`pipeline.paths`). Runs on different scenes or stages (``zipon run -s a`` beside
+``zipon run -s b``, or every worker of a dask cluster) proceed in parallel, as snakemake's
+per-output locks allow; a data-root lock (DVC's repo lock) would serialise them for no gain.
+A stage that *reads* an output another run republishes meanwhile is caught before it publishes
+(:func:`pipeline.publication.check_inputs_unchanged`).
+
+Contention fails fast, as ``dvc repro`` ("Unable to acquire lock") and snakemake ("Directory
+cannot be locked") do: a second run that would rebuild the same outputs stops at once with
+:class:`~pipeline.errors.LockedError` naming the holder's pid and host, and the CLI exits 1.
+
+The lock is filelock's :class:`~filelock.SoftFileLock`: a marker file created exclusively, holding
+the owner's pid, host and process start token; it needs no ``fcntl`` support from the filesystem
+(NFS and other shared filesystems work). A marker left by a dead process of *this* host is
+reclaimed automatically (the pid is probed and the start token guards against pid reuse); a
+marker of *another* host is never broken, because its process cannot be probed from here: the
+error says which host holds it and which file to delete once that host's run is known dead.
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+from filelock import SoftFileLock, Timeout
+
+from pipeline.errors import LockedError
+
+
+def lock_holder(path: Path) -> tuple[int, str] | None:
+    """``(pid, host)`` recorded in the lock marker at ``path``, or ``None`` (no marker, or unreadable).
+
+    filelock's marker is ``<pid>\\n<host>\\n[<start token>\\n]``.
+    """
+    try:
+        lines = Path(path).read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError):
+        return None
+    if len(lines) < 2 or not lines[0].isdigit() or not lines[1]:
+        return None
+    return int(lines[0]), lines[1]
+
+
+@contextmanager
+def output_lock(path: Path, what: str) -> Iterator[None]:
+    """Hold the lock at ``path`` (fail fast) for the body; ``what`` names the outputs in errors.
+
+    Raises :class:`LockedError` ``"<what> is being built by another zipon run: pid P on host H ..."``.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lock = SoftFileLock(str(path), timeout=0)
+    try:
+        lock.acquire()
+    except Timeout as err:
+        holder = lock_holder(path)
+        who = f"pid {holder[0]} on host {holder[1]}" if holder else "a process that did not record itself"
+        raise LockedError(
+            f"{what} is being built by another zipon run: {who} holds {path}. Wait for that run to finish; "
+            f"if it is gone (e.g. its host crashed), delete {path} and run again"
+        ) from err
+    try:
+        yield
+    finally:
+        lock.release()
