@@ -26,7 +26,7 @@ class Section(BaseModel):
 
 # ----------------------------------------------------------------------------- scenes
 
-SceneFormat = Literal["auto", "mcap", "tum", "7scenes", "navchat"]
+SceneFormat = Literal["auto", "mcap", "rosbag", "tum", "7scenes", "navchat"]
 
 
 class SceneSource(Section):

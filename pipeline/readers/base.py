@@ -134,9 +134,10 @@ def detect_format(path: Path) -> str:
         return found[0]
     if not found:
         raise InputDataError("cannot tell the format of this path", path=path,
-                             expected="a ROS 2 .mcap file (or rosbag2 folder holding one), a TUM RGB-D folder "
-                                      "(rgb.txt, depth.txt), a 7-Scenes folder (frame-*.color.png) or a navchat "
-                                      "recording (rgb/, depth/*.npy, pose/); or set the scene's format")
+                             expected="a ROS 2 .mcap file (or rosbag2 folder holding one), a ROS 1 .bag, a ROS 2 "
+                                      ".db3 (or rosbag2 folder), a TUM RGB-D folder (rgb.txt, depth.txt), a 7-Scenes "
+                                      "folder (frame-*.color.png), a navchat recording (rgb/, depth/*.npy, pose/); "
+                                      "or set the scene's format (--format)")
     raise InputDataError(f"path matches several formats {found}", path=path, expected="set the scene's format")
 
 

@@ -40,7 +40,14 @@ class NavchatReader(Reader):
                 and next((path / "depth").glob("*.npy"), None) is not None)
 
     def open(self) -> SourceInfo:
+        for sub in ("rgb", "depth", "pose"):
+            if not (self.path / sub).is_dir():
+                raise InputDataError(f"no {sub}/ folder", path=self.path / sub,
+                                     expected="a navchat recording folder with rgb/, depth/, pose/ (and semantic/)")
         found = [(m.group(1), int(m.group(2))) for p in (self.path / "rgb").iterdir() if (m := _RGB.match(p.name))]
+        if not found:
+            raise InputDataError("no rgb/{scene}_{i}.png files", path=self.path / "rgb",
+                                 expected="files rgb/{scene}_{i}.png of exactly one scene")
         scenes = sorted({s for s, _ in found})
         if len(scenes) != 1:
             raise InputDataError(f"rgb/ holds scenes {scenes}", path=self.path / "rgb",

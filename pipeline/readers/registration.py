@@ -3,10 +3,13 @@ into the colour camera's pixels, nearest surface kept (z-buffer).
 
 RealSense and Kinect-style drivers publish depth on the depth imager (``/camera/depth/image_rect_raw``,
 frame ``camera_depth_optical_frame``, its own K and size) a few centimetres from the colour imager.
-Each valid depth pixel is back-projected with the depth K, moved by ``T_color_depth`` (the static tf
-between the two optical frames), projected with the colour K to the nearest colour pixel, and the
-smallest z wins where several land on one pixel. Colour pixels no depth pixel lands on stay invalid
-(0): there is no interpolation across holes, so no depth is invented at occlusion edges.
+Each valid depth pixel's footprint -- its two corners (u -/+ 0.5, v -/+ 0.5) at its depth -- is
+back-projected with the depth K, moved by ``T_color_depth`` (the static tf between the two optical
+frames) and projected with the colour K; every colour pixel inside the projected footprint (at most
+``MAX_SPAN_PX`` a side) gets the point's colour-frame z, and the smallest z wins where several land on
+one pixel (z-buffer). This is how librealsense's ``align`` fills colour pixels denser than the depth
+pixels without interpolating; colour pixels no footprint covers (occlusions, outside the depth
+view) stay invalid (0), so no depth is invented at occlusion edges.
 """
 
 from __future__ import annotations
@@ -16,6 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.geometry import Intrinsics
+
+MAX_SPAN_PX = 4  # a depth pixel's footprint fills at most this many colour pixels a side
 
 
 @dataclass(frozen=True)
@@ -31,7 +36,7 @@ class DepthRegistration:
         t = self.T_color_depth[:3, 3]
         return (f"depth registered into the colour camera: {self.depth.width}x{self.depth.height} "
                 f"(fx {self.depth.fx:.2f}) -> {self.color.width}x{self.color.height} (fx {self.color.fx:.2f}), "
-                f"baseline ({t[0]:+.4f}, {t[1]:+.4f}, {t[2]:+.4f}) m, z-buffer, holes left invalid")
+                f"baseline ({t[0]:+.4f}, {t[1]:+.4f}, {t[2]:+.4f}) m, pixel footprints, z-buffer")
 
     def __call__(self, depth: np.ndarray) -> np.ndarray:
         """``(Hd,Wd)`` uint16 mm or float metres (0/NaN/inf invalid) -> ``(Hc,Wc)`` of the same dtype."""
@@ -43,17 +48,32 @@ class DepthRegistration:
         valid = np.isfinite(z) & (z > 0)
         v, u = np.nonzero(valid)
         z = z[v, u]
-        pts = np.stack([(u - d.cx) / d.fx * z, (v - d.cy) / d.fy * z, z], axis=-1)
         R, t = self.T_color_depth[:3, :3], self.T_color_depth[:3, 3]
-        pc = pts @ R.T + t
         c = self.color
-        zc = pc[:, 2]
-        front = zc > 1e-6
-        pc, zc = pc[front], zc[front]
-        uc = np.rint(pc[:, 0] / zc * c.fx + c.cx).astype(np.int64)
-        vc = np.rint(pc[:, 1] / zc * c.fy + c.cy).astype(np.int64)
-        inside = (uc >= 0) & (uc < c.width) & (vc >= 0) & (vc < c.height)
-        flat, zc = vc[inside] * c.width + uc[inside], zc[inside]
+
+        def to_colour(offset: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            pts = np.stack([(u + offset - d.cx) / d.fx * z, (v + offset - d.cy) / d.fy * z, z], axis=-1) @ R.T + t
+            zc = np.maximum(pts[:, 2], 1e-9)
+            return pts[:, 0] / zc * c.fx + c.cx, pts[:, 1] / zc * c.fy + c.cy, pts[:, 2]
+
+        xa, ya, za = to_colour(-0.5)
+        xb, yb, zb = to_colour(0.5)
+        zc = (z[:, None] * np.array([[0, 0, 1.0]]) @ R.T + t)[:, 2]  # the pixel centre's colour-frame z
+        front = (za > 1e-6) & (zb > 1e-6) & (zc > 1e-6)
+        u0 = np.floor(np.minimum(xa, xb)[front] + 0.5).astype(np.int64)
+        u1 = np.floor(np.maximum(xa, xb)[front] + 0.5).astype(np.int64)
+        v0 = np.floor(np.minimum(ya, yb)[front] + 0.5).astype(np.int64)
+        v1 = np.floor(np.maximum(ya, yb)[front] + 0.5).astype(np.int64)
+        zc = zc[front]
+        flats, zs = [], []
+        for dv in range(MAX_SPAN_PX):
+            for du in range(MAX_SPAN_PX):
+                m = (u0 + du <= u1) & (v0 + dv <= v1)
+                uu, vv = u0[m] + du, v0[m] + dv
+                inside = (uu >= 0) & (uu < c.width) & (vv >= 0) & (vv < c.height)
+                flats.append(vv[inside] * c.width + uu[inside])
+                zs.append(zc[m][inside])
+        flat, zc = np.concatenate(flats), np.concatenate(zs)
         order = np.argsort(zc, kind="stable")  # nearest first: np.unique keeps the first of each pixel
         pixels, first = np.unique(flat[order], return_index=True)
         out = np.zeros(c.height * c.width, dtype=np.float64)

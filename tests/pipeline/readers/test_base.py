@@ -14,8 +14,8 @@ from pipeline.errors import InputDataError, MissingInputError
 from pipeline.frames import FrameStore
 from pipeline.readers import READERS, detect_format, open_reader
 from stages.ingest import ingest_path
-from tests.fixtures.raw_datasets import (make_recording, navchat_expected_poses, write_7scenes, write_mcap,
-                                         write_navchat, write_tum)
+from tests.fixtures.raw_datasets import (make_recording, navchat_expected_poses, write_7scenes, write_bag,
+                                         write_mcap, write_navchat, write_tum)
 
 
 @dataclass
@@ -32,6 +32,11 @@ class Case:
 def _mcap(tmp: Path) -> Case:
     rec = make_recording(6)
     return Case(write_mcap(tmp / "log.mcap", rec), rec.rgb, rec.depth_mm, rec.instance, rec.poses, rec.stamps, 1e-9)
+
+
+def _rosbag(tmp: Path) -> Case:
+    rec = make_recording(6)
+    return Case(write_bag(tmp, rec, "ros1"), rec.rgb, rec.depth_mm, rec.instance, rec.poses, rec.stamps, 1e-9)
 
 
 def _tum(tmp: Path) -> Case:
@@ -52,7 +57,7 @@ def _navchat(tmp: Path) -> Case:
     return Case(write_navchat(tmp, rec), rec.rgb, rec.depth_mm, rec.instance, navchat_expected_poses(6), stamps, 1e-9)
 
 
-FACTORIES = {"mcap": _mcap, "tum": _tum, "7scenes": _7scenes, "navchat": _navchat}
+FACTORIES = {"mcap": _mcap, "rosbag": _rosbag, "tum": _tum, "7scenes": _7scenes, "navchat": _navchat}
 
 
 def test_every_reader_has_a_contract_case():

@@ -11,7 +11,7 @@ from pipeline.frames import FrameStore
 from pipeline.geometry import habitat_to_world, pose_from_tq
 from pipeline.readers import open_reader
 from stages.ingest import ingest_path
-from tests.fixtures.raw_datasets import make_recording, navchat_base, write_navchat
+from tests.fixtures.raw_datasets import cli_ingest, make_recording, navchat_base, write_navchat
 
 QUIET = {"log": lambda m: None}
 
@@ -54,3 +54,15 @@ def test_missing_pose_file(tmp_path):
     (root / "pose/abcScene_2.txt").unlink()
     with pytest.raises(InputDataError, match=r"file .*pose/abcScene_2\.txt; frame 2: rgb/abcScene_2\.png has no pose file"):
         ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
+
+
+def test_folder_without_rgb_is_a_clear_error(tmp_path, capsys):
+    
+    root = write_navchat(tmp_path, make_recording(2))
+    for f in (root / "rgb").iterdir():
+        f.unlink()
+    (root / "rgb").rmdir()
+    with pytest.raises(InputDataError, match=r"file .*recordings/rgb: no rgb/ folder \(expected a navchat recording"):
+        ingest_path(root, tmp_path / "f.zarr", IngestParams(), fmt="navchat", **QUIET)
+    code, err = cli_ingest(tmp_path, root, "n", "--format", "navchat", capsys=capsys)
+    assert code == 1 and "no rgb/ folder" in err and "Traceback" not in err
