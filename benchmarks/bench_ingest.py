@@ -5,10 +5,12 @@ length, since rendering is the slow part and not what is measured) or, with ``--
 smooth synthetic images. Each log size is written and ingested in its own subprocess, so peak RSS
 (``ru_maxrss``) is per size: equal figures show memory independent of log length. The same run
 compares the two ways of decoding ``sensor_msgs/Image``: the numpy CDR parser the reader uses, and
-``mcap_ros2``'s generic decoder. One JSON object per line on stdout.
+``mcap_ros2``'s generic decoder, and the readers: the MCAP fast path (``mcap``) against ``rosbags``
+reading the same log as ``.mcap``, as a ROS 1 ``.bag`` and as a ROS 2 ``.db3`` (converted with
+``rosbags.convert``). One JSON object per line on stdout.
 
     .venv/bin/python benchmarks/bench_ingest.py [--sizes 140 1400] [--transport raw|compressed]
-        [--codecs zstd lz4] [--synthetic]
+        [--codecs zstd lz4] [--readers mcap rosbag-mcap rosbag-ros1 rosbag-db3] [--synthetic]
 """
 
 from __future__ import annotations
@@ -100,18 +102,31 @@ def _cpu_s() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def child_ingest(log: Path, out: Path, n: int, codec: str) -> dict:
+def child_convert(log: Path, out: Path, kind: str) -> dict:
+    """The MCAP log as a ROS 1 ``.bag`` or a ROS 2 ``.db3`` bag folder (``rosbags.convert``)."""
+    from rosbags.convert import convert
+
+    t0 = time.perf_counter()
+    convert([log], out, dst_storage="sqlite3", dst_version=9, compress=None, compress_mode="file",
+            default_typestore=None, typestore=None, exclude_topics=[], include_topics=[], exclude_msgtypes=[],
+            include_msgtypes=[])
+    size = sum(f.stat().st_size for f in ([out] if out.is_file() else out.rglob("*")) if f.is_file())
+    return {"what": "convert", "to": kind, "seconds": round(time.perf_counter() - t0, 2),
+            "bag_mb": round(size / 2**20, 1)}
+
+
+def child_ingest(log: Path, out: Path, n: int, codec: str, fmt: str = "auto") -> dict:
     """Ingest ``log``; wall and CPU time (the machine may be shared: CPU seconds per frame is the stable figure)."""
     from pipeline.config import IngestParams
     from stages.ingest import ingest_path
 
     rss0 = _peak_rss_mb()
     t0, c0 = time.perf_counter(), _cpu_s()
-    summary = ingest_path(log, out, IngestParams(codec=codec), log=lambda m: None)
+    summary = ingest_path(log, out, IngestParams(codec=codec), fmt, log=lambda m: None)
     s, cpu = time.perf_counter() - t0, _cpu_s() - c0
     size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
     m = summary["matched_frames"]
-    return {"what": "ingest", "frames": n, "codec": codec, "matched_frames": m, "seconds": round(s, 2),
+    return {"what": "ingest", "reader": fmt, "frames": n, "codec": codec, "matched_frames": m, "seconds": round(s, 2),
             "frames_per_s": round(m / s, 1), "cpu_ms_per_frame": round(cpu * 1e3 / m, 2),
             # upper bound on 2 idle cores: reading and compressing/writing overlap in two threads
             "frames_per_s_cpu_bound_2_cores": round(2.0 * m / cpu, 1),
@@ -161,12 +176,38 @@ def _child(argv: list[str]) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+# reader variant -> (container written from the MCAP log, --format)
+READERS = {"mcap": (None, "mcap"), "rosbag-mcap": (None, "rosbag"), "rosbag-ros1": ("log.bag", "rosbag"),
+           "rosbag-db3": ("log_db3", "rosbag")}
+
+
+def compare_readers(tmp: Path, log: Path, n: int, codec: str, names: list[str], mcap_result: dict | None) -> dict:
+    """Ingest the same frames through each reader variant; returns name -> ingest result."""
+    out = {}
+    for name in names:
+        container, fmt = READERS[name]
+        if name == "mcap" and mcap_result is not None:
+            out[name] = mcap_result
+            continue
+        src = log
+        if container:
+            src = tmp / container
+            print(json.dumps(_child(["convert", str(log), str(src), name])), flush=True)
+        res = _child(["ingest", str(src), str(tmp / f"frames_{name}.zarr"), str(n), codec, fmt])
+        res["reader"] = name
+        out[name] = res
+        print(json.dumps(res), flush=True)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[140, 1400])
     ap.add_argument("--transport", choices=["raw", "compressed"], default="raw")
     ap.add_argument("--codecs", nargs="+", choices=["zstd", "lz4"], default=["zstd", "lz4"],
                     help="frames.zarr codecs to ingest with (ingest.codec)")
+    ap.add_argument("--readers", nargs="*", choices=list(READERS), default=list(READERS),
+                    help="readers compared on the largest log (first codec); mcap is also run per codec")
     ap.add_argument("--synthetic", action="store_true", help="synthetic images instead of pipeline.sim renders")
     ap.add_argument("--sim-frames", type=int, default=24, help="frames rendered by pipeline.sim, cycled")
     ap.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
@@ -176,7 +217,9 @@ def main() -> None:
         if kind == "write":
             res = child_write(Path(rest[0]), int(rest[1]), Path(rest[2]), rest[3])
         elif kind == "ingest":
-            res = child_ingest(Path(rest[0]), Path(rest[1]), int(rest[2]), rest[3])
+            res = child_ingest(Path(rest[0]), Path(rest[1]), int(rest[2]), rest[3], rest[4])
+        elif kind == "convert":
+            res = child_convert(Path(rest[0]), Path(rest[1]), rest[2])
         elif kind == "frames":
             res = {"origin": make_frames(Path(rest[0]), int(rest[1]), bool(int(rest[2])))}
         else:
@@ -189,16 +232,18 @@ def main() -> None:
         origin = _child(["frames", str(tmp / "frames.npz"), str(args.sim_frames), str(int(args.synthetic))])["origin"]
         print(json.dumps({"what": "setup", "frames_from": origin, "seconds": round(time.perf_counter() - t0, 1),
                           "cpus": os.cpu_count(), "size": f"{W}x{H}"}), flush=True)
-        results = {}
+        results, readers = {}, {}
         for n in args.sizes:
             log = tmp / f"log_{n}.mcap"
             print(json.dumps(_child(["write", str(tmp / "frames.npz"), str(n), str(log), args.transport])), flush=True)
             for codec in args.codecs:
-                res = _child(["ingest", str(log), str(tmp / f"frames_{n}_{codec}.zarr"), str(n), codec])
+                res = _child(["ingest", str(log), str(tmp / f"frames_{n}_{codec}.zarr"), str(n), codec, "mcap"])
                 results[(n, codec)] = res
                 print(json.dumps(res), flush=True)
             if n == max(args.sizes) and args.transport == "raw":
                 print(json.dumps(_child(["decode", str(log), str(n)])), flush=True)
+            if n == max(args.sizes):
+                readers = compare_readers(tmp, log, n, args.codecs[0], args.readers, results.get((n, args.codecs[0])))
             log.unlink()
         lo, hi = min(args.sizes), max(args.sizes)
         for codec in args.codecs:
@@ -209,6 +254,11 @@ def main() -> None:
                               "peak_rss_mb": {str(lo): a["peak_rss_mb"], str(hi): b["peak_rss_mb"]},
                               "rss_ratio_long_vs_short": round(b["peak_rss_mb"] / a["peak_rss_mb"], 3),
                               "goal_frames_per_s": 100}), flush=True)
+        if readers:
+            print(json.dumps({"what": "summary_readers", "frames": hi, "codec": args.codecs[0],
+                              "frames_per_s": {k: v["frames_per_s"] for k, v in readers.items()},
+                              "cpu_ms_per_frame": {k: v["cpu_ms_per_frame"] for k, v in readers.items()}}),
+                  flush=True)
 
 
 if __name__ == "__main__":
