@@ -40,7 +40,7 @@ def render(
 
     if what not in RENDERS:
         raise ConfigError(f"--what {what!r}: choose one of {', '.join(RENDERS)}")
-    ws, params = G.load()
+    ws = _scene(scene).dataset.workspace
     target = Path(out_png) if out_png else ws.renders(scene) / f"{what}.png"
     art = lambda name: ws.artifact(name, scene)  # noqa: E731
     if what == "frames":
@@ -127,42 +127,105 @@ def goals_export_navchat(
     out.print(f"{folder}/objects.json, {folder}/final.json")
 
 
+def _scene(name: str):
+    """The :class:`zipon.Scene` of ``name`` (a ConfigError naming the known scenes when there is none)."""
+    from zipon.api import Dataset
+
+    ws, params = G.load()
+    return Dataset(ws, params)[name]
+
+
+def _parse_pose_deg(text: str) -> tuple[float, float, float]:
+    """``"x,y,yaw"`` (metres, metres, DEGREES) -> (x, y, yaw radians); InputDataError naming --pose otherwise."""
+    import math
+
+    from pipeline.errors import InputDataError
+
+    parts = [p for p in text.replace(" ", "").split(",") if p]
+    try:
+        if len(parts) != 3:
+            raise ValueError
+        x, y, yaw_deg = (float(p) for p in parts)
+    except ValueError:
+        raise InputDataError(f"got {text!r}", field="--pose", expected="x,y,yaw: metres, metres, degrees") from None
+    return x, y, math.radians(yaw_deg)
+
+
+def _object_keys(scene) -> dict[int, str]:
+    """Ground-truth instance id -> object key (``chair_0``) from the scene's goals, when built."""
+    if not scene.path("goals").exists():
+        return {}
+    return {o.instance_id: o.key for o in scene.goals.objects.values() if o.instance_id}
+
+
+def no_candidates_reason(result, qp) -> str:
+    """Why a query found no candidates, with the number that fell short of its threshold (``qp`` = params.query)."""
+    import cv2
+    import numpy as np
+
+    heat = result.heatmap
+    what = f"no candidates for {result.text!r}"
+    if not np.isfinite(heat).any():
+        return f"{what}: the map has no observed cells"
+    if not result.wins.any():
+        return (f"{what}: no cell beats the background prompts {list(result.background)} with probability "
+                f">= {qp.min_probability:g} (best {float(np.nanmax(heat)):.2f})")
+    n, lab = cv2.connectedComponents(result.wins.astype(np.uint8), connectivity=8)
+    cells = np.bincount(lab.ravel(), minlength=n)[1:]
+    score = np.bincount(lab.ravel(), weights=np.nan_to_num(heat).ravel(), minlength=n)[1:] / np.maximum(cells, 1)
+    area = cells * result.grid.cell_size_m ** 2
+    big = area >= qp.min_candidate_area_m2 - 1e-12
+    if not big.any():
+        return f"{what} (largest winning area {area.max():.3f} m² < min {qp.min_candidate_area_m2:g} m²)"
+    return f"{what} (best score {score[big].max():.2f} < min {qp.min_candidate_score:g})"
+
+
 @app.command()
 def query(
     scene: str = typer.Argument(..., help="scene name"),
     text: str = typer.Argument(..., help='what to look for, e.g. "chair" or "the red couch"'),
     map_name: str = typer.Option("vlmap", "--map", help="vlmap | cfmap"),
-    pose: Optional[str] = typer.Option(None, "--pose", help="x,y,yaw (metres, radians) to measure candidates from"),
-    as_json: bool = typer.Option(False, "--json", help="print the result as JSON"),
+    pose: Optional[str] = typer.Option(None, "--pose", help="x,y,yaw (metres, metres, degrees) to measure "
+                                       "candidates from; yaw counter-clockwise from +x (east)"),
+    as_json: bool = typer.Option(False, "--json", metavar="", help="print the result as JSON"),
     png: Optional[Path] = typer.Option(None, "--png", help="write the heatmap and candidates over the colour map"),
 ):
-    """Query a semantic map with text: a similarity heatmap and object candidates (id, distance, angle).
+    """Query a semantic map with text: a similarity heatmap and object candidates (distance, angle in degrees,
+    score, and the ground-truth object key such as `chair_0` when the scene has one).
 
-    Examples: `zipon query sim_00 chair --pose 2,3,0` · `zipon query sim_00 "green plant" --map cfmap --png plant.png`
+    Examples: `zipon query sim_00 chair --pose 2,3,90` · `zipon query sim_00 "green plant" --map cfmap --png plant.png`
     """
-    from pipeline.errors import ConfigError
-    from pipeline.maps.query import parse_pose, query_map
+    import math
 
-    if map_name not in ("vlmap", "cfmap"):
-        raise ConfigError(f"--map {map_name!r}: choose vlmap or cfmap")
-    ws, params = G.load()
-    result = query_map(ws.artifact(map_name, scene), ws.artifact("recon", scene), text,
-                       parse_pose(pose) if pose else None, params=params, frames_path=ws.artifact("frames", scene))
+    sc = _scene(scene)
+    result = sc.map(map_name).query(text, _parse_pose_deg(pose) if pose else None)
+    keys = _object_keys(sc)
     if png:
         from pipeline.maps.render import render_query
 
         render_query(result, png)
     if as_json:
-        out.print_json(result.to_json_text())
+        doc = result.to_json()
+        for c in doc["candidates"]:
+            c["angle_deg"] = None if c["angle_rad"] is None else round(math.degrees(c["angle_rad"]), 3)
+            c["gt_object"] = keys.get(c["gt_instance"]) if c.get("gt_instance") else None
+        if doc["pose"] is not None:
+            doc["pose_deg"] = [*doc["pose"][:2], round(math.degrees(doc["pose"][2]), 3)]
+        import json
+
+        out.print_json(json.dumps(doc))
+        return
+    if not result.candidates:
+        out.print(no_candidates_reason(result, sc.dataset.params.query))
+        if png:
+            out.print(str(png))
         return
     table = Table(title=f"{scene} {map_name}: {text!r}")
-    for col in ("obj_id", "distance (m)", "angle (deg)", "score", "area (m²)", "ground truth"):
+    for col in ("candidate", "distance (m)", "angle (deg)", "score", "area (m²)", "ground truth"):
         table.add_column(col)
-    import math
-
     for c in result.candidates:
         angle = None if c.angle_rad is None else math.degrees(c.angle_rad)
-        gt = "" if c.gt_class is None else f"{c.gt_class} #{c.gt_instance}"
+        gt = "" if not c.gt_instance else keys.get(c.gt_instance, f"{c.gt_class} (instance {c.gt_instance})")
         table.add_row(str(c.obj_id), _fmt(c.distance_m), _fmt(angle), _fmt(c.score), _fmt(c.area_m2), gt)
     out.print(table)
     if png:
@@ -176,7 +239,7 @@ def _fmt(v) -> str:
 @app.command("recon-eval")
 def recon_eval(
     frames: Path = typer.Argument(..., help="a frames.zarr (any sequence)"),
-    holdout_every: int = typer.Option(10, "--holdout-every", min=2, help="hold out every N-th frame"),
+    holdout_every: int = typer.Option(6, "--holdout-every", min=2, help="hold out every N-th frame"),
     recon: Optional[Path] = typer.Option(None, "--recon", help="score this recon.zarr's grids against the ground "
                                          "truth the frames carry (simulated scenes) instead"),
 ):
@@ -223,7 +286,7 @@ def encoders_list():
 @encoders_app.command("check")
 def encoders_check(
     which: str = typer.Option("vlmap", "--which", help="vlmap | cfmap | an encoder name"),
-    simulated: bool = typer.Option(False, "--simulated", help="resolve as for a simulated scene"),
+    simulated: bool = typer.Option(False, "--simulated", metavar="", help="resolve as for a simulated scene"),
 ):
     """Build the configured encoder from its local weights, run one frame and one query, print its identity.
 
@@ -240,21 +303,47 @@ def encoders_check(
 @app.command("eval")
 def eval_cmd(
     out_dir: Path = typer.Option(Path("eval_out"), "--out", "-o", help="folder for results.json, report.html, episode logs"),
-    scenes: list[str] = typer.Option([], "--scenes", "-s", help="scenes (repeatable; default: params eval/scenes)"),
-    methods: list[str] = typer.Option([], "--methods", "-m", help="human | cow | vlmap | cf | orion (repeatable)"),
+    scenes: list[str] = typer.Option([], "--scene", "-s", help="scenes (repeatable; default: params eval.scenes)"),
+    methods: list[str] = typer.Option([], "--method", "-m", help="human | cow | vlmap | cf | orion, or "
+                                      "module:Class of your own Agent subclass (repeatable; default: eval.methods)"),
     feedback: list[str] = typer.Option([], "--feedback", "-f", help="feedback settings (repeatable; default: all)"),
-    seeds: list[int] = typer.Option([], "--seeds", help="seeds (repeatable; default: params eval.seeds)"),
+    seeds: Optional[int] = typer.Option(None, "--seeds", min=1, help="number of seeds: 0 .. N-1 (default: params "
+                                        "eval.seeds)"),
+    seed_list: list[int] = typer.Option([], "--seed-list", help="explicit seeds (repeatable) instead of --seeds"),
 ):
     """Run ORION-style agents on the built artifacts; write SR / SPL / SIT as JSON and an HTML report.
 
-    Examples: `zipon eval --out eval_out` · `zipon eval -s sim_00 -m orion -m vlmap -f descriptive --seeds 0`
+    Examples: `zipon eval --out eval_out` · `zipon eval -s sim_00 -m orion -m vlmap -f descriptive --seeds 2` ·
+    `zipon eval -m mypkg.agents:Greedy --seed-list 3`
     """
-    from orion_eval.run import run_eval
+    from pipeline.errors import ConfigError
+    from zipon.api import Dataset
+    from zipon.evaluate import run_eval
 
+    if seeds is not None and seed_list:
+        raise ConfigError("--seeds N (a count) and --seed-list (explicit seeds) exclude each other")
     ws, params = G.load()
-    results = run_eval(ws, params, out_dir, scenes=scenes or None, methods=methods or None,
-                       feedback=feedback or None, seeds=seeds or None, progress=not G.quiet)
+    agents = [_agent_class(m) if ":" in m else m for m in methods] or None
+    results = run_eval(Dataset(ws, params), out_dir, scenes=scenes or None, agents=agents, feedback=feedback or None,
+                       seeds=seed_list or seeds, progress=not G.quiet)
     _print_eval(results, out_dir)
+
+
+def _agent_class(spec: str):
+    """``module:Class`` -> the class (checked to be an Agent by zipon.run_eval); errors name the spec."""
+    import importlib
+
+    from pipeline.errors import ConfigError
+
+    module, _, name = spec.partition(":")
+    try:
+        obj = importlib.import_module(module)
+        for part in name.split("."):
+            obj = getattr(obj, part)
+    except (ImportError, AttributeError) as err:
+        raise ConfigError(f"--method {spec!r}: cannot import it ({err}); expected module:Class of an Agent "
+                          f"subclass importable from here") from None
+    return obj
 
 
 def _print_eval(results: dict, out_dir: Path) -> None:
@@ -266,3 +355,89 @@ def _print_eval(results: dict, out_dir: Path) -> None:
             table.add_row(method, setting, f"{m['SR']:.1f}", f"{m['SPL']:.1f}", f"{m['SIT']:.1f}", str(m["episodes"]))
     out.print(table)
     out.print(f"results: {Path(out_dir) / 'results.json'}\nreport:  {Path(out_dir) / 'report.html'}")
+
+
+@app.command()
+def view(
+    scene: str = typer.Argument(..., help="scene name"),
+    out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="FILE.rrd (default DATA/artifacts/SCENE/"
+                                            "renders/SCENE.rrd)"),
+    episode: Optional[str] = typer.Option(None, "--episode", "-e", help="replay this evaluated episode (a routes "
+                                          "episode id, e.g. chair_0/1) step by step with its dialogue"),
+    eval_dir: Optional[Path] = typer.Option(None, "--eval", help="evaluation folder holding episodes/ (default: "
+                                            "DATA/eval/demo, what zipon demo writes)"),
+    method: Optional[str] = typer.Option(None, "--method", "-m", help="with --episode: the agent's run to replay"),
+    feedback: Optional[str] = typer.Option(None, "--feedback", "-f", help="with --episode: the feedback setting"),
+    seed: Optional[int] = typer.Option(None, "--seed", help="with --episode: the seed"),
+    text: Optional[str] = typer.Option(None, "--query", help="map query drawn as a heatmap (default: the class of "
+                                       "the first goal)"),
+    max_frames: int = typer.Option(240, "--max-frames", min=1, help="at most this many evenly spaced frames"),
+):
+    """Write a rerun recording of a scene: frames (colour, depth) on a timeline with the camera and trajectory,
+    the TSDF mesh, top-down grids and a query heatmap as textured planes, goals as labelled 3D boxes, routes,
+    and an evaluated episode replayed step by step with its dialogue. Open it with `rerun FILE.rrd`.
+
+    Examples: `zipon view sim_00` · `zipon view sim_00 --episode chair_0/0 -m orion -f mixed -o chair.rrd`
+    """
+    from pipeline.viewer import write_recording
+
+    sc = _scene(scene)
+    ws, params = sc.dataset.workspace, sc.dataset.params
+    target = out_file or ws.renders(scene) / f"{scene}.rrd"
+    s = write_recording(ws, params, scene, target, episode=episode, eval_dir=eval_dir, method=method,
+                        feedback=feedback, seed=seed, query=text, max_frames=max_frames)
+    parts = [f"{s['frames']} frames", f"{s.get('mesh_vertices', 0):,} mesh vertices",
+             f"grids {', '.join(s.get('grids', [])) or 'none'}", f"{s.get('goal_boxes', 0)} goal boxes",
+             f"{s.get('routes', 0)} routes"]
+    if episode:
+        parts.append(f"episode {s['episode']}: {s['steps']} steps, {s['dialogue']} dialogue turns")
+    out.print(f"{target}  ({s['bytes'] / 1e6:.1f} MB: {'; '.join(parts)})\nopen it with: rerun {target}")
+
+
+@goals_app.command("template")
+def goals_template(
+    scene: str = typer.Argument(..., help="scene name (its built recon or goals give real coordinates)"),
+    out_file: Path = typer.Option(..., "--out", "-o", help="FILE.yaml: an objects file to edit"),
+):
+    """Write a commented objects file to start your own scene's goals from (then set goals.objects: file and
+    goals.objects_files.SCENE: FILE in params.yaml).
+
+    The file lists the scene's objects when goals were built, else one example object in the middle of the
+    reconstruction; every field is explained in a comment. Example: `zipon goals template lab -o lab_objects.yaml`
+    """
+    from pipeline.goals.template import objects_template
+
+    sc = _scene(scene)
+    text = objects_template(scene, goals_path=sc.path("goals"), recon_path=sc.path("recon"))
+    if out_file.suffix.lower() not in (".yaml", ".yml"):
+        from pipeline.errors import InputDataError
+
+        raise InputDataError(f"got {out_file}", field="--out", expected="a .yaml file (the template has comments)")
+    from pipeline.store import write_text_atomic
+
+    write_text_atomic(out_file, text)
+    out.print(f"{out_file}\nthen in params.yaml: goals: {{objects: file, objects_files: {{{scene}: {out_file}}}}}")
+
+
+@goals_app.command("schema")
+def goals_schema(
+    what: str = typer.Option("goals", "--what", "-w", help="goals (an exported/edited goals file) | objects "
+                             "(an objects file, goals.objects_files)"),
+    out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="write here instead of printing"),
+):
+    """Print the JSON Schema of the goals file or the objects file, for editors that validate YAML/JSON.
+
+    Examples: `zipon goals schema > goals.schema.json` · `zipon goals schema --what objects -o objects.schema.json`
+    """
+    import json
+
+    from pipeline.goals.template import json_schema
+
+    text = json.dumps(json_schema(what), indent=2) + "\n"
+    if out_file is None:
+        out.print(text, end="", markup=False, highlight=False, soft_wrap=True)
+        return
+    from pipeline.store import write_text_atomic
+
+    write_text_atomic(out_file, text)
+    out.print(str(out_file))

@@ -15,7 +15,7 @@ What = Literal["obstacles", "navigable", "color", "height"]
 WHATS: tuple[str, ...] = ("obstacles", "navigable", "color", "height")
 
 
-def _image(recon: Recon, what: str) -> tuple[np.ndarray, str]:
+def grid_image(recon: Recon, what: str) -> tuple[np.ndarray, str]:
     """An ``(rows, cols, 3)`` float image in [0, 1] and its title."""
     occ = recon.occupancy
     if what == "obstacles":
@@ -60,7 +60,7 @@ def render_recon(recon_path: str | Path, what: str, out_png: str | Path, *, crop
     import matplotlib.pyplot as plt
 
     recon = Recon(recon_path)
-    img, title = _image(recon, what)
+    img, title = grid_image(recon, what)
     g = recon.grid
     x0, x1, y0, y1 = g.extent_xy
     fig, ax = plt.subplots(figsize=(7, 7), dpi=120)

@@ -10,6 +10,7 @@ import pytest
 import zipon
 from orion_eval.agents import Agent
 from pipeline.errors import ConfigError, InputDataError, MissingInputError
+from tests.fixtures.user_agents import NearestOnly
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -107,17 +108,6 @@ def test_stores_open_in_xarray_with_named_dims_and_units(ds):
     assert top.index.dims == ("row", "col")
     vox = xr.open_zarr(scene.path("cfmap"), group="voxels", consolidated=False)
     assert vox.key.dims == ("voxel", "rcl")
-
-
-class NearestOnly(Agent):
-    """Asks at the nearest map candidate once, then gives up."""
-
-    name = "nearest_only"
-
-    def run(self, m, instruction, goal_name):
-        cands = m.retrieve_map(goal_name)
-        if cands and m.goto_object(cands[0][0]):
-            m.talk(f"Is this {goal_name}?")
 
 
 def test_run_eval_accepts_user_agent_classes(ds, tmp_path):

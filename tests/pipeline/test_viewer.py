@@ -1,0 +1,88 @@
+"""``zipon view``: a rerun recording of the tiny scene, read back with rerun's RRD reader and counted."""
+
+import gzip
+import json
+
+import pytest
+
+from pipeline.cli import main
+
+pytest.importorskip("rerun")
+
+
+def cli(ws, *args) -> int:
+    return main(["-q", "-p", str(ws.params_path), "--data-dir", str(ws.data_dir),
+                 "--manifests-dir", str(ws.manifests_dir), *args])
+
+
+@pytest.fixture(scope="module")
+def evaluated(built_scene, tmp_path_factory):
+    from orion_eval.run import run_eval
+
+    ws, params = built_scene
+    out = tmp_path_factory.mktemp("view_eval")
+    run_eval(ws, params, out, methods=["orion"], feedback=["mixed"], seeds=[0], progress=False, report=False)
+    with gzip.open(out / "episodes" / "tiny.episodes.jsonl.gz", "rt") as f:
+        first = json.loads(f.readline())
+    return out, first
+
+
+def test_recording_holds_every_layer_and_the_episode(built_scene, evaluated, tmp_path, capsys):
+    from pipeline.goals.store import Goals
+    from pipeline.routes.store import Routes
+    from pipeline.viewer import recording_contents
+
+    ws, _ = built_scene
+    eval_dir, ep = evaluated
+    rrd = tmp_path / "tiny.rrd"
+    capsys.readouterr()
+    assert cli(ws, "view", "tiny", "--out", str(rrd), "--episode", ep["episode"], "--eval", str(eval_dir),
+               "-m", "orion", "--max-frames", "12", "--query", "bed") == 0
+    assert str(rrd) in capsys.readouterr().out
+    got = recording_contents(rrd)
+    frames = {p: got[p]["rows"] for p in ("/world/camera", "/world/camera/image", "/world/camera/image/rgb",
+                                         "/world/camera/image/depth")}
+    assert set(frames.values()) == {12}, frames
+    assert {"frame", "capture_time"} <= set(got["/world/camera/image/rgb"]["timelines"])
+    assert "Pinhole:image_from_camera" in got["/world/camera/image"]["components"]
+    assert "EncodedDepthImage:blob" in got["/world/camera/image/depth"]["components"]
+    for static in ("/world", "/world/trajectory", "/world/mesh", "/world/goals", "/world/routes",
+                   "/world/routes/starts", "/world/episode/goal", *(f"/world/grids/{g}" for g in
+                                                                   ("color", "navigable", "height", "query"))):
+        assert got[static]["static"] and got[static]["rows"] == 1, static
+    assert "Mesh3D:albedo_texture_buffer" in got["/world/grids/query"]["components"]
+    assert "Mesh3D:vertex_colors" in got["/world/mesh"]["components"]
+    steps = len(ep["log"]["poses"])
+    assert got["/world/episode/robot"]["rows"] == steps and got["/world/episode/path"]["rows"] == steps
+    assert got["/world/episode/robot"]["timelines"] == ["log_time", "step"]
+    # title + instruction + every Talk turn and reply
+    assert got["/dialogue"]["rows"] == 2 + len(ep["log"]["dialogue"])
+
+    import rerun as rr
+
+    goals, routes = Goals(ws.artifact("goals", "tiny")), Routes(ws.artifact("routes", "tiny"))
+    boxes = strips = None
+    for chunk in rr.chunk.RrdReader(rrd).stream():
+        batch = chunk.to_record_batch()
+        if chunk.entity_path == "/world/goals":
+            boxes = batch.column("Boxes3D:labels")[0].as_py()
+        if chunk.entity_path == "/world/routes":
+            strips = batch.column("LineStrips3D:strips")[0].as_py()
+    assert len(boxes) == sum(len(g.object_keys) for g in goals.goals)
+    assert any(goals.goals[0].name in b for b in boxes)
+    assert len(strips) == len(routes.episodes)
+
+
+def test_view_errors_exit_1(built_scene, evaluated, tmp_path, capsys):
+    ws, _ = built_scene
+    eval_dir, _ = evaluated
+    capsys.readouterr()
+    assert cli(ws, "view", "nope") == 1
+    assert "unknown scene 'nope'" in capsys.readouterr().err
+    assert cli(ws, "view", "tiny", "-o", str(tmp_path / "x.png")) == 1
+    assert "field --out: got" in capsys.readouterr().err
+    assert cli(ws, "view", "tiny", "-o", str(tmp_path / "a.rrd"), "--episode", "x/0", "--eval", str(tmp_path)) == 1
+    assert "no evaluation log of scene 'tiny'" in capsys.readouterr().err
+    assert cli(ws, "view", "tiny", "-o", str(tmp_path / "a.rrd"), "--episode", "x/0", "--eval", str(eval_dir)) == 1
+    assert "no evaluated episode 'x/0'; episodes in the log: [" in capsys.readouterr().err
+    assert not list(tmp_path.glob("*.rrd")) and not list(tmp_path.glob(".*.tmp"))
