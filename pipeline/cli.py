@@ -9,6 +9,7 @@ from typing import Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from pipeline.errors import ZiponError
@@ -78,7 +79,7 @@ def _print_outcomes(outcomes) -> bool:
     out.print(table)
     failed = [o for o in outcomes if o.status == "failed"]
     for o in failed:
-        console.print(f"[red]error[/red] {o.scene}/{o.stage}: {o.error}")
+        console.print(f"[red]error[/red] {o.scene}/{o.stage}: {escape(o.error)}", highlight=False, soft_wrap=True)
     return not failed
 
 
@@ -93,7 +94,10 @@ def _scenes(params, scenes: list[str]) -> list[str]:
     return scenes
 
 
-def _run(scenes: list[str], stages_wanted: list[str] | None, force: bool, scheduler: str | None) -> bool:
+def _run(scenes: list[str], stages_wanted: list[str] | None, force: bool, scheduler: str | None,
+         record_dvc: bool = True) -> bool:
+    """Run the plan; then record what is built in dvc.lock (not for `zipon stage`, which `dvc repro` calls
+    while it holds DVC's lock and records the result itself)."""
     from pipeline.errors import ConfigError
     from pipeline.runner import plan, run_many
     from stages import STAGES
@@ -104,7 +108,15 @@ def _run(scenes: list[str], stages_wanted: list[str] | None, force: bool, schedu
             raise ConfigError(f"unknown stage {s!r}; stages: {list(STAGES)}")
     pairs = plan(STAGES, params, _scenes(params, scenes), stages_wanted)
     outcomes = run_many(ws, params, STAGES, pairs, force=force, scheduler=scheduler, show_progress=not G.quiet)
-    return _print_outcomes(outcomes)
+    ok = _print_outcomes(outcomes)
+    if record_dvc:
+        from pipeline.dvcfile import sync_dvc_lock
+
+        done = [(o.scene, o.stage) for o in outcomes if o.status in ("ran", "skipped")]
+        note = sync_dvc_lock(ws, params, STAGES, done, G.overrides)
+        if note:
+            console.print(f"[dim]{note}[/dim]")
+    return ok
 
 
 # ----------------------------------------------------------------------------- commands
@@ -133,27 +145,51 @@ def stage_cmd(
     force: bool = typer.Option(False, "--force", help="rerun even when up to date"),
 ):
     """Run one stage of one scene (what dvc.yaml calls). Example: `zipon stage ingest --scene sim_00`"""
-    if not _run([scene], [name], force, "sync"):
+    if not _run([scene], [name], force, "sync", record_dvc=False):
         raise typer.Exit(1)
 
 
 @app.command()
-def status():
-    """Show which stages are up to date and why others are stale. Example: `zipon status`"""
+def status(
+    check: bool = typer.Option(False, "--check", help="exit 1 when any stage is stale (for CI and scripts)"),
+    rehash: bool = typer.Option(False, "--verify", help="also re-hash every built output against its manifest "
+                                "(as `zipon verify` does); exit 1 when content differs"),
+):
+    """Show which stages are up to date and, for the others, what changed: the code files, the params keys
+    (`params: maps.level_height_m 0.1 -> 0.2`) or the inputs.
+
+    Examples: `zipon status` · `zipon status --check && echo dataset current`
+    """
+    from rich.markup import escape
+
     from pipeline.runner import plan, staleness
     from stages import STAGES
 
     ws, params = G.load()
     table = Table(title=f"zipon status ({ws.data_dir})")
     for col in ("scene", "stage", "state"):
-        table.add_column(col)
-    stale = 0
+        table.add_column(col, overflow="fold")
+    stale, bad_content = 0, []
     for scene, stage in plan(STAGES, params, list(params.scenes)):
         why = staleness(ws, params, STAGES, STAGES[stage], scene)
+        if rehash:
+            from pipeline.verify import content_staleness
+
+            tampered = content_staleness(ws, STAGES[stage], scene)
+            if tampered:
+                why = "; ".join(filter(None, [why, f"content differs from the manifest: {tampered}"]))
+                bad_content.append(f"{scene}/{stage}: {tampered}")
         stale += bool(why)
-        table.add_row(scene, stage, f"[yellow]stale: {why}[/]" if why else "[green]up to date[/]")
+        table.add_row(scene, stage, f"[yellow]stale: {escape(why)}[/]" if why else "[green]up to date[/]")
     out.print(table)
     out.print(f"{stale} stale stage(s)")
+    for line in bad_content:  # one unwrapped line each, so paths can be copied
+        console.print(f"[red]content differs[/red] {escape(line)}", highlight=False, soft_wrap=True)
+    if bad_content:
+        console.print(f"[red]{len(bad_content)} stage(s) whose content differs from their manifests[/red] "
+                      "(`zipon verify` lists every artifact; rebuild with `zipon run --force`)")
+    if (check and stale) or bad_content:
+        raise typer.Exit(1)
 
 
 @app.command()
@@ -166,14 +202,20 @@ def verify():
     rows = verify_all(ws, params, STAGES)
     table = Table(title="zipon verify")
     for col in ("scene", "stage", "artifact", "result"):
-        table.add_column(col)
+        table.add_column(col, overflow="fold")
     bad = 0
     for r in rows:
         bad += not r.ok
-        table.add_row(r.scene, r.stage, r.artifact, "[green]ok[/]" if r.ok else f"[red]{r.problem}[/]")
+        note = f" [yellow]({escape(r.note)})[/]" if r.note else ""
+        table.add_row(r.scene, r.stage, r.artifact, ("[green]ok[/]" if r.ok else f"[red]{escape(r.problem)}[/]") + note)
     out.print(table)
+    for r in rows:  # one unwrapped line each, so paths can be copied
+        if not r.ok:
+            note = f" ({r.note})" if r.note else ""
+            console.print(f"[red]mismatch[/red] {r.scene}/{r.stage}/{r.artifact}: {escape(r.problem + note)}",
+                          highlight=False, soft_wrap=True)
     if bad:
-        console.print(f"[red]{bad} artifact(s) do not match their manifests[/red]")
+        console.print(f"[red]{bad} of {len(rows)} artifact(s) do not match their manifests[/red]")
         raise typer.Exit(1)
     out.print(f"{len(rows)} artifact(s) match their manifests")
 
@@ -221,13 +263,14 @@ def ingest(
 
     Examples: `zipon ingest robot.mcap --scene kitchen` · `zipon ingest ../shared/data/real/tum_fr1_rpy_head30 --scene tum --format tum`
     """
-    from pipeline.config import SceneSource, parse_params
+    from pipeline.config import parse_params
     from pipeline.runner import run_many
     from stages import STAGES
 
     ws, params = G.load()
     raw = params.model_dump(mode="json")
-    raw["scenes"] = {**raw["scenes"], scene: SceneSource(source=str(Path(path).resolve()), format=fmt).model_dump()}
+    # plain data, validated with the rest: a bad --format is a ConfigError naming scenes.<scene>.format
+    raw["scenes"] = {**raw["scenes"], scene: {"source": str(Path(path).resolve()), "format": fmt}}
     params = parse_params(raw, origin="zipon ingest")
     outcomes = run_many(ws, params, STAGES, [(scene, "ingest")], force=force, scheduler="sync",
                         show_progress=not G.quiet)
@@ -277,7 +320,7 @@ def dvc_cmd(check: bool = typer.Option(False, "--check", help="only check dvc.ya
     path = ws.root / "dvc.yaml"
     if check:
         if not path.is_file() or path.read_text() != text:
-            console.print(f"[red]{path} is out of date: run zipon dvc[/red]")
+            console.print(f"[red]{path} is out of date: run zipon dvc[/red]", soft_wrap=True)
             raise typer.Exit(1)
         out.print(f"{path} is current")
         return
@@ -334,13 +377,20 @@ def demo(
 # ----------------------------------------------------------------------------- entry point
 
 def main(argv: list[str] | None = None) -> int:
-    """Console entry: run the app; turn zipon errors into a one-line message and exit code 1."""
+    """Console entry: run the app; turn zipon errors and OS errors (disk full, read-only, permissions)
+    into a one-line message naming the path and exit code 1; usage errors exit 2."""
     from typer._click.exceptions import ClickException
 
+    from pipeline.errors import os_error_message
+
     try:
-        app(args=argv, standalone_mode=False, prog_name="zipon")
+        # standalone_mode=False: typer RETURNS the code of typer.Exit(n) instead of raising it.
+        code = app(args=argv, standalone_mode=False, prog_name="zipon")
     except ZiponError as err:
-        console.print(f"[red]error:[/red] {err}", markup=True, highlight=False)
+        console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False, soft_wrap=True)
+        return 1
+    except OSError as err:  # after ZiponError: MissingInputError is a FileNotFoundError too
+        console.print(f"[red]error:[/red] {escape(os_error_message(err))}", highlight=False, soft_wrap=True)
         return 1
     except typer.Exit as e:
         return e.exit_code
@@ -350,7 +400,7 @@ def main(argv: list[str] | None = None) -> int:
     except ClickException as e:  # usage errors: typer's own message and exit code 2
         e.show()
         return e.exit_code
-    return 0
+    return code if isinstance(code, int) else 0
 
 
 def entry() -> None:

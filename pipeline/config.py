@@ -10,18 +10,59 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from types import UnionType
+from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from pipeline.errors import ConfigError
+from pipeline.perception_params import DetectorParams, SimulatedCFParams, SimulatedLSegParams
+
+
+def _scalar_types(annotation: Any) -> set[type]:
+    """The plain types a field annotation admits (through Optional, unions, Annotated, Literal)."""
+    origin = get_origin(annotation)
+    if origin is Annotated:
+        return _scalar_types(get_args(annotation)[0])
+    if origin is Literal:
+        return {type(a) for a in get_args(annotation)}
+    if origin in (Union, UnionType):
+        return set().union(*(_scalar_types(a) for a in get_args(annotation)))
+    return {origin or annotation} if isinstance(origin or annotation, type) else {object}
 
 
 class Section(BaseModel):
-    """Base of every params section: unknown keys are errors, values are immutable."""
+    """Base of every params section: unknown keys are errors, values are immutable, types are strict:
+    ``true`` is not an integer, ``"3"`` is not a number, NaN and infinity are not numbers."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _strict_scalars(cls, value: Any, info: ValidationInfo) -> Any:
+        if not isinstance(value, (bool, str)):
+            return value
+        admits = _scalar_types(cls.model_fields[info.field_name].annotation)
+        if object in admits or type(value) in admits:
+            return value
+        if isinstance(value, bool) and admits & {int, float}:
+            raise ValueError(f"expected a number, got {str(value).lower()} (a boolean)")
+        if isinstance(value, str) and admits <= {int, float, type(None)}:
+            raise ValueError(f"expected a number, got the string {value!r}")
+        return value
+        for name, value in data.items():
+            info = cls.model_fields.get(name)
+            if info is None or not isinstance(value, (bool, str)):
+                continue
+            admits = _scalar_types(info.annotation)
+            if object in admits or type(value) in admits:
+                continue
+            if isinstance(value, bool) and admits & {int, float}:
+                raise ValueError(f"{name}: expected a number, got {str(value).lower()} (a boolean)")
+            if isinstance(value, str) and admits <= {int, float, type(None)}:
+                raise ValueError(f"{name}: expected a number, got the string {value!r}")
+        return data
 
 
 # ----------------------------------------------------------------------------- scenes
@@ -97,6 +138,10 @@ class IngestTopics(Section):
     pose: str | None = Field(None, description="a geometry_msgs/PoseStamped topic of the camera pose")
     tf_world_frame: str | None = Field(None, description="/tf parent frame to chain from (auto: the root)")
     tf_camera_frame: str | None = Field(None, description="/tf child frame of the optical camera (auto)")
+    depth_camera_info: str | None = Field(
+        None, description="CameraInfo of the depth camera (auto: the one in the depth topic's namespace); depth "
+        "on another frame or with other intrinsics than colour is registered into the colour camera"
+    )
 
 
 class CameraOverride(Section):
@@ -138,16 +183,24 @@ class IngestParams(Section):
         2.0, gt=0, description="a colour frame is decided once any stream is this far ahead of it (bounds memory "
         "when a stream stalls or stops), seconds"
     )
-    depth_camera_info: str | None = Field(
-        None, description="CameraInfo of the depth camera (auto: the one in the depth topic's namespace); depth "
-        "on another frame or with other intrinsics than colour is registered into the colour camera"
-    )
     tum_camera: Literal["auto", "fr1", "fr2", "fr3"] = Field(
         "auto", description="TUM RGB-D intrinsics set; 'auto' reads freiburg1/2/3 (fr1/2/3) from the folder name, "
         "else fr1"
     )
     camera_override: CameraOverride | None = Field(
         None, description="pinhole intrinsics replacing a folder format's defaults (TUM, 7-Scenes, navchat)"
+    )
+    world_up: Literal["dataset", "auto", "+z", "-z", "+y", "-y", "+x", "-x"] = Field(
+        "dataset", description="the source world's up axis, rotated to zipon's +z: 'dataset' = the reader's "
+        "documented convention (7-Scenes -y, everything else +z), 'auto' = the normal of the dominant floor plane "
+        "seen in the first world_up_auto_frames frames (logged and stored in frames.zarr attrs world_up)"
+    )
+    world_up_auto_frames: int = Field(
+        48, gt=0, description="frames at the start of the log that world_up 'auto' looks for the floor in"
+    )
+    pose_orthonormal_tol: float = Field(
+        1e-3, gt=0, description="poses stored as matrices (7-Scenes, Replica, ScanNet) whose rotation is orthonormal "
+        "within this are re-orthonormalised (SVD); beyond it they are refused (real 7-Scenes: ~2.5e-4)"
     )
 
 
@@ -189,18 +242,6 @@ class ReconstructParams(Section):
     )
     obstacle_min_height_m: float = Field(
         0.1, ge=0, description="geometry above floor + this (and below obstacle_max_height_m) blocks a cell"
-    )
-    world_up: Literal["dataset", "auto", "+z", "-z", "+y", "-y", "+x", "-x"] = Field(
-        "dataset", description="the source world's up axis, rotated to zipon's +z: 'dataset' = the reader's "
-        "documented convention (7-Scenes -y, everything else +z), 'auto' = the normal of the dominant floor plane "
-        "seen in the first world_up_auto_frames frames (logged and stored in frames.zarr attrs world_up)"
-    )
-    world_up_auto_frames: int = Field(
-        48, gt=0, description="frames at the start of the log that world_up 'auto' looks for the floor in"
-    )
-    pose_orthonormal_tol: float = Field(
-        1e-3, gt=0, description="poses stored as matrices (7-Scenes, Replica, ScanNet) whose rotation is orthonormal "
-        "within this are re-orthonormalised (SVD); beyond it they are refused (real 7-Scenes: ~2.5e-4)"
     )
     obstacle_max_height_m: float = Field(
         1.5, gt=0, description="top of the robot's height band above the floor, metres"
@@ -261,7 +302,8 @@ class ReconstructParams(Section):
         return self
 
 
-EncoderName = Literal["lseg", "maskclip", "conceptfusion", "torchscript", "oracle"]
+EncoderName = Literal["lseg", "maskclip", "conceptfusion", "torchscript", "oracle", "simulated_lseg", "simulated_cf",
+                      "perception"]  # perception: simulated_lseg for the vlmap, simulated_cf for the cfmap
 CellSize = tuple[Annotated[int, Field(gt=0)], Annotated[int, Field(gt=0)]]  # (height, width)
 
 
@@ -380,22 +422,22 @@ class EncodersParams(Section):
     vlmap: EncoderName = Field("lseg", description="encoder of the vlmap stage (VLMaps uses lseg)")
     cfmap: EncoderName = Field("conceptfusion", description="encoder of the cfmap stage")
     simulated: EncoderName | None = Field(
-        None,
-        description="encoder used INSTEAD of vlmap/cfmap for simulated scenes (e.g. 'oracle', the ground-truth "
-        "diagnostic, when no weights are at hand); None = simulated scenes use vlmap/cfmap like real ones",
+        "oracle",
+        description="encoder used INSTEAD of vlmap/cfmap for simulated scenes: 'perception' = simulated perception "
+        "models (simulated_lseg for the vlmap, simulated_cf for the cfmap), 'oracle' = the ground-truth diagnostic; "
+        "None = simulated scenes use vlmap/cfmap like real ones",
     )
-    device: Literal["cpu", "cuda", "auto"] = Field("auto", description="'auto' = cuda when available, else cpu")
-    batch_size: int = Field(4, gt=0, description="images per forward pass")
-    threads: int = Field(0, ge=0, description="torch CPU threads (0 = leave torch's default)")
     lseg: LSegParams = LSegParams()
     maskclip: MaskClipParams = MaskClipParams()
     conceptfusion: ConceptFusionParams = ConceptFusionParams()
     torchscript: TorchScriptParams = TorchScriptParams()
     oracle: OracleParams = OracleParams()
+    simulated_lseg: SimulatedLSegParams = SimulatedLSegParams()
+    simulated_cf: SimulatedCFParams = SimulatedCFParams()
 
 
 class MapsParams(Section):
-    """Semantic map fusion (stages ``vlmap`` / ``cfmap``) and text queries on the maps.
+    """Semantic map fusion (stages ``vlmap`` / ``cfmap``); query settings are in ``query``.
 
     Height rule (both maps): space above the grid is cut into levels of ``level_height_m``
     between ``floor + min_height_m`` and ``floor + max_height_m``; a cell's top-down feature is the
@@ -427,7 +469,21 @@ class MapsParams(Section):
         "feature of the nearest observed cell within this distance; filled cells have count 0; 0 = no filling"
     )
     tile_cells: int = Field(64, gt=0, description="spatial tile edge (cells) of the stored map's chunks")
-    device: Literal["cpu", "cuda", "auto"] = Field("cpu", description="torch device of the fusion accumulators")
+    @model_validator(mode="after")
+    def _ranges(self) -> "MapsParams":
+        if self.depth_min_m >= self.depth_max_m:
+            raise ValueError("depth_min_m must be below depth_max_m")
+        if self.min_height_m >= self.max_height_m:
+            raise ValueError("min_height_m must be below max_height_m")
+        if (self.max_height_m - self.min_height_m) / self.level_height_m > 1000:
+            raise ValueError("level_height_m is too small for the height band (more than 1000 levels)")
+        return self
+
+
+class QueryParams(Section):
+    """Text queries on built maps (``zipon query``, the evaluator's map agents). Never part of a digest:
+    changing a query setting rebuilds nothing."""
+
     background: tuple[str, ...] = Field(
         ("other", "floor", "wall", "ceiling"),
         description="background prompts a query competes with per cell (VLMaps: categories + 'other'); "
@@ -453,15 +509,20 @@ class MapsParams(Section):
     )
     query_lowrank_min_cells: int = Field(50_000, gt=0, description="smaller maps are always scored exactly")
 
-    @model_validator(mode="after")
-    def _ranges(self) -> "MapsParams":
-        if self.depth_min_m >= self.depth_max_m:
-            raise ValueError("depth_min_m must be below depth_max_m")
-        if self.min_height_m >= self.max_height_m:
-            raise ValueError("min_height_m must be below max_height_m")
-        if (self.max_height_m - self.min_height_m) / self.level_height_m > 1000:
-            raise ValueError("level_height_m is too small for the height band (more than 1000 levels)")
-        return self
+
+class NavchatGrid(Section):
+    """The grid navchat's goal files (objects.json, final.json) give cells on (pipeline.goals.navchat)."""
+
+    origin: Literal["first_pose", "recon_grid"] = Field(
+        "first_pose", description="first_pose: navchat's own frame, anchored at the scene's first recorded pose "
+        "(anchor_cell), columns to its initial right, rows to its initial backward direction; recon_grid: cells on "
+        "zipon's north-up recon grid"
+    )
+    anchor_cell: tuple[int, int] = Field((300, 300), description="(col, row) of the first pose (navchat: 300, 300)")
+    cell_size_m: float = Field(0.05, gt=0, description="cell edge, metres (navchat: 0.05)")
+    rounding: Literal["trunc", "round"] = Field(
+        "trunc", description="position -> cell: int() truncation toward zero (navchat's poses) or round (its voxels)"
+    )
 
 
 class GoalsParams(Section):
@@ -478,7 +539,12 @@ class GoalsParams(Section):
     )
     navchat_dirs: dict[str, str] = Field(
         default_factory=dict, description="scene -> folder with navchat's objects.json (+ final.json), cells on "
-        "the recon grid (the stated grid), relative to params.yaml"
+        "goals.navchat_grid, relative to params.yaml"
+    )
+    navchat_grid: NavchatGrid = NavchatGrid()
+    navchat_max_outside: float = Field(
+        0.25, ge=0, le=1, description="refuse navchat objects when more than this fraction of them lie outside the "
+        "observed map (less than half of their cells observed: a wrong navchat_grid); fewer are warned about"
     )
     edits: dict[str, str] = Field(
         default_factory=dict, description="scene -> imported goals document (written by 'zipon goals import', "
@@ -596,6 +662,9 @@ class EvalParams(Section):
         "its centre is in sight, metres")
     clearance_m: float = Field(0.1, ge=0, description="planned paths keep this far from non-navigable cells")
     workers: int = Field(2, gt=0, description="processes evaluating scenes in parallel (1 = serial)")
+    detector: DetectorParams = Field(
+        DetectorParams(), description="simulated open-vocabulary detector of the cow and orion agents (simulated scenes)"
+    )
     llm: LLMParams = LLMParams()
 
     @field_validator("methods", "feedback", "seeds")
@@ -609,7 +678,9 @@ class EvalParams(Section):
 
 
 class RunParams(Section):
-    """How ``zipon run`` schedules work."""
+    """Scheduling, devices, batch sizes and threads: never change an artifact, so in no digest.
+
+    Changing them rebuilds nothing (a test checks every stage's config ignores them)."""
 
     scheduler: str = Field(
         "sync",
@@ -618,6 +689,20 @@ class RunParams(Section):
     )
     workers: int = Field(2, gt=0, description="local workers for 'threads' / 'processes'")
     threads_per_worker: int = Field(1, gt=0, description="native threads (BLAS/torch/open3d) inside a worker")
+    device: Literal["cpu", "cuda", "auto"] = Field(
+        "auto", description="torch device of the encoders ('auto' = cuda when available, else cpu)"
+    )
+    fusion_device: Literal["cpu", "cuda", "auto"] = Field("cpu", description="torch device of the map fusion")
+    encoder_batch_size: int = Field(4, gt=0, description="images per encoder forward pass")
+    torch_threads: int = Field(0, ge=0, description="torch CPU threads of the encoders (0 = leave torch's default)")
+
+    @field_validator("scheduler")
+    @classmethod
+    def _scheduler(cls, v: str) -> str:
+        if v in ("sync", "threads", "processes") or "://" in v:
+            return v
+        raise ValueError(f"{v!r} is not a scheduler: use sync, threads, processes or a dask.distributed "
+                         "address such as tcp://10.0.0.5:8786")
 
 
 class Params(Section):
@@ -631,6 +716,7 @@ class Params(Section):
     reconstruct: ReconstructParams = ReconstructParams()
     encoders: EncodersParams = EncodersParams()
     maps: MapsParams = MapsParams()
+    query: QueryParams = QueryParams()
     goals: GoalsParams = GoalsParams()
     routes: RoutesParams = RoutesParams()
     eval: EvalParams = EvalParams()
@@ -650,16 +736,6 @@ class Params(Section):
             if sec.depth_min_m >= sec.depth_max_m:
                 raise ValueError(f"{key}.depth_min_m must be below {key}.depth_max_m")
         return self
-
-    def section(self, dotted: str) -> Any:
-        obj: Any = self
-        for part in dotted.split("."):
-            obj = obj[part] if isinstance(obj, dict) else getattr(obj, part)
-        return obj
-
-    def section_dump(self, dotted: str) -> Any:
-        value = self.section(dotted)
-        return value.model_dump(mode="json") if isinstance(value, BaseModel) else value
 
 
 # ----------------------------------------------------------------------------- load
@@ -681,15 +757,39 @@ def _format_errors(err: ValidationError, origin: str) -> str:
     lines = []
     for e in err.errors():
         loc = ".".join(str(p) for p in e["loc"]) or "(top level)"
-        lines.append(f"{origin}: {loc}: {e['msg']}")
+        lines.append(f"{origin}: {loc}: {e['msg'].removeprefix('Value error, ')}")
     return "\n".join(lines)
+
+
+# Keys that moved out of the hashed sections (they never change an artifact): old -> new.
+MOVED_KEYS: dict[str, str] = {
+    "maps.device": "run.fusion_device",
+    "encoders.device": "run.device",
+    "encoders.batch_size": "run.encoder_batch_size",
+    "encoders.threads": "run.torch_threads",
+    **{f"maps.{name}": f"query.{name}" for name in QueryParams.model_fields},
+}
+
+
+def _moved_keys(raw: dict, origin: str) -> None:
+    found = [(old, new) for old, new in MOVED_KEYS.items()
+             if isinstance(raw.get(old.split(".")[0]), dict) and old.split(".")[1] in raw[old.split(".")[0]]]
+    if found:
+        raise ConfigError("\n".join(f"{origin}: {old}: moved to {new} (settings that cannot change an artifact "
+                                     f"live outside the hashed sections)" for old, new in found))
 
 
 def parse_params(raw: dict, *, origin: str = "params", overrides: list[str] | tuple[str, ...] = ()) -> Params:
     """Validate a params mapping (after ``KEY=VALUE`` overrides); raises :class:`ConfigError`."""
-    raw = json.loads(json.dumps(raw or {}))  # deep copy of plain data
+    try:
+        raw = json.loads(json.dumps(raw or {}, allow_nan=True))  # deep copy of plain data
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"{origin}: not plain data: {err}") from None
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{origin}: expected a mapping of sections at the top level")
     for assignment in overrides:
         _apply_override(raw, assignment)
+    _moved_keys(raw, origin)
     try:
         return Params.model_validate(raw)
     except ValidationError as err:
@@ -762,3 +862,47 @@ def params_yaml(params: Params) -> str:
 
 def _plain_value(value: Any) -> Any:
     return value.model_dump(mode="json") if isinstance(value, BaseModel) else value
+
+
+# ----------------------------------------------------------------------------- stage configs
+
+def param_value(params: Params, key: str) -> Any:
+    """The plain (JSON) value of a dotted params key (a leaf or a whole section)."""
+    obj: Any = params
+    for part in key.split("."):
+        obj = obj[part] if isinstance(obj, dict) else getattr(obj, part)
+    return obj.model_dump(mode="json") if isinstance(obj, BaseModel) else json.loads(json.dumps(obj))
+
+
+def project(params: Params, keys: list[str] | tuple[str, ...]) -> dict[str, Any]:
+    """``{dotted key: value}`` of exactly ``keys`` (sorted): what a stage's params digest covers."""
+    return {key: param_value(params, key) for key in sorted(set(keys))}
+
+
+def section_keys(section: str, model: type[BaseModel], exclude: tuple[str, ...] = ()) -> list[str]:
+    """``section.field`` for every field of a section model except ``exclude``."""
+    return [f"{section}.{name}" for name in model.model_fields if name not in exclude]
+
+
+class StageConfig(Section):
+    """A stage's typed config, built from params: the stage receives only this (``ctx.config``).
+
+    Each stage module (``stages/<name>.py``) defines ``Config(StageConfig)``. :meth:`param_keys` names the
+    params keys it is built from; the stage's params digest covers exactly their values (recorded in the
+    manifest, compared key by key by ``zipon status``, and listed as ``params`` in ``dvc.yaml``). A test
+    perturbs every other key of the params and checks the config does not change.
+    """
+
+    @classmethod
+    def param_keys(cls, params: Params, scene: str) -> list[str]:
+        raise NotImplementedError(f"{cls.__qualname__}.param_keys")
+
+    @classmethod
+    def from_params(cls, params: Params, scene: str) -> "StageConfig":
+        raise NotImplementedError(f"{cls.__qualname__}.from_params")
+
+    @classmethod
+    def extra_inputs(cls, params: Params, scene: str) -> dict[str, str]:
+        """Files named by params that the stage reads (input name -> path relative to the params file); their
+        content digests are the stage's inputs beside its artifacts."""
+        return {}

@@ -8,6 +8,7 @@ and what was expected.
 
 from __future__ import annotations
 
+import errno
 from pathlib import Path
 
 
@@ -70,3 +71,22 @@ class StageError(ZiponError, RuntimeError):
 class LockedError(ZiponError, RuntimeError):
     """Another live process holds the lock on the outputs this command would write; the message
     names its pid and host."""
+
+
+_OS_ADVICE = {
+    "ENOSPC": "free some space (or point --data-dir at a bigger disk) and rerun",
+    "EDQUOT": "free some space (or point --data-dir elsewhere) and rerun",
+    "EROFS": "point --data-dir / --manifests-dir at a writable folder",
+    "EACCES": "make the folder writable for this user or point --data-dir elsewhere",
+    "EPERM": "make the folder writable for this user or point --data-dir elsewhere",
+}
+
+
+def os_error_message(err: OSError) -> str:
+    """One line for an operating-system error (disk full, read-only, permissions): the path, what
+    happened, what to do. The CLI and the runner show this instead of a traceback."""
+    code = errno.errorcode.get(err.errno or 0, "")
+    where = " -> ".join(str(p) for p in (err.filename, err.filename2) if p is not None) or "(no path given)"
+    what = err.strerror or str(err)
+    text = f"{where}: {what}" + (f" [{code}]" if code else "")
+    return f"{text}; {_OS_ADVICE[code]}" if code in _OS_ADVICE else text

@@ -29,12 +29,18 @@ class Manifest(BaseModel):
     scene: str
     code_version: str
     code_digest: str
-    params: dict[str, Any]
+    code_files: dict[str, str] = Field(
+        default_factory=dict, description="source file (relative to the project) -> digest, for every file of the "
+        "stage's import closure (pipeline.codedeps); names what changed when code_digest differs")
+    params: dict[str, Any] = Field(description="the stage's config as params keys -> values (exactly what "
+                                   "params_digest covers)")
     params_digest: str
     inputs: dict[str, str] = Field(description="input name -> digest (upstream output digest or raw files digest)")
     outputs: dict[str, OutputRecord]
     summary: dict[str, Any] = Field(default_factory=dict, description="the stage's figures")
-    timing: dict[str, Any] = Field(default_factory=dict, description="started (UTC ISO), seconds, host")
+    timing: dict[str, Any] = Field(default_factory=dict, description="started (UTC ISO), seconds (wall), "
+                                   "cpu_seconds (process CPU time of the stage), peak_rss_mb (the worker process's "
+                                   "peak resident memory up to the end of the stage), host, python")
     layout: dict[str, str] = Field(default_factory=dict, description="artifact path templates of this zipon")
 
     def text(self) -> str:

@@ -54,6 +54,7 @@ class Workspace:
     root: Path
     data_dir: Path
     manifests_dir: Path
+    params_file: Path | None = None  # the params file itself (any name); None = root / params.yaml
 
     @classmethod
     def resolve(
@@ -63,15 +64,17 @@ class Workspace:
         manifests_dir: str | Path | None = None,
     ) -> "Workspace":
         """Explicit arguments win over ``ZIPON_DATA`` / ``ZIPON_MANIFESTS``, which win over defaults."""
-        params = Path(params_path) if params_path else Path.cwd() / PARAMS_FILE
-        root = params.resolve().parent
+        params = (Path(params_path) if params_path else Path.cwd() / PARAMS_FILE).resolve()
+        root = params.parent
         data = data_dir or os.environ.get(ENV_DATA) or root / "data"
         manifests = manifests_dir or os.environ.get(ENV_MANIFESTS) or root / "manifests"
-        return cls(root=root, data_dir=Path(data).resolve(), manifests_dir=Path(manifests).resolve())
+        return cls(root=root, data_dir=Path(data).resolve(), manifests_dir=Path(manifests).resolve(),
+                   params_file=params)
 
     @property
     def params_path(self) -> Path:
-        return self.root / PARAMS_FILE
+        """The params file given (``--params FILE`` is read whatever its name), else ``root/params.yaml``."""
+        return self.params_file or self.root / PARAMS_FILE
 
     def artifact(self, name: str, scene: str) -> Path:
         try:

@@ -1,9 +1,14 @@
 """The stage runner: a per-scene DAG of stages, staleness, atomic publication, dask scheduling.
 
 A stage is a pure function ``run(ctx: StageContext) -> dict`` (its summary figures). It reads its
-inputs from ``ctx.inputs``, its params from ``ctx.params``, and writes exactly the paths in
-``ctx.outputs`` (temporary locations); the runner digests and publishes them, then writes the
-manifest. One unit of work, :func:`run_stage`, serves the serial path and every dask scheduler.
+inputs from ``ctx.inputs``, its typed config from ``ctx.config`` (built from params by the stage's
+``Config``; exactly what its params digest covers), and writes exactly the paths in ``ctx.outputs``
+(temporary locations); the runner digests and publishes them with the manifest. One unit of work,
+:func:`run_stage`, serves the serial path and every dask scheduler.
+
+A stage is stale when its manifest is missing, an output is missing, a file of its code changed (the
+import closure of its module, :mod:`pipeline.codedeps`), a params key of its config changed, or an
+input's digest changed; :func:`staleness` names which.
 """
 
 from __future__ import annotations
@@ -22,8 +27,9 @@ from pathlib import Path
 from typing import Any, Callable
 
 from pipeline import __version__
-from pipeline.config import Params, digest_value
-from pipeline.errors import MissingInputError, StageError, ZiponError
+from pipeline import codedeps
+from pipeline.config import Params, RunParams, StageConfig, canonical_json, digest_value, project
+from pipeline.errors import MissingInputError, StageError, ZiponError, os_error_message
 from pipeline.manifest import Manifest, OutputRecord
 from pipeline.paths import ARTIFACTS, Workspace
 from pipeline.locks import output_lock
@@ -38,17 +44,29 @@ class StageSpec:
     """One stage of the DAG, declared once in :mod:`stages` (dvc.yaml is checked against it)."""
 
     name: str
-    entry: str  # "module:function", imported lazily so the CLI starts fast
+    entry: str  # "module:function"; the module also defines the stage's Config (see config_class)
     inputs: tuple[str, ...]  # artifact names, or SOURCE for the scene's raw data
     outputs: tuple[str, ...]  # artifact names (see pipeline.paths.ARTIFACTS)
-    params: tuple[str, ...]  # params sections read; "scene" is the scene's own entry in params.scenes
-    code: tuple[str, ...]  # modules/packages whose source defines the output
     simulated_only: bool = False
     description: str = ""
+    config: str = ""  # "module:Class" of the stage's StageConfig; default: "<entry module>:Config"
+
+    @property
+    def module(self) -> str:
+        return self.entry.split(":")[0]
 
     def load(self) -> Callable[["StageContext"], dict]:
         module, func = self.entry.split(":")
         return getattr(importlib.import_module(module), func)
+
+    def config_class(self) -> type[StageConfig]:
+        module, cls = (self.config or f"{self.module}:Config").split(":")
+        return getattr(importlib.import_module(module), cls)
+
+    def build_config(self, params: Params, scene: str) -> tuple[StageConfig, dict[str, Any]]:
+        """(the typed config, its params projection ``{key: value}``) for ``scene``."""
+        cls = self.config_class()
+        return cls.from_params(params, scene), project(params, cls.param_keys(params, scene))
 
     def applies_to(self, params: Params, scene: str) -> bool:
         return params.scenes[scene].simulated or not self.simulated_only
@@ -60,13 +78,22 @@ class StageContext:
 
     scene: str
     stage: str
-    params: Params
+    config: StageConfig
+    runtime: RunParams  # devices, batch sizes, threads: never change an artifact, in no digest
     workspace: Workspace
     inputs: dict[str, Path]
     outputs: dict[str, Path]
     params_digest: str
     show_progress: bool = True
     messages: list[str] = field(default_factory=list)
+
+    @classmethod
+    def build(cls, spec: StageSpec, params: Params, scene: str, workspace: Workspace, inputs: dict[str, Path],
+              outputs: dict[str, Path], *, show_progress: bool = True) -> "StageContext":
+        """The context of ``spec`` for ``scene``: its config built from ``params`` and that config's digest."""
+        config, projection = spec.build_config(params, scene)
+        return cls(scene, spec.name, config, params.run, workspace, inputs, outputs, digest_value(projection),
+                   show_progress)
 
     def log(self, message: str) -> None:
         self.messages.append(message)
@@ -106,32 +133,9 @@ class Outcome:
 
 # ----------------------------------------------------------------------------- digests
 
-def module_source(mod: str) -> Path:
-    """The source of a declared code module: its file, or its folder for a package."""
-    found = importlib.util.find_spec(mod)
-    if found is None or found.origin is None:
-        raise ZiponError(f"code module {mod!r} not found")
-    origin = Path(found.origin)
-    return origin.parent if origin.name == "__init__.py" else origin
-
-
 def code_digest(spec: StageSpec) -> str:
-    """Digest of the source of the modules a stage declares, plus zipon's version."""
-    h = hashlib.blake2b(digest_size=16)
-    h.update(__version__.encode())
-    for mod in sorted(spec.code):
-        src = module_source(mod)
-        for f in sorted(src.rglob("*.py")) if src.is_dir() else [src]:
-            h.update(f"\0{mod}:{f.relative_to(src.parent).as_posix()}\0".encode())
-            h.update(f.read_bytes())
-    return f"blake2b:{h.hexdigest()}"
-
-
-def stage_params(params: Params, spec: StageSpec, scene: str) -> dict[str, Any]:
-    return {
-        key: (params.scenes[scene].model_dump(mode="json") if key == "scene" else params.section_dump(key))
-        for key in spec.params
-    }
+    """Digest of the source of every project module the stage's module imports (transitively)."""
+    return codedeps.code_digest(spec.module)
 
 
 def source_path(ws: Workspace, params: Params, scene: str) -> Path:
@@ -152,7 +156,8 @@ def producer(stages: dict[str, StageSpec], artifact: str) -> StageSpec:
 
 def input_digests(ws: Workspace, params: Params, stages: dict[str, StageSpec], spec: StageSpec, scene: str,
                   ) -> dict[str, str]:
-    """Current digests of a stage's inputs, from upstream manifests (raw files are hashed)."""
+    """Current digests of a stage's inputs: upstream outputs (from their manifests), raw data and the files
+    its config names (hashed)."""
     out = {}
     for name in spec.inputs:
         if name == SOURCE and not params.scenes[scene].simulated:
@@ -167,12 +172,38 @@ def input_digests(ws: Workspace, params: Params, stages: dict[str, StageSpec], s
         if man is None or artifact not in man.outputs:
             raise MissingInputError(f"scene {scene}: input {artifact!r} of stage {spec.name} is missing; run stage {up.name} first")
         out[name] = man.outputs[artifact].digest
+    for name, rel in spec.config_class().extra_inputs(params, scene).items():
+        path = ws.root / rel
+        if not path.exists():
+            raise MissingInputError(f"{path}: {name} of scene {scene!r} not found")
+        out[name] = files_digest([path])
+    return out
+
+
+def _short(value: Any) -> str:
+    text = canonical_json(value) if not isinstance(value, str) else value
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def params_changes(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
+    """``key old -> new`` for every params key whose value differs (added/removed keys included)."""
+    missing = object()
+    out = []
+    for key in sorted(set(old) | set(new)):
+        a, b = old.get(key, missing), new.get(key, missing)
+        if a == b:
+            continue
+        if isinstance(a, dict) and isinstance(b, dict):  # a whole section: name its leaves
+            out += [f"{key}.{change}" for change in params_changes(a, b)]
+        else:
+            out.append(f"{key} {'(none)' if a is missing else _short(a)} -> {'(none)' if b is missing else _short(b)}")
     return out
 
 
 def staleness(ws: Workspace, params: Params, stages: dict[str, StageSpec], spec: StageSpec, scene: str,
               current: dict[str, str] | None = None) -> str:
-    """Why the stage must run ('' when its outputs are up to date).
+    """Why the stage must run ('' when its outputs are up to date), naming what changed: the code files,
+    the params keys (``params: maps.level_height_m 0.1 -> 0.2``) or the inputs.
 
     ``current``: the input digests when the caller already has them (raw logs are hashed once per run).
     """
@@ -182,22 +213,35 @@ def staleness(ws: Workspace, params: Params, stages: dict[str, StageSpec], spec:
     for name in spec.outputs:
         if not ws.artifact(name, scene).exists():
             return f"output {name} missing"
+    reasons = []
     if man.code_digest != code_digest(spec):
-        return "code changed"
-    if man.params_digest != digest_value(stage_params(params, spec, scene)):
-        return "params changed"
+        files = codedeps.changed_files(man.code_files, codedeps.file_digests(spec.module))
+        reasons.append("code changed" + (f": {', '.join(files)}" if files and man.code_files else ""))
+    _, projection = spec.build_config(params, scene)
+    if man.params_digest != digest_value(projection):
+        changes = params_changes(man.params, projection)
+        reasons.append("params: " + "; ".join(changes) if changes else "params changed")
     if current is None:
         try:
             current = input_digests(ws, params, stages, spec, scene)
         except MissingInputError:
-            return "input missing"
+            reasons.append("input missing")
+            current = man.inputs
     if current != man.inputs:
         changed = sorted(k for k in set(current) | set(man.inputs) if current.get(k) != man.inputs.get(k))
-        return f"input changed: {', '.join(changed)}"
-    return ""
+        reasons.append(f"input changed: {', '.join(changed)}")
+    return " | ".join(reasons)
 
 
 # ----------------------------------------------------------------------------- unit of work
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this (worker) process so far, MiB."""
+    import resource
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux, bytes on macOS
+    return round(peak / (1 << 20 if platform.system() == "Darwin" else 1 << 10), 1)
+
 
 def limit_native_threads(n: int) -> None:
     """Cap BLAS/OpenMP/torch threads inside a worker (dask runs one task per worker thread)."""
@@ -243,7 +287,7 @@ def _run_stage(
     reason = "forced" if force else staleness(ws, params, stages, spec, scene, in_digests)
     if not reason:
         return Outcome(scene, stage, "skipped", reason="up to date")
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     started = datetime.now(timezone.utc).isoformat(timespec="seconds")
     tmp = new_tmp_dir(ws.tmp_dir(scene), stage)
     try:
@@ -252,8 +296,8 @@ def _run_stage(
             for name in spec.inputs
         }
         outputs = {name: tmp / ws.artifact(name, scene).name for name in spec.outputs}
-        sp = stage_params(params, spec, scene)
-        ctx = StageContext(scene, stage, params, ws, inputs, outputs, digest_value(sp), show_progress)
+        ctx = StageContext.build(spec, params, scene, ws, inputs, outputs, show_progress=show_progress)
+        projection = project(params, spec.config_class().param_keys(params, scene))
         summary = spec.load()(ctx) or {}
         records = {}
         for name, path in outputs.items():
@@ -263,10 +307,12 @@ def _run_stage(
         seconds = time.perf_counter() - t0
         man = Manifest(
             stage=stage, scene=scene, code_version=__version__, code_digest=code_digest(spec),
-            params=sp, params_digest=ctx.params_digest, inputs=in_digests, outputs=records,
+            code_files=codedeps.file_digests(spec.module),
+            params=projection, params_digest=ctx.params_digest, inputs=in_digests, outputs=records,
             summary=summary, layout=dict(ARTIFACTS),
-            timing={"started": started, "seconds": round(seconds, 3), "host": socket.gethostname(),
-                    "python": platform.python_version()},
+            timing={"started": started, "seconds": round(seconds, 3),
+                    "cpu_seconds": round(time.process_time() - cpu0, 3), "peak_rss_mb": peak_rss_mb(),
+                    "host": socket.gethostname(), "python": platform.python_version()},
         )
         check_inputs_unchanged(ws, scene, stage, upstream_stages(stages, params, scene, stage),
                                {("raw_log" if k == SOURCE else k): v for k, v in in_digests.items()})
@@ -285,6 +331,8 @@ def _task(ws, params, stages, scene, stage, force, show_progress, threads, *upst
                          upstream=list(upstream))
     except ZiponError as err:
         return Outcome(scene, stage, "failed", error=str(err))
+    except OSError as err:  # disk full, read-only, permissions: the path and what to do, no traceback
+        return Outcome(scene, stage, "failed", error=os_error_message(err))
     except Exception as err:  # a bug, not bad input: keep the traceback for the report
         return Outcome(scene, stage, "failed", error=f"{type(err).__name__}: {err}\n{traceback.format_exc()}")
 

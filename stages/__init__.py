@@ -1,5 +1,7 @@
 """The stage registry: one module per stage, declared once here.
 
+Each ``stages/<name>.py`` holds the stage's typed ``Config`` (built from params; exactly what its params
+digest covers) and ``run(ctx)``. Its code is the import closure of that module (:mod:`pipeline.codedeps`).
 ``zipon run`` builds the DAG from these specs; ``dvc.yaml`` declares the same stages and a test
 checks they agree.
 """
@@ -16,8 +18,6 @@ STAGES: dict[str, StageSpec] = {
             entry="stages.simulate:run",
             inputs=(),
             outputs=("raw_log",),
-            params=("simulate", "scene"),
-            code=("stages.simulate", "pipeline.sim", "pipeline.ros2", "pipeline.scene_gt"),
             simulated_only=True,
             description="procedural indoor scene rendered along an exploration trajectory -> ROS 2 MCAP log",
         ),
@@ -26,8 +26,6 @@ STAGES: dict[str, StageSpec] = {
             entry="stages.ingest:run",
             inputs=(SOURCE,),
             outputs=("frames",),
-            params=("ingest", "scene"),
-            code=("stages.ingest", "pipeline.readers", "pipeline.frames", "pipeline.ros2", "pipeline.geometry"),
             description="raw log / dataset folder -> frames.zarr (colour, depth, pose matched by time)",
         ),
         StageSpec(
@@ -35,8 +33,6 @@ STAGES: dict[str, StageSpec] = {
             entry="stages.reconstruct:run",
             inputs=("frames",),
             outputs=("recon", "recon_mesh", "recon_points"),
-            params=("reconstruct", "grid"),
-            code=("stages.reconstruct", "pipeline.recon", "pipeline.geometry", "pipeline.frames"),
             description="frames.zarr -> TSDF mesh + points, floor, occupancy/navigable/colour/height grids (recon.zarr)",
         ),
         StageSpec(
@@ -44,8 +40,6 @@ STAGES: dict[str, StageSpec] = {
             entry="stages.vlmap:run",
             inputs=("frames", "recon"),
             outputs=("vlmap",),
-            params=("maps", "encoders", "grid"),
-            code=("stages.vlmap", "pipeline.maps", "pipeline.encoders"),
             description="dense pixel features fused into the top-down grid, top-level height rule (vlmap.zarr)",
         ),
         StageSpec(
@@ -53,8 +47,6 @@ STAGES: dict[str, StageSpec] = {
             entry="stages.cfmap:run",
             inputs=("frames", "recon"),
             outputs=("cfmap",),
-            params=("maps", "encoders", "grid"),
-            code=("stages.cfmap", "pipeline.maps", "pipeline.encoders"),
             description="ConceptFusion features fused into a sparse voxel map + its top-down projection (cfmap.zarr)",
         ),
         StageSpec(
@@ -62,8 +54,6 @@ STAGES: dict[str, StageSpec] = {
             entry="stages.goals:run",
             inputs=("frames", "recon", "recon_mesh"),
             outputs=("goals",),
-            params=("goals", "routes", "scene"),
-            code=("stages.goals", "pipeline.goals", "pipeline.routes", "pipeline.scene_gt"),
             description="objects (GT, user file or navchat) -> personalized goals with four kinds of feedback (goals.zarr)",
         ),
         StageSpec(
@@ -71,9 +61,6 @@ STAGES: dict[str, StageSpec] = {
             entry="stages.routes:run",
             inputs=("goals", "recon", "recon_mesh"),
             outputs=("routes",),
-            params=("routes",),
-            code=("stages.routes", "pipeline.routes", "pipeline.goals.store", "pipeline.goals.schema",
-                  "pipeline.goals.objects"),
             description="goals + navigable grid -> episodes with FMM routes, actions and text, replay-verified (routes.zarr)",
         ),
     )

@@ -7,15 +7,19 @@ top-down projection by the same height rule as the vlmap; format in :mod:`pipeli
 
 from __future__ import annotations
 
-from pipeline.maps.build import build_map
+from pipeline.maps.build import CfmapConfig, build_map
 from pipeline.maps.store import FORMAT_VERSION
 from pipeline.runner import StageContext
 from pipeline.store import artifact_attrs
 
 
+Config = CfmapConfig  # the cfmap stage's config (pipeline.maps.build.MapConfig)
+
+
 def run(ctx: StageContext) -> dict:
-    simulated = ctx.params.scenes[ctx.scene].simulated
-    ctx.log(f"fusing {ctx.inputs['frames'].name} into a sparse voxel map on {ctx.inputs['recon'].name}'s grid")
+    cfg = ctx.config
+    ctx.log(f"fusing {ctx.inputs['frames'].name} into a sparse voxel map on {ctx.inputs['recon'].name}'s grid "
+            f"(encoder {cfg.encoder})")
     attrs = artifact_attrs("cfmap", FORMAT_VERSION, "cfmap", ctx.params_digest)
-    return build_map("cfmap", ctx.inputs["frames"], ctx.inputs["recon"], ctx.outputs["cfmap"], ctx.params, attrs,
-                     simulated=simulated, progress=lambda it, n, d: ctx.progress(it, total=n, description=d))
+    return build_map(cfg, ctx.inputs["frames"], ctx.inputs["recon"], ctx.outputs["cfmap"], attrs, runtime=ctx.runtime,
+                     progress=lambda it, n, d: ctx.progress(it, total=n, description=d))

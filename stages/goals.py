@@ -17,15 +17,16 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from pipeline.config import GoalsParams, Params, RoutesParams, StageConfig, section_keys
 from pipeline.errors import ConfigError, InputDataError
 from pipeline.frames import FrameStore
 from pipeline.geometry import GridSpec, camera_yaw
 from pipeline.goals.build import GoalSettings, build_goals, prune_document
-from pipeline.goals.navchat import import_navchat
+from pipeline.goals.navchat import check_navchat_coverage, import_navchat, navchat_frame
 from pipeline.goals.objects import ObjectSet, objects_from_file, objects_from_gt, rasterize_polygons
 from pipeline.goals.schema import document_digest, load_document
 from pipeline.goals.store import ARTIFACT, FORMAT_VERSION, write_goals
-from pipeline.recon import OCCUPIED, Recon
+from pipeline.recon import OCCUPIED, UNKNOWN, Recon
 from pipeline.routes.actions import RoutePlanner, RouteSettings
 from pipeline.routes.region import MeshSight, group_region, recorded_camera_height
 from pipeline.runner import StageContext
@@ -33,7 +34,7 @@ from pipeline.scene_gt import GTScene
 from pipeline.store import artifact_attrs
 
 
-def load_objects(scene: str, frames: FrameStore, grid: GridSpec, p, root: Path):
+def load_objects(scene: str, frames: FrameStore, grid: GridSpec, p, root: Path, log=print):
     """``(ObjectSet, navchat goals document | None, GTScene | None)`` per ``goals.objects``."""
     gt = frames.ground_truth
     kind = p.objects
@@ -52,7 +53,8 @@ def load_objects(scene: str, frames: FrameStore, grid: GridSpec, p, root: Path):
     if kind == "navchat":
         if scene not in p.navchat_dirs:
             raise ConfigError(f"goals.navchat_dirs.{scene}: no navchat folder given for scene {scene!r}")
-        objset, doc = import_navchat(root / p.navchat_dirs[scene], grid, scene)
+        objset, doc = import_navchat(root / p.navchat_dirs[scene], navchat_frame(p.navchat_grid, frames, grid), scene,
+                                     log=log)
         return objset, doc, None
     raise ConfigError(f"goals.objects: scene {scene!r} has no ground truth; give goals.objects_files.{scene} "
                       f"or goals.navchat_dirs.{scene}")
@@ -94,13 +96,49 @@ def start_pose(frames: FrameStore) -> tuple[float, float, float] | None:
     return float(T[0, 3]), float(T[1, 3]), float(camera_yaw(T))
 
 
+# goals.* entries keyed by scene: a scene's config holds only its own entry
+PER_SCENE = ("objects_files", "navchat_dirs", "edits")
+# routes.* settings the goals stage plans procedural feedback with (the routes stage's planner and region)
+ROUTE_KEYS = ("step_m", "turn_deg", "clearance_m", "stop_radius_m", "success_m")
+
+
+class Config(StageConfig):
+    """The ``goals`` section (of the scene-keyed entries, only this scene's) and the ``routes`` settings that plan
+    procedural feedback, so importing goal edits for one scene leaves every other scene up to date."""
+
+    goals: GoalsParams
+    routes: RoutesParams
+
+    @classmethod
+    def param_keys(cls, params: Params, scene: str) -> list[str]:
+        own = [f"goals.{k}.{scene}" for k in PER_SCENE if scene in getattr(params.goals, k)]
+        return section_keys("goals", GoalsParams, exclude=PER_SCENE) + own + [f"routes.{k}" for k in ROUTE_KEYS]
+
+    @classmethod
+    def from_params(cls, params: Params, scene: str) -> "Config":
+        g = params.goals
+        goals = g.model_copy(update={k: {s: v for s, v in getattr(g, k).items() if s == scene} for k in PER_SCENE})
+        defaults = RoutesParams()
+        routes = defaults.model_copy(update={k: getattr(params.routes, k) for k in ROUTE_KEYS})
+        return cls(goals=goals, routes=routes)
+
+    @classmethod
+    def extra_inputs(cls, params: Params, scene: str) -> dict[str, str]:
+        g = params.goals
+        named = {"objects_file": g.objects_files, "navchat_dir": g.navchat_dirs, "goal_edits": g.edits}
+        return {name: paths[scene] for name, paths in named.items() if scene in paths}
+
+
 def run(ctx: StageContext) -> dict:
     t0 = time.perf_counter()
-    p, rp = ctx.params.goals, ctx.params.routes
+    p, rp = ctx.config.goals, ctx.config.routes
     frames = FrameStore(ctx.inputs["frames"])
     recon = Recon(ctx.inputs["recon"])
     grid = recon.grid
-    objset, navchat_doc, gt = load_objects(ctx.scene, frames, grid, p, ctx.workspace.root)
+    objset, navchat_doc, gt = load_objects(ctx.scene, frames, grid, p, ctx.workspace.root, log=ctx.log)
+    if objset.source == "navchat":
+        check_navchat_coverage(objset, grid, recon.occupancy != UNKNOWN, p.navchat_max_outside,
+                               path=p.navchat_dirs[ctx.scene], log=ctx.log)
     edits, edits_path, edits_info = navchat_doc, None, None
     if ctx.scene in p.edits:
         edits_path = ctx.workspace.root / p.edits[ctx.scene]

@@ -17,7 +17,7 @@ from typing import Callable
 
 import numpy as np
 
-from pipeline.config import IngestParams, digest_value
+from pipeline.config import IngestParams, Params, SceneFormat, StageConfig, digest_value
 from pipeline.errors import InputDataError
 from pipeline.frames import ARTIFACT, FORMAT_VERSION, FrameStoreWriter
 from pipeline.readers import FrameMatcher, open_reader
@@ -53,7 +53,7 @@ def ingest(source: Path, out_path: Path, params: IngestParams, fmt: str = "auto"
                               codec=params.codec)
     valid_fraction: list[np.ndarray] = []
     try:
-        blocks = matcher.blocks(reader.samples())
+        blocks = world.apply(matcher.blocks(reader.samples()))
         with _BackgroundAppender(writer) as appender:
             for block in (progress(blocks, description="frames") if progress else blocks):
                 valid_fraction.append((block.depth_mm > 0).mean(axis=(1, 2)))
@@ -134,10 +134,26 @@ def ingest_path(path, out_path, params: IngestParams, fmt: str = "auto", *, log=
                   log=log)
 
 
+class Config(StageConfig):
+    """The ``ingest`` section and the scene's reader (``scenes.<scene>.format``). The source path is not part
+    of it: the source's content digest is the stage's input, so moving a dataset folder rebuilds nothing."""
+
+    ingest: IngestParams
+    format: SceneFormat
+
+    @classmethod
+    def param_keys(cls, params: Params, scene: str) -> list[str]:
+        return ["ingest", f"scenes.{scene}.format"]
+
+    @classmethod
+    def from_params(cls, params: Params, scene: str) -> "Config":
+        return cls(ingest=params.ingest, format=params.scenes[scene].format)
+
+
 def run(ctx) -> dict:
     """Stage entry point (see the module doc)."""
-    params = ctx.params.ingest
+    params = ctx.config.ingest
     source = ctx.inputs["source"]
-    return ingest(source, ctx.outputs["frames"], params, ctx.params.scenes[ctx.scene].format,
+    return ingest(source, ctx.outputs["frames"], params, ctx.config.format,
                   params_digest=ctx.params_digest, source_label=ctx.workspace.relative(source), log=ctx.log,
                   progress=ctx.progress)

@@ -13,7 +13,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from pipeline.config import GridParams, ReconstructParams, digest_value
+from pipeline.config import GridParams, Params, ReconstructParams, StageConfig, digest_value
 from pipeline.errors import StageError
 from pipeline.frames import FrameStore
 from pipeline.recon import grids as grids_mod
@@ -105,8 +105,23 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
     return figures
 
 
+class Config(StageConfig):
+    """The ``reconstruct`` and ``grid`` sections."""
+
+    reconstruct: ReconstructParams
+    grid: GridParams
+
+    @classmethod
+    def param_keys(cls, params: Params, scene: str) -> list[str]:
+        return ["reconstruct", "grid"]
+
+    @classmethod
+    def from_params(cls, params: Params, scene: str) -> "Config":
+        return cls(reconstruct=params.reconstruct, grid=params.grid)
+
+
 def run(ctx: StageContext) -> dict:
-    p, grid = ctx.params.reconstruct, ctx.params.grid
+    p, grid = ctx.config.reconstruct, ctx.config.grid
     ctx.log(f"fusing {ctx.inputs['frames'].name}: voxel {p.voxel_size_m} m, trunc {p.sdf_trunc_m} m, "
             f"grid {grid.rows}x{grid.cols} at {grid.cell_size_m} m")
     return reconstruct(

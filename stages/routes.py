@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 
+from pipeline.config import Params, RoutesParams, StageConfig
 from pipeline.errors import LineageError
 from pipeline.goals.store import Goals
 from pipeline.recon import Recon
@@ -26,9 +27,23 @@ from pipeline.runner import StageContext
 from pipeline.store import artifact_attrs
 
 
+class Config(StageConfig):
+    """The ``routes`` section."""
+
+    routes: RoutesParams
+
+    @classmethod
+    def param_keys(cls, params: Params, scene: str) -> list[str]:
+        return ["routes"]
+
+    @classmethod
+    def from_params(cls, params: Params, scene: str) -> "Config":
+        return cls(routes=params.routes)
+
+
 def run(ctx: StageContext) -> dict:
     t0 = time.perf_counter()
-    p = ctx.params.routes
+    p = ctx.config.routes
     goals = Goals(ctx.inputs["goals"])
     recon = Recon(ctx.inputs["recon"])
     if goals.grid != recon.grid:

@@ -2,14 +2,28 @@
 
 from __future__ import annotations
 
+from pipeline.config import Params, SimulateParams, StageConfig
 from pipeline.runner import StageContext
 from pipeline.sim import simulate_scene
 
 
+class Config(StageConfig):
+    """The ``simulate`` section (each scene's seed is derived from ``simulate.seed`` and the scene name)."""
+
+    simulate: SimulateParams
+
+    @classmethod
+    def param_keys(cls, params: Params, scene: str) -> list[str]:
+        return ["simulate"]
+
+    @classmethod
+    def from_params(cls, params: Params, scene: str) -> "Config":
+        return cls(simulate=params.simulate)
+
+
 def run(ctx: StageContext) -> dict:
-    """Write ``ctx.outputs['raw_log']`` for scene ``ctx.scene`` with ``ctx.params.simulate``; returns the summary."""
-    params = ctx.params.simulate
-    summary = simulate_scene(ctx.scene, params, ctx.outputs["raw_log"],
+    """Write ``ctx.outputs['raw_log']`` for scene ``ctx.scene`` with ``ctx.config.simulate``; returns the summary."""
+    summary = simulate_scene(ctx.scene, ctx.config.simulate, ctx.outputs["raw_log"],
                              progress=lambda it, total: ctx.progress(it, total=total, description="render"))
     ctx.log(f"{summary['frames']} frames, {summary['rooms']} rooms, {summary['objects']} objects "
             f"({summary['classes']} classes) in {summary['seconds']:.1f} s")

@@ -7,17 +7,18 @@ format and rule in :mod:`pipeline.maps.store` / :mod:`pipeline.maps.fusion`.
 
 from __future__ import annotations
 
-from pipeline.encoders.base import encoder_choice
-from pipeline.maps.build import build_map
+from pipeline.maps.build import VlmapConfig, build_map
 from pipeline.maps.store import FORMAT_VERSION
 from pipeline.runner import StageContext
 from pipeline.store import artifact_attrs
 
 
+Config = VlmapConfig  # the vlmap stage's config (pipeline.maps.build.MapConfig)
+
+
 def run(ctx: StageContext) -> dict:
-    simulated = ctx.params.scenes[ctx.scene].simulated
-    encoder = encoder_choice(ctx.params.encoders, "vlmap", simulated=simulated)
-    ctx.log(f"fusing {ctx.inputs['frames'].name} into {ctx.inputs['recon'].name}'s grid (encoder {encoder})")
+    cfg = ctx.config
+    ctx.log(f"fusing {ctx.inputs['frames'].name} into {ctx.inputs['recon'].name}'s grid (encoder {cfg.encoder})")
     attrs = artifact_attrs("vlmap", FORMAT_VERSION, "vlmap", ctx.params_digest)
-    return build_map("vlmap", ctx.inputs["frames"], ctx.inputs["recon"], ctx.outputs["vlmap"], ctx.params, attrs,
-                     simulated=simulated, progress=lambda it, n, d: ctx.progress(it, total=n, description=d))
+    return build_map(cfg, ctx.inputs["frames"], ctx.inputs["recon"], ctx.outputs["vlmap"], attrs, runtime=ctx.runtime,
+                     progress=lambda it, n, d: ctx.progress(it, total=n, description=d))

@@ -20,7 +20,8 @@ So the intrinsics of the feature grid are ``Intrinsics.scaled(w, h)`` (see :meth
 and depth for back-projection is depth resampled to ``(h, w)`` (:meth:`DenseFeatures.resample_depth`).
 
 Family: :class:`Encoder` (ABC) + :data:`ENCODERS` (name -> class, filled by ``@register`` in each
-implementation module: ``lseg``, ``maskclip``, ``conceptfusion``, ``torchscript``, ``oracle``).
+implementation module: ``lseg``, ``maskclip``, ``conceptfusion``, ``torchscript``, ``oracle``,
+``simulated_lseg``, ``simulated_cf``).
 ``bind_scene(gt)`` hands the scene's ground truth to encoders that use it (only the oracle, a
 diagnostic); it is a no-op for real encoders. Nothing downloads weights: a real encoder without
 its weights file is a :class:`ConfigError` naming the param, a missing file a
@@ -48,7 +49,7 @@ import torch.nn.functional as F
 from pipeline.errors import ConfigError, InputDataError, MissingInputError
 
 if TYPE_CHECKING:
-    from pipeline.config import EncodersParams
+    from pipeline.config import EncodersParams, RunParams
     from pipeline.geometry import Intrinsics
     from pipeline.scene_gt import GTScene
 
@@ -98,6 +99,48 @@ class DenseFeatures:
         cols = np.minimum(((np.arange(w) + 0.5) * W / w).astype(np.int64), W - 1)
         return depth_m[:, rows[:, None], cols[None, :]]
 
+    @classmethod
+    def concat(cls, parts: "list[DenseFeatures]") -> "DenseFeatures":
+        """The batches ``parts`` (same grid and image size) as one, in order."""
+        return DenseFeatures(torch.cat([p.features for p in parts]), torch.cat([p.valid for p in parts]),
+                             parts[0].image_size)
+
+
+class PaletteFeatures(DenseFeatures):
+    """Features whose cells each take one of a few vectors: cell ``(b, r, c)`` holds ``palette[index[b, r, c]]``.
+
+    ``palette``: ``(T,D)`` float32 unit rows; ``index``: ``(B,h,w)`` int64 rows of it; ``valid`` as in
+    :class:`DenseFeatures`. ``features`` (``(B,h,w,D)``, zero where not valid) is built on first use
+    only: map fusion (:mod:`pipeline.maps.fusion`) sums point weights per (cell, palette row) and
+    multiplies by the palette, reading ``T x D`` numbers instead of ``B*h*w x D``.
+    """
+
+    def __init__(self, palette: torch.Tensor, index: torch.Tensor, valid: torch.Tensor, image_size: tuple[int, int]):
+        self.palette, self.index, self.valid, self.image_size = palette, index, valid, tuple(image_size)
+        self._features: torch.Tensor | None = None
+
+    @property
+    def features(self) -> torch.Tensor:  # type: ignore[override]
+        if self._features is None:
+            self._features = self.palette[self.index] * self.valid[..., None]
+        return self._features
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return int(self.index.shape[1]), int(self.index.shape[2])
+
+    @classmethod
+    def concat(cls, parts: "list[DenseFeatures]") -> "DenseFeatures":
+        """One palette when every part shares it (the same tensor), else the palettes stacked, indices shifted."""
+        if not all(isinstance(p, PaletteFeatures) for p in parts):
+            return DenseFeatures.concat(parts)
+        valid = torch.cat([p.valid for p in parts])
+        if all(p.palette is parts[0].palette for p in parts):
+            return cls(parts[0].palette, torch.cat([p.index for p in parts]), valid, parts[0].image_size)
+        offsets = np.cumsum([0] + [len(p.palette) for p in parts[:-1]])
+        return cls(torch.cat([p.palette for p in parts]), torch.cat([p.index + int(o) for p, o in zip(parts, offsets)]),
+                   valid, parts[0].image_size)
+
 
 class Encoder(ABC):
     """An open-vocabulary dense encoder (see the module docstring for the contract)."""
@@ -107,6 +150,8 @@ class Encoder(ABC):
     normalization: ClassVar[str] = "l2"
     #: True only for the ground-truth oracle; maps record it so nobody mistakes it for perception.
     diagnostic: ClassVar[bool] = False
+    #: False for encoders that never look at the colour images (the oracle): readers may then skip decoding them.
+    reads_rgb: ClassVar[bool] = True
 
     def __init__(self, *, device: str = "cpu", batch_size: int = 4):
         self.device = torch.device(device)
@@ -115,7 +160,7 @@ class Encoder(ABC):
     # ------------------------------------------------------------------ interface
     @classmethod
     @abstractmethod
-    def from_params(cls, params: "EncodersParams", *, device: str) -> "Encoder":
+    def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "Encoder":
         """Build from the ``encoders`` section (its own sub-section plus batch size); no downloads."""
 
     @property
@@ -189,11 +234,7 @@ class Encoder(ABC):
                         None if instance is None else instance[sl],
                     )
                 )
-        if len(parts) == 1:
-            return parts[0]
-        return DenseFeatures(
-            torch.cat([p.features for p in parts]), torch.cat([p.valid for p in parts]), parts[0].image_size
-        )
+        return parts[0] if len(parts) == 1 else type(parts[0]).concat(parts)
 
 
 class OpenClipText:
@@ -245,7 +286,7 @@ def resolve_device(device: str) -> str:
     if device == "auto":
         return "cuda" if torch.cuda.is_available() else "cpu"
     if device == "cuda" and not torch.cuda.is_available():
-        raise ConfigError("encoders.device: 'cuda' requested but torch sees no CUDA device (use 'cpu' or 'auto')")
+        raise ConfigError("run.device: 'cuda' requested but torch sees no CUDA device (use 'cpu' or 'auto')")
     return device
 
 
@@ -327,40 +368,51 @@ def register(cls: type[Encoder]) -> type[Encoder]:
 def encoder_choice(params: "EncodersParams", which: str | None = None, *, simulated: bool = False) -> str:
     """The encoder name a stage uses: ``which`` is 'vlmap', 'cfmap' or an encoder name (None = vlmap).
 
-    For a simulated scene ``encoders.simulated`` (when set) overrides the stage's choice.
+    For a simulated scene ``encoders.simulated`` (when set) overrides the stage's choice; the name
+    'perception' means ``simulated_lseg`` for the vlmap and ``simulated_cf`` for the cfmap.
     """
     import pipeline.encoders  # noqa: F401  (importing the package registers every implementation)
 
-    if simulated and params.simulated is not None:
-        return params.simulated
     which = which or "vlmap"
-    if which in ("vlmap", "cfmap"):
-        return getattr(params, which)
-    if which not in ENCODERS:
+    if simulated and params.simulated is not None:
+        name = params.simulated
+    elif which in ("vlmap", "cfmap"):
+        name = getattr(params, which)
+    elif which not in ENCODERS:
         raise ConfigError(f"encoder {which!r}: unknown (choose one of {sorted(ENCODERS)} or 'vlmap'/'cfmap')")
-    return which
+    else:
+        name = which
+    if name == "perception":  # one setting, each map its model: LSeg-like for the vlmap, ConceptFusion-like for the cfmap
+        name = "simulated_cf" if which == "cfmap" else "simulated_lseg"
+    return name
 
 
-def build_encoder(params: "EncodersParams", which: str | None = None, *, simulated: bool = False) -> Encoder:
+def build_encoder(params: "EncodersParams", which: str | None = None, *, simulated: bool = False,
+                  runtime: "RunParams | None" = None) -> Encoder:
     """Build the encoder chosen in ``params`` for a map stage (``which`` = 'vlmap' / 'cfmap') or by name.
 
-    Applies ``params.threads`` (torch CPU threads) and resolves ``params.device``.
+    ``runtime`` (the ``run`` section: device, batch size, torch threads; defaults when None) never changes
+    the features' identity, so it is in no digest.
     """
+    from pipeline.config import RunParams
+
+    runtime = runtime or RunParams()
     name = encoder_choice(params, which, simulated=simulated)
-    if params.threads:
-        torch.set_num_threads(params.threads)
-    device = resolve_device(params.device)
+    if runtime.torch_threads:
+        torch.set_num_threads(runtime.torch_threads)
+    device = resolve_device(runtime.device)
     cls = ENCODERS[name]
-    return cls.from_params(params, device=device)  # type: ignore[attr-defined]
+    return cls.from_params(params, device=device, batch_size=runtime.encoder_batch_size)  # type: ignore[attr-defined]
 
 
-def check_encoder(params: "EncodersParams", which: str | None = None, *, simulated: bool = False) -> dict[str, Any]:
+def check_encoder(params: "EncodersParams", which: str | None = None, *, simulated: bool = False,
+                  runtime: "RunParams | None" = None) -> dict[str, Any]:
     """Build the configured encoder, run it on one synthetic frame and a query; return its identity + shapes.
 
     For a CLI ``zipon encoders check``: it proves the weights load and the output contract holds,
     without touching any scene. The oracle is checked against a one-object synthetic scene.
     """
-    enc = build_encoder(params, which, simulated=simulated)
+    enc = build_encoder(params, which, simulated=simulated, runtime=runtime)
     rgb = np.zeros((1, 240, 320, 3), np.uint8)
     rgb[:, 60:180, 80:240] = (180, 40, 40)
     depth = np.full((1, 240, 320), 2.0, np.float32)

@@ -110,13 +110,13 @@ class ConceptFusionEncoder(OpenClipText, Encoder):
         self._tokenize = clip_tokens(arch)
 
     @classmethod
-    def from_params(cls, params: "EncodersParams", *, device: str) -> "ConceptFusionEncoder":
+    def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "ConceptFusionEncoder":
         p = params.conceptfusion
         param = "encoders.conceptfusion.weights"
         path = require_file(p.weights, param, f"the conceptfusion encoder (open_clip {p.arch} weights)")
         return cls(load_open_clip(p.arch, path, param), build_region_generator(p.regions), arch=p.arch,
                    weights=path, softmax_temperature=p.softmax_temperature,
-                   out_size=p.out_size, device=device, batch_size=params.batch_size)
+                   out_size=p.out_size, device=device, batch_size=batch_size)
 
     @property
     def dim(self) -> int:

@@ -113,7 +113,7 @@ class LSegEncoder(Encoder):
         self._tokenize = tokenizer()
 
     @classmethod
-    def from_params(cls, params: "EncodersParams", *, device: str) -> "LSegEncoder":
+    def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "LSegEncoder":
         p = params.lseg
         path = require_file(p.weights, WEIGHTS_PARAM, "the lseg encoder (LSeg checkpoint, e.g. demo_e200.ckpt)")
         return cls(
@@ -124,7 +124,7 @@ class LSegEncoder(Encoder):
             stride_rate=p.stride_rate,
             out_size=p.out_size,
             device=device,
-            batch_size=params.batch_size,
+            batch_size=batch_size,
         )
 
     @property

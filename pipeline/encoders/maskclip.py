@@ -129,12 +129,12 @@ class MaskClipEncoder(OpenClipText, Encoder):
         self._tokenize = clip_tokens(arch)
 
     @classmethod
-    def from_params(cls, params: "EncodersParams", *, device: str) -> "MaskClipEncoder":
+    def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "MaskClipEncoder":
         p = params.maskclip
         param = "encoders.maskclip.weights"
         path = require_file(p.weights, param, f"the maskclip encoder (open_clip {p.arch} weights)")
         return cls(load_open_clip(p.arch, path, param), arch=p.arch, weights=path, input_size=p.input_size,
-                   out_size=p.out_size, device=device, batch_size=params.batch_size)
+                   out_size=p.out_size, device=device, batch_size=batch_size)
 
     @property
     def dim(self) -> int:

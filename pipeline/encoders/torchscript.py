@@ -86,10 +86,10 @@ class TorchScriptEncoder(Encoder):
         self._dim: int | None = None
 
     @classmethod
-    def from_params(cls, params: "EncodersParams", *, device: str) -> "TorchScriptEncoder":
+    def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "TorchScriptEncoder":
         p = params.torchscript
         common = dict(name=p.name, version=p.version, input_size=p.input_size, device=device,
-                      batch_size=params.batch_size)
+                      batch_size=batch_size)
         if p.factory is not None:
             obj = load_factory(p.factory)
             return cls(obj.encode_image, obj.encode_text, sources={"factory": p.factory},

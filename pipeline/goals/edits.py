@@ -16,7 +16,8 @@ from pathlib import Path
 import yaml
 
 from pipeline.errors import InputDataError
-from pipeline.goals.schema import check_against_objects, document_digest, dump_document, load_document
+from pipeline.goals.schema import (GoalsDocument, check_against_objects, document_digest, dump_document,
+                                   load_document)
 from pipeline.goals.store import Goals
 from pipeline.store import write_text_atomic
 
@@ -31,8 +32,8 @@ def export_goals(goals_path: Path, out_file: Path) -> Path:
     return out_file
 
 
-def import_goals(edit_file: Path, goals_path: Path, root: Path, edits_dir: str = EDITS_DIR) -> str:
-    """Validate ``edit_file`` against the scene in ``goals_path``; store it; return its path relative to ``root``.
+def validate_edit(edit_file: Path, goals_path: Path) -> GoalsDocument:
+    """Parse ``edit_file`` and check it against the scene in ``goals_path`` (its objects and rooms).
 
     Raises :class:`InputDataError` naming the file, the field path and the reason.
     """
@@ -42,25 +43,52 @@ def import_goals(edit_file: Path, goals_path: Path, root: Path, edits_dir: str =
     if doc.scene != goals.scene:
         raise InputDataError(f"document is for scene {doc.scene!r}, the goals store is scene {goals.scene!r}",
                              path=edit_file, field="scene")
-    rooms = set(goals.document.rooms)
-    check_against_objects(doc, set(goals.objects), rooms, path=edit_file)
-    rel = f"{edits_dir}/{doc.scene}-{document_digest(doc)}.yaml"
+    check_against_objects(doc, set(goals.objects), set(goals.document.rooms), path=edit_file)
+    return doc
+
+
+def edit_relpath(doc: GoalsDocument, edits_dir: str = EDITS_DIR) -> str:
+    """Where a validated edit is stored, relative to the params file's folder (content-addressed)."""
+    return f"{edits_dir}/{doc.scene}-{document_digest(doc)}.yaml"
+
+
+def import_goals(edit_file: Path, goals_path: Path, root: Path, edits_dir: str = EDITS_DIR) -> str:
+    """Validate ``edit_file`` against the scene in ``goals_path``; store it; return its path relative to ``root``."""
+    doc = validate_edit(edit_file, goals_path)
+    rel = edit_relpath(doc, edits_dir)
     write_text_atomic(Path(root) / rel, dump_document(doc, ".yaml"))
     return rel
 
 
 def record_goals_edit(params_path: Path, scene: str, rel_path: str) -> None:
-    """Set ``goals.edits.<scene>: <rel_path>`` in ``params.yaml``.
+    """Set ``goals.edits.<scene>: <rel_path>`` in the params file, changing nothing else: comments, order,
+    formatting and every other key stay as the user wrote them (a YAML round trip with ruamel.yaml, the
+    library DVC itself edits params files with). The result is validated before it replaces the file."""
+    import io
 
-    The file is rewritten by :func:`pipeline.config.params_yaml` (validated, every tunable with its
-    documentation comment), so the result is a complete, checked params file.
-    """
-    from pipeline.config import parse_params, params_yaml
+    from ruamel.yaml import YAML
+    from ruamel.yaml.comments import CommentedMap
+
+    from pipeline.config import parse_params
 
     params_path = Path(params_path)
-    raw = yaml.safe_load(params_path.read_text()) or {}
-    raw.setdefault("goals", {}).setdefault("edits", {})[scene] = rel_path
-    write_text_atomic(params_path, params_yaml(parse_params(raw, origin=str(params_path))))
+    rt = YAML()  # round-trip: keeps comments and layout
+    rt.width = 4096
+    doc = rt.load(params_path.read_text()) or CommentedMap()
+    goals = doc.get("goals")
+    if goals is None:
+        goals = doc["goals"] = CommentedMap()
+    edits = goals.get("edits")
+    if edits is None or not hasattr(edits, "keys"):
+        edits = goals["edits"] = CommentedMap()
+    if hasattr(edits, "fa"):
+        edits.fa.set_block_style()
+    edits[scene] = rel_path
+    buf = io.StringIO()
+    rt.dump(doc, buf)
+    text = buf.getvalue()
+    parse_params(yaml.safe_load(text), origin=str(params_path))
+    write_text_atomic(params_path, text)
 
 
 def edit_digest_from_name(path: str) -> str | None:

@@ -10,11 +10,11 @@ skipped and counted.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Callable, Iterable, Literal
+from typing import Callable, ClassVar, Iterable, Literal
 
 import numpy as np
 
-from pipeline.config import Params
+from pipeline.config import EncodersParams, MapsParams, Params, RunParams, StageConfig, section_keys
 from pipeline.errors import StageError
 from pipeline.frames import FrameStore
 from pipeline.maps.fusion import (Lattice, TopDownAccumulator, VoxelAccumulator, fill_unseen, locate_block,
@@ -22,17 +22,72 @@ from pipeline.maps.fusion import (Lattice, TopDownAccumulator, VoxelAccumulator,
 from pipeline.maps.store import write_map
 
 Kind = Literal["vlmap", "cfmap"]
+# maps.* fields that only one kind of map reads
+KIND_FIELDS: dict[str, tuple[str, ...]] = {"vlmap": ("vlmap_weight_sigma_m",),
+                                           "cfmap": ("cfmap_weight_sigma_m", "cfmap_voxels")}
+
+
+class MapConfig(StageConfig):
+    """Config of a map stage (``vlmap`` / ``cfmap``: set ``kind``): the ``maps`` fusion settings this kind reads,
+    and the encoder it uses with that encoder's own settings only (``encoders.lseg.crop_size`` is not part of a
+    ConceptFusion map). Query settings (``query``) and devices, batch sizes, threads (``run``) are in no digest."""
+
+    kind: ClassVar[Kind]
+    maps: MapsParams
+    encoder: str
+    encoders: EncodersParams
+
+    @classmethod
+    def _other_fields(cls) -> tuple[str, ...]:
+        return tuple(f for k, fields in KIND_FIELDS.items() if k != cls.kind for f in fields)
+
+    @classmethod
+    def _encoder(cls, params: Params, scene: str) -> tuple[str, list[str]]:
+        """(encoder name, the params keys that choose it and configure it)."""
+        from pipeline.encoders.base import encoder_choice
+
+        enc = params.encoders
+        simulated = params.scenes[scene].simulated
+        name = encoder_choice(enc, cls.kind, simulated=simulated)
+        keys = ["encoders.simulated"] if simulated else []
+        if not (simulated and enc.simulated is not None):
+            keys.append(f"encoders.{cls.kind}")
+        if name in EncodersParams.model_fields:
+            keys.append(f"encoders.{name}")
+        return name, keys
+
+    @classmethod
+    def param_keys(cls, params: Params, scene: str) -> list[str]:
+        return section_keys("maps", MapsParams, exclude=cls._other_fields()) + cls._encoder(params, scene)[1]
+
+    @classmethod
+    def from_params(cls, params: Params, scene: str) -> "MapConfig":
+        name, _ = cls._encoder(params, scene)
+        defaults = MapsParams()
+        maps = params.maps.model_copy(update={f: getattr(defaults, f) for f in cls._other_fields()})
+        own = {name: getattr(params.encoders, name)} if name in EncodersParams.model_fields else {}
+        return cls(maps=maps, encoder=name, encoders=EncodersParams(**own))
+
+
+class VlmapConfig(MapConfig):
+    kind = "vlmap"
+
+
+class CfmapConfig(MapConfig):
+    kind = "cfmap"
+
+
+MAP_CONFIGS: dict[str, type[MapConfig]] = {"vlmap": VlmapConfig, "cfmap": CfmapConfig}
 
 
 def build_map(
-    kind: Kind,
+    config: MapConfig,
     frames_path: Path,
     recon_path: Path,
     out_path: Path,
-    params: Params,
     attrs: dict,
     *,
-    simulated: bool = False,
+    runtime: RunParams | None = None,
     progress: Callable[[Iterable, int, str], Iterable] | None = None,
 ) -> dict:
     """Fuse every frame into a new map store at ``out_path``; returns the summary figures."""
@@ -43,7 +98,7 @@ def build_map(
     from pipeline.recon import Recon
     from pipeline.scene_gt import GTScene
 
-    p = params.maps
+    kind, p, runtime = config.kind, config.maps, runtime or RunParams()
     fs = FrameStore(frames_path)
     recon = Recon(recon_path)
     if fs.n_frames != len(recon.fused):
@@ -51,14 +106,14 @@ def build_map(
                          f"(recon from another frame store? rerun: zipon run --force --stage reconstruct)")
     poses = recon.poses
     usable = recon.fused & np.isfinite(poses).all(axis=(1, 2))
-    encoder = build_encoder(params.encoders, kind, simulated=simulated)
+    encoder = build_encoder(config.encoders, config.encoder, runtime=runtime)
     gt = fs.ground_truth
     encoder.bind_scene(GTScene.model_validate(gt) if gt else None)
     lattice = Lattice(recon.grid, recon.floor_z, p.min_height_m, p.max_height_m, p.level_height_m)
-    device = resolve_device(p.device)
+    device = resolve_device(runtime.fusion_device)
     sigma = p.vlmap_weight_sigma_m if kind == "vlmap" else p.cfmap_weight_sigma_m
     acc = (VoxelAccumulator if kind == "cfmap" else TopDownAccumulator)(lattice, encoder.dim, device=device)
-    blocks = fs.iter_blocks(p.block_frames, instance=fs.has_instance)
+    blocks = fs.iter_blocks(p.block_frames, rgb=encoder.reads_rgb, instance=fs.has_instance)
     n_blocks = -(-fs.n_frames // p.block_frames)
     if progress is not None:
         blocks = progress(blocks, n_blocks, "fusing")
@@ -68,14 +123,15 @@ def build_map(
             ok = usable[block.start : block.start + len(block)]
             if not ok.any():
                 continue
-            depth = block.depth_m()[ok]
-            dense = encoder.encode_images(block.rgb[ok], depth_m=depth,
-                                          instance=None if block.instance is None else block.instance[ok])
+            sel = slice(None) if ok.all() else ok  # no copies of whole blocks
+            depth = block.depth_m()[sel]
+            dense = encoder.encode_images(block.rgb[sel], depth_m=depth,
+                                          instance=None if block.instance is None else block.instance[sel])
             depth_f = dense.resample_depth(depth)
             pts = locate_block(lattice, depth_f, dense.valid.numpy(), poses[block.start : block.start + len(block)][ok],
                                dense.intrinsics(fs.intrinsics), depth_min_m=p.depth_min_m, depth_max_m=p.depth_max_m,
                                max_depth_jump=p.max_depth_jump)
-            acc.add(pts, dense.features, point_weights(pts.dist_m, sigma))
+            acc.add(pts, dense, point_weights(pts.dist_m, sigma))
             fused_frames += int(ok.sum())
             pixels += pts.n_fused
     voxels = None

@@ -2,19 +2,19 @@
 
 Scoring (VLMaps' background handling): a cell's score for a prompt is the dot product of its
 unit feature with the prompt's unit text feature. The query competes with the background prompts
-of ``maps.background`` (default 'other', 'floor', 'wall', 'ceiling'; a background prompt whose
+of ``query.background`` (default 'other', 'floor', 'wall', 'ceiling'; a background prompt whose
 text feature is the query's own, cosine > 0.99, is left out):
 
 - heatmap = softmax probability of the query among [query, background...] with temperature
-  ``maps.temperature`` (else the encoder's, else 0.1) — ``sigmoid(s_q / T - logsumexp(s_bg / T))``;
+  ``query.temperature`` (else the encoder's, else 0.1) — ``sigmoid(s_q / T - logsumexp(s_bg / T))``;
   NaN where the map has no feature;
 - a cell WINS when the query's score beats every background score (VLMaps' argmax rule) AND its
-  probability is at least ``maps.min_probability`` (default 0.5: the query outweighs all background
+  probability is at least ``query.min_probability`` (default 0.5: the query outweighs all background
   prompts together). The second condition stops cells of OTHER objects, which score about as low
   on the query as on the background and so win the argmax by chance, from joining a real object's
   component;
 - candidates are the 8-connected components of winning cells of at least
-  ``maps.min_candidate_area_m2`` and mean probability ``maps.min_candidate_score``, found with
+  ``query.min_candidate_area_m2`` and mean probability ``query.min_candidate_score``, found with
   opencv. Each has an ``obj_id`` (its rank in this
   result, 1-based), a ``center_xy`` (the component's cell nearest its centroid, so it always lies on
   the component), the cell nearest the pose, the nearest navigable cell to the centre (an
@@ -362,9 +362,9 @@ def open_query(map_path: str | Path, params, *, recon_path: str | Path | None = 
     if frames_path is not None and Path(frames_path).exists():
         raw = FrameStore(frames_path).ground_truth
         gt = GTScene.model_validate(raw) if raw else None
-    encoder = build_encoder(params.encoders, smap.encoder["name"])
+    encoder = build_encoder(params.encoders, smap.encoder["name"], runtime=params.run)
     encoder.bind_scene(gt)
-    mq = MapQuery(smap, encoder, params.maps, navigable=navigable, gt=gt, color=color)
+    mq = MapQuery(smap, encoder, params.query, navigable=navigable, gt=gt, color=color)
     _CACHE[key] = mq
     return mq
 

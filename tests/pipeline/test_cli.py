@@ -56,3 +56,56 @@ def test_simulate_then_ingest_from_the_command_line(tmp_path, capsys):
     assert store.n_frames == 5 and store.intrinsics.width == 160 and store.ground_truth is not None
     man = Manifest.read(tmp_path / "manifests" / "cli_scene" / "ingest.json")
     assert man.summary["matched_frames"] == 5
+
+
+def test_a_failed_stage_makes_run_and_stage_exit_1(tmp_path, capsys):
+    (tmp_path / "bad.mcap").write_bytes(b"not an mcap log")
+    (tmp_path / "params.yaml").write_text("scenes:\n  r0: {source: bad.mcap, format: mcap}\n")
+    p = str(tmp_path / "params.yaml")
+    assert main(["-q", "-p", p, "run"]) == 1
+    err = capsys.readouterr().err
+    assert "error r0/ingest:" in err and "bad.mcap" in err and "Traceback" not in err
+    assert main(["-q", "-p", p, "stage", "ingest", "--scene", "r0"]) == 1
+    assert not (tmp_path / "data" / "artifacts" / "r0" / "frames.zarr").exists()
+
+
+def test_params_file_of_any_name_is_read(tmp_path, capsys):
+    (tmp_path / "params.yaml").write_text("scenes:\n  other: {source: simulate}\n")
+    (tmp_path / "mine.yaml").write_text("scenes:\n  mine: {source: simulate}\n")
+    assert main(["-p", str(tmp_path / "mine.yaml"), "status"]) == 0
+    out = capsys.readouterr().out
+    assert "mine" in out and "other" not in out
+
+
+def test_status_check_exits_1_when_stale_and_names_why(tmp_path, capsys):
+    (tmp_path / "params.yaml").write_text("scenes:\n  a: {source: simulate}\n")
+    p = str(tmp_path / "params.yaml")
+    assert main(["-p", p, "status"]) == 0
+    assert main(["-p", p, "status", "--check"]) == 1
+    assert "never run" in capsys.readouterr().out
+
+
+def test_dvc_check_exits_1_when_dvc_yaml_is_stale(tmp_path, capsys):
+    (tmp_path / "params.yaml").write_text("scenes:\n  a: {source: simulate}\n")
+    p = str(tmp_path / "params.yaml")
+    assert main(["-p", p, "dvc", "--check"]) == 1
+    assert "out of date" in capsys.readouterr().err
+    assert main(["-p", p, "dvc"]) == 0 and main(["-p", p, "dvc", "--check"]) == 0
+    (tmp_path / "params.yaml").write_text("scenes:\n  a: {source: simulate}\n  b: {source: simulate}\n")
+    assert main(["-p", p, "dvc", "--check"]) == 1
+
+
+def test_strict_params_types_name_the_key(tmp_path, capsys):
+    p = tmp_path / "params.yaml"
+    for body, message in (
+        ("simulate: {frames: true}", "simulate.frames: expected a number, got true (a boolean)"),
+        ("simulate: {frames: '12'}", "simulate.frames: expected a number, got the string '12'"),
+        ("maps: {level_height_m: .nan}", "maps.level_height_m: Input should be a finite number"),
+        ("run: {scheduler: fastest}", "run.scheduler: 'fastest' is not a scheduler"),
+        ("maps: {min_candidate_score: 0.5}", "maps.min_candidate_score: moved to query.min_candidate_score"),
+        ("encoders: {batch_size: 2}", "encoders.batch_size: moved to run.encoder_batch_size"),
+    ):
+        p.write_text("scenes:\n  a: {source: simulate}\n" + body + "\n")
+        assert main(["-p", str(p), "status"]) == 1, body
+        err = capsys.readouterr().err.replace("\n", " ")
+        assert message in err, (body, err)

@@ -35,7 +35,8 @@ def test_runs_then_skips_and_reruns_only_what_changed(workspace):
     assert [o.status for o in third] == ["skipped", "ran", "skipped", "ran"]
     _, fourth = run_all(workspace, ["simulate.frames=9", "ingest.block_frames=4"])
     assert [o.status for o in fourth] == ["ran", "ran", "ran", "ran"]
-    assert fourth[1].reason == "params changed" or fourth[1].reason.startswith("input changed")
+    assert fourth[0].reason == "params: simulate.frames 8 -> 9"
+    assert fourth[1].reason == "input changed: source"
 
 
 def test_manifest_records_lineage_and_is_deterministic(workspace, tmp_path):
@@ -45,7 +46,7 @@ def test_manifest_records_lineage_and_is_deterministic(workspace, tmp_path):
     assert ing.inputs["source"] == sim.outputs["raw_log"].digest
     assert ing.outputs["frames"].path == "data/artifacts/s0/frames.zarr"
     assert ing.summary == {"rows": 8, "sum": int(ing.summary["sum"])}
-    assert ing.params == {"ingest": ing.params["ingest"], "scene": {"source": "simulate", "format": "auto"}}
+    assert ing.params == {"ingest": ing.params["ingest"], "scenes.s0.format": "auto"}
     digest = ing.outputs["frames"].digest
     # a forced rerun and a run elsewhere give the same content digest
     run_all(workspace, ["simulate.frames=8"], force=True)
@@ -111,7 +112,11 @@ def test_staleness_reasons(workspace):
     run_all(workspace, ["simulate.frames=8"])
     assert staleness(workspace, params, TOY_STAGES, spec, "s0") == ""
     p2 = load_params(workspace.params_path, ["simulate.frames=8", "ingest.max_pose_gap_s=0.5"])
-    assert staleness(workspace, p2, TOY_STAGES, spec, "s0") == "params changed"
+    assert staleness(workspace, p2, TOY_STAGES, spec, "s0") == "params: ingest.max_pose_gap_s 0.1 -> 0.5"
+    # settings in no digest: scheduling, devices, queries
+    p3 = load_params(workspace.params_path, ["simulate.frames=8", "run.workers=1", "run.device=cpu",
+                                             "query.min_candidate_score=0.2"])
+    assert staleness(workspace, p3, TOY_STAGES, spec, "s0") == ""
     import shutil
 
     shutil.rmtree(workspace.artifact("frames", "s0"))

@@ -21,7 +21,9 @@ def _run(stage, ws, params, inputs, out):
     from stages import goals as goals_stage, routes as routes_stage
 
     mod = {"goals": goals_stage, "routes": routes_stage}[stage]
-    ctx = StageContext("house", stage, params, ws, inputs, {stage: out}, "test", show_progress=False)
+    from stages import STAGES
+
+    ctx = StageContext.build(STAGES[stage], params, "house", ws, inputs, {stage: out}, show_progress=False)
     return mod.run(ctx)
 
 

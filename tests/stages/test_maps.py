@@ -5,6 +5,7 @@ import pytest
 import torch
 
 from pipeline.config import parse_params
+from pipeline.maps.build import MAP_CONFIGS, build_map
 from pipeline.maps.evaluate import evaluate_map, sample_poses
 from pipeline.maps.query import open_query, query_map
 from pipeline.maps.store import SemanticMap
@@ -34,8 +35,8 @@ def built(tmp_path_factory):
     out, summaries = tmp / "out", {}
     for stage, run in (("vlmap", run_vlmap), ("cfmap", run_cfmap)):
         outputs = {stage: out / f"{stage}.zarr"}
-        ctx = StageContext("box", stage, params, ws, {"frames": frames, "recon": tmp / "recon.zarr"}, outputs,
-                           "blake2b:test", False)
+        ctx = StageContext.build(STAGES[stage], params, "box", ws, {"frames": frames, "recon": tmp / "recon.zarr"},
+                                 outputs, show_progress=False)
         summaries[stage] = run(ctx)
     return tmp, out, frames, gt, params, summaries
 
@@ -44,7 +45,9 @@ def test_registered():
     for name in ("vlmap", "cfmap"):
         spec = STAGES[name]
         assert spec.inputs == ("frames", "recon") and spec.outputs == (name,)
-        assert spec.params == ("maps", "encoders", "grid") and "pipeline.encoders" in spec.code
+        keys = spec.config_class().param_keys(_params(), "box")
+        assert "maps.level_height_m" in keys and "encoders.oracle" in keys and "encoders.lseg" not in keys
+        assert not any(k.startswith(("query.", "run.", "grid")) for k in keys)
 
 
 def test_artifacts_describe_themselves(built):
@@ -85,7 +88,6 @@ def test_queries_find_every_class(built, name):
 def picture_room(tmp_path_factory):
     """The box room with a 2 cm picture on the north wall, thinner than a cell and under the wall's top."""
     from pipeline.geometry import Intrinsics
-    from pipeline.maps.build import build_map
     from pipeline.scene_gt import Box, GTObject
     from pipeline.store import artifact_attrs
     from tests.fixtures.recon_scenes import box_room_gt, box_room_poses, render_frames, write_frames
@@ -102,8 +104,8 @@ def picture_room(tmp_path_factory):
     params = _params()
     reconstruct(frames, tmp / "recon.zarr", tmp / "recon_mesh.ply", tmp / "recon_points.ply", params.reconstruct,
                 params.grid)
-    build_map("cfmap", frames, tmp / "recon.zarr", tmp / "cfmap.zarr", params, artifact_attrs("cfmap", 1, "cfmap", "t"),
-              simulated=True)
+    build_map(MAP_CONFIGS["cfmap"].from_params(params, "box"), frames, tmp / "recon.zarr", tmp / "cfmap.zarr",
+              artifact_attrs("cfmap", 1, "cfmap", "t"))
     return tmp, frames, gt, params
 
 
@@ -120,12 +122,12 @@ def test_level_aware_scores_find_a_picture_on_a_wall(picture_room):
     assert pic.any() and not (gt.instance_footprints(m.grid) == 4).any()  # thinner than a cell: no footprint
     near = binary_dilation(pic, iterations=1)[m.cell // m.grid.cols, m.cell % m.grid.cols]
     q = mq.text_features(["picture"])[0]
-    bg = mq.text_features(list(params.maps.background))
+    bg = mq.text_features(list(params.query.background))
     bg_s = m.dot(bg).numpy()
     top_s, top_max, top_lse = m.dot(q).numpy(), bg_s.max(1), torch.logsumexp(torch.from_numpy(bg_s) / T, 1).numpy()
 
     def wins(s, bmax, blse):
-        return (s > bmax) & (1.0 / (1.0 + np.exp(blse - s / T)) >= params.maps.min_probability)
+        return (s > bmax) & (1.0 / (1.0 + np.exp(blse - s / T)) >= params.query.min_probability)
 
     top = wins(top_s, top_max, top_lse)
     best = wins(*LevelScorer(m).cell_scores(q, bg, T, top_s, top_max, top_lse))

@@ -27,7 +27,7 @@ def built(tmp_path_factory):
     out = tmp / "out"
     out.mkdir()
     outputs = {name: out / Path(ws.artifact(name, "box")).name for name in STAGES["reconstruct"].outputs}
-    ctx = StageContext("box", "reconstruct", params, ws, {"frames": frames}, outputs, "blake2b:test", False)
+    ctx = StageContext.build(STAGES["reconstruct"], params, "box", ws, {"frames": frames}, outputs, show_progress=False)
     summary = run(ctx)
     return summary, Recon(outputs["recon"]), gt, params, frames
 

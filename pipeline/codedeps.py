@@ -1,0 +1,116 @@
+"""The code a stage runs: the import closure of its entry module, found by reading the source.
+
+A stage's code digest (``zipon status``, manifests) and its ``deps`` in ``dvc.yaml`` both come from
+:func:`import_closure`: every project module (``pipeline``, ``stages``, ``orion_eval``, ``zipon``)
+that the entry module imports, directly or through other project modules, at any depth and from
+any scope (an import inside a function counts as much as one at the top), plus the ``__init__.py``
+of every package on the way (Python runs them on import). Nothing is imported to compute it, so
+``zipon status`` stays fast and a syntax error in a stage is reported, not raised.
+
+Dynamic imports (``importlib.import_module(name)`` with a computed name) are not seen; the
+project uses none for its own modules (registries are filled by explicit imports in the package
+``__init__.py``).
+"""
+
+from __future__ import annotations
+
+import ast
+import hashlib
+from functools import lru_cache
+from pathlib import Path
+
+from pipeline import __version__
+from pipeline.errors import ZiponError
+
+ROOT = Path(__file__).resolve().parent.parent
+PROJECT_PACKAGES = ("pipeline", "stages", "orion_eval", "zipon", "tests")
+
+
+def module_file(module: str, root: Path = ROOT) -> Path | None:
+    """The source file of a project module (``a.b`` -> ``a/b.py`` or ``a/b/__init__.py``), or None."""
+    base = root.joinpath(*module.split("."))
+    for candidate in (base.with_suffix(".py"), base / "__init__.py"):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def _is_project(module: str) -> bool:
+    return module.split(".", 1)[0] in PROJECT_PACKAGES
+
+
+def _package_inits(module: str, root: Path) -> list[str]:
+    parts = module.split(".")
+    return [".".join(parts[:i]) for i in range(1, len(parts)) if module_file(".".join(parts[:i]), root)]
+
+
+def _imports_of(path: Path, module: str, root: Path) -> tuple[str, ...]:
+    """Project modules named by every import statement in ``path`` (module ``module``)."""
+    st = path.stat()
+    return _parsed_imports(path, module, root, (st.st_mtime_ns, st.st_size))
+
+
+@lru_cache(maxsize=4096)
+def _parsed_imports(path: Path, module: str, root: Path, stamp: tuple[int, int]) -> tuple[str, ...]:
+    """:func:`_imports_of`, cached while the file's mtime and size stay the same."""
+    try:
+        tree = ast.parse(path.read_bytes(), filename=str(path))
+    except SyntaxError as err:
+        raise ZiponError(f"{path}:{err.lineno}: cannot read the imports of {module}: {err.msg}") from None
+    is_pkg = path.name == "__init__.py"
+    package = module if is_pkg else module.rpartition(".")[0]
+    found: list[str] = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base_parts = package.split(".")
+                base_parts = base_parts[: len(base_parts) - (node.level - 1)]
+                base = ".".join(base_parts + ([node.module] if node.module else []))
+            else:
+                base = node.module or ""
+            found.append(base)
+            # `from pkg import name`: name may be a submodule
+            found += [f"{base}.{alias.name}" for alias in node.names if alias.name != "*"]
+    return tuple(m for m in found if m and _is_project(m) and module_file(m, root) is not None)
+
+
+def import_closure(entry: str, root: Path = ROOT) -> list[Path]:
+    """Source files of ``entry`` and every project module it imports, transitively (sorted)."""
+    if module_file(entry, root) is None:
+        raise ZiponError(f"code module {entry!r} not found under {root}")
+    seen: set[str] = set()
+    todo = [entry]
+    while todo:
+        mod = todo.pop()
+        if mod in seen:
+            continue
+        seen.add(mod)
+        path = module_file(mod, root)
+        todo += _package_inits(mod, root)
+        todo += [m for m in _imports_of(path, mod, root) if m not in seen]
+    return sorted({module_file(m, root) for m in seen})
+
+
+def code_digest(entry: str, root: Path = ROOT) -> str:
+    """Digest of the import closure of ``entry`` (file paths and bytes) plus zipon's version."""
+    h = hashlib.blake2b(digest_size=16)
+    h.update(__version__.encode())
+    for path in import_closure(entry, root):
+        h.update(f"\0{path.relative_to(root).as_posix()}\0".encode())
+        h.update(path.read_bytes())
+    return f"blake2b:{h.hexdigest()}"
+
+
+def changed_files(old: dict[str, str], new: dict[str, str]) -> list[str]:
+    """Files added, removed or edited between two ``{path: digest}`` listings (sorted)."""
+    return sorted(p for p in set(old) | set(new) if old.get(p) != new.get(p))
+
+
+def file_digests(entry: str, root: Path = ROOT) -> dict[str, str]:
+    """``{relative path: blake2b digest}`` of every file of the closure (recorded in manifests)."""
+    return {
+        path.relative_to(root).as_posix(): "blake2b:" + hashlib.blake2b(path.read_bytes(), digest_size=8).hexdigest()
+        for path in import_closure(entry, root)
+    }

@@ -1,0 +1,68 @@
+"""A stage's code is the import closure of its module: editing any file it runs makes it stale, editing a
+file it never imports does not. Checked on a copy of the project, edited in place."""
+
+import shutil
+
+import pytest
+
+from pipeline import codedeps
+from pipeline.errors import ZiponError
+from stages import STAGES
+
+ROOT = codedeps.ROOT
+
+
+@pytest.fixture
+def checkout(tmp_path):
+    for name in ("pipeline", "stages", "orion_eval"):
+        shutil.copytree(ROOT / name, tmp_path / name, ignore=shutil.ignore_patterns("__pycache__"))
+    return tmp_path
+
+
+def _digests(root):
+    return {name: codedeps.code_digest(spec.module, root) for name, spec in STAGES.items()}
+
+
+def _edit(path):
+    path.write_text(path.read_text() + "\n# edited\n")
+
+
+def test_geometry_reaches_the_map_stages(checkout):
+    before = _digests(checkout)
+    _edit(checkout / "pipeline" / "geometry.py")
+    after = _digests(checkout)
+    changed = {s for s in STAGES if before[s] != after[s]}
+    assert {"vlmap", "cfmap", "reconstruct", "goals", "routes"} <= changed
+
+
+def test_a_map_module_does_not_reach_ingest_or_reconstruct(checkout):
+    before = _digests(checkout)
+    _edit(checkout / "pipeline" / "maps" / "fusion.py")
+    after = _digests(checkout)
+    assert {s for s in STAGES if before[s] != after[s]} == {"vlmap", "cfmap"}
+
+
+def test_a_module_imported_inside_a_function_counts(checkout):
+    (checkout / "pipeline" / "lazy_dep.py").write_text("VALUE = 1\n")
+    stage = checkout / "stages" / "routes.py"
+    stage.write_text(stage.read_text() + "\n\ndef _uses_lazy():\n    from pipeline import lazy_dep\n\n"
+                     "    return lazy_dep.VALUE\n")
+    files = {p.relative_to(checkout).as_posix() for p in codedeps.import_closure("stages.routes", checkout)}
+    assert "pipeline/lazy_dep.py" in files and "pipeline/__init__.py" in files and "stages/__init__.py" in files
+    before = codedeps.code_digest("stages.routes", checkout)
+    _edit(checkout / "pipeline" / "lazy_dep.py")
+    assert codedeps.code_digest("stages.routes", checkout) != before
+
+
+def test_changed_files_are_named(checkout):
+    old = codedeps.file_digests("stages.vlmap", checkout)
+    _edit(checkout / "pipeline" / "maps" / "fusion.py")
+    assert codedeps.changed_files(old, codedeps.file_digests("stages.vlmap", checkout)) == ["pipeline/maps/fusion.py"]
+
+
+def test_a_syntax_error_is_a_clear_error(checkout):
+    (checkout / "stages" / "routes.py").write_text("def run(:\n")
+    with pytest.raises(ZiponError, match=r"routes\.py:1: cannot read the imports of stages\.routes"):
+        codedeps.import_closure("stages.routes", checkout)
+    with pytest.raises(ZiponError, match="code module 'stages.nope' not found"):
+        codedeps.import_closure("stages.nope", checkout)

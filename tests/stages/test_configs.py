@@ -1,0 +1,131 @@
+"""Every stage's config is exactly what its params digest covers: changing any params key outside a stage's
+``param_keys`` leaves its config unchanged, changing one inside changes the digest; settings in ``run`` and
+``query`` are in no stage's keys; per-scene entries count only for their own scene."""
+
+from types import UnionType
+from typing import Any, Literal, Union, get_args, get_origin
+
+import pytest
+from pydantic import BaseModel, ValidationError
+
+from pipeline.config import Params, digest_value, parse_params, project
+from stages import STAGES
+
+SCENES = {"s0": {"source": "simulate"}, "r0": {"source": "logs/r0.mcap", "format": "mcap"}}
+
+
+def _params(**sections) -> Params:
+    return parse_params({"scenes": SCENES, **sections})
+
+
+def _leaves(model: BaseModel, prefix: str = "") -> list[tuple[str, Any, Any]]:
+    """(dotted key, value, annotation) of every leaf field under ``model``."""
+    out = []
+    for name, info in type(model).model_fields.items():
+        value = getattr(model, name)
+        key = f"{prefix}{name}"
+        if isinstance(value, BaseModel):
+            out += _leaves(value, key + ".")
+        elif key != "scenes":
+            out.append((key, value, info.annotation))
+    return out
+
+
+def _other(value: Any, annotation: Any) -> Any:
+    """A different value of the same kind (validity beyond the type is not needed: configs are copies)."""
+    args = get_args(annotation)
+    if get_origin(annotation) in (Union, UnionType):
+        lits = [a for a in args if get_origin(a) is Literal]
+        if lits:
+            return _other(value, lits[0])
+        if value is None:
+            inner = next(a for a in args if a is not type(None))
+            return {float: 0.123, int: 7, str: "x.pt", bool: True}.get(inner, ("a", "b"))
+        return None
+    if get_origin(annotation) is Literal:
+        return next(a for a in args if a != value)
+    if isinstance(value, bool):
+        return not value
+    if isinstance(value, (int, float)):
+        return value * 1.37 + 1 if isinstance(value, float) else value + 1
+    if isinstance(value, str):
+        return value + "_other"
+    if isinstance(value, tuple):
+        return tuple(reversed(value)) if len(set(value)) > 1 else (*value, value[0] if value else 0.5)
+    if isinstance(value, dict):
+        return {**value, "zz_other_scene": "x.yaml"}
+    raise AssertionError(f"no perturbation for {value!r}")
+
+
+def _replace(params: Params, key: str, value: Any) -> Params:
+    head, _, rest = key.partition(".")
+    node = getattr(params, head)
+    if not rest:
+        return params.model_copy(update={head: value})
+    return params.model_copy(update={head: _replace(node, rest, value)})
+
+
+def _covered(key: str, keys: list[str]) -> bool:
+    return any(key == k or key.startswith(k + ".") or k.startswith(key + ".") for k in keys)
+
+
+@pytest.mark.parametrize("scene", ["s0", "r0"])
+@pytest.mark.parametrize("stage", list(STAGES))
+def test_config_depends_only_on_its_param_keys(stage, scene):
+    spec = STAGES[stage]
+    base = _params()
+    if not spec.applies_to(base, scene):
+        pytest.skip("stage does not apply to this scene")
+    cls = spec.config_class()
+    keys = cls.param_keys(base, scene)
+    config = cls.from_params(base, scene).model_dump(mode="json")
+    checked = 0
+    for key, value, annotation in _leaves(base):
+        changed = _replace(base, key, _other(value, annotation))
+        try:
+            same_config = cls.from_params(changed, scene).model_dump(mode="json", warnings=False) == config
+        except ValidationError:  # the perturbed value breaks a cross-field check of its section
+            continue
+        if not _covered(key, keys):
+            assert same_config, f"{stage}/{scene}: {key} changes the config but is not one of its param keys"
+            assert key.split(".")[0] not in ("run", "query", "eval") or not any(k.startswith(key.split(".")[0] + ".") for k in keys)
+        checked += 1
+    assert checked > 100
+
+
+def test_runtime_and_query_settings_are_in_no_digest():
+    base = _params()
+    for stage, spec in STAGES.items():
+        for scene in SCENES:
+            if spec.applies_to(base, scene):
+                keys = spec.config_class().param_keys(base, scene)
+                assert not [k for k in keys if k.startswith(("run", "query", "eval"))], (stage, keys)
+
+
+def test_a_map_stage_reads_only_its_own_encoder():
+    base = _params(encoders={"simulated": None, "vlmap": "lseg", "cfmap": "conceptfusion"})
+    vl = project(base, STAGES["vlmap"].config_class().param_keys(base, "r0"))
+    cf = project(base, STAGES["cfmap"].config_class().param_keys(base, "r0"))
+    assert "encoders.lseg" in vl and "encoders.conceptfusion" not in vl and "maps.cfmap_voxels" not in vl
+    assert "encoders.conceptfusion" in cf and "encoders.lseg" not in cf and "maps.vlmap_weight_sigma_m" not in cf
+    crop = _params(encoders={"simulated": None, "lseg": {"crop_size": 320}})
+    digest = lambda p, st: digest_value(project(p, STAGES[st].config_class().param_keys(p, "r0")))  # noqa: E731
+    assert digest(crop, "vlmap") != digest(base, "vlmap") and digest(crop, "cfmap") == digest(base, "cfmap")
+
+
+def test_goal_edits_count_only_for_their_scene():
+    base = _params()
+    edited = _params(goals={"edits": {"s0": "goals/s0-0123456789ab.yaml"}})
+    spec = STAGES["goals"]
+    for scene, stale in (("s0", True), ("r0", False)):
+        before = project(base, spec.config_class().param_keys(base, scene))
+        after = project(edited, spec.config_class().param_keys(edited, scene))
+        assert (before != after) is stale, scene
+    assert spec.config_class().extra_inputs(edited, "s0") == {"goal_edits": "goals/s0-0123456789ab.yaml"}
+    assert spec.config_class().extra_inputs(edited, "r0") == {}
+
+
+def test_a_minimal_params_file_builds_simulated_scenes_with_the_oracle():
+    params = parse_params({"scenes": {"a": {"source": "simulate"}}})
+    config = STAGES["vlmap"].config_class().from_params(params, "a")
+    assert config.encoder == "oracle"
