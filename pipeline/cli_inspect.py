@@ -112,17 +112,19 @@ def goals_export_navchat(
     scene: str = typer.Argument(..., help="scene name"),
     folder: Path = typer.Option(..., "--out", "-o", help="folder for objects.json and final.json"),
 ):
-    """Write objects.json / final.json in navchat's layout (cells on the scene's grid).
+    """Write objects.json / final.json in navchat's layout (cells on goals.navchat_grid; goals imported from
+    navchat come back as shipped where nothing was edited).
 
     Example: `zipon goals export-navchat sim_00 -o navchat/sim_00`
     """
-    from pipeline.goals.navchat import export_navchat, write_navchat
+    from pipeline.frames import FrameStore
+    from pipeline.goals.navchat import export_scene, write_navchat
     from pipeline.goals.store import Goals
 
     ws, _ = G.load()
     goals = Goals(ws.artifact("goals", scene))
-    objects_json, final_json = export_navchat(goals.object_set(), goals.document, goals.grid,
-                                              goals.attrs.get("landmarks"))
+    frames = FrameStore(ws.artifact("frames", scene)) if ws.artifact("frames", scene).exists() else None
+    objects_json, final_json = export_scene(goals, params.goals, frames, scene, ws.root)
     write_navchat(folder, objects_json, final_json)
     out.print(f"{folder}/objects.json, {folder}/final.json")
 
