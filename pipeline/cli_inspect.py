@@ -121,7 +121,7 @@ def goals_export_navchat(
     from pipeline.goals.navchat import export_scene, write_navchat
     from pipeline.goals.store import Goals
 
-    ws, _ = G.load()
+    ws, params = G.load()
     goals = Goals(ws.artifact("goals", scene))
     frames = FrameStore(ws.artifact("frames", scene)) if ws.artifact("frames", scene).exists() else None
     objects_json, final_json = export_scene(goals, params.goals, frames, scene, ws.root)
