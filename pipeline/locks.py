@@ -17,6 +17,8 @@ the owner's pid, host and process start token; it needs no ``fcntl`` support fro
 reclaimed automatically (the pid is probed and the start token guards against pid reuse); a
 marker of *another* host is never broken, because its process cannot be probed from here: the
 error says which host holds it and which file to delete once that host's run is known dead.
+Machines that share one host name but not one process table (containers with host networking)
+must not share a data root: each would take the other's live pids for dead ones.
 """
 
 from __future__ import annotations
