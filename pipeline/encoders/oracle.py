@@ -15,6 +15,11 @@ Imperfection on purpose: per frame, each instance takes another scene class's wo
 probability ``confusion``; each cell gets gaussian noise of std ``noise_std`` before
 renormalising. Draws are seeded by ``seed`` and the frame's instance image, so results do not
 depend on batching.
+
+Speed: the instance table is built once per scene (:meth:`OracleEncoder.bind_scene`) with its rows
+already unit-norm; a frame is a row look-up per cell, returned as
+:class:`~pipeline.encoders.base.PaletteFeatures` (the table + an index image), which map fusion
+adds without ever writing ``h*w x D`` features. Only ``noise_std > 0`` makes dense features.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from pipeline.encoders.base import DenseFeatures, Encoder, l2_normalize, register
+from pipeline.encoders.base import DenseFeatures, Encoder, PaletteFeatures, l2_normalize, register
 from pipeline.errors import ConfigError, InputDataError
 
 if TYPE_CHECKING:
@@ -63,6 +68,7 @@ class OracleEncoder(Encoder):
     name = "oracle"
     version = "1"
     diagnostic = True
+    reads_rgb = False
 
     def __init__(
         self,
@@ -127,6 +133,8 @@ class OracleEncoder(Encoder):
         """Use ``gt``'s objects (instance id -> class, colour, material) for the image side."""
         self._gt = gt
         self._classes = sorted({" ".join(_words(o.cls)) for o in gt.objects}) if gt is not None else []
+        if gt is not None:
+            self._scene_table(gt)
 
     def _class_vocab(self) -> set[str]:
         return COMMON_CLASSES | set(self._classes)
@@ -163,19 +171,51 @@ class OracleEncoder(Encoder):
         return l2_normalize(torch.from_numpy(np.stack(out)).float())
 
     # ------------------------------------------------------------------ images
-    def _instance_table(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """``(ids (N,), features (N+1, D))``; row 0 is background."""
-        objs = self._gt.objects
-        feats = [self.word_vector(BACKGROUND)]
-        for o in objs:
-            cls = " ".join(_words(o.cls))
-            if self.confusion > 0 and len(self._classes) > 1 and rng.random() < self.confusion:
+    def _scene_table(self, gt: "GTScene") -> None:
+        """The scene's instance table, built once per scene: ``_lut`` id -> object slot (0 = background,
+        ids beyond the scene's map to the last entry, background too), ``_raw`` ``(R,D)`` float64 composed
+        vectors (rows 0..N: background and each object with its own class; confusion appends a row per
+        (object, other class) the first time a frame draws it) and ``_unit`` their unit rows, float32."""
+        objs = gt.objects
+        ids = np.array([o.id for o in objs], dtype=np.int64)
+        self._lut = np.zeros(int(ids.max(initial=0)) + 2, dtype=np.int64)
+        self._lut[ids] = np.arange(1, len(ids) + 1)
+        self._attrs = [(" ".join(_words(o.cls)), _words(o.color_name), _words(o.material)) for o in objs]
+        self._raw = np.stack([self.word_vector(BACKGROUND)] + [self._compose([c], col, mat) for c, col, mat in self._attrs])
+        self._row_of: dict[tuple[int, str], int] = {}
+        self._unit_rows()
+
+    def _unit_rows(self) -> None:
+        raw = self._raw
+        self._unit = torch.from_numpy((raw / np.linalg.norm(raw, axis=-1, keepdims=True).clip(1e-12)).astype(np.float32))
+
+    def _frame_rng(self, instance: np.ndarray) -> np.random.Generator:
+        key = hashlib.blake2b(np.ascontiguousarray(instance).tobytes(), digest_size=8).digest()
+        return np.random.default_rng([self.seed, int.from_bytes(key, "little")])
+
+    def _confused_rows(self, rng: np.random.Generator) -> np.ndarray:
+        """``(N+1,)`` table row of each object slot for one frame: its own class, or with probability
+        ``confusion`` another scene class's word (drawn in object order)."""
+        row = np.arange(len(self._attrs) + 1)
+        if self.confusion <= 0 or len(self._classes) < 2:
+            return row
+        grown = False
+        for i, (cls, colors, materials) in enumerate(self._attrs):
+            if rng.random() < self.confusion:
                 others = [c for c in self._classes if c != cls]
-                cls = others[int(rng.integers(len(others)))]
-            feats.append(self._compose([cls], _words(o.color_name), _words(o.material)))
-        return np.array([o.id for o in objs], dtype=np.int64), np.stack(feats)
+                other = others[int(rng.integers(len(others)))]
+                if (i, other) not in self._row_of:
+                    self._row_of[i, other] = len(self._raw)
+                    self._raw = np.concatenate([self._raw, self._compose([other], colors, materials)[None]])
+                    grown = True
+                row[i + 1] = self._row_of[i, other]
+        if grown:
+            self._unit_rows()
+        return row
 
     def _encode_batch(self, rgb: np.ndarray, depth_m, instance) -> DenseFeatures:
+        """Row look-ups into the scene's table: :class:`PaletteFeatures` (the table and an index per cell);
+        with noise, dense features (``normalise(row + noise)`` per cell)."""
         if self._gt is None:
             raise ConfigError("the oracle encoder needs the scene's ground truth (bind_scene); it is a diagnostic "
                               "for simulated scenes only — choose a real encoder for real data")
@@ -186,17 +226,18 @@ class OracleEncoder(Encoder):
         h, w = self.out_size
         rows = np.minimum(((np.arange(h) + 0.5) * H / h).astype(np.int64), H - 1)
         cols = np.minimum(((np.arange(w) + 0.5) * W / w).astype(np.int64), W - 1)
-        out = np.empty((B, h, w, self._dim), dtype=np.float32)
-        for b in range(B):
-            key = hashlib.blake2b(np.ascontiguousarray(instance[b]).tobytes(), digest_size=8).digest()
-            rng = np.random.default_rng([self.seed, int.from_bytes(key, "little")])
-            ids, table = self._instance_table(rng)
-            lut = np.zeros(max(int(instance[b].max()), int(ids.max(initial=0))) + 1, dtype=np.int64)
-            lut[ids] = np.arange(1, len(ids) + 1)  # unknown ids fall back to background (row 0)
-            cells = lut[instance[b][rows[:, None], cols[None, :]].astype(np.int64)]
-            f = table[cells]
-            if self.noise_std > 0:
-                f = f + rng.standard_normal(f.shape) * self.noise_std
-            out[b] = f / np.linalg.norm(f, axis=-1, keepdims=True).clip(1e-12)
-        feats = torch.from_numpy(out)
-        return DenseFeatures(feats, torch.ones((B, h, w), dtype=torch.bool), (H, W))
+        sampled = instance[:, rows[:, None], cols[None, :]].astype(np.int64)
+        index = self._lut[np.clip(sampled, 0, len(self._lut) - 1)]  # unknown ids fall back to background (row 0)
+        valid = torch.ones((B, h, w), dtype=torch.bool)
+        if self.confusion <= 0 and self.noise_std <= 0:
+            return PaletteFeatures(self._unit, torch.from_numpy(index), valid, (H, W))
+        dense = np.empty((B, h, w, self._dim), dtype=np.float32) if self.noise_std > 0 else None
+        for b in range(B):  # per-frame draws, seeded by the frame's instance image (independent of batching)
+            rng = self._frame_rng(instance[b])
+            index[b] = self._confused_rows(rng)[index[b]]
+            if dense is not None:
+                f = self._raw[index[b]] + rng.standard_normal((h, w, self._dim)) * self.noise_std
+                dense[b] = f / np.linalg.norm(f, axis=-1, keepdims=True).clip(1e-12)
+        if dense is not None:
+            return DenseFeatures(torch.from_numpy(dense), valid, (H, W))
+        return PaletteFeatures(self._unit, torch.from_numpy(index), valid, (H, W))

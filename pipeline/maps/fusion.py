@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from pipeline.encoders.base import DenseFeatures, PaletteFeatures
 from pipeline.geometry import GridSpec, Intrinsics, backproject
 
 
@@ -159,6 +160,7 @@ class _SlotStore:
         self.weight = torch.zeros(capacity, dtype=torch.float64, device=device)
         self.count = torch.zeros(capacity, dtype=torch.int64, device=device)
         self.used = 1  # slot 0 collects pixels that are not fused
+        self._rows = torch.empty((0, dim), dtype=torch.float32, device=device)  # see _buffer
 
     def slots(self, keys: torch.Tensor) -> torch.Tensor:
         """Slots ``(P,)`` of ``keys`` ``(P,)`` int64 (repeats allowed); new keys get new slots in ascending order."""
@@ -187,13 +189,22 @@ class _SlotStore:
             new[: old.shape[0]] = old
             setattr(self, name, new)
 
-    def add(self, target: torch.Tensor, features: torch.Tensor, weights: np.ndarray | None) -> None:
+    def add(self, target: torch.Tensor, features: torch.Tensor, weights: np.ndarray | None,
+            index: torch.Tensor | None = None) -> None:
         """Add rows of ``features`` ``(P,D)`` (times ``weights`` ``(P,)``) into slots ``target`` ``(P,)`` (0 = skip).
 
-        One sparse x dense product: a ``(P, K)`` one-hot matrix (one non-zero per fused point, its
-        weight, in the column of its slot among the ``K`` slots the block touches) transposed times
-        the features. It reads each feature row once and needs no ``features * weights`` copy; on
-        CPU it is about 1.5x faster than ``index_add_`` (benchmarks/bench_maps.py).
+        With ``index`` ``(P,)`` int64, ``features`` is a ``(T,D)`` palette and point ``p``'s feature is
+        ``features[index[p]]`` (:class:`~pipeline.encoders.base.PaletteFeatures`).
+
+        Dense rows: one sparse x dense product, a ``(P, K)`` one-hot matrix (one non-zero per fused
+        point, its weight, in the column of its slot among the ``K`` slots the block touches)
+        transposed times the features. It reads each feature row once and needs no ``features *
+        weights`` copy; on CPU it is about 1.5x faster than ``index_add_`` (benchmarks/bench_maps.py).
+
+        Palette rows: the weights are first summed per (slot, palette row) pair in float64; each pair
+        then adds its palette row times that sum, so the cost grows with the slots touched, not with
+        ``P x D``. Both write their ``(K or pairs, D)`` rows into a buffer kept across blocks (fresh
+        pages of a new tensor cost more than the arithmetic) and ``index_add_`` them in a fixed order.
         """
         fused = target > 0
         keep = torch.nonzero(fused).squeeze(1)
@@ -208,15 +219,31 @@ class _SlotStore:
             w = torch.ones(len(keep), dtype=torch.float32, device=self.device)
         else:
             w = torch.from_numpy(np.asarray(weights, np.float32)).to(self.device)[keep]
-        crow = torch.zeros(len(target) + 1, dtype=torch.int64, device=self.device)
-        torch.cumsum(fused, 0, out=crow[1:])  # rows of points that are not fused stay empty (never read)
-        with warnings.catch_warnings():  # "sparse CSR support is in beta": the product used here is stable
-            warnings.simplefilter("ignore", UserWarning)
-            onehot = torch.sparse_csr_tensor(crow, local, w, size=(len(target), k))
-        self.sum[touched] += onehot.t() @ features
+        if index is None:
+            crow = torch.zeros(len(target) + 1, dtype=torch.int64, device=self.device)
+            torch.cumsum(fused, 0, out=crow[1:])  # rows of points that are not fused stay empty (never read)
+            with warnings.catch_warnings():  # "sparse CSR support is in beta": the product used here is stable
+                warnings.simplefilter("ignore", UserWarning)
+                onehot = torch.sparse_csr_tensor(crow, local, w, size=(len(target), k))
+                rows = torch.mm(onehot.t(), features, out=self._buffer(k))
+            self.sum.index_add_(0, touched, rows)
+        else:
+            n_rows = features.shape[0]
+            pair, inverse = torch.unique(local * n_rows + index[keep], sorted=True, return_inverse=True)
+            pair_weight = torch.zeros(len(pair), dtype=torch.float64, device=self.device)
+            pair_weight.index_add_(0, inverse, w.double())
+            rows = torch.index_select(features, 0, pair % n_rows, out=self._buffer(len(pair)))
+            rows.mul_(pair_weight.float()[:, None])
+            self.sum.index_add_(0, touched[pair // n_rows], rows)
         counts = torch.bincount(local, minlength=k)
         self.weight[touched] += counts if weights is None else torch.bincount(local, weights=w.double(), minlength=k)
         self.count[touched] += counts
+
+    def _buffer(self, n: int) -> torch.Tensor:
+        """A ``(n, D)`` float32 scratch tensor reused across blocks (grown by doubling)."""
+        if self._rows.shape[0] < n:
+            self._rows = torch.empty((max(n, 2 * self._rows.shape[0]), self.dim), dtype=torch.float32, device=self.device)
+        return self._rows[:n]
 
     def _scratch_index(self) -> torch.Tensor:
         """An int64 scratch array over the slots (grown with them)."""
@@ -268,14 +295,22 @@ class _Accumulator:
         self.store = _SlotStore(dim, n_keys, self.device)
         self.points_fused = 0
 
-    def add(self, points: BlockPoints, features: torch.Tensor, weights: np.ndarray | None = None) -> None:
-        """Fuse one block: ``features`` ``(B,h,w,D)`` (or ``(P,D)``) rows matching ``points``."""
+    def add(self, points: BlockPoints, features: "torch.Tensor | DenseFeatures", weights: np.ndarray | None = None
+            ) -> None:
+        """Fuse one block: ``features`` ``(B,h,w,D)`` (or ``(P,D)``) rows matching ``points``, or the encoder's
+        :class:`DenseFeatures` of the block (a :class:`PaletteFeatures` is added in its factored form)."""
         dev = self.device
         cell = torch.from_numpy(points.cell).to(dev)
         fused = cell >= 0
         target = torch.zeros_like(cell)
         if bool(fused.any()):
             target[fused] = self._slots(cell[fused], torch.from_numpy(points.level).to(dev)[fused])
+        if isinstance(features, PaletteFeatures):
+            self.store.add(target, features.palette.to(device=dev, dtype=torch.float32), weights,
+                           index=features.index.reshape(-1).to(dev))
+            return
+        if isinstance(features, DenseFeatures):
+            features = features.features
         self.store.add(target, _flat_features(features, dev), weights)
 
     def _slots(self, cell: torch.Tensor, level: torch.Tensor) -> torch.Tensor:

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import torch
 
+from pipeline.encoders.base import PaletteFeatures
 from pipeline.geometry import GridSpec, Intrinsics
 from pipeline.maps.fusion import (BlockPoints, Lattice, TopDownAccumulator, VoxelAccumulator, depth_edges,
                                   fill_unseen, locate_block, point_weights)
@@ -185,3 +186,42 @@ def test_sparse_product_matches_index_add_with_weights():
     np.testing.assert_allclose(v.sum.numpy(), ref.numpy(), atol=1e-4)
     np.testing.assert_allclose(v.count.numpy(), np.bincount(np.searchsorted(keys, key[key >= 0])), atol=0)
 
+
+
+@pytest.mark.parametrize("acc_cls", [TopDownAccumulator, VoxelAccumulator])
+def test_palette_features_fuse_like_their_dense_rows(acc_cls):
+    # an encoder whose cells take rows of a small table (the oracle) is fused in factored form:
+    # same cells, levels, weights and counts as the dense rows; sums equal up to float32 rounding
+    rng = np.random.default_rng(5)
+    grid = GridSpec(rows=20, cols=20, cell_size_m=1.0, origin_xy=(0.0, 20.0))
+    lat = Lattice(grid, 0.0, 0.0, 4.0, 1.0)
+    palette = torch.nn.functional.normalize(torch.from_numpy(rng.standard_normal((7, 6)).astype(np.float32)), dim=1)
+    fact, dense = acc_cls(lat, 6), acc_cls(lat, 6)
+    for _ in range(3):  # blocks of 2 frames of 10x10 cells; later blocks restart some top-down cells
+        index = torch.from_numpy(rng.integers(0, 7, (2, 10, 10)))
+        pts = _block(rng.integers(-1, 400, 200), rng.integers(0, 4, 200))
+        w = rng.random(200).astype(np.float32)
+        fact.add(pts, PaletteFeatures(palette, index, torch.ones(2, 10, 10, dtype=torch.bool), (20, 20)), w)
+        dense.add(pts, palette[index], w)
+    a, b = fact.result(), dense.result()
+    if acc_cls is VoxelAccumulator:
+        assert a.cell.tolist() == b.cell.tolist() and a.level.tolist() == b.level.tolist()
+        assert torch.equal(a.weight, b.weight) and torch.equal(a.count, b.count)
+        torch.testing.assert_close(a.sum, b.sum, atol=1e-5, rtol=1e-5)
+        a, b = a.top_down(), b.top_down()
+    assert a.cell.tolist() == b.cell.tolist() and a.level.tolist() == b.level.tolist()
+    np.testing.assert_array_equal(a.weight, b.weight)
+    np.testing.assert_array_equal(a.count, b.count)
+    torch.testing.assert_close(a.features, b.features, atol=1e-6, rtol=1e-6)
+    assert fact.points_fused == dense.points_fused > 0
+
+
+def test_palette_batches_concatenate_by_sharing_or_stacking_their_tables():
+    ones = torch.ones(1, 2, 2, dtype=torch.bool)
+    p, q = torch.eye(3), torch.eye(3).flip(0)
+    idx = torch.tensor([[[0, 1], [2, 0]]])
+    shared = PaletteFeatures.concat([PaletteFeatures(p, idx, ones, (4, 4)), PaletteFeatures(p, idx, ones, (4, 4))])
+    assert shared.palette is p and shared.index.shape == (2, 2, 2)
+    stacked = PaletteFeatures.concat([PaletteFeatures(p, idx, ones, (4, 4)), PaletteFeatures(q, idx, ones, (4, 4))])
+    assert stacked.palette.shape == (6, 3)
+    assert torch.equal(stacked.features, torch.cat([p[idx], q[idx]]))

@@ -7,6 +7,8 @@ import pytest
 import torch
 
 from pipeline.encoders import build_encoder
+from pipeline.encoders.base import DenseFeatures, PaletteFeatures
+from pipeline.encoders.oracle import OracleEncoder, _words
 from pipeline.errors import ConfigError
 from tests.pipeline.encoders.conftest import gt_scene, toy_batch
 
@@ -63,3 +65,49 @@ def test_needs_ground_truth_and_instances(params):
     enc.bind_scene(gt_scene())
     with pytest.raises(Exception, match="needs instance images"):
         enc.encode_images(rgb)
+
+
+def _reference(enc: OracleEncoder, instance: np.ndarray) -> np.ndarray:
+    """The oracle's definition cell by cell: normalise(compose(class, colours, material)) of the instance at the
+    cell centre (background and unknown ids: v('background'))."""
+    H, W = instance.shape[1:]
+    h, w = enc.out_size
+    objs = {o.id: o for o in enc._gt.objects}
+    out = np.zeros((len(instance), h, w, enc.dim), np.float32)
+    for b in range(len(instance)):
+        for r in range(h):
+            for c in range(w):
+                o = objs.get(int(instance[b, int((r + 0.5) * H / h), int((c + 0.5) * W / w)]))
+                v = (enc.word_vector("background") if o is None else
+                     enc._compose([" ".join(_words(o.cls))], _words(o.color_name), _words(o.material)))
+                out[b, r, c] = v / np.linalg.norm(v)
+    return out
+
+
+def test_cells_are_row_lookups_of_one_table_per_scene():
+    enc = OracleEncoder(out_size=(12, 16), batch_size=2)
+    enc.bind_scene(gt_scene())
+    rgb, _, inst = toy_batch(3)
+    inst[0, :8, :8] = 77  # an id the scene does not know: background
+    out = enc.encode_images(rgb, instance=inst)
+    assert isinstance(out, PaletteFeatures) and out.palette.shape == (4, enc.dim)  # background + 3 objects, shared
+    np.testing.assert_array_equal(out.features.numpy(), _reference(enc, inst))  # exact, not approximately
+    assert out.valid.all() and out.size == (12, 16)
+    one = enc.encode_images(rgb[1:2], instance=inst[1:2])
+    assert torch.equal(one.features[0], out.features[1])  # independent of batching
+
+
+def test_confused_frames_stay_row_lookups_and_noise_makes_dense_features():
+    rgb, _, inst = toy_batch(3)
+    confused = OracleEncoder(out_size=(12, 16), confusion=0.5, batch_size=2)
+    confused.bind_scene(gt_scene())
+    out = confused.encode_images(rgb, instance=inst)
+    assert isinstance(out, PaletteFeatures)
+    norms = out.features.norm(dim=-1)
+    torch.testing.assert_close(norms, torch.ones_like(norms))
+    again = OracleEncoder(out_size=(12, 16), confusion=0.5, batch_size=3)
+    again.bind_scene(gt_scene())
+    assert torch.equal(again.encode_images(rgb, instance=inst).features, out.features)
+    noisy = OracleEncoder(out_size=(12, 16), noise_std=0.1)
+    noisy.bind_scene(gt_scene())
+    assert type(noisy.encode_images(rgb, instance=inst)) is DenseFeatures
