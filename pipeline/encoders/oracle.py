@@ -93,11 +93,11 @@ class OracleEncoder(Encoder):
         self._classes: list[str] = []
 
     @classmethod
-    def from_params(cls, params: "EncodersParams", *, device: str) -> "OracleEncoder":
+    def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "OracleEncoder":
         p = params.oracle
         return cls(dim=p.dim, seed=p.seed, color_weight=p.color_weight, material_weight=p.material_weight,
                    confusion=p.confusion, noise_std=p.noise_std, out_size=p.out_size, device=device,
-                   batch_size=params.batch_size)
+                   batch_size=batch_size)
 
     # ------------------------------------------------------------------ space
     @property
