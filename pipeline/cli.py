@@ -256,7 +256,7 @@ def simulate(
 def ingest(
     path: Path = typer.Argument(..., exists=False, help="MCAP log, TUM / 7-Scenes / navchat folder"),
     scene: str = typer.Option(..., "--scene", "-s", help="scene name for the artifacts"),
-    fmt: str = typer.Option("auto", "--format", help="auto | mcap | rosbag | tum | 7scenes | navchat"),
+    fmt: str = typer.Option("auto", "--format", help="auto | mcap | rosbag | tum | 7scenes | navchat | replica | scannet"),
     force: bool = typer.Option(False, "--force", help="rerun even when up to date"),
 ):
     """Ingest one raw log or dataset folder into DATA/artifacts/SCENE/frames.zarr (with its manifest).

@@ -67,7 +67,7 @@ class Section(BaseModel):
 
 # ----------------------------------------------------------------------------- scenes
 
-SceneFormat = Literal["auto", "mcap", "rosbag", "tum", "7scenes", "navchat"]
+SceneFormat = Literal["auto", "mcap", "rosbag", "tum", "7scenes", "navchat", "replica", "scannet"]
 
 
 class SceneSource(Section):

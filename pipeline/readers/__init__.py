@@ -1,6 +1,6 @@
 """Raw-data readers (one file per format) behind :class:`pipeline.readers.base.Reader`, and the shared matcher."""
 
-from pipeline.readers import mcap, navchat, rosbag, sevenscenes, tum  # noqa: F401  (register the readers)
+from pipeline.readers import mcap, navchat, replica, rosbag, scannet, sevenscenes, tum  # noqa: F401  (register the readers)
 from pipeline.readers.base import READERS, Reader, Sample, SourceInfo, detect_format, open_reader
 from pipeline.readers.matcher import FrameMatcher
 

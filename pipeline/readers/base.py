@@ -136,8 +136,9 @@ def detect_format(path: Path) -> str:
         raise InputDataError("cannot tell the format of this path", path=path,
                              expected="a ROS 2 .mcap file (or rosbag2 folder holding one), a ROS 1 .bag, a ROS 2 "
                                       ".db3 (or rosbag2 folder), a TUM RGB-D folder (rgb.txt, depth.txt), a 7-Scenes "
-                                      "folder (frame-*.color.png), a navchat recording (rgb/, depth/*.npy, pose/); "
-                                      "or set the scene's format (--format)")
+                                      "folder (frame-*.color.png), a navchat recording (rgb/, depth/*.npy, pose/), a "
+                                      "Replica sequence (results/, traj.txt), an exported ScanNet scene (color/, "
+                                      "depth/, pose/, intrinsic/); or set the scene's format (--format)")
     raise InputDataError(f"path matches several formats {found}", path=path, expected="set the scene's format")
 
 

@@ -5,11 +5,12 @@ RealSense and Kinect-style drivers publish depth on the depth imager (``/camera/
 frame ``camera_depth_optical_frame``, its own K and size) a few centimetres from the colour imager.
 Each valid depth pixel's footprint -- its two corners (u -/+ 0.5, v -/+ 0.5) at its depth -- is
 back-projected with the depth K, moved by ``T_color_depth`` (the static tf between the two optical
-frames) and projected with the colour K; every colour pixel inside the projected footprint (at most
-``MAX_SPAN_PX`` a side) gets the point's colour-frame z, and the smallest z wins where several land on
-one pixel (z-buffer). This is how librealsense's ``align`` fills colour pixels denser than the depth
-pixels without interpolating; colour pixels no footprint covers (occlusions, outside the depth
-view) stay invalid (0), so no depth is invented at occlusion edges.
+frames) and projected with the colour K; every colour pixel whose centre lies inside the projected
+footprint (at most ``MAX_SPAN_PX`` a side), and always the pixel the depth pixel's centre lands in,
+gets the point's colour-frame z; the smallest z wins where several land on one pixel (z-buffer).
+Like librealsense's ``align``, this fills colour pixels denser than the depth pixels without
+interpolating (and is exact when both cameras are the same); colour pixels no footprint covers
+(occlusions, outside the depth view) stay invalid (0), so no depth is invented at occlusion edges.
 """
 
 from __future__ import annotations
@@ -58,12 +59,14 @@ class DepthRegistration:
 
         xa, ya, za = to_colour(-0.5)
         xb, yb, zb = to_colour(0.5)
-        zc = (z[:, None] * np.array([[0, 0, 1.0]]) @ R.T + t)[:, 2]  # the pixel centre's colour-frame z
+        xc, yc, zc = to_colour(0.0)
         front = (za > 1e-6) & (zb > 1e-6) & (zc > 1e-6)
-        u0 = np.floor(np.minimum(xa, xb)[front] + 0.5).astype(np.int64)
-        u1 = np.floor(np.maximum(xa, xb)[front] + 0.5).astype(np.int64)
-        v0 = np.floor(np.minimum(ya, yb)[front] + 0.5).astype(np.int64)
-        v1 = np.floor(np.maximum(ya, yb)[front] + 0.5).astype(np.int64)
+        # colour pixels whose centre lies in the footprint, and always the one the pixel centre lands in
+        uc, vc = np.floor(xc[front] + 0.5).astype(np.int64), np.floor(yc[front] + 0.5).astype(np.int64)
+        u0 = np.minimum(np.ceil(np.minimum(xa, xb)[front]).astype(np.int64), uc)
+        u1 = np.maximum(np.ceil(np.maximum(xa, xb)[front]).astype(np.int64) - 1, uc)
+        v0 = np.minimum(np.ceil(np.minimum(ya, yb)[front]).astype(np.int64), vc)
+        v1 = np.maximum(np.ceil(np.maximum(ya, yb)[front]).astype(np.int64) - 1, vc)
         zc = zc[front]
         flats, zs = [], []
         for dv in range(MAX_SPAN_PX):

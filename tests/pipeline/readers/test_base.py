@@ -9,13 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.config import IngestParams
+from typing import get_args
+
+from pipeline.config import IngestParams, SceneFormat
 from pipeline.errors import InputDataError, MissingInputError
 from pipeline.frames import FrameStore
 from pipeline.readers import READERS, detect_format, open_reader
 from stages.ingest import ingest_path
-from tests.fixtures.raw_datasets import (make_recording, navchat_expected_poses, write_7scenes, write_bag,
-                                         write_mcap, write_navchat, write_tum)
+from tests.fixtures.raw_datasets import (decoded, make_recording, navchat_expected_poses, write_7scenes, write_bag,
+                                         write_mcap, write_navchat, write_replica, write_scannet, write_tum)
 
 
 @dataclass
@@ -39,6 +41,22 @@ def _rosbag(tmp: Path) -> Case:
     return Case(write_bag(tmp, rec, "ros1"), rec.rgb, rec.depth_mm, rec.instance, rec.poses, rec.stamps, 1e-9)
 
 
+def _replica(tmp: Path) -> Case:
+    rec = make_recording(6)
+    root = write_replica(tmp, rec)
+    rgb = decoded([root / f"results/frame{i:06d}.jpg" for i in range(6)])
+    stamps = np.round(np.arange(6) * 1e9 / 30.0).astype(np.int64)
+    return Case(root, rgb, rec.depth_mm, None, rec.poses, stamps, 1e-12)
+
+
+def _scannet(tmp: Path) -> Case:
+    rec = make_recording(6)
+    root = write_scannet(tmp, rec)
+    rgb = decoded([root / f"color/{i}.jpg" for i in range(6)])
+    stamps = np.round(np.arange(6) * 1e9 / 30.0).astype(np.int64)
+    return Case(root, rgb, rec.depth_mm, None, rec.poses, stamps, 1e-12)
+
+
 def _tum(tmp: Path) -> Case:
     rec = make_recording(6)
     # poses come at 3x the camera rate, so the reader's frames are interpolated (smooth path: ~1e-4 m).
@@ -57,11 +75,12 @@ def _navchat(tmp: Path) -> Case:
     return Case(write_navchat(tmp, rec), rec.rgb, rec.depth_mm, rec.instance, navchat_expected_poses(6), stamps, 1e-9)
 
 
-FACTORIES = {"mcap": _mcap, "rosbag": _rosbag, "tum": _tum, "7scenes": _7scenes, "navchat": _navchat}
+FACTORIES = {"mcap": _mcap, "rosbag": _rosbag, "replica": _replica, "scannet": _scannet, "tum": _tum, "7scenes": _7scenes, "navchat": _navchat}
 
 
 def test_every_reader_has_a_contract_case():
     assert set(FACTORIES) == set(READERS)
+    assert set(get_args(SceneFormat)) == set(READERS) | {"auto"}  # every reader can be named in params
 
 
 @pytest.mark.parametrize("fmt", sorted(FACTORIES))

@@ -33,6 +33,12 @@ def test_plane_registers_exactly():
     assert metres.dtype == np.float32 and np.abs(metres[inside] - 2.0).max() < 1e-6 and np.isnan(metres[~inside]).all()
 
 
+def test_same_camera_is_the_identity():
+    k = Intrinsics(30.0, 30.0, 15.5, 11.5, 32, 24)
+    depth = np.random.default_rng(0).integers(0, 5000, (24, 32)).astype(np.uint16)
+    assert np.array_equal(DepthRegistration(k, k, np.eye(4))(depth), depth)
+
+
 def test_z_buffer_keeps_the_nearest_surface():
     d = c = Intrinsics(10.0, 10.0, 1.5, 1.5, 4, 4)
     depth = np.full((4, 4), 3000, np.uint16)

@@ -1,0 +1,111 @@
+"""Replica sequences as NICE-SLAM / ConceptGraphs use them (``Replica/room0``).
+
+Layout: ``results/frameNNNNNN.jpg`` (RGB), ``results/depthNNNNNN.png`` (uint16, ``scale`` units per
+metre, 6553.5), ``traj.txt`` (one camera-to-world 4x4 per line, 16 numbers row-major, OpenCV optical
+camera), and the camera in ``cam_params.json`` (``{"camera": {w, h, fx, fy, cx, cy, scale}}``, in the
+folder or the one above it, as the Replica download ships it) or else NICE-SLAM's ``replica.yaml``
+values (1200x680, f 600, c (599.5, 339.5), scale 6553.5); ``ingest.camera_override`` replaces K.
+Stamps are synthesised as ``N / ingest.folder_fps``. Poses are re-orthonormalised within
+``ingest.pose_orthonormal_tol``. Replica's world is z-up (``world_up`` +z).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Iterator
+
+import cv2
+import numpy as np
+
+from pipeline.errors import InputDataError
+from pipeline.geometry import Intrinsics, nearest_rigid
+from pipeline.readers.base import (DEPTH, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, frame_stamps_ns,
+                                   read_depth16, read_image, register)
+
+# NICE-SLAM configs/Replica/replica.yaml
+REPLICA_CAMERA = {"w": 1200, "h": 680, "fx": 600.0, "fy": 600.0, "cx": 599.5, "cy": 339.5, "scale": 6553.5}
+_FRAME = re.compile(r"^frame(\d+)\.(jpg|png)$")
+
+
+def _camera(folder: Path) -> tuple[dict, str]:
+    for f in (folder / "cam_params.json", folder.parent / "cam_params.json"):
+        if f.is_file():
+            try:
+                cam = json.loads(f.read_text())["camera"]
+                return {k: float(cam[k]) for k in REPLICA_CAMERA}, str(f)
+            except (KeyError, TypeError, ValueError) as err:
+                raise InputDataError(f"camera parameters unreadable ({err})", path=f, field="camera",
+                                     expected='{"camera": {"w", "h", "fx", "fy", "cx", "cy", "scale"}}') from None
+    return dict(REPLICA_CAMERA), "NICE-SLAM replica.yaml defaults"
+
+
+@register("replica")
+class ReplicaReader(Reader):
+    """See the module doc."""
+
+    @classmethod
+    def detect(cls, path: Path) -> bool:
+        return (path.is_dir() and (path / "traj.txt").is_file() and (path / "results").is_dir()
+                and next((path / "results").glob("frame*.jpg"), None) is not None)
+
+    def open(self) -> SourceInfo:
+        res = self.path / "results"
+        if not res.is_dir() or not (self.path / "traj.txt").is_file():
+            raise InputDataError("no results/ folder or traj.txt", path=self.path,
+                                 expected="a Replica sequence: results/frameNNNNNN.jpg, results/depthNNNNNN.png, traj.txt")
+        found = sorted((int(m.group(1)), p.name, m.group(1)) for p in res.iterdir() if (m := _FRAME.match(p.name)))
+        if not found:
+            raise InputDataError("no frameNNNNNN.jpg files", path=res, expected="results/frameNNNNNN.jpg")
+        rows = [ln.split() for ln in (self.path / "traj.txt").read_text().splitlines() if ln.strip()]
+        if len(rows) < len(found):
+            raise InputDataError(f"traj.txt has {len(rows)} poses for {len(found)} frames", path=self.path / "traj.txt",
+                                 expected="one 4x4 pose (16 numbers) per frame")
+        self.frames = []
+        for k, (i, name, digits) in enumerate(found):
+            depth = res / f"depth{digits}.png"
+            if not depth.is_file():
+                raise InputDataError(f"{name} has no depth file", path=depth, frame=k,
+                                     expected="results/depthNNNNNN.png for every frame")
+            self.frames.append((i, res / name, depth))
+        self.rows = rows
+        cam, origin = _camera(self.path)
+        self.scale = cam["scale"]
+        o = self.params.camera_override
+        w, h = int(cam["w"]), int(cam["h"])
+        intr = Intrinsics(o.fx, o.fy, o.cx, o.cy, w, h) if o else Intrinsics(cam["fx"], cam["fy"], cam["cx"], cam["cy"], w, h)
+        self.stamps = frame_stamps_ns(np.array([i for i, _, _ in self.frames]), self.params.folder_fps)
+        return SourceInfo(
+            intrinsics=intr, has_instance=False, pose_chain=[PoseLink("world", "camera")],
+            where={RGB: "results/frame*.jpg", DEPTH: "results/depth*.png", "world->camera": "traj.txt"},
+            provenance={
+                "frames": len(self.frames),
+                "conversions": [
+                    f"intrinsics: {'ingest.camera_override' if o else origin}: {intr.to_dict()}",
+                    f"depth: png / {self.scale} per metre -> uint16 mm (rounded)",
+                    f"stamps: synthesised as frame number / ingest.folder_fps ({self.params.folder_fps} Hz)",
+                    "pose: traj.txt line N = camera(optical)-to-world 4x4 row-major, re-orthonormalised by SVD "
+                    f"(ingest.pose_orthonormal_tol = {self.params.pose_orthonormal_tol}); world = Replica's (z up)",
+                ],
+            },
+        )
+
+    def _pose(self, k: int, i: int) -> np.ndarray:
+        where = {"path": self.path / "traj.txt", "frame": k}
+        try:
+            T = np.array([float(x) for x in self.rows[i]]).reshape(4, 4)
+        except (ValueError, IndexError) as err:
+            raise InputDataError(f"line {i + 1} is not 16 numbers ({err})", **where, field=f"line {i + 1}",
+                                 expected="a 4x4 camera-to-world matrix, row-major") from None
+        return nearest_rigid(T, tol=self.params.pose_orthonormal_tol, **where)
+
+    def samples(self) -> Iterator[Sample]:
+        for k, ((i, rgb, depth), stamp) in enumerate(zip(self.frames, self.stamps.tolist())):
+            yield Sample(POSE, stamp, k, self._pose(k, i), key="world->camera", rigid=True)
+            yield Sample(RGB, stamp, k, lambda f=rgb, k=k: read_image(f, flags=cv2.IMREAD_COLOR, frame=k, what="colour"))
+            yield Sample(DEPTH, stamp, k, lambda f=depth, k=k: self._depth(f, k))
+
+    def _depth(self, file: Path, k: int) -> np.ndarray:
+        raw = read_depth16(file, k, f"uint16 depth at {self.scale} per metre")
+        return np.clip(np.rint(raw.astype(np.float64) * (1000.0 / self.scale)), 0, 65535).astype(np.uint16)
