@@ -41,20 +41,21 @@ def _rosbag(tmp: Path) -> Case:
     return Case(write_bag(tmp, rec, "ros1"), rec.rgb, rec.depth_mm, rec.instance, rec.poses, rec.stamps, 1e-9)
 
 
+def _jpeg_folder(root: Path, colour: str, rec) -> Case:
+    """A folder format with JPEG colour (``colour`` names frame i's file) and synthesised 30 Hz stamps."""
+    stamps = np.round(np.arange(len(rec)) * 1e9 / 30.0).astype(np.int64)
+    rgb = decoded([root / colour.format(i=i) for i in range(len(rec))])
+    return Case(root, rgb, rec.depth_mm, None, rec.poses, stamps, 1e-12)
+
+
 def _replica(tmp: Path) -> Case:
     rec = make_recording(6)
-    root = write_replica(tmp, rec)
-    rgb = decoded([root / f"results/frame{i:06d}.jpg" for i in range(6)])
-    stamps = np.round(np.arange(6) * 1e9 / 30.0).astype(np.int64)
-    return Case(root, rgb, rec.depth_mm, None, rec.poses, stamps, 1e-12)
+    return _jpeg_folder(write_replica(tmp, rec), "results/frame{i:06d}.jpg", rec)
 
 
 def _scannet(tmp: Path) -> Case:
     rec = make_recording(6)
-    root = write_scannet(tmp, rec)
-    rgb = decoded([root / f"color/{i}.jpg" for i in range(6)])
-    stamps = np.round(np.arange(6) * 1e9 / 30.0).astype(np.int64)
-    return Case(root, rgb, rec.depth_mm, None, rec.poses, stamps, 1e-12)
+    return _jpeg_folder(write_scannet(tmp, rec), "color/{i}.jpg", rec)
 
 
 def _tum(tmp: Path) -> Case:
