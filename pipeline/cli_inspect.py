@@ -11,7 +11,8 @@ from typing import Optional
 import typer
 from rich.table import Table
 
-from pipeline.cli import G, _run, app, out
+from pipeline.cli import G, _run, app, console, out
+from pipeline.errors import ZiponError
 
 
 RENDERS = {
@@ -93,18 +94,46 @@ def goals_import(
     scene: str = typer.Argument(..., help="scene name"),
     edit_file: Path = typer.Argument(..., help="an edited export (YAML/JSON)"),
 ):
-    """Validate an edited goals file, register it in params.yaml (goals.edits) and rebuild goals and routes.
+    """Validate an edited goals file, rebuild goals and routes with it, then register it in params.yaml
+    (goals.edits). When the rebuild fails, params.yaml and the built goals and routes stay as they were.
 
     Example: `zipon goals import sim_00 sim_00_goals.yaml`
     """
-    from pipeline.goals.edits import import_goals, record_goals_edit
+    from pipeline.goals.edits import edit_relpath, record_goals_edit, validate_edit
+    from pipeline.goals.schema import dump_document
+    from pipeline.store import remove, write_text_atomic
 
     ws, _ = G.load()
-    rel = import_goals(edit_file, ws.artifact("goals", scene), ws.root)
-    record_goals_edit(ws.params_path, scene, rel)
-    out.print(f"stored {rel}; params.yaml goals.edits.{scene} updated")
-    if not _run([scene], ["goals", "routes"], False, "sync"):
+    doc = validate_edit(edit_file, ws.artifact("goals", scene))
+    rel = edit_relpath(doc)
+    stored = ws.root / rel
+    created = [p for p in (stored.parent, stored) if not p.exists()]  # removed again if the import fails
+    write_text_atomic(stored, dump_document(doc, ".yaml"))
+    before = G.overrides
+    G.overrides = (*before, f"goals.edits.{scene}={rel}")  # the rebuild sees the edit; params.yaml not yet
+    failure: Exception | None = None
+    try:
+        ok = _run([scene], ["goals", "routes"], False, "sync")
+    except Exception as err:  # noqa: BLE001 - re-raised below, after undoing what this command wrote
+        ok, failure = False, err
+    finally:
+        G.overrides = before
+    if ok:
+        try:
+            record_goals_edit(ws.params_path, scene, rel)
+        except (OSError, ZiponError) as err:
+            ok, failure = False, err
+    if not ok:
+        for path in reversed(created):
+            remove(path)
+        # a stage rebuilt before a later one failed is rebuilt without the edit: it is stale against the
+        # unchanged params.yaml (nothing runs when nothing was rebuilt)
+        console.print(f"goals import failed: {ws.params_path.name} unchanged; restoring {scene}'s goals and routes")
+        _run([scene], ["goals", "routes"], False, "sync")
+        if failure is not None:
+            raise failure
         raise typer.Exit(1)
+    out.print(f"stored {rel}; {ws.params_path.name} goals.edits.{scene} updated")
 
 
 @goals_app.command("export-navchat")

@@ -82,11 +82,14 @@ _OS_ADVICE = {
 }
 
 
-def os_error_message(err: OSError) -> str:
+def os_error_message(err: OSError, where: str | Path | None = None) -> str:
     """One line for an operating-system error (disk full, read-only, permissions): the path, what
-    happened, what to do. The CLI and the runner show this instead of a traceback."""
+    happened, what to do. The CLI and the runner show this instead of a traceback.
+
+    ``where``: the path to name when the error carries none (``write()`` on a full disk names no file).
+    """
     code = errno.errorcode.get(err.errno or 0, "")
-    where = " -> ".join(str(p) for p in (err.filename, err.filename2) if p is not None) or "(no path given)"
+    where = " -> ".join(str(p) for p in (err.filename, err.filename2) if p is not None) or where or "(no path given)"
     what = err.strerror or str(err)
     text = f"{where}: {what}" + (f" [{code}]" if code else "")
     return f"{text}; {_OS_ADVICE[code]}" if code in _OS_ADVICE else text

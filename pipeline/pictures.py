@@ -12,8 +12,10 @@ def write_png(path: Path, rgb: np.ndarray) -> Path:
     """Write an ``(H,W,3)`` uint8 RGB image as PNG (parents created)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)):
-        raise OSError(f"{path}: could not write PNG")
+    ok, png = cv2.imencode(".png", cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise ValueError(f"{path}: image of shape {np.shape(rgb)} cannot be encoded as PNG")
+    path.write_bytes(png.tobytes())  # a full or read-only disk raises OSError naming the path (imwrite is silent)
     return path
 
 

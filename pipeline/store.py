@@ -249,6 +249,11 @@ def write_text_atomic(path: Path, text: str) -> None:
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
+    except OSError as err:
+        remove(tmp)
+        if err.filename is None:  # write() and fsync() errors (a full disk) carry no path: name the file
+            raise OSError(err.errno, err.strerror, str(path)) from err
+        raise
     except BaseException:
         remove(tmp)
         raise

@@ -172,7 +172,12 @@ def read_structured(path: Path) -> object:
     path = Path(path)
     if not path.is_file():
         raise InputDataError("file not found", path=path)
-    text = path.read_text()
+    data = path.read_bytes()
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise InputDataError(f"not UTF-8 text: byte 0x{data[err.start]:02x} at offset {err.start} ({err.reason})",
+                             path=path, expected="a UTF-8 encoded YAML/JSON file") from None
     try:
         if path.suffix.lower() in (".yaml", ".yml"):
             return yaml.safe_load(text)
@@ -183,13 +188,14 @@ def read_structured(path: Path) -> object:
 
 def validation_error(err: ValidationError, path: Path | str | None, prefix: str = "") -> InputDataError:
     """The first pydantic error as an :class:`InputDataError` naming the field path and the reason."""
+    def where(e: dict) -> str:
+        return prefix + "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in e["loc"]).lstrip(".")
+
     lines = []
     for e in err.errors():
-        loc = prefix + "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in e["loc"]).lstrip(".")
-        lines.append(f"{loc}: {e['msg']}")
-    first = err.errors()[0]
-    loc = prefix + "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in first["loc"]).lstrip(".")
-    return InputDataError("; ".join(lines), path=path, field=loc or None)
+        msg = e["msg"].removeprefix("Value error, ")  # a model check's message names its own field path
+        lines.append(f"{where(e)}: {msg}" if where(e) else msg)
+    return InputDataError("; ".join(lines), path=path, field=where(err.errors()[0]) or None)
 
 
 def objects_from_file(path: Path, scene: str) -> ObjectSet:

@@ -32,10 +32,10 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
 
 from pipeline.errors import InputDataError
 from pipeline.goals.objects import read_structured, validation_error
@@ -44,8 +44,20 @@ DOC_FORMAT = "zipon-goals"
 DOC_VERSION = 1
 
 
+def _number(value: object) -> object:
+    """Numbers are numbers: ``true`` and ``"3"`` are not (pydantic's lax mode would take both)."""
+    if isinstance(value, bool):
+        raise ValueError(f"expected a number, got {str(value).lower()} (a boolean)")
+    if isinstance(value, str):
+        raise ValueError(f"expected a number, got the string {value!r}")
+    return value
+
+
+Number = Annotated[float, BeforeValidator(_number)]  # finite: the models set allow_inf_nan=False
+
+
 class _M(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True, allow_inf_nan=False)
 
 
 class Feedback(_M):
@@ -75,12 +87,12 @@ class ObjectEntry(_M):
     cls: str = Field(alias="class")
     identity: str = Field(min_length=1)
     room: str | None = None
-    position_xy: tuple[float, float]
+    position_xy: tuple[Number, Number] = Field(description="world x, y metres (finite)")
 
 
 class GoalsDocument(_M):
     format: Literal["zipon-goals"] = DOC_FORMAT
-    format_version: Literal[1] = DOC_VERSION
+    format_version: Annotated[Literal[1], BeforeValidator(_number)] = DOC_VERSION
     scene: str
     rooms: dict[str, RoomEntry] = Field(default_factory=dict)
     objects: dict[str, ObjectEntry]
@@ -97,11 +109,13 @@ class GoalsDocument(_M):
         if dup:
             raise ValueError(f"goal names are not unique in the scene: {dup}")
         for i, g in enumerate(self.goals):
-            for k in g.objects + list(g.feedback.corrective):
+            named = [(f"objects[{j}]", k) for j, k in enumerate(g.objects)]
+            named += [(f"feedback.corrective.{k}", k) for k in g.feedback.corrective]
+            for field, k in named:
                 if k not in self.objects:
-                    raise ValueError(f"goals[{i}] ({g.id}): object {k!r} is not in 'objects'")
+                    raise ValueError(f"goals[{i}].{field}: object {k!r} is not in 'objects' (goal {g.id})")
             if g.room_id is not None and self.rooms and g.room_id not in self.rooms:
-                raise ValueError(f"goals[{i}] ({g.id}): room_id {g.room_id!r} is not in 'rooms'")
+                raise ValueError(f"goals[{i}].room_id: {g.room_id!r} is not in 'rooms' (goal {g.id})")
         together = {frozenset(g.objects) for g in self.goals}
         by_identity: dict[str, set[str]] = {}
         for k, o in self.objects.items():

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.geometry import GridSpec
+from pipeline.pictures import write_png
 from pipeline.scene_gt import GTScene
 
 ROOM_TINTS = {
@@ -74,10 +75,4 @@ def draw_scene_topdown(gt: GTScene, *, px_per_m: float = 50.0, path_xy: np.ndarr
 def render_scene_png(gt: GTScene, path: str | Path, *, px_per_m: float = 50.0,
                      path_xy: np.ndarray | None = None) -> Path:
     """Write :func:`draw_scene_topdown` as a PNG at ``path``; returns the path."""
-    import cv2
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    img = draw_scene_topdown(gt, px_per_m=px_per_m, path_xy=path_xy)
-    cv2.imwrite(str(path), img[..., ::-1])
-    return path
+    return write_png(Path(path), draw_scene_topdown(gt, px_per_m=px_per_m, path_xy=path_xy))
