@@ -7,8 +7,9 @@ zipon's world is z-up (DESIGN.md); datasets are not: 7-Scenes' world is the firs
 - ``+z``, ``-z``, ``+y``, ``-y``, ``+x``, ``-x``: stated by the user;
 - ``auto``: gravity estimated as the normal of the dominant horizontal plane (the floor, or a table
   top in close-up sequences: both are level) in the first ``ingest.world_up_auto_frames`` frames.
-  The cameras' mean image-up direction is the prior that tells floors from walls; the plane is fit
-  by SVD to the points of the most populated height band, twice refined. What was chosen is logged.
+  A prior tells floors from walls (:func:`gravity_priors`: the normal of the cameras' image-right
+  axes, which stay level when there is little roll); the plane is fit by SVD to the points of the
+  most populated height band, refined three times. What was chosen is logged.
 
 The rotation comes from :func:`pipeline.geometry.R_zup_from_up` (the one module that owns frame
 conventions) and is applied to every pose (:func:`pipeline.geometry.rotate_world`); it is stored
@@ -28,7 +29,8 @@ from pipeline.errors import InputDataError
 from pipeline.frames import FrameBlock
 from pipeline.geometry import WORLD_UP_AXES, Intrinsics, R_zup_from_up, rotate_world
 
-PRIOR_MAX_ANGLE_DEG = 35.0  # surface normals this close to the cameras' mean up may be the floor
+PRIOR_MAX_ANGLE_DEG = 35.0  # surface normals this close to the prior (level image-right axes) may be the floor
+WIDE_PRIOR_ANGLE_DEG = 60.0  # ... to the cameras' mean image-up, which the pitch tilts (cameras that never turned)
 PLANE_BAND_M = 0.03  # half-height of the band of points fit as the plane
 MIN_PLANE_POINTS = 500
 SAMPLE_COLUMNS = 96  # depth sampled on a grid about this many pixels wide
@@ -56,20 +58,31 @@ def _nearest_axis(u: np.ndarray) -> tuple[str, float]:
     return name, tilt
 
 
-def estimate_up(depth_mm: np.ndarray, T_world_camera: np.ndarray, intr: Intrinsics, *, source: str = "",
-                max_frames: int = 16) -> UpEstimate:
-    """Up ``(3,)`` of the world of ``T_world_camera`` ``(N,4,4)`` from depth ``(N,H,W)`` uint16 mm.
+def gravity_priors(T_world_camera: np.ndarray) -> list[tuple[np.ndarray, float]]:
+    """First guesses of up ``(3,)``, each with how far (degrees) the floor normal may lie from it.
 
-    Raises :class:`InputDataError` when no level plane can be found (say the axis with ``ingest.world_up``).
+    - Cameras are mostly carried with little roll, so their image-right axes lie nearly level whatever
+      their pitch: when the cameras turned (the right axes span a plane), up is that plane's normal
+      (the smallest eigenvector of their scatter, sign from the mean image-up), within PRIOR_MAX_ANGLE_DEG.
+    - The mean image-up, tilted by the unknown mean pitch (and right when the camera rolls on purpose,
+      like TUM's rpy sequences): within WIDE_PRIOR_ANGLE_DEG.
     """
-    n = len(depth_mm)
-    advice = "a level floor or table seen from above; or set ingest.world_up to the dataset's up axis"
-    prior = (-T_world_camera[:, :3, 1]).mean(axis=0)  # image up (-y optical) averaged over the frames
-    if n == 0 or np.linalg.norm(prior) < 0.3:
-        raise InputDataError("world_up auto: the cameras' image-up directions disagree, no prior for gravity",
-                             path=source, field="ingest.world_up", expected=advice)
-    prior /= np.linalg.norm(prior)
-    pick = np.unique(np.round(np.linspace(0, n - 1, min(n, max_frames))).astype(int))
+    up_img = (-T_world_camera[:, :3, 1]).mean(axis=0)  # image up (-y optical) averaged over the frames
+    if len(T_world_camera) == 0 or np.linalg.norm(up_img) < 0.3:
+        return []
+    priors = []
+    right = T_world_camera[:, :3, 0]
+    evals, evecs = np.linalg.eigh(right.T @ right / len(right))
+    if evals[1] > 4.0 * evals[0]:
+        g = evecs[:, 0]
+        priors.append((g if g @ up_img > 0 else -g, PRIOR_MAX_ANGLE_DEG))
+    priors.append((up_img / np.linalg.norm(up_img), WIDE_PRIOR_ANGLE_DEG))
+    return priors
+
+
+def _surface_samples(depth_mm: np.ndarray, T_world_camera: np.ndarray, intr: Intrinsics, pick: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """World normals ``(M,3)`` (facing the camera) and points ``(M,3)`` of depth sampled on a coarse pixel grid."""
     stride = max(1, intr.width // SAMPLE_COLUMNS)
     z = depth_mm[pick, ::stride, ::stride].astype(np.float64) * 1e-3
     u = np.arange(0, intr.width, stride, dtype=np.float64)
@@ -87,28 +100,54 @@ def estimate_up(depth_mm: np.ndarray, T_world_camera: np.ndarray, intr: Intrinsi
     normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
     normal = np.where((np.einsum("...i,...i->...", normal, p) > 0)[..., None], -normal, normal)  # face the camera
     R, t = T_world_camera[pick, :3, :3], T_world_camera[pick, :3, 3]
-    n_w = np.einsum("fij,fhwj->fhwi", R, normal)[ok]
-    p_w = (np.einsum("fij,fhwj->fhwi", R, p) + t[:, None, None, :])[ok]
-    cand = n_w @ prior > np.cos(np.radians(PRIOR_MAX_ANGLE_DEG))
+    return (np.einsum("fij,fhwj->fhwi", R, normal)[ok],
+            (np.einsum("fij,fhwj->fhwi", R, p) + t[:, None, None, :])[ok])
+
+
+def _level_plane(n_w: np.ndarray, p_w: np.ndarray, prior: np.ndarray, cone_deg: float) -> tuple[np.ndarray, int]:
+    """Normal of the densest level plane near ``prior`` and its point count (0 when there is none)."""
+    cand = n_w @ prior > np.cos(np.radians(cone_deg))
     if cand.sum() < MIN_PLANE_POINTS:
-        raise InputDataError(f"world_up auto: only {int(cand.sum())} depth samples face up in the first {n} frames",
-                             path=source, field="ingest.world_up", expected=advice)
+        return prior, 0
     up = n_w[cand].mean(axis=0)
     up /= np.linalg.norm(up)
     for _ in range(3):  # mode of heights along the current up, plane fit, again with the refined up
         sel = n_w @ up > np.cos(np.radians(15.0))
+        if sel.sum() < MIN_PLANE_POINTS:
+            return up, 0
         h = p_w[sel] @ up
         bins = np.floor((h - h.min()) / 0.02).astype(np.int64)
         counts = np.convolve(np.bincount(bins), np.ones(3), mode="same")
         h0 = h.min() + (int(np.argmax(counts)) + 0.5) * 0.02
         pts = p_w[sel][np.abs(h - h0) < PLANE_BAND_M]
         if len(pts) < MIN_PLANE_POINTS:
-            raise InputDataError(f"world_up auto: the densest level band holds {len(pts)} points", path=source,
-                                 field="ingest.world_up", expected=advice)
+            return up, 0
         normal_fit = np.linalg.svd(pts - pts.mean(axis=0), full_matrices=False)[2][-1]
         up = normal_fit if normal_fit @ up > 0 else -normal_fit
+    return up, len(pts)
+
+
+def estimate_up(depth_mm: np.ndarray, T_world_camera: np.ndarray, intr: Intrinsics, *, source: str = "",
+                max_frames: int = 16) -> UpEstimate:
+    """Up ``(3,)`` of the world of ``T_world_camera`` ``(N,4,4)`` from depth ``(N,H,W)`` uint16 mm: the plane
+    with the most points among those found near each of :func:`gravity_priors`.
+
+    Raises :class:`InputDataError` when no level plane can be found (say the axis with ``ingest.world_up``).
+    """
+    n = len(depth_mm)
+    advice = "a level floor or table seen from above; or set ingest.world_up to the dataset's up axis"
+    priors = gravity_priors(T_world_camera)
+    if not priors:
+        raise InputDataError("world_up auto: the cameras' image-up directions disagree, no prior for gravity",
+                             path=source, field="ingest.world_up", expected=advice)
+    pick = np.unique(np.round(np.linspace(0, n - 1, min(n, max_frames))).astype(int))
+    n_w, p_w = _surface_samples(depth_mm, T_world_camera, intr, pick)
+    up, points = max((_level_plane(n_w, p_w, g, cone) for g, cone in priors), key=lambda r: r[1])
+    if points == 0:
+        raise InputDataError(f"world_up auto: no level plane of {MIN_PLANE_POINTS}+ depth samples in the first {n} "
+                             "frames", path=source, field="ingest.world_up", expected=advice)
     axis, tilt = _nearest_axis(up)
-    return UpEstimate(up=up, nearest_axis=axis, tilt_deg=tilt, plane_points=len(pts), frames=len(pick))
+    return UpEstimate(up=up, nearest_axis=axis, tilt_deg=tilt, plane_points=points, frames=len(pick))
 
 
 class WorldUp:

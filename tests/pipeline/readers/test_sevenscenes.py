@@ -109,7 +109,7 @@ def test_auto_world_up_finds_the_floor(rendered, tmp_path):
 def test_auto_world_up_without_a_level_plane_is_refused(tmp_path):
     rec = make_recording(4)  # random depth: no plane anywhere
     root = write_7scenes(tmp_path, rec)
-    with pytest.raises(InputDataError, match=r"field ingest\.world_up: world_up auto: .*set ingest\.world_up"):
+    with pytest.raises(InputDataError, match=r"field ingest\.world_up: world_up auto: no level plane .*set ingest\.world_up"):
         ingest_path(root, tmp_path / "f.zarr", IngestParams(world_up="auto"), **QUIET)
     assert not (tmp_path / "f.zarr").exists()
 

@@ -83,3 +83,14 @@ def test_non_unit_quaternion(tmp_path):
     with pytest.raises(InputDataError, match=r"groundtruth\.txt; field line 4; frame 2: pose quaternion has norm "
                                              r"0\.866025: not a rotation"):
         ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="real TUM excerpt not present")
+def test_real_excerpt_world_up_auto_finds_z_up(tmp_path):
+    """The real fr1/rpy excerpt: the camera pitches ~45 deg down and rolls on purpose; auto still finds the
+    level desk/floor and the mocap world's +z (a couple of degrees off: the mocap frame is not levelled)."""
+    logs = []
+    ingest_path(REAL, tmp_path / "f.zarr", IngestParams(world_up="auto"), log=logs.append)
+    est = FrameStore(tmp_path / "f.zarr").attrs["world_up"]["estimate"]
+    assert est["nearest_axis"] == "+z" and est["tilt_deg"] < 5.0 and est["plane_points"] > 10_000
+    assert any(m.startswith("world_up auto:") for m in logs)
