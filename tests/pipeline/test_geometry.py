@@ -77,3 +77,46 @@ def test_backprojection_matches_pinhole():
     assert np.allclose(pts[240, 0], [-2.0, 0, 2])  # 45 degrees at the left edge
     half = intr.scaled(320, 240)
     assert half.fx == pytest.approx(160.0) and half.cx == pytest.approx(159.75)
+
+
+# ----------------------------------------------------------------------------- world up, nearest rigid
+
+def test_R_zup_from_up_axes():
+    from pipeline.geometry import R_ZUP_FROM_HABITAT, WORLD_UP_AXES, R_zup_from_up
+
+    for name, up in WORLD_UP_AXES.items():
+        R = R_zup_from_up(name)
+        assert np.allclose(R @ R.T, np.eye(3)) and np.linalg.det(R) == pytest.approx(1.0)
+        assert np.allclose(R @ np.array(up), [0, 0, 1])
+        assert set(np.abs(R).ravel().tolist()) == {0.0, 1.0}  # a signed permutation: nothing else moves
+    assert np.array_equal(R_zup_from_up("-y") @ [1.0, 2.0, 3.0], [1.0, 3.0, -2.0])  # 7-Scenes: (x, y, z) -> (x, z, -y)
+    assert np.array_equal(R_zup_from_up("+y"), R_ZUP_FROM_HABITAT)
+    assert np.array_equal(R_zup_from_up("+z"), np.eye(3))
+
+
+def test_R_zup_from_up_vector_tilts_least():
+    from pipeline.geometry import R_zup_from_up
+
+    tilt = np.radians(3.0)
+    up = np.array([0.0, -np.cos(tilt), np.sin(tilt)])  # y down, tilted 3 deg toward +z
+    R = R_zup_from_up(up)
+    assert np.allclose(R @ up, [0, 0, 1]) and np.linalg.det(R) == pytest.approx(1.0)
+    # the smallest extra rotation after the axis permutation: 3 degrees
+    extra = R @ R_zup_from_up("-y").T
+    assert np.degrees(np.arccos((np.trace(extra) - 1) / 2)) == pytest.approx(3.0)
+
+
+def test_rotate_world_and_nearest_rigid():
+    from pipeline.errors import InputDataError
+    from pipeline.geometry import R_zup_from_up, nearest_rigid, rigid_error, rotate_world
+
+    T = camera_pose_from_base(1.0, 2.0, 0.3, 0.88)
+    R = R_zup_from_up("-y").T  # z-up -> y-down
+    back = rotate_world(R_zup_from_up("-y"), rotate_world(R, T))
+    assert np.allclose(back, T, atol=1e-15)
+    skewed = T.copy()
+    skewed[:3, :3] += 2e-4 * np.array([[1, -1, 0.5], [0, 1, -1], [1, 0, -0.5]])
+    fixed = nearest_rigid(skewed, tol=1e-3)
+    assert rigid_error(fixed) < 1e-12 and np.abs(fixed - T).max() < 1e-3 and np.array_equal(fixed[:3, 3], T[:3, 3])
+    with pytest.raises(InputDataError, match=r"file p\.txt; frame 4: pose is not rigid"):
+        nearest_rigid(skewed, tol=1e-5, path="p.txt", frame=4)
