@@ -207,6 +207,8 @@ def staleness(ws: Workspace, params: Params, stages: dict[str, StageSpec], spec:
 
     ``current``: the input digests when the caller already has them (raw logs are hashed once per run).
     """
+    if ws.journal(scene, spec.name).exists():
+        return "publication interrupted (the next run finishes or undoes it)"
     man = Manifest.read(ws.manifest(scene, spec.name))
     if man is None:
         return "never run"

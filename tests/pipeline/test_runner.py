@@ -117,6 +117,10 @@ def test_staleness_reasons(workspace):
     p3 = load_params(workspace.params_path, ["simulate.frames=8", "run.workers=1", "run.device=cpu",
                                              "query.min_candidate_score=0.2"])
     assert staleness(workspace, p3, TOY_STAGES, spec, "s0") == ""
+    journal = workspace.journal("s0", "ingest")
+    journal.write_text("{}")
+    assert staleness(workspace, params, TOY_STAGES, spec, "s0").startswith("publication interrupted")
+    journal.unlink()
     import shutil
 
     shutil.rmtree(workspace.artifact("frames", "s0"))
