@@ -1,55 +1,140 @@
-"""The evaluation report: ``results.json`` -> ``report.html`` with the paper's Table I/II layout and Fig. 4.
+"""The evaluation report: ``results.json`` -> ``report.html`` (+ one page per scene), jinja2 templates, autoescaped.
 
-- Table I: rows = methods, column groups = feedback settings, each with SR / SPL / SIT (percent,
-  mean over seeds, best per column in bold).
+- Table I: rows = methods, column groups = feedback settings, each with SR / SPL / SIT (percent, mean
+  over seeds) with its 95 % confidence interval and the cell's episode count N. Bold = best per column
+  among the methods that are not an upper bound (the GT route follower 'human' is shown, never bold).
 - Table II: the same per goal type (big / small / ambiguous) for the setting with all feedback
   ("mixed" when evaluated, else the last setting).
 - Fig. 4: success rate within i Talk turns, one line per method, one panel per feedback setting
-  (``success_by_turn.png``); plus SR per setting as bars (``sr_by_feedback.png``). matplotlib, Agg.
-- Wilcoxon signed-rank tests (SR) between methods, and the run's figures.
+  (``success_by_turn.png``); SR per setting as bars (``sr_by_feedback.png``). One colour per method,
+  the same in every run (:func:`method_color`); legends sit beside the axes, never over data.
+- Wilcoxon signed-rank tests (SR) between methods.
+- ``scenes/<scene>.html`` per scene: its table, pictures (floor plan, goals, routes, map queries with colour
+  bars) and an episode browser (each method's path on the map with its dialogue) when the workspace is given.
+
+Confidence intervals: SR (a proportion) uses the Wilson score interval; SPL and SIT use Student's t
+on the per-episode values (both over the cell's N episodes, pooled across seeds).
 """
 
 from __future__ import annotations
 
-import html
+import gzip
+import hashlib
 import json
+import math
+from collections import defaultdict
 from pathlib import Path
+
+import numpy as np
 
 from orion_eval.metrics import METRICS
 
 NAMES = {"human": "Human (GT route)", "cow": "CoW", "vlmap": "VLMap", "cf": "CF", "orion": "ORION"}
+UPPER_BOUNDS = {"human"}  # methods that follow the ground truth: shown for reference, never "best"
 FB_NAMES = {"none": "No interaction", "yesno": "Yes/No", "corrective": "Corrective", "descriptive": "Descriptive",
             "landmark": "Landmark", "procedural": "Procedural", "mixed": "Mixed"}
-CSS = """body{font-family:Helvetica,Arial,sans-serif;margin:24px;color:#222}table{border-collapse:collapse;margin:12px 0}
-td,th{border:1px solid #bbb;padding:3px 7px;text-align:right;font-size:13px}th{background:#eee}
-td.l,th.l{text-align:left}b{color:#000}.note{color:#555;font-size:13px}img{max-width:100%;border:1px solid #ddd}"""
+# fixed colours (matplotlib tab10 hues) so a method looks the same in every run and figure
+METHOD_COLORS = {"human": "#7f7f7f", "cow": "#ff7f0e", "vlmap": "#2ca02c", "cf": "#9467bd", "orion": "#d62728",
+                 "llm": "#17becf"}
+_KEY = {"SR": "success", "SPL": "spl", "SIT": "sit"}
+DEFINITIONS = {
+    "SR": "success rate: share of episodes that end with the user confirming the goal (the agent within the "
+          "success distance, the goal in view and in line of sight).",
+    "SPL": "success weighted by path length: S · l / max(a, l), with l the geodesic length of the reference route "
+           "and a the length the agent travelled.",
+    "SIT": "success weighted by interaction turns: S / I, with I ≥ 1 the number of Talk turns of the episode.",
+    "N": "episodes in the cell (goals × seeds); each value is the mean over seeds of the per-seed means, in percent.",
+    "95 % CI": "Wilson score interval for SR, Student's t interval for SPL and SIT, over the cell's episodes.",
+}
+EPISODES_PER_SCENE = 6  # the episode browser shows at most this many runs per scene
 
 
-def _fmt(v) -> str:
-    return "–" if v is None else f"{v:.1f}"
+def method_name(m: str) -> str:
+    return NAMES.get(m, m)
 
 
-def _p(p) -> str:
-    return "–" if p is None else f"{p:.3g}"
+def method_color(m: str) -> str:
+    """The method's fixed colour; any other name gets a colour derived from its text (stable across runs)."""
+    if m in METHOD_COLORS:
+        return METHOD_COLORS[m]
+    h = int(hashlib.blake2b(m.encode(), digest_size=4).hexdigest(), 16)
+    import colorsys
+
+    r, g, b = colorsys.hsv_to_rgb((h % 360) / 360.0, 0.65, 0.75)
+    return f"#{int(r * 255):02x}{int(g * 255):02x}{int(b * 255):02x}"
 
 
-def _table(cells: dict, methods: list[str], columns: list[str], column_names: dict) -> str:
-    """cells[method][column] -> {SR, SPL, SIT}; bold = best per column and metric."""
-    head1 = "".join(f'<th colspan="{len(METRICS)}">{html.escape(column_names.get(c, c))}</th>' for c in columns)
-    head2 = "".join(f"<th>{m}</th>" for _ in columns for m in METRICS)
-    best = {(c, m): max((cells.get(me, {}).get(c, {}).get(m) or -1) for me in methods) for c in columns
-            for m in METRICS}
+# ----------------------------------------------------------------------------- statistics
+
+def confidence_interval(values: list[float], metric: str) -> tuple[float, float] | None:
+    """95 % interval in percent of the mean of ``values`` (per-episode S, SPL or SIT in [0, 1])."""
+    n = len(values)
+    if n == 0:
+        return None
+    z = 1.959963984540054
+    if metric == "SR":
+        p = float(np.mean(values))
+        den = 1 + z * z / n
+        centre = (p + z * z / (2 * n)) / den
+        half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+        lo, hi = centre - half, centre + half
+    else:
+        from scipy.stats import t
+
+        m = float(np.mean(values))
+        half = float(t.ppf(0.975, n - 1) * np.std(values, ddof=1) / math.sqrt(n)) if n > 1 else 1.0
+        lo, hi = m - half, m + half
+    return round(100 * max(lo, 0.0), 1), round(100 * min(hi, 1.0), 1)
+
+
+def cell_intervals(episodes: list[dict], *keys: str) -> dict:
+    """keys -> {metric: (lo, hi)} for every cell (same nesting as :func:`orion_eval.metrics.group`)."""
+    buckets = defaultdict(list)
+    for e in episodes:
+        buckets[tuple(e[k] for k in keys)].append(e)
+    out: dict = {}
+    for k, eps in buckets.items():
+        node = out
+        for part in k[:-1]:
+            node = node.setdefault(part, {})
+        node[k[-1]] = {m: confidence_interval([float(e[_KEY[m]]) for e in eps], m) for m in METRICS}
+    return out
+
+
+def _table(cells: dict, cis: dict, methods: list[str], columns: list[str], column_names: dict) -> dict:
+    """The data a results table template needs; bold = best per column and metric among non-upper-bound methods."""
+    contenders = [m for m in methods if m not in UPPER_BOUNDS]
+    best = {}
+    for c in columns:
+        for m in METRICS:
+            vals = [cells.get(me, {}).get(c, {}).get(m) for me in contenders]
+            vals = [v for v in vals if v is not None]
+            best[(c, m)] = max(vals) if vals and max(vals) > 0 else None
     rows = []
     for me in methods:
-        tds = []
+        groups = []
         for c in columns:
-            for m in METRICS:
-                v = cells.get(me, {}).get(c, {}).get(m)
-                s = _fmt(v)
-                tds.append(f"<td>{'<b>' + s + '</b>' if v is not None and v == best[(c, m)] and v > 0 else s}</td>")
-        rows.append(f'<tr><td class="l">{html.escape(NAMES.get(me, me))}</td>{"".join(tds)}</tr>')
-    return (f'<table><tr><th class="l" rowspan="2">Method</th>{head1}</tr><tr>{head2}</tr>'
-            f'{"".join(rows)}</table>')
+            cell = cells.get(me, {}).get(c, {})
+            ci = cis.get(me, {}).get(c, {})
+            groups.append({"n": cell.get("episodes"), "metrics": [
+                {"value": cell.get(m), "ci": ci.get(m),
+                 "bold": me not in UPPER_BOUNDS and cell.get(m) is not None and cell.get(m) == best[(c, m)]}
+                for m in METRICS]})
+        rows.append({"method": me, "name": method_name(me), "color": method_color(me),
+                     "upper": me in UPPER_BOUNDS, "groups": groups})
+    return {"columns": [column_names.get(c, c) for c in columns], "metrics": list(METRICS), "rows": rows}
+
+
+# ----------------------------------------------------------------------------- figures
+
+def _legend_below(fig, ax_or_axes, methods) -> None:
+    handles, labels = [], []
+    import matplotlib.patches as mpatches
+
+    for me in methods:
+        handles.append(mpatches.Patch(color=method_color(me)))
+        labels.append(method_name(me))
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(methods), 6), fontsize=8, frameon=False)
 
 
 def plot_success_by_turn(results: dict, path: Path) -> Path:
@@ -59,26 +144,28 @@ def plot_success_by_turn(results: dict, path: Path) -> Path:
     import matplotlib.pyplot as plt
 
     sbt = results["success_by_turn"]
-    fbs = results["run"]["feedback"]
+    fbs, methods = results["run"]["feedback"], results["run"]["methods"]
     n = len(fbs)
     cols = min(4, n)
     rows = -(-n // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.8 * rows), squeeze=False, sharey=True)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.6 * rows + 0.5), squeeze=False, sharey=True)
     for k, fb in enumerate(fbs):
         ax = axes[k // cols][k % cols]
-        for me in results["run"]["methods"]:
+        for me in methods:
             ys = sbt.get(me, {}).get(fb)
             if ys:
-                ax.plot(range(1, len(ys) + 1), ys, marker="o", label=NAMES.get(me, me))
+                ax.plot(range(1, len(ys) + 1), ys, marker="o", color=method_color(me),
+                        linestyle="--" if me in UPPER_BOUNDS else "-", label=method_name(me))
         ax.set_title(FB_NAMES.get(fb, fb), fontsize=10)
         ax.set_xlabel("interaction turns")
         ax.set_ylim(0, 100)
         ax.grid(alpha=0.3)
     for k in range(n, rows * cols):
         axes[k // cols][k % cols].axis("off")
-    axes[0][0].set_ylabel("success rate (%)")
-    axes[0][0].legend(fontsize=8)
-    fig.tight_layout()
+    for r in range(rows):
+        axes[r][0].set_ylabel("success rate (%)")
+    fig.tight_layout(rect=(0, 0.5 / (2.6 * rows + 0.5), 1, 1))
+    _legend_below(fig, axes, methods)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
@@ -89,65 +176,163 @@ def plot_sr_by_feedback(results: dict, path: Path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import numpy as np
 
     methods, fbs = results["run"]["methods"], results["run"]["feedback"]
-    fig, ax = plt.subplots(figsize=(max(6, 1.2 * len(fbs)), 3.2))
+    fig, ax = plt.subplots(figsize=(max(6, 1.2 * len(fbs)), 3.4))
     w = 0.8 / max(1, len(methods))
     for i, me in enumerate(methods):
         ys = [results["overall"].get(me, {}).get(fb, {}).get("SR") or 0 for fb in fbs]
-        ax.bar(np.arange(len(fbs)) + i * w, ys, w, label=NAMES.get(me, me))
+        ax.bar(np.arange(len(fbs)) + i * w, ys, w, color=method_color(me), label=method_name(me),
+               hatch="//" if me in UPPER_BOUNDS else None, edgecolor="white")
     ax.set_xticks(np.arange(len(fbs)) + w * (len(methods) - 1) / 2)
     ax.set_xticklabels([FB_NAMES.get(f, f) for f in fbs], fontsize=8)
     ax.set_ylabel("SR (%)")
     ax.set_ylim(0, 100)
-    ax.legend(fontsize=8, ncol=len(methods))
-    fig.tight_layout()
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout(rect=(0, 0.12, 1, 1))
+    _legend_below(fig, ax, methods)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
 
 
-def write_report(results: dict, out_dir: Path) -> Path:
-    """Write ``report.html`` and its PNG figures into ``out_dir``; returns the HTML path."""
+# ----------------------------------------------------------------------------- pages
+
+def _env():
+    from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
+
+    env = Environment(loader=PackageLoader("orion_eval", "templates"), autoescape=select_autoescape(["html"]),
+                      undefined=StrictUndefined, trim_blocks=True, lstrip_blocks=True)
+    env.filters["pct"] = lambda v: "–" if v is None else f"{v:.1f}"
+    env.filters["pval"] = lambda p: "–" if p is None else f"{p:.3g}"
+    return env
+
+
+def run_notes(run: dict) -> list[str]:
+    """Lines under the report's title saying what the maps and detections were built with (one line per fact;
+    the place for the perception model's label)."""
+    notes = []
+    diag = any(v.get("diagnostic") for enc in run.get("encoders", {}).values() for v in enc.values())
+    if diag:
+        notes.append("Maps built with the diagnostic oracle encoder (ground truth), not a perception model.")
+    kinds = {(which, v.get("kind")) for enc in run.get("encoders", {}).values() for which, v in enc.items()
+             if v.get("kind") and not v.get("diagnostic")}
+    notes += [f"{which} built with {kind}." for which, kind in sorted(kinds)]
+    notes += [f"Detection (cow, orion): {kind}." for kind in sorted(set(run.get("detection", {}).values()))]
+    return notes
+
+
+def write_report(results: dict, out_dir: Path, *, ws=None, params=None) -> Path:
+    """Write ``report.html``, its figures and ``scenes/<scene>.html`` into ``out_dir``; returns the report's path.
+
+    With the workspace ``ws`` and ``params``, scene pages also get pictures and the episode browser.
+    """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     run = results["run"]
     methods, fbs = run["methods"], run["feedback"]
+    episodes = results.get("episodes", [])
     plot_success_by_turn(results, out_dir / "success_by_turn.png")
     plot_sr_by_feedback(results, out_dir / "sr_by_feedback.png")
-    table1 = _table(results["overall"], methods, fbs, FB_NAMES)
     setting = "mixed" if "mixed" in fbs else fbs[-1]
     types = [t for t in ("big", "small", "ambiguous") if t in results["by_goal_type"]]
     by_type = {me: {t: results["by_goal_type"][t].get(me, {}).get(setting, {}) for t in types} for me in methods}
-    table2 = _table(by_type, methods, types, {t: t.capitalize() for t in types})
-    scenes = "".join(f"<h3>{html.escape(s)}</h3>" + _table(results["by_scene"][s], methods, fbs, FB_NAMES)
-                     for s in run["scenes"] if s in results["by_scene"])
-    tests = "".join(
-        f'<tr><td class="l">{NAMES.get(t["a"], t["a"])} vs {NAMES.get(t["b"], t["b"])}</td><td>{t["pairs"]}</td>'
-        f'<td>{_fmt(t["mean_a"])}</td><td>{_fmt(t["mean_b"])}</td>'
-        f'<td>{_p(t["p"])}</td></tr>'
-        for t in results["wilcoxon"]["SR"])
-    diag = any(v.get("diagnostic") for enc in run.get("encoders", {}).values() for v in enc.values())
-    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>zipon eval</title><style>{CSS}</style></head><body>
-<h1>ZIPON evaluation</h1>
-<p class="note">{run['episodes']} episodes; scenes {', '.join(map(html.escape, run['scenes']))}; seeds {run['seeds']};
-success rule '{run['success_rule']}', I<sub>max</sub> = {run['max_talk_turns']}; {run['seconds']} s
-({run['episodes_per_s']} episodes/s). Values are percentages, mean over seeds.
-{'<b>Maps built with the diagnostic oracle encoder (ground truth), not a perception model.</b>' if diag else ''}</p>
-<h2>Table I — SR / SPL / SIT per method and feedback setting</h2>{table1}
-<h2>Table II — per goal type ({html.escape(FB_NAMES.get(setting, setting))})</h2>{table2}
-<h2>Fig. 4 — success by interaction turn</h2><img src="success_by_turn.png" alt="success by turn">
-<h2>SR per feedback setting</h2><img src="sr_by_feedback.png" alt="SR by feedback">
-<h2>Wilcoxon signed-rank tests (SR, paired episodes)</h2>
-<table><tr><th class="l">pair</th><th>pairs</th><th>SR a</th><th>SR b</th><th>p</th></tr>{tests}</table>
-<h2>Per scene</h2>{scenes}
-<p class="note">Per-episode logs (actions, dialogue, poses): episodes/&lt;scene&gt;.episodes.jsonl.gz;
-all numbers: results.json.</p>
-</body></html>"""
+    ci_type = cell_intervals([e for e in episodes if e["feedback"] == setting], "method", "goal_type")
+    env = _env()
+    scenes = [s for s in run["scenes"] if s in results["by_scene"]]
+    ci_scene = cell_intervals(episodes, "scene", "method", "feedback")
+    legend = [{"name": method_name(m), "color": method_color(m), "upper": m in UPPER_BOUNDS} for m in methods]
+    common = {"fb_names": FB_NAMES, "definitions": DEFINITIONS, "legend": legend, "run": run}
+    (out_dir / "scenes").mkdir(exist_ok=True)
+    for s in scenes:
+        table = _table(results["by_scene"][s], ci_scene.get(s, {}), methods, fbs, FB_NAMES)
+        pictures, browser = [], []
+        if ws is not None and params is not None:
+            pictures = scene_pictures(ws, params, s, out_dir / "scenes" / s)
+            browser = episode_browser(ws, s, out_dir, setting, methods, min(run["seeds"]))
+        page = env.get_template("scene.html").render(scene=s, table=table, pictures=pictures, browser=browser,
+                                                    setting=FB_NAMES.get(setting, setting), **common)
+        (out_dir / "scenes" / f"{s}.html").write_text(page)
+    page = env.get_template("report.html").render(
+        notes=run_notes(run),
+        table1=_table(results["overall"], cell_intervals(episodes, "method", "feedback"), methods, fbs, FB_NAMES),
+        table2=_table(by_type, ci_type, methods, types, {t: t.capitalize() for t in types}),
+        setting=FB_NAMES.get(setting, setting), tests=results["wilcoxon"]["SR"], names=NAMES,
+        scenes=[{"name": s, "href": f"scenes/{s}.html",
+                 "episodes": sum(1 for e in episodes if e["scene"] == s)} for s in scenes],
+        **common)
     path = out_dir / "report.html"
     path.write_text(page)
     return path
+
+
+def scene_pictures(ws, params, scene: str, folder: Path) -> list[dict]:
+    """Floor plan (simulated scenes), goals, routes and two map queries of ``scene`` as PNGs in ``folder``;
+    returns ``[{src, caption}]`` with paths relative to the report's ``scenes/`` folder."""
+    art = {n: ws.artifact(n, scene) for n in ("frames", "recon", "vlmap", "cfmap", "goals", "routes")}
+    out = []
+    folder.mkdir(parents=True, exist_ok=True)
+
+    def add(path: Path, caption: str) -> None:
+        out.append({"src": f"{scene}/{path.name}", "caption": caption})
+
+    if art["frames"].exists():
+        from pipeline.frames import FrameStore
+
+        gt = FrameStore(art["frames"]).ground_truth
+        if gt:
+            from pipeline.scene_gt import GTScene
+            from pipeline.sim.topdown import render_scene_png
+
+            add(render_scene_png(GTScene.model_validate(gt), folder / "plan.png"), "ground-truth floor plan")
+    if not (art["recon"].exists() and art["goals"].exists()):
+        return out
+    from pipeline.goals.render import render_goals
+
+    add(render_goals(art["recon"], art["goals"], None, "goals", folder / "goals.png"),
+        "goals (numbered; names in the legend) and landmark links")
+    if art["routes"].exists():
+        add(render_goals(art["recon"], art["goals"], art["routes"], "routes", folder / "routes.png"),
+            "verified routes from their start poses")
+    from pipeline.goals.store import Goals
+    from pipeline.maps.query import open_query
+    from pipeline.maps.render import render_query
+
+    goals = Goals(art["goals"])
+    classes = list(dict.fromkeys(goals.objects[g.object_keys[0]].cls for g in goals.goals))[:2]
+    for which, cls in zip(("vlmap", "cfmap"), classes or []):
+        if art[which].exists():
+            result = open_query(art[which], params, recon_path=art["recon"], frames_path=art["frames"]).query(cls)
+            add(render_query(result, folder / f"query_{which}_{cls.replace(' ', '_')}.png"),
+                f"{which} query '{cls}': heatmap and candidates")
+    return out
+
+
+def episode_browser(ws, scene: str, out_dir: Path, setting: str, methods: list[str], seed: int) -> list[dict]:
+    """Each method's episode of the scene's first goal (``seed``, ``setting``) from the episode logs: its path on
+    the map and its dialogue."""
+    log = Path(out_dir) / "episodes" / f"{scene}.episodes.jsonl.gz"
+    if not log.is_file():
+        return []
+    picked: dict[str, dict] = {}
+    with gzip.open(log, "rt") as f:
+        for line in f:
+            e = json.loads(line)
+            if e["feedback"] == setting and e["seed"] == seed and e["method"] not in picked:
+                picked[e["method"]] = e
+    chosen = [picked[m] for m in methods if m in picked][:EPISODES_PER_SCENE]
+    if not chosen or not ws.artifact("goals", scene).exists():
+        return []
+    from pipeline.goals.render import render_episodes
+
+    folder = Path(out_dir) / "scenes" / scene
+    pngs = render_episodes(ws.artifact("recon", scene), ws.artifact("goals", scene),
+                           [(e["goal"], e["log"]["poses"], method_color(e["method"])) for e in chosen],
+                           [folder / f"episode_{e['method']}.png" for e in chosen])
+    return [{"src": f"{scene}/{p.name}", "method": method_name(e["method"]), "color": method_color(e["method"]),
+             "goal": e["goal"], "episode": e["episode"], "success": e["success"], "end": e["end"],
+             "talk_turns": e["talk_turns"], "travelled_m": e["travelled_m"], "instruction": e["log"]["instruction"],
+             "dialogue": e["log"]["dialogue"]} for e, p in zip(chosen, pngs)]
 
 
 def load_results(out_dir: Path) -> dict:

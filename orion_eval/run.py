@@ -166,7 +166,7 @@ def run_eval(ws: Workspace, params: Params, out_dir: Path, scenes=None, methods=
     if report:
         from orion_eval.report import write_report
 
-        write_report(results, out_dir)
+        write_report(results, out_dir, ws=ws, params=params)
     return results
 
 

@@ -82,3 +82,58 @@ def frames_contact_sheet(frames_path: Path, out_png: Path, *, count: int = 6, wi
         cv2.putText(row, f"frame {i}", (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
         rows.append(row)
     return write_png(out_png, np.concatenate(rows, axis=0))
+
+
+def _text_width(text: str, scale: float = 0.45) -> int:
+    return cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0]
+
+
+def add_colorbar(img: np.ndarray, lo: float, hi: float, label: str, *, colormap: int = cv2.COLORMAP_TURBO,
+                 ticks: int = 5) -> np.ndarray:
+    """``img`` with a labelled horizontal colour bar band below it (the scale of a :func:`colorize` layer)."""
+    w = img.shape[1]
+    band = np.full((46, w, 3), 255, np.uint8)
+    x0, x1 = 10 + _text_width(label) + 10, max(w - 30, 10 + _text_width(label) + 60)
+    cv2.putText(band, label, (10, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    ramp = colorize(np.tile(np.linspace(0.0, 1.0, max(x1 - x0, 2), dtype=np.float32), (14, 1)), 0.0, 1.0,
+                    colormap=colormap)
+    band[8:22, x0:x0 + ramp.shape[1]] = ramp[:, : max(0, min(ramp.shape[1], w - x0))]
+    cv2.rectangle(band, (x0, 8), (x0 + ramp.shape[1] - 1, 21), (0, 0, 0), 1)
+    for k in range(ticks):
+        f = k / (ticks - 1)
+        x = int(x0 + f * (ramp.shape[1] - 1))
+        cv2.line(band, (x, 22), (x, 26), (0, 0, 0), 1)
+        t = f"{lo + f * (hi - lo):.2g}"
+        cv2.putText(band, t, (int(np.clip(x - _text_width(t, 0.4) // 2, 0, w - _text_width(t, 0.4))), 40),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.concatenate([img, band], axis=0)
+
+
+def add_legend(img: np.ndarray, entries: list[tuple[tuple[int, int, int] | None, str]], *,
+               title: str | None = None) -> np.ndarray:
+    """``img`` with a legend band below it: each entry a colour swatch (or none) and its text, wrapped to the width."""
+    w = img.shape[1]
+    rows, line, x = [], [], 10
+    for colour, text in entries:
+        need = (18 if colour is not None else 0) + _text_width(text) + 18
+        if line and x + need > w:
+            rows.append(line)
+            line, x = [], 10
+        line.append((colour, text))
+        x += need
+    if line:
+        rows.append(line)
+    top = 22 if title else 4
+    band = np.full((top + 20 * len(rows) + 6, w, 3), 255, np.uint8)
+    if title:
+        cv2.putText(band, title, (10, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    for r, line in enumerate(rows):
+        x, y = 10, top + 20 * r + 14
+        for colour, text in line:
+            if colour is not None:
+                cv2.rectangle(band, (x, y - 10), (x + 12, y + 2), tuple(int(c) for c in colour), -1)
+                cv2.rectangle(band, (x, y - 10), (x + 12, y + 2), (60, 60, 60), 1)
+                x += 18
+            cv2.putText(band, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+            x += _text_width(text) + 18
+    return np.concatenate([img, band], axis=0)

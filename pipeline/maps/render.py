@@ -1,8 +1,9 @@
 """North-up pictures of semantic maps and queries (PNG; never artifacts).
 
-- :func:`render_query`: recon's colour map, the query's heatmap blended over observed cells
-  (turbo: dark blue = probability 0, red = 1; stronger where the query wins), white outlines around candidates,
-  numbered markers at their centres (1 = first in the result's order), the pose as an arrow.
+- :func:`render_query`: recon's colour map, the query's heatmap blended over the cells where the query's
+  probability reaches 0.3 (turbo: blue = 0, red = 1; strongest where the query wins, so the rest of the map
+  keeps its colours), white outlines around candidates, numbered markers at their centres (1 = first in the
+  result's order), the pose as an arrow; a colour bar and a legend below.
 - :func:`render_map_pca`: the map's features projected on their first three principal axes as
   RGB, a quick look at what the map separates.
 """
@@ -16,7 +17,9 @@ import numpy as np
 
 from pipeline.maps.query import QueryResult
 from pipeline.maps.store import SemanticMap
-from pipeline.pictures import add_scale_bar, colorize, write_png
+from pipeline.pictures import add_colorbar, add_legend, add_scale_bar, colorize, write_png
+
+HEAT_FLOOR = 0.3  # cells below this probability keep the colour map untinted
 
 
 def _crop_box(mask: np.ndarray, margin: int = 10) -> tuple[int, int, int, int]:
@@ -45,7 +48,8 @@ def render_query(result: QueryResult, out_png: str | Path, *, crop: bool = True)
     hm = colorize(np.nan_to_num(heat), 0.0, 1.0).astype(np.float32)
     # low-probability cells keep most of the colour map; winning cells show the heatmap strongly
     prob = np.nan_to_num(heat, nan=0.0)
-    alpha = np.where(result.wins, 0.85, 0.2 + 0.5 * prob)[..., None] * observed[..., None]
+    shade = np.clip((prob - HEAT_FLOOR) / (1.0 - HEAT_FLOOR), 0.0, 1.0)
+    alpha = np.where(result.wins, 0.85, 0.7 * shade)[..., None] * observed[..., None]
     img = (base * (1 - alpha) + hm * alpha).clip(0, 255).astype(np.uint8)
     r0, r1, c0, c1 = _crop_box(observed | ~unknown) if crop else (0, g.rows, 0, g.cols)
     img, k = _upscale(np.ascontiguousarray(img[r0:r1, c0:c1]))
@@ -66,6 +70,11 @@ def render_query(result: QueryResult, out_png: str | Path, *, crop: bool = True)
         cv2.circle(img, (int(pc[0]), int(pc[1])), 7, (255, 0, 255), -1)
         cv2.arrowedLine(img, (int(pc[0]), int(pc[1])), (int(tip[0]), int(tip[1])), (255, 0, 255), 3, tipLength=0.35)
     img = add_scale_bar(img, g.cell_size_m / k)
+    img = add_colorbar(img, 0.0, 1.0, f"P('{result.text}' vs background)")
+    legend = [((255, 255, 255), "candidate outline"), ((0, 0, 0), "n = candidate rank")]
+    if result.pose is not None:
+        legend.append(((255, 0, 255), "pose and heading"))
+    img = add_legend(img, legend + [((235, 235, 235), "unobserved")])
     title = f"{result.artifact}: '{result.text}'  ({len(result.candidates)} candidates)"
     band = np.full((26, img.shape[1], 3), 255, np.uint8)
     cv2.putText(band, title, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
