@@ -1,16 +1,25 @@
-"""Semantic map quality against ground truth with the oracle encoder, clean and with noise.
+"""Semantic map quality against ground truth: perception-level segmentation figures next to published ones,
+and the oracle's retrieval figures under controlled noise.
 
-For every ground-truth class: does the first candidate lie on an object of that class (pose-free
-and from ``--poses`` navigable poses), and the IoU of the heatmap thresholded at 0.5 with the
-class's footprints (:func:`pipeline.maps.evaluate.evaluate_map`). Prints one JSON object per line.
+Segmentation (the figures the simulated perception models are calibrated on, ConceptFusion's protocol
+as used in ConceptGraphs Table I): every map cell is labelled with the best-scoring text among the
+scene's object classes and the background words (wall, floor, ceiling, other); over the ground-truth
+object cells (``class_masks``; object cells the map never observed count as misses, background cells
+are left out, as Replica's wall / floor / ceiling are), per class accuracy = recall and IoU, then
+``mAcc`` = mean accuracy over classes and ``F-mIoU`` = IoU weighted by each class's share of cells.
 
-- default: the ray-cast box-room fixture, rebuilt per setting: clean; oracle feature noise
-  (``noise_std``); oracle class confusion (``confusion``); depth noise (``depth_noise_m`` at 1 m,
-  growing with depth^2, reconstruction rebuilt from the noisy depth).
-- ``--workspace DIR``: also evaluate the vlmap/cfmap of every simulated scene already built in a
-  zipon workspace (``zipon run`` with ``encoders.simulated=oracle``).
+Modes (one JSON object per line, then a table):
 
-Run: ``.venv/bin/python benchmarks/quality_maps.py [--workspace /path/with/params.yaml]``.
+- ``--workspace PARAMS``: every simulated scene built in that zipon workspace: its vlmap / cfmap as
+  built, their segmentation figures, top-candidate hit rate and heatmap IoU
+  (:func:`pipeline.maps.evaluate.evaluate_map`);
+  with ``--rebuild ENCODER ...`` the maps are rebuilt in a temporary folder with each named encoder
+  setting ('perception', 'oracle', ...) and ``--set`` overrides (a calibration sweep that leaves the
+  workspace untouched);
+- default fixture: the ray-cast box room with the oracle encoder, clean and with feature noise, class
+  confusion and depth noise (``--no-fixture`` skips it).
+
+Run: ``.venv/bin/python benchmarks/quality_maps.py --no-fixture --workspace W/params.yaml --rebuild perception oracle``.
 """
 
 from __future__ import annotations
@@ -21,56 +30,115 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from pipeline.config import load_params, parse_params  # noqa: E402
 from pipeline.frames import FrameStore  # noqa: E402
-from pipeline.maps.build import build_map  # noqa: E402
-from pipeline.maps.evaluate import evaluate_map, sample_poses  # noqa: E402
-from pipeline.maps.query import open_query  # noqa: E402
+from pipeline.maps.build import MAP_CONFIGS, build_map  # noqa: E402
+from pipeline.maps.evaluate import class_masks, evaluate_map, sample_poses  # noqa: E402
+from pipeline.maps.query import MapQuery, open_query  # noqa: E402
+from pipeline.perception_params import PUBLISHED  # noqa: E402
 from pipeline.recon import Recon  # noqa: E402
 from pipeline.scene_gt import GTScene  # noqa: E402
 from pipeline.store import artifact_attrs  # noqa: E402
 
-
-def with_levels(mq):
-    """``mq`` scoring each cell by its best voxel level (:class:`pipeline.maps.levels.LevelScorer`).
-
-    A measurement shim until ``MapQuery.query`` calls ``LevelScorer.cell_scores`` itself (see
-    pipeline/maps/levels.py): it replaces the top-down ``(s, bg_max, bg_lse)`` through the two
-    private steps of the current query.
-    """
-    import types
-
-    from pipeline.maps.levels import LevelScorer
-
-    scorer = LevelScorer(mq.map)
-    cls = type(mq)
-
-    def background_for(self, q):
-        bg_max, bg_lse, keep = cls._background_for(self, q)
-        s = cls._scores(self, q, bg_max, bg_lse)
-        bg = self._bg_feats[keep] if keep else None
-        self._level_s, bg_max, bg_lse = scorer.cell_scores(q, bg, self.temperature, s, bg_max, bg_lse)
-        return bg_max, bg_lse, keep
-
-    mq._background_for = types.MethodType(background_for, mq)
-    mq._scores = types.MethodType(lambda self, q, bg_max, bg_lse: self._level_s, mq)
-    return mq
+BACKGROUND_VOCAB = ("wall", "floor", "ceiling", "other")
+#: the published row each map's simulated perception is set against
+TARGET = {"simulated_lseg": "LSeg (privileged)", "simulated_cf": "ConceptFusion"}
 
 
-def evaluate(kind, frames, recon, map_path, params, n_poses, levels: bool = False):
+def segmentation_metrics(mq: MapQuery, gt: GTScene) -> dict:
+    """``{mAcc, F-mIoU, cells, per_class: {cls: {acc, iou, cells}}}`` (percent) of map ``mq`` (see the docstring)."""
+    grid = mq.grid
+    masks = class_masks(gt, grid)
+    classes = sorted(masks)
+    label = np.full(grid.rows * grid.cols, -1, np.int64)
+    for i, c in enumerate(classes):  # a cell in two classes' masks keeps the later class (rare: stacked objects)
+        label[masks[c].ravel()] = i
+    pred = np.full(grid.rows * grid.cols, -2, np.int64)  # unobserved: no prediction (a miss)
+    text = mq.text_features(classes + list(BACKGROUND_VOCAB))
+    pred[mq.map.cell] = mq.map.dot(text).argmax(dim=1).numpy()
+    ev = label >= 0
+    n_eval = int(ev.sum())
+    per_class, accs, fiou = {}, [], 0.0
+    for i, c in enumerate(classes):
+        g, p = label == i, (pred == i) & ev
+        tp, n = int((g & p).sum()), int(g.sum())
+        union = int((g | p).sum())
+        acc, iou = tp / max(n, 1), tp / max(union, 1)
+        per_class[c] = {"acc": round(100 * acc, 2), "iou": round(100 * iou, 2), "cells": n}
+        accs.append(acc)
+        fiou += iou * n / max(n_eval, 1)
+    return {"mAcc": round(100 * float(np.mean(accs)), 2) if accs else 0.0, "F-mIoU": round(100 * fiou, 2),
+            "cells": n_eval, "per_class": per_class}
+
+
+def evaluate(frames, recon, map_path, params, n_poses) -> dict:
     gt = GTScene.model_validate(FrameStore(frames).ground_truth)
     mq = open_query(map_path, params, recon_path=recon, frames_path=frames)
-    if levels:
-        from pipeline.maps.query import MapQuery
-
-        mq = with_levels(MapQuery(mq.map, mq.encoder, mq.params, navigable=Recon(recon).navigable, gt=gt))
     poses = sample_poses(Recon(recon).navigable, mq.grid, n_poses, seed=1)
-    return evaluate_map(mq, gt, poses)
+    out = segmentation_metrics(mq, gt)
+    retrieval = evaluate_map(mq, gt, poses)
+    return {"encoder": mq.map.encoder["name"], "kind": mq.map.encoder.get("kind", ""), "mAcc": out["mAcc"],
+            "F-mIoU": out["F-mIoU"], "seg_cells": out["cells"], "hit_rate": retrieval["hit_rate"],
+            "mean_iou": retrieval["mean_iou"], "per_class": out["per_class"]}
+
+
+def workspace_scenes(path: Path, n_poses: int, rebuild: list[str], overrides: list[str],
+                     only: list[str] | None = None) -> list[dict]:
+    """Figures of every simulated scene's maps in the workspace (as built, or rebuilt per encoder setting)."""
+    from pipeline.paths import Workspace
+
+    ws = Workspace.resolve(path)
+    rows = []
+    settings = rebuild or [None]
+    with tempfile.TemporaryDirectory() as tmp:
+        for setting in settings:
+            params = load_params(path, ([f"encoders.simulated={setting}"] if setting else []) + list(overrides))
+            for scene, src in params.scenes.items():
+                if not src.simulated or (only and scene not in only):
+                    continue
+                frames, recon = ws.artifact("frames", scene), ws.artifact("recon", scene)
+                if not frames.exists() or not recon.exists():
+                    continue
+                for kind in ("vlmap", "cfmap"):
+                    m = ws.artifact(kind, scene)
+                    if setting is not None:
+                        m = Path(tmp) / f"{setting}-{scene}-{kind}.zarr"
+                        build_map(MAP_CONFIGS[kind].from_params(params, scene), frames, recon, m,
+                                  artifact_attrs(kind, 1, kind, "quality"), runtime=params.run)
+                    elif not m.exists():
+                        continue
+                    fig = evaluate(frames, recon, m, params, n_poses)
+                    row = {"bench": "quality", "scene": scene, "map": kind, "setting": setting or "as built",
+                           "overrides": list(overrides), **fig}
+                    print(json.dumps(row), flush=True)
+                    rows.append(row)
+    return rows
+
+
+def print_table(rows: list[dict]) -> None:
+    """Mean mAcc / F-mIoU per (map, encoder) over scenes, next to the published rows they are set against."""
+    if not rows:
+        return
+    groups: dict[tuple[str, str, str], list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["map"], r["encoder"], r["setting"]), []).append(r)
+    print(f"\n{'map':6} {'perception (encoder)':28} {'scenes':>6} {'mAcc':>6} {'F-mIoU':>7}   published (Replica)")
+    for (kind, enc, _), rs in sorted(groups.items()):
+        target = TARGET.get(enc)
+        pub = PUBLISHED.get(target) if target else None
+        ref = f"{target}: {pub['mAcc']:.1f} / {pub['F-mIoU']:.1f}" if pub else "(ground-truth diagnostic: no model)"
+        print(f"{kind:6} {enc:28} {len(rs):6d} {np.mean([r['mAcc'] for r in rs]):6.1f} "
+              f"{np.mean([r['F-mIoU'] for r in rs]):7.1f}   {ref}")
+    print("published rows: " + "; ".join(f"{k} {v['mAcc']}/{v['F-mIoU']}" for k, v in PUBLISHED.items())
+          + f" ({PUBLISHED['ConceptFusion']['source']})")
 
 
 def fixture_settings(n_poses: int, n_frames: int, width: int, height: int):
+    """The ray-cast box room with the oracle: clean, feature noise, class confusion, depth noise."""
     from stages.reconstruct import reconstruct
     from tests.fixtures.recon_scenes import write_box_room_frames
 
@@ -99,48 +167,33 @@ def fixture_settings(n_poses: int, n_frames: int, width: int, height: int):
             d = built[depth_noise]
             for kind in ("vlmap", "cfmap"):
                 out = tmp / f"{name}-{kind}.zarr"
-                build_map(kind, d / "frames.zarr", d / "recon.zarr", out, params,
-                          artifact_attrs(kind, 1, kind, "quality"), simulated=True)
-                fig = evaluate(kind, d / "frames.zarr", d / "recon.zarr", out, params, n_poses)
+                build_map(MAP_CONFIGS[kind].from_params(params, "box"), d / "frames.zarr", d / "recon.zarr", out,
+                          artifact_attrs(kind, 1, kind, "quality"), runtime=params.run)
+                fig = evaluate(d / "frames.zarr", d / "recon.zarr", out, params, n_poses)
+                fig.pop("per_class")
                 print(json.dumps({"bench": "quality", "scene": "box_room", "setting": name, "map": kind,
                                   "frames": n_frames, "image": f"{width}x{height}", **fig}), flush=True)
 
 
-def workspace_scenes(path: Path, n_poses: int, overrides: list[str] = ()):
-    from pipeline.paths import Workspace
-
-    params = load_params(path, ["encoders.simulated=oracle", *overrides])
-    ws = Workspace.resolve(path)
-    for scene, src in params.scenes.items():
-        if not src.simulated:
-            continue
-        frames, recon = ws.artifact("frames", scene), ws.artifact("recon", scene)
-        for kind in ("vlmap", "cfmap"):
-            m = ws.artifact(kind, scene)
-            if not m.exists():
-                continue
-            for levels in (False, True) if kind == "cfmap" else (False,):
-                fig = evaluate(kind, frames, recon, m, params, n_poses, levels)
-                print(json.dumps({"bench": "quality", "scene": scene, "setting": "workspace (clean oracle)",
-                                  "map": kind, "query": "max over levels" if levels else "top-down",
-                                  "overrides": list(overrides), **fig}), flush=True)
-
-
 def main():
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--poses", type=int, default=10)
     ap.add_argument("--frames", type=int, default=96)
     ap.add_argument("--width", type=int, default=320)
     ap.add_argument("--height", type=int, default=240)
     ap.add_argument("--workspace", type=Path, default=None, help="params.yaml of a built workspace")
+    ap.add_argument("--rebuild", nargs="*", default=[], metavar="ENCODER",
+                    help="rebuild the workspace's maps in a temporary folder with encoders.simulated=ENCODER "
+                    "(e.g. perception oracle)")
+    ap.add_argument("--scenes", nargs="*", default=None, help="only these workspace scenes")
     ap.add_argument("--no-fixture", action="store_true")
     ap.add_argument("--set", action="append", default=[], help="params override for --workspace, e.g. "
-                    "maps.min_candidate_score=0.7 (repeatable)")
+                    "encoders.simulated_lseg.object_confusion=0.3 (repeatable)")
     a = ap.parse_args()
     if not a.no_fixture:
         fixture_settings(a.poses, a.frames, a.width, a.height)
     if a.workspace is not None:
-        workspace_scenes(a.workspace, a.poses, a.set)
+        print_table(workspace_scenes(a.workspace, a.poses, a.rebuild, a.set, a.scenes))
 
 
 if __name__ == "__main__":

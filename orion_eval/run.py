@@ -161,6 +161,7 @@ def run_eval(ws: Workspace, params: Params, out_dir: Path, scenes=None, methods=
                       "episodes_per_s": round(len(episodes) / seconds, 2) if seconds > 0 else None,
                       "success_rule": params.eval.success_rule, "max_talk_turns": params.eval.max_talk_turns,
                       "encoders": {s: _encoder_names(ws, params, s) for s in scenes}}
+    results["run"]["detection"] = {s: _detection_kind(params, results["run"]["encoders"][s]) for s in scenes}
     out_dir.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out_dir / "results.json", json.dumps(results, indent=2, sort_keys=True) + "\n")
     if report:
@@ -168,6 +169,11 @@ def run_eval(ws: Workspace, params: Params, out_dir: Path, scenes=None, methods=
 
         write_report(results, out_dir, ws=ws, params=params)
     return results
+
+
+#: what the CoW and ORION agents detect with when the maps come from simulated perception (orion_eval.detector)
+DETECTOR_KIND = ("simulated open-vocabulary detector (Grounding-DINO-like recall vs size / occlusion, CLIP-similar "
+                 "false positives; orion_eval.detector) - not a trained model")
 
 
 def _encoder_names(ws, params, scene) -> dict:
@@ -178,5 +184,14 @@ def _encoder_names(ws, params, scene) -> dict:
         p = ws.artifact(which, scene)
         if p.exists():
             e = SemanticMap(p).encoder
-            out[which] = {"name": e.get("name"), "diagnostic": bool(e.get("diagnostic"))}
+            out[which] = {"name": e.get("name"), "diagnostic": bool(e.get("diagnostic")),
+                          "kind": e.get("kind") or f"{e.get('name')} (a real encoder, weights {e.get('weights_file')})"}
     return out
+
+
+def _detection_kind(params, encoders: dict) -> str:
+    """What detect_object runs on: the simulated detector with simulated perception, else the encoder's features."""
+    detect = params.eval.detect_encoder or encoders.get("vlmap", {}).get("name")
+    if str(detect).startswith("simulated_"):
+        return DETECTOR_KIND
+    return f"ego-view features of the {detect} encoder" + (" (ground truth: diagnostic)" if detect == "oracle" else "")

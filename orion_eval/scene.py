@@ -212,7 +212,7 @@ class SceneContext:
             name = self.arts.map_query(name or "vlmap").map.encoder["name"]
         if name == "oracle":
             enc = enc.model_copy(update={"oracle": enc.oracle.model_copy(update={"out_size": tuple(ep.detect_size)})})
-        e = build_encoder(enc, name)
+        e = build_encoder(enc, name, runtime=self.params.run)
         e.bind_scene(self.arts.gt)
         return e
 
@@ -229,13 +229,42 @@ class SceneContext:
             self._view_cache[k] = self.renderer.render(pose)
         return self._view_cache[k]
 
+    @cached_property
+    def detector(self):
+        """The simulated open-vocabulary detector (:mod:`orion_eval.detector`) when the maps come from simulated
+        perception (the detection encoder has its CLIP text space) on a simulated scene; None otherwise: the
+        oracle diagnostic and real encoders detect with the encoder's own features (:meth:`detect`)."""
+        space = getattr(self.encoder, "space", None)
+        if space is None or self.arts.gt is None or self.renderer.boxes is None:
+            return None
+        from orion_eval.detector import SimulatedDetector
+
+        return SimulatedDetector(self.params.eval.detector, space, self.arts.gt, self.renderer.boxes)
+
+    def _detection(self, xy: np.ndarray, score: float, pixels: int) -> Detection:
+        """A detection from the world ``(N,2)`` points of its pixels."""
+        g = self.grid
+        rc = g.world_to_cell(xy)
+        rc = rc[g.inside(rc)]
+        return Detection(np.median(xy, axis=0), np.unique(rc[:, 0] * g.cols + rc[:, 1]), score, pixels)
+
     def detect(self, pose, text: str) -> list[Detection]:
-        """Objects matching ``text`` in the ego view at ``pose`` (cached per pose and text)."""
+        """Objects matching ``text`` in the ego view at ``pose`` (cached per pose and text): the simulated
+        detector's sightings (:attr:`detector`), else the cells whose encoder features beat the background."""
         key = (self.pose_key(pose), text)
         if key in self._det_cache:
             return self._det_cache[key]
-        ep, mp = self.params.eval, self.params.maps
+        ep, mp = self.params.eval, self.params.query
         v = self.view(pose)
+        if self.detector is not None:
+            T = self.renderer.T_world_camera(pose)
+            dirs = self.renderer.dirs_cam.reshape(-1, 3).astype(np.float64) @ T[:3, :3].T
+            found = self.detector.detect(v, text, T[:3, 3], dirs, ep.detect_max_range_m, key=key[0])
+            out = [self._detection(v.points[s.mask][:, :2].astype(np.float64), s.score, int(s.mask.sum()))
+                   for s in found]
+            out.sort(key=lambda d: -d.pixels)
+            self._det_cache[key] = out
+            return out
         feats = self.encoder.encode_images(v.rgb[None], depth_m=v.depth_m[None],
                                            instance=None if v.instance is None else v.instance[None])
         f = feats.features[0]  # (h,w,D)
@@ -256,18 +285,13 @@ class SceneContext:
         wins = (sq > bg_max) & hit & (depth <= ep.detect_max_range_m)
         n, lab, stats, _ = cv2.connectedComponentsWithStats(wins.astype(np.uint8), connectivity=8)
         out = []
-        g = self.grid
         for k in range(1, n):
             m = lab == k
             npx = int(m.sum())
             score = float(prob[m].mean())
             if npx < ep.detect_min_pixels or score < mp.min_candidate_score:
                 continue
-            xy = pts[m][:, :2].astype(np.float64)
-            rc = g.world_to_cell(xy)
-            rc = rc[g.inside(rc)]
-            cells = np.unique(rc[:, 0] * g.cols + rc[:, 1])
-            out.append(Detection(np.median(xy, axis=0), cells, score, npx))
+            out.append(self._detection(pts[m][:, :2].astype(np.float64), score, npx))
         out.sort(key=lambda d: -d.pixels)
         self._det_cache[key] = out
         return out

@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 import torch
 
-from pipeline.encoders.base import DenseFeatures, Encoder, l2_normalize, register
+from pipeline.encoders.base import DenseFeatures, Encoder, PaletteFeatures, l2_normalize, register
 from pipeline.encoders.conceptfusion import fuse_region_features
 from pipeline.encoders.perception_text import ClipTextSpace, load_text_space, resolve_embeddings
 from pipeline.errors import ConfigError, InputDataError
@@ -73,6 +73,7 @@ class SimulatedPerception(Encoder):
 
     profile: ClassVar[str]
     kind: ClassVar[str]
+    reads_rgb = False  # features come from the instance image and the scene's ground truth
 
     def __init__(self, params: SimulatedLSegParams | SimulatedCFParams, *, batch_size: int = 4):
         super().__init__(device="cpu", batch_size=batch_size)  # table look-ups and small products
@@ -178,13 +179,17 @@ class SimulatedPerception(Encoder):
         fine = fine.reshape(h, w, C).transpose(2, 0, 1)
         return fine * amp_cells[None], self._scene_classes
 
-    def _encode_batch(self, rgb: np.ndarray, depth_m, instance) -> DenseFeatures:
+    def _check(self, instance) -> None:
         if self._gt is None:
             raise ConfigError(f"the {self.name} encoder simulates perception on SIMULATED scenes: it needs the scene's "
                               "ground truth (bind_scene); choose a real encoder for real data")
         if instance is None:
             raise InputDataError(f"the {self.name} encoder needs instance images", field="instance",
                                  expected="(B,H,W) uint16 ids (simulated scenes)")
+
+    def _encode_batch(self, rgb: np.ndarray, depth_m, instance) -> DenseFeatures:
+        """Cell features ``weights^T rows`` of each frame (:meth:`_frame`), renormalised."""
+        self._check(instance)
         B, H, W = instance.shape
         h, w = self.out_size
         out = torch.empty((B, h * w, self.dim), dtype=torch.float32)
@@ -200,7 +205,7 @@ class SimulatedPerception(Encoder):
         return DenseFeatures(feats, torch.ones((B, h, w), dtype=torch.bool), (H, W))
 
     def _frame(self, instance: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """``(weights (N,h,w), rows (N,D))`` of one frame: cell features are ``weights^T rows``."""
+        """One frame's features in factored form (see the implementations)."""
         raise NotImplementedError
 
 
@@ -288,6 +293,18 @@ class SimulatedCF(SimulatedPerception):
                                      self.p.global_temperature)
         table = np.zeros((R, self.dim))
         table[used] = fused.numpy()
-        cells = region[labels]
-        mix = (cells[None] == np.arange(R)[:, None, None]).astype(np.float32)
-        return mix, table
+        return table, region[labels]  # (R,D) unit rows, (h,w) row of each cell
+
+    def _encode_batch(self, rgb: np.ndarray, depth_m, instance) -> PaletteFeatures:
+        """Region features are one vector per region: a palette (all frames' regions) and each cell's row."""
+        self._check(instance)
+        B, H, W = instance.shape
+        tables, index, offset = [], [], 0
+        for b in range(B):
+            table, cells = self._frame(instance[b], _frame_rng(self.p.seed, self.name, self._gt.name, instance[b]))
+            tables.append(table)
+            index.append(cells + offset)
+            offset += len(table)
+        palette = torch.from_numpy(np.concatenate(tables).astype(np.float32))
+        idx = torch.from_numpy(np.stack(index).astype(np.int64))
+        return PaletteFeatures(palette, idx, torch.ones(idx.shape, dtype=torch.bool), (H, W))

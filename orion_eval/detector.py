@@ -1,0 +1,107 @@
+"""Simulated open-vocabulary detection on the ego view (Grounding-DINO-like boxes, ORION's detect_object).
+
+Used by the CoW and ORION agents on simulated scenes instead of ground-truth visibility (the exact
+encoder-based detection stays for the ``oracle`` diagnostic and for real scenes, see
+:meth:`orion_eval.scene.SceneContext.detect`). Settings and the figures they were set from:
+:class:`pipeline.perception_params.DetectorParams`. Not a trained model.
+
+For each object visible in the rendered view (its instance pixels within ``eval.detect_max_range_m``):
+
+- **recall** ``max_recall * sigmoid((ln a - ln half_recall_area) / size_slope) * v ** occlusion_power``
+  with ``a`` the object's visible share of the image (falls with size and distance) and ``v`` its visible
+  share of its own unoccluded silhouette (the rays that hit its ground-truth part boxes, ignoring
+  everything else: occlusion);
+- **grounding** ``sigmoid((cos(query, object) - match_threshold) / match_width)`` in the real CLIP text
+  space (:mod:`pipeline.encoders.perception_text`): the object's class row plus the attributes the
+  query names (its own colour / material), so "chair" finds armchairs often, sofas rarely, and "red
+  chair" not the blue one; false positives follow CLIP's similarities;
+- detected with probability ``recall * grounding``, one seeded draw per (view, query, object).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.encoders.perception_text import ClipTextSpace
+from pipeline.perception_params import DetectorParams
+
+
+@dataclass
+class Sighting:
+    """One detected object in a view: GT instance id, its visible pixel mask ``(H,W)`` bool, grounding score."""
+
+    instance_id: int
+    mask: np.ndarray
+    score: float
+    recall: float
+
+
+def _sigmoid(x: np.ndarray) -> np.ndarray:
+    return 1.0 / (1.0 + np.exp(-np.clip(x, -60, 60)))
+
+
+class SimulatedDetector:
+    """See the module docstring. ``boxes`` = the renderer's GT part boxes ``(lo (P,3), hi (P,3), ids (P,), _)``."""
+
+    def __init__(self, params: DetectorParams, space: ClipTextSpace, gt, boxes):
+        self.p, self.space = params, space
+        self.objects = {o.id: o for o in gt.objects}
+        self.lo, self.hi, self.part_ids = boxes[0].astype(np.float64), boxes[1].astype(np.float64), boxes[2]
+        self.scene = gt.name
+
+    def grounding(self, text: str, ids: np.ndarray) -> np.ndarray:
+        """``(K,)`` grounding probability of ``text`` for objects ``ids``."""
+        q = self.space.parse(text)
+        qv = self.space.compose(q.classes, q.colors, q.materials)
+        qv = qv / max(np.linalg.norm(qv), 1e-12)
+        out = np.zeros(len(ids))
+        for k, i in enumerate(ids):  # a handful of visible objects per view
+            o = self.objects[int(i)]
+            ov = self.space.compose([self.space.class_vector(o.cls)] if q.classes else [],
+                                    [" ".join(o.color_name.lower().split())] if q.colors else [],
+                                    [o.material] if q.materials else [])
+            n = np.linalg.norm(ov)
+            out[k] = float(qv @ ov) / n if n > 0 else 0.0
+        return _sigmoid((out - self.p.match_threshold) / self.p.match_width)
+
+    def silhouettes(self, origin: np.ndarray, dirs: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        """``(K,)`` pixel counts of each object's unoccluded silhouette: rays ``(N,3)`` hitting any of its parts."""
+        sel = np.isin(self.part_ids, ids)
+        lo, hi, pid = self.lo[sel], self.hi[sel], self.part_ids[sel]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / dirs[:, None, :]
+            t1, t2 = (lo[None] - origin) * inv, (hi[None] - origin) * inv
+        tmin = np.nanmax(np.minimum(t1, t2), axis=2)
+        tmax = np.nanmin(np.maximum(t1, t2), axis=2)
+        hit = tmax >= np.maximum(tmin, 0.0)  # (N,P)
+        per_obj = (hit[:, None, :] & (pid[None, None, :] == ids[None, :, None])).any(axis=2)  # (N,K)
+        return per_obj.sum(axis=0)
+
+    def detect(self, view, text: str, origin: np.ndarray, dirs: np.ndarray, max_range_m: float,
+               key: tuple) -> list[Sighting]:
+        """Sightings of ``text`` in ``view`` (an :class:`~orion_eval.egoview.EgoView` with instance ids);
+        ``origin`` (3,) and ``dirs`` (H*W,3) the world rays of its pixels; ``key`` seeds the draws."""
+        if view.instance is None:
+            return []
+        H, W = view.instance.shape
+        inst = np.where(view.hit & (view.depth_m <= max_range_m), view.instance, 0).astype(np.int64)
+        counts = np.bincount(inst.ravel())
+        ids = np.flatnonzero(counts)
+        ids = ids[(ids > 0) & (counts[ids] >= self.p.min_pixels)]
+        ids = np.array([i for i in ids if int(i) in self.objects], np.int64)
+        if not len(ids):
+            return []
+        visible = counts[ids].astype(np.float64)
+        sil = np.maximum(self.silhouettes(origin, dirs, ids), visible)
+        area = visible / (H * W)
+        recall = (self.p.max_recall * _sigmoid((np.log(area) - np.log(self.p.half_recall_area)) / self.p.size_slope)
+                  * (visible / sil) ** self.p.occlusion_power)
+        ground = self.grounding(text, ids)
+        h = hashlib.blake2b(repr((self.p.seed, self.scene, key, text)).encode(), digest_size=8).digest()
+        u = np.random.default_rng(int.from_bytes(h, "little")).random(int(ids.max()) + 1)[ids]  # one draw per id
+        hit = u < recall * ground
+        return [Sighting(int(i), inst == i, float(g), float(r))
+                for i, g, r in zip(ids[hit], ground[hit], recall[hit])]

@@ -1,0 +1,140 @@
+"""The simulated open-vocabulary detector: grounding in CLIP space, recall with size and occlusion, seeding,
+and its use by the evaluator's scene context."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from orion_eval.detector import SimulatedDetector
+from pipeline.encoders.perception_text import load_text_space, resolve_embeddings
+from pipeline.perception_params import DetectorParams
+from pipeline.scene_gt import GTScene
+
+H, W = 24, 32
+
+
+@pytest.fixture(scope="module")
+def space():
+    return load_text_space(resolve_embeddings("../shared/data/clip_text", "test"))
+
+
+def gt(objects) -> GTScene:
+    """``objects``: (id, cls, colour, box min, box max)."""
+    return GTScene.model_validate({
+        "name": "det", "seed": 0, "wall_height_m": 2.5, "rooms": [], "walls": [],
+        "objects": [{"id": i, "cls": c, "room": "r", "parts": [{"min": lo, "max": hi}], "color_name": col,
+                     "color_rgb": (1, 2, 3), "material": "wood", "size": "big"} for i, c, col, lo, hi in objects],
+    })
+
+
+def camera():
+    """Origin and ``(H*W,3)`` world rays of a 90 deg camera at the origin looking along +x (z up)."""
+    f = (W / 2) / math.tan(math.radians(45))
+    u, v = np.meshgrid(np.arange(W) + 0.5 - W / 2, np.arange(H) + 0.5 - H / 2)
+    dirs = np.stack([np.ones_like(u), -u / f, -v / f], axis=-1).reshape(-1, 3)
+    return np.zeros(3), dirs
+
+
+def view_of(det: SimulatedDetector, ids, keep=None):
+    """An ego view whose instance image is the objects' silhouettes (nearest box hit), ``keep`` masking pixels."""
+    origin, dirs = camera()
+    inst = np.zeros(H * W, np.uint16)
+    best = np.full(H * W, np.inf)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for lo, hi, i in zip(det.lo, det.hi, det.part_ids):
+            if i not in ids:
+                continue
+            t1, t2 = (lo - origin) / dirs, (hi - origin) / dirs
+            tmin, tmax = np.nanmax(np.minimum(t1, t2), 1), np.nanmin(np.maximum(t1, t2), 1)
+            hit = (tmax >= np.maximum(tmin, 0)) & (tmin < best)
+            inst[hit], best[hit] = i, tmin[hit]
+    inst = inst.reshape(H, W)
+    if keep is not None:
+        inst = np.where(keep, inst, 0)
+    depth = np.where(np.isfinite(best), best, 0).reshape(H, W).astype(np.float32)
+    return SimpleNamespace(instance=inst, hit=np.ones((H, W), bool), depth_m=depth), origin, dirs
+
+
+def rate(det, view, origin, dirs, text, obj_id, n=200):
+    return np.mean([any(s.instance_id == obj_id for s in det.detect(view, text, origin, dirs, 10.0, key=(k,)))
+                    for k in range(n)])
+
+
+def test_grounding_follows_clip_similarity(space):
+    scene = gt([(1, "chair", "red", (2, -0.3, -0.5), (2.5, 0.3, 0.3)), (2, "couch", "blue", (2, 0.4, -0.5), (2.6, 1, 0)),
+                (3, "toilet", "white", (2, -1, -0.5), (2.5, -0.5, 0))])
+    det = SimulatedDetector(DetectorParams(), space, scene, _boxes(scene))
+    g = dict(zip(("chair", "couch", "toilet"), det.grounding("chair", np.array([1, 2, 3]))))
+    assert g["chair"] > 0.95 and g["toilet"] < 0.01 and g["chair"] > g["couch"]
+    assert det.grounding("armchair", np.array([1]))[0] > 0.5  # a CLIP neighbour is found (a false positive)
+    red, blue = det.grounding("red chair", np.array([1])), det.grounding("blue chair", np.array([1]))
+    assert red[0] > 0.95 and blue[0] < 0.05  # the colour the query names must match
+
+
+def _boxes(scene):
+    parts = [(o.id, p) for o in scene.objects for p in o.parts]
+    return (np.array([p.min for _, p in parts], np.float32), np.array([p.max for _, p in parts], np.float32),
+            np.array([i for i, _ in parts], np.uint16), None)
+
+
+def test_recall_falls_with_size_distance_and_occlusion(space):
+    near = gt([(1, "chair", "red", (1.5, -0.3, -0.6), (2.0, 0.3, 0.2))])
+    far = gt([(1, "chair", "red", (6.0, -0.3, -0.6), (6.5, 0.3, 0.2))])
+    rates = {}
+    for name, scene in (("near", near), ("far", far)):
+        det = SimulatedDetector(DetectorParams(), space, scene, _boxes(scene))
+        view, origin, dirs = view_of(det, [1])
+        rates[name] = rate(det, view, origin, dirs, "chair", 1)
+        if name == "near":
+            half = np.zeros((H, W), bool)
+            half[:, : W // 2] = True  # the right half hidden behind something
+            occluded, _, _ = view_of(det, [1], keep=half)
+            rates["occluded"] = rate(det, occluded, origin, dirs, "chair", 1)
+    assert rates["near"] > 0.75 and rates["far"] < rates["near"] - 0.2
+    assert rates["occluded"] < rates["near"] - 0.2
+
+
+def test_draws_are_seeded_per_view_and_query(space):
+    scene = gt([(1, "chair", "red", (4.0, -0.3, -0.6), (4.5, 0.3, 0.2))])
+    det = SimulatedDetector(DetectorParams(), space, scene, _boxes(scene))
+    view, origin, dirs = view_of(det, [1])
+    runs = [[bool(det.detect(view, "chair", origin, dirs, 10.0, key=(k,))) for k in range(50)] for _ in range(2)]
+    assert runs[0] == runs[1] and 0 < sum(runs[0]) < 50  # repeatable, and not all-or-nothing at this size
+    other = SimulatedDetector(DetectorParams(seed=1), space, scene, _boxes(scene))
+    assert [bool(other.detect(view, "chair", origin, dirs, 10.0, key=(k,))) for k in range(50)] != runs[0]
+    assert det.detect(view, "chair", origin, dirs, 3.0, key=(0,)) == []  # beyond the detection range
+
+
+def test_scene_context_detects_with_the_simulated_detector(tiny_scene):
+    """Simulated perception brings the simulated detector: the goal in front is found most of the time,
+    an unrelated class seldom; the oracle diagnostic keeps the encoder's ground-truth detection."""
+    from orion_eval.artifacts import Artifacts
+    from orion_eval.scene import SceneContext
+    from orion_eval.world import Body
+
+    ws, params = tiny_scene
+    assert SceneContext(Artifacts(ws, params, "tiny")).detector is None  # oracle maps: diagnostic detection
+    found = unrelated = trials = 0
+    for seed in range(2):
+        ep = params.eval.model_copy(update={"detect_encoder": "simulated_lseg",
+                                            "detector": DetectorParams(seed=seed)})
+        ctx = SceneContext(Artifacts(ws, params.model_copy(update={"eval": ep}), "tiny"))
+        assert ctx.detector is not None
+        for goal in [g for g in ctx.arts.goals.goals if ctx.arts.routes.for_goal(g.id)][:4]:
+            start = ctx.arts.routes.for_goal(goal.id)[0].start
+            centres = np.array([ctx.arts.goals.objects[k].mass_center for k in goal.object_keys])
+            route = ctx.route_to_goal(ctx.view_planner, start, goal, key="t", face_xy=centres)
+            body = Body(*start)
+            for a in route.actions.tolist():
+                if a == 0:
+                    break
+                ctx.world.act(body, a)
+            fp = ctx.footprint_mask(goal.object_keys).reshape(-1)
+            found += any(fp[d.cells].any() for d in ctx.detect(body.pose, goal.name))
+            unrelated += bool(ctx.detect(body.pose, "bicycle"))
+            trials += 1
+    assert found >= 0.6 * trials and unrelated <= 1, (found, unrelated, trials)
