@@ -152,3 +152,70 @@ def test_navchats_shipped_scenes_import_and_export(tmp_path):
         write_navchat(tmp_path / src.name, *export_navchat(objset, doc, frame, source=src))
         assert (tmp_path / src.name / "objects.json").read_bytes() == (src / "objects.json").read_bytes()
         assert json.loads((tmp_path / src.name / "final.json").read_text()) == json.loads((src / "final.json").read_text())
+
+
+# ----------------------------------------------------------------------------- the goals stage on navchat files
+
+def _house_navchat(tmp_path: Path, frames_path: Path) -> Path:
+    """The house's GT objects written as navchat files in navchat's own frame (anchored at the first pose)."""
+    from pipeline.frames import FrameStore
+    from pipeline.goals.objects import objects_from_gt
+    from pipeline.scene_gt import GTScene
+
+    fs = FrameStore(frames_path)
+    frame = NavchatFrame.from_first_pose(fs.poses()[0])
+    objset = objects_from_gt(GTScene.model_validate(fs.ground_truth), "house")
+    objects, final = {}, {"room_info": {"bedroom": "Alice|Bob", "living room": "shared"}}
+    for o in objset.objects:
+        cells = frame.to_cells(o.footprint)
+        objects[o.key] = {"name": o.cls, "center": frame.to_cells(o.mass_center).tolist(), "mass": 1.0,
+                          "contour": [[[int(c), int(r)]] for c, r in cells]}
+        if o.key in ("bed_0", "table_0"):
+            final[o.key] = {"base": json.dumps({"center": objects[o.key]["center"], "mass": 1.0}), "nearby_obj": "",
+                            "object_desc": "", "attr": None, "room_id": o.room, "explain": "", "type": "big"}
+    folder = tmp_path / "navchat" / "house"
+    folder.mkdir(parents=True)
+    (folder / "objects.json").write_text(json.dumps(objects))
+    (folder / "final.json").write_text(json.dumps(final, indent=2))
+    return folder
+
+
+def _goals_stage(tmp_path: Path, frames: Path, recon: Path, goals_params: dict):
+    from pipeline.config import parse_params
+    from pipeline.paths import Workspace
+    from pipeline.runner import StageContext
+    from stages import STAGES
+    from stages import goals as goals_stage
+
+    tmp_path.mkdir(exist_ok=True)
+    (tmp_path / "params.yaml").write_text("scenes:\n  house: {source: simulate}\n")
+    ws = Workspace.resolve(tmp_path / "params.yaml")
+    params = parse_params({"scenes": {"house": {"source": "simulate"}}, "goals": goals_params})
+    logs: list[str] = []
+    ctx = StageContext.build(STAGES["goals"], params, "house", ws, {"frames": frames, "recon": recon},
+                             {"goals": tmp_path / "goals.zarr"}, show_progress=False)
+    ctx.log = logs.append
+    return goals_stage.run(ctx), logs
+
+
+def test_goals_stage_reads_navchat_files_in_navchats_frame(tmp_path):
+    from pipeline.frames import FrameStore
+    from pipeline.goals.objects import objects_from_gt
+    from pipeline.goals.store import Goals
+    from pipeline.scene_gt import GTScene
+    from tests.fixtures.goal_scenes import write_house_artifacts
+
+    frames, recon = write_house_artifacts(tmp_path, start_xy=(2.5, 1.8), start_yaw=0.4)
+    folder = _house_navchat(tmp_path, frames)
+    settings = {"objects": "navchat", "navchat_dirs": {"house": str(folder.relative_to(tmp_path))}}
+    summary, _ = _goals_stage(tmp_path, frames, recon, settings)
+    assert summary["objects_source"] == "navchat" and summary["goals"] == 2
+    goals = Goals(tmp_path / "goals.zarr")
+    bed = np.asarray(goals.objects["bed_0"].footprint)
+    gt_bed = objects_from_gt(GTScene.model_validate(FrameStore(frames).ground_truth), "house").by_key()["bed_0"]
+    assert np.abs(bed.mean(axis=0) - np.asarray(gt_bed.footprint).mean(axis=0)).max() < 0.08  # within ~1 cell
+    # the same files read on the recon grid (the wrong frame): objects land off the observed map -> refused
+    with pytest.raises(InputDataError, match=r"field goals\.navchat_grid: \d+ of 11 navchat objects lie outside the "
+                                             r"observed map"):
+        _goals_stage(tmp_path / "wrong", frames, recon, {**settings, "navchat_grid": {"origin": "recon_grid"},
+                                                         "navchat_dirs": {"house": str(folder)}})
