@@ -1,0 +1,226 @@
+"""Whole-batch benchmark: N simulated scenes x F frames through ``zipon run`` with 1 and 2 workers.
+
+The logs are written first (``zipon run --stage simulate``, NOT timed); then, for each worker count,
+``zipon run --force`` runs ingest -> reconstruct -> vlmap + cfmap (oracle encoder) -> goals -> routes
+with the ``processes`` scheduler in a fresh process. Per stage it prints, from the stage manifests
+(``timing``: wall seconds, CPU seconds, peak RSS of the worker process), frames/s per worker, CPU
+seconds, wall seconds and peak RSS, and the ratio of the stage's seconds per frame to a BARE kernel
+measured in the same run, single-threaded, on the same data:
+
+- ``ingest``: zstd decompression of the MCAP chunks of the logs (``zstandard``), nothing else;
+- ``reconstruct``: open3d's ``VoxelBlockGrid`` ``compute_unique_block_coordinates`` + ``integrate``
+  alone on frames already decoded and prepared (:mod:`pipeline.recon.tsdf` with the run's params);
+- ``vlmap`` / ``cfmap``: ``torch.index_add_`` of ``h*w`` x ``D`` fp32 feature rows per frame (the
+  encoder's output size) into an accumulator: the scatter every dense fusion has to do.
+
+Each run's line also gives its wall time, frames/s over the whole batch, the largest worker's
+peak RSS (``ru_maxrss`` of the run's processes) and the wall time the same rate implies for the
+paper's 14,159 frames (``--target-frames``). The machine's load average is printed before and
+after: on a shared machine wall times are upper bounds, CPU seconds are the steadier figure.
+One JSON object per line on stdout.
+
+    .venv/bin/python benchmarks/bench_batch.py                      # 10 scenes x 1,416 frames (slow)
+    .venv/bin/python benchmarks/bench_batch.py --scenes 2 --frames 240 --workers 1 2
+    .venv/bin/python benchmarks/bench_batch.py --scenes 1 --frames 1400 --workers 1 --keep /tmp/batch
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+STAGES = ("ingest", "reconstruct", "vlmap", "cfmap", "goals", "routes")
+KERNEL_OF = {"ingest": "zstd_decode", "reconstruct": "o3d_integrate", "vlmap": "index_add", "cfmap": "index_add"}
+
+
+def emit(**kw) -> None:
+    print(json.dumps(kw), flush=True)
+
+
+def load() -> list[float]:
+    return [round(x, 2) for x in os.getloadavg()]
+
+
+def write_params(root: Path, scenes: int, frames: int, width: int, height: int) -> Path:
+    import yaml
+
+    params = {
+        "scenes": {f"sim_{i:02d}": {"format": "auto", "source": "simulate"} for i in range(scenes)},
+        "simulate": {"frames": frames, "width": width, "height": height},
+        "encoders": {"simulated": "oracle"},
+        "run": {"scheduler": "processes", "threads_per_worker": 1},
+    }
+    path = root / "params.yaml"
+    path.write_text(yaml.safe_dump(params, sort_keys=False))
+    return path
+
+
+ZIPON = ("import resource, sys; from pipeline.cli import main; code = main(sys.argv[1:]); "
+         "kid = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss; me = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss; "
+         "print('PEAK_RSS_KB', max(kid, me), file=sys.stderr); sys.exit(code)")
+
+
+def zipon(params: Path, *args: str) -> tuple[float, float]:
+    """Run ``zipon -p params -q ARGS`` in a fresh process; (wall seconds, largest process's peak RSS in MB)."""
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "DVC_NO_ANALYTICS": "1", "PYTHONPATH": str(ROOT)}
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-c", ZIPON, "-p", str(params), "-q", *args], cwd=params.parent,
+                          env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        sys.exit(f"zipon {' '.join(args)} failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+    peak = [int(line.split()[1]) for line in proc.stderr.splitlines() if line.startswith("PEAK_RSS_KB")]
+    return wall, (peak[-1] / 1024.0 if peak else float("nan"))
+
+
+def manifests(root: Path, scenes: list[str]) -> dict[str, list[dict]]:
+    """stage -> the manifests' ``timing`` + frame count of every scene."""
+    out: dict[str, list[dict]] = {s: [] for s in STAGES}
+    for scene in scenes:
+        for stage in STAGES:
+            m = json.loads((root / "manifests" / scene / f"{stage}.json").read_text())
+            out[stage].append(m["timing"])
+    return out
+
+
+# ----------------------------------------------------------------------------- bare kernels
+
+def kernel_zstd(logs: list[Path]) -> float:
+    """Seconds of zstd-decompressing every MCAP chunk of ``logs`` (chunk records read beforehand)."""
+    import zstandard
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    chunks = []
+    for log in logs:
+        with open(log, "rb") as f:
+            chunks += [(r.data, r.uncompressed_size) for r in StreamReader(f, emit_chunks=True).records
+                       if isinstance(r, Chunk) and r.compression == "zstd"]
+    if not chunks:
+        raise SystemExit(f"{logs}: no zstd chunks (the simulator's logs are zstd-compressed MCAP)")
+    dec = zstandard.ZstdDecompressor()
+    t0 = time.perf_counter()
+    for data, size in chunks:
+        dec.decompress(data, max_output_size=size)
+    return time.perf_counter() - t0
+
+
+def kernel_integrate(params_path: Path, frames_zarr: Path, n: int) -> tuple[float, int]:
+    """(seconds, frames) of open3d's integrate alone over the first ``n`` frames, prepared beforehand."""
+    from pipeline.config import load_params
+    from pipeline.frames import FrameStore
+    from pipeline.recon.tsdf import integrate, new_volume, prepare_block, strided
+
+    p = load_params(params_path).reconstruct
+    store = FrameStore(frames_zarr)
+    n = min(n, store.n_frames)
+    block = prepare_block(store.read(0, n), p)
+    intr = strided(store.intrinsics, p.depth_stride)
+    volume = new_volume(p)
+    t0 = time.perf_counter()
+    for j in range(n):
+        if block.has_depth[j]:
+            integrate(volume, block.depth_mm[j], block.rgb[j], block.T_world_camera[j], intr, p)
+    return time.perf_counter() - t0, n
+
+
+def kernel_index_add(h: int, w: int, dim: int, frames: int = 16, cells: int = 40_000) -> float:
+    """Seconds per frame of ``index_add_`` of ``h*w`` random-cell rows of ``dim`` fp32 into ``cells`` rows."""
+    import torch
+
+    g = torch.Generator().manual_seed(0)
+    feats = torch.nn.functional.normalize(torch.randn(h * w, dim, generator=g), dim=1)
+    acc = torch.zeros(cells, dim)
+    idx = [torch.randint(0, cells, (h * w,), generator=g) for _ in range(frames)]
+    acc.index_add_(0, idx[0], feats)  # warm
+    t0 = time.perf_counter()
+    for i in idx:
+        acc.index_add_(0, i, feats)
+    return (time.perf_counter() - t0) / frames
+
+
+# ----------------------------------------------------------------------------- main
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scenes", type=int, default=10)
+    ap.add_argument("--frames", type=int, default=1416, help="frames per scene")
+    ap.add_argument("--width", type=int, default=640)
+    ap.add_argument("--height", type=int, default=480)
+    ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--target-frames", type=int, default=14_159, help="frames of the batch the rate is projected to")
+    ap.add_argument("--kernel-frames", type=int, default=64, help="frames the open3d integrate kernel is timed on")
+    ap.add_argument("--keep", type=Path, default=None, help="work in this folder and keep it (default: a temp dir)")
+    args = ap.parse_args()
+
+    import torch
+
+    torch.set_num_threads(1)
+    root = args.keep or Path(tempfile.mkdtemp(prefix="zipon-batch-"))
+    root.mkdir(parents=True, exist_ok=True)
+    params = write_params(root, args.scenes, args.frames, args.width, args.height)
+    scenes = [f"sim_{i:02d}" for i in range(args.scenes)]
+    emit(bench="batch", kind="setup", scenes=args.scenes, frames_per_scene=args.frames, size=[args.width, args.height],
+         cpus=os.cpu_count(), loadavg=load(), root=str(root))
+    t_logs, _ = zipon(params, "run", "--stage", "simulate")
+    emit(bench="batch", kind="logs_written", seconds=round(t_logs, 1), timed=False, loadavg=load())
+
+    from pipeline.config import load_params
+
+    p = load_params(params)
+    h, w = p.encoders.oracle.out_size
+    total = args.scenes * args.frames
+    data = root / "data"
+    logs = sorted((data / "raw").glob("*.mcap"))
+    zstd_s = kernel_zstd(logs)
+    kernels = {"zstd_decode": zstd_s / total, "index_add": kernel_index_add(h, w, p.encoders.oracle.dim)}
+    first = True
+    try:
+        for workers in args.workers:
+            run_args = ["-S", f"run.workers={workers}", "run", "--force", *sum((["--stage", s] for s in STAGES), [])]
+            wall, peak = zipon(params, *run_args)
+            if first:  # frames.zarr exists now: time open3d alone on the first scene's frames
+                secs, n = kernel_integrate(params, data / "artifacts" / scenes[0] / "frames.zarr", args.kernel_frames)
+                kernels["o3d_integrate"] = secs / n
+                emit(bench="batch", kind="kernels", s_per_frame={k: round(v, 6) for k, v in kernels.items()},
+                     kernel_frames={"zstd_decode": total, "o3d_integrate": n, "index_add": 16},
+                     feature_rows=[h * w, p.encoders.oracle.dim], loadavg=load())
+                first = False
+            timing = manifests(root, scenes)
+            for stage in STAGES:
+                t = timing[stage]
+                secs = sum(x["seconds"] for x in t)
+                cpu = sum(x.get("cpu_seconds", float("nan")) for x in t)
+                row = {"bench": "batch", "kind": "stage", "workers": workers, "stage": stage,
+                       "frames_per_s": round(total / secs, 2), "wall_s": round(secs, 2), "cpu_s": round(cpu, 2),
+                       "cpu_frames_per_s": round(total / cpu, 2) if cpu == cpu else None,
+                       "peak_rss_mb": round(max(x.get("peak_rss_mb", float("nan")) for x in t), 1)}
+                kernel = KERNEL_OF.get(stage)
+                if kernel:
+                    row["kernel"] = kernel
+                    row["ratio_to_kernel"] = round(secs / total / kernels[kernel], 2)
+                    row["cpu_ratio_to_kernel"] = round(cpu / total / kernels[kernel], 2) if cpu == cpu else None
+                emit(**row)
+            rate = total / wall
+            emit(bench="batch", kind="run", workers=workers, frames=total, wall_s=round(wall, 1),
+                 frames_per_s=round(rate, 2), peak_rss_mb_largest_process=round(peak, 1),
+                 projected_wall_min_for_target=round(args.target_frames / rate / 60, 1),
+                 target_frames=args.target_frames, loadavg=load())
+    finally:
+        if args.keep is None:
+            shutil.rmtree(root, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
