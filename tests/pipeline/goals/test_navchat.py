@@ -214,6 +214,14 @@ def test_goals_stage_reads_navchat_files_in_navchats_frame(tmp_path):
     bed = np.asarray(goals.objects["bed_0"].footprint)
     gt_bed = objects_from_gt(GTScene.model_validate(FrameStore(frames).ground_truth), "house").by_key()["bed_0"]
     assert np.abs(bed.mean(axis=0) - np.asarray(gt_bed.footprint).mean(axis=0)).max() < 0.08  # within ~1 cell
+    # export-navchat from the built goals.zarr: the files come back as they were imported
+    from pipeline.config import parse_params
+    from pipeline.goals.navchat import export_scene
+
+    params = parse_params({"scenes": {"house": {"source": "simulate"}}, "goals": settings})
+    write_navchat(tmp_path / "exported", *export_scene(goals, params.goals, FrameStore(frames), "house", tmp_path))
+    for name in ("objects.json", "final.json"):
+        assert (tmp_path / "exported" / name).read_bytes() == (folder / name).read_bytes()
     # the same files read on the recon grid (the wrong frame): objects land off the observed map -> refused
     with pytest.raises(InputDataError, match=r"field goals\.navchat_grid: \d+ of 11 navchat objects lie outside the "
                                              r"observed map"):

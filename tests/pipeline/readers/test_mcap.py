@@ -235,3 +235,13 @@ def test_some_empty_depth_frames_are_reported(tmp_path):
     rec.depth_mm[[1, 2]] = 0
     _, s = _ingest(write_mcap(tmp_path / "log.mcap", rec), tmp_path)
     assert s["frames_without_valid_depth"] == {"count": 2, "ranges": [[1, 2]]}
+
+
+def test_world_up_cannot_rotate_a_log_with_ground_truth(tmp_path):
+    log = write_mcap(tmp_path / "log.mcap", make_recording(2), gt=_gt())
+    with pytest.raises(InputDataError, match=r"field ingest\.world_up: ingest\.world_up '-y' would rotate a log that "
+                                             r"carries ground truth"):
+        _ingest(log, tmp_path, world_up="-y")
+    assert not (tmp_path / "frames.zarr").exists()
+    fs, _ = _ingest(log, tmp_path, world_up="+z")  # stating the log's own convention is fine
+    assert fs.attrs["world_up"]["source_up"] == "+z"
