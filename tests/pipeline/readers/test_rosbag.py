@@ -36,6 +36,17 @@ def test_round_trip_exact(tmp_path, kind, pose_kind):
         assert summary["pose"]["chain"] == ["map->base_link", "base_link->camera_color_optical_frame"]
 
 
+@pytest.mark.parametrize("kind", ["ros1", "ros2"])
+def test_compressed_transport(tmp_path, kind):
+    rec = make_recording(3)
+    bag = write_bag(tmp_path, rec, kind, transport="compressed")
+    ingest_path(bag, tmp_path / "f.zarr", IngestParams(), **QUIET)
+    fs = FrameStore(tmp_path / "f.zarr")
+    assert np.array_equal(fs.group["rgb"][:], rec.rgb) and np.array_equal(fs.group["depth"][:], rec.depth_mm)
+    assert np.array_equal(fs.group["instance"][:], rec.instance)
+    assert fs.attrs["provenance"]["topics"]["rgb"] == "/camera/color/image_raw/compressed"
+
+
 def test_detection(tmp_path):
     rec = make_recording(2)
     assert detect_format(write_bag(tmp_path, rec, "ros1")) == "rosbag"
