@@ -1,7 +1,8 @@
 """ROS 1 ``.bag`` and ROS 2 bags (``.db3`` SQLite, ``.mcap``, or a rosbag2 folder) through ``rosbags``.
 
 ``rosbags`` (pure Python) reads all three containers with the message definitions stored in the bag,
-so no ROS installation or type store is needed. Everything but the container -- topic detection, tf,
+so no ROS installation is needed (ROS 2 bags recorded before Iron store none: their standard messages
+are read with rosbags' Humble type store, as provenance records). Everything but the container -- topic detection, tf,
 depth registration, time matching -- is :class:`pipeline.readers.roslog.RosLogReader`'s, shared with
 the MCAP reader. ROS 2 (CDR) images are parsed with the same numpy CDR parser as MCAP; ROS 1 images
 through ``rosbags``' deserialiser (its arrays are numpy views). ROS 1 names its CameraInfo fields
@@ -43,10 +44,12 @@ class RosbagsSource(MessageSource):
 
     def __init__(self, path: Path):
         from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
 
         self.file = path
         try:
-            self._reader = AnyReader([path])
+            # ROS 2 bags before Iron store no message definitions: the standard types are read with Humble's
+            self._reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
             self._reader.open()
         except Exception as err:  # rosbags raises ReaderError, AnyReaderError, sqlite/yaml errors...
             raise _bad(path, err) from None
@@ -91,7 +94,9 @@ class RosbagsSource(MessageSource):
 
     def metadata(self) -> dict:
         r = self._reader
+        own = all(c.msgdef.format.name != "NONE" for c in r.connections)
         return {"bag": {"container": "ROS 1 bag" if not r.is2 else "ROS 2 bag", "reader": "rosbags",
+                        "message_definitions": "the bag's own" if own else "rosbags' ROS 2 Humble type store",
                         "log_time_range_ns": [int(r.start_time), int(r.end_time)] if r.connections else None}}
 
     def close(self) -> None:

@@ -47,6 +47,22 @@ def test_compressed_transport(tmp_path, kind):
     assert fs.attrs["provenance"]["topics"]["rgb"] == "/camera/color/image_raw/compressed"
 
 
+def test_ros2_bag_without_message_definitions(tmp_path):
+    """Bags recorded before ROS 2 Iron carry no message definitions (an empty message_definitions table)."""
+    import sqlite3
+
+    rec = make_recording(3)
+    bag = write_bag(tmp_path, rec, "ros2")
+    con = sqlite3.connect(next(bag.glob("*.db3")))
+    con.execute("DELETE FROM message_definitions")
+    con.commit()
+    con.close()
+    ingest_path(bag, tmp_path / "f.zarr", IngestParams(), **QUIET)
+    fs = FrameStore(tmp_path / "f.zarr")
+    assert np.array_equal(fs.group["depth"][:], rec.depth_mm) and np.abs(fs.poses() - rec.poses).max() < 1e-9
+    assert fs.attrs["provenance"]["bag"]["message_definitions"] == "rosbags' ROS 2 Humble type store"
+
+
 def test_detection(tmp_path):
     rec = make_recording(2)
     assert detect_format(write_bag(tmp_path, rec, "ros1")) == "rosbag"
