@@ -166,6 +166,8 @@ class RosLogReader(Reader):
             cands = [k for k in images if any(h in k.lower() for h in _NAME_HINTS[stream])]
             if stream == DEPTH:
                 cands = [k for k in cands if "disparity" not in k.lower()]
+                # RealSense with align_depth: the depth already registered to colour needs no registration
+                cands = [k for k in cands if "aligned" in k.lower()] or cands
         if len(cands) > 1:  # both raw and compressed of one camera: prefer raw (lossless, no decode)
             raw = [k for k in cands if self.types[k] == IMAGE]
             cands = raw if len(raw) == 1 else cands

@@ -90,3 +90,25 @@ def test_depth_on_another_frame_without_camera_info_is_refused(tmp_path):
     with pytest.raises(InputDataError, match=r"field ingest\.topics\.depth_camera_info: depth is on frame "
                                              r"'camera_depth_optical_frame', colour on 'camera_color_optical_frame'"):
         ingest_path(log, tmp_path / "f.zarr", IngestParams(), **QUIET)
+
+
+def test_aligned_depth_topic_is_preferred(tmp_path):
+    """A RealSense log with align_depth on holds both depth topics: the aligned one is used, unregistered."""
+    from tests.fixtures.raw_datasets import RawLog, make_recording
+
+    rec = make_recording(2)
+    log = RawLog(tmp_path / "rs.mcap")
+    for i, s in enumerate(rec.stamps.tolist()):
+        log.image("/camera/color/image_raw", s, rec.rgb[i], "rgb8")
+        log.camera_info("/camera/color/camera_info", s, rec.intrinsics)
+        log.image("/camera/depth/image_rect_raw", s, np.zeros((30, 40), np.uint16), "16UC1",
+                  frame="camera_depth_optical_frame")
+        log.image("/camera/aligned_depth_to_color/image_raw", s, rec.depth_mm[i], "16UC1")
+        log.camera_info("/camera/aligned_depth_to_color/camera_info", s, rec.intrinsics)
+        log.pose("/camera/pose", s, rec.poses[i])
+    log.close()
+    ingest_path(tmp_path / "rs.mcap", tmp_path / "f.zarr", IngestParams(), **QUIET)
+    fs = FrameStore(tmp_path / "f.zarr")
+    assert fs.attrs["provenance"]["topics"]["depth"] == "/camera/aligned_depth_to_color/image_raw"
+    assert np.array_equal(fs.group["depth"][:], rec.depth_mm)
+    assert any("on the colour camera" in c for c in fs.attrs["provenance"]["conversions"])
