@@ -99,9 +99,11 @@ def goals_import(
 
     Example: `zipon goals import sim_00 sim_00_goals.yaml`
     """
+    from pipeline.dvcfile import sync_dvc_lock
     from pipeline.goals.edits import edit_relpath, record_goals_edit, validate_edit
     from pipeline.goals.schema import dump_document
     from pipeline.store import remove, write_text_atomic
+    from stages import STAGES
 
     ws, _ = G.load()
     doc = validate_edit(edit_file, ws.artifact("goals", scene))
@@ -109,11 +111,13 @@ def goals_import(
     stored = ws.root / rel
     created = [p for p in (stored.parent, stored) if not p.exists()]  # removed again if the import fails
     write_text_atomic(stored, dump_document(doc, ".yaml"))
+    manifests = {stage: ws.manifest(scene, stage) for stage in ("goals", "routes")}
+    published = {stage: path.read_bytes() if path.is_file() else None for stage, path in manifests.items()}
     before = G.overrides
     G.overrides = (*before, f"goals.edits.{scene}={rel}")  # the rebuild sees the edit; params.yaml not yet
     failure: Exception | None = None
-    try:
-        ok = _run([scene], ["goals", "routes"], False, "sync")
+    try:  # dvc.lock follows params.yaml, so it is recorded below once the edit is in params.yaml
+        ok = _run([scene], ["goals", "routes"], False, "sync", record_dvc=False)
     except Exception as err:  # noqa: BLE001 - re-raised below, after undoing what this command wrote
         ok, failure = False, err
     finally:
@@ -126,14 +130,22 @@ def goals_import(
     if not ok:
         for path in reversed(created):
             remove(path)
-        # a stage rebuilt before a later one failed is rebuilt without the edit: it is stale against the
-        # unchanged params.yaml (nothing runs when nothing was rebuilt)
-        console.print(f"goals import failed: {ws.params_path.name} unchanged; restoring {scene}'s goals and routes")
-        _run([scene], ["goals", "routes"], False, "sync")
+        console.print(f"goals import failed: {ws.params_path.name} unchanged")
+        # a stage published with the edit before a later one failed is rebuilt without it (the same inputs
+        # and params as before give the same content)
+        rebuilt = [stage for stage, path in manifests.items()
+                   if (path.read_bytes() if path.is_file() else None) != published[stage]]
+        if rebuilt:
+            console.print(f"rebuilding {scene}'s {' and '.join(rebuilt)} without the edit")
+            _run([scene], rebuilt, False, "sync")
         if failure is not None:
             raise failure
         raise typer.Exit(1)
     out.print(f"stored {rel}; {ws.params_path.name} goals.edits.{scene} updated")
+    ws, params = G.load()
+    note = sync_dvc_lock(ws, params, STAGES, [(scene, "goals"), (scene, "routes")], G.overrides)
+    if note:
+        console.print(f"[dim]{note}[/dim]")
 
 
 @goals_app.command("export-navchat")

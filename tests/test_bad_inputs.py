@@ -322,7 +322,7 @@ def _(c):
 # --- params files (the lead's strict config; -p FILE with the built data and manifests)
 
 def with_params(c: Ctx, text: str | bytes, *cmd: str) -> list[str]:
-    return c.argv(*(cmd or ("status",)), params=c.file("params.yaml", text))
+    return c.argv(*(cmd or ("params",)), params=c.file("params.yaml", text))
 
 
 BASE = "scenes:\n  tiny: {source: simulate}\n"
@@ -376,12 +376,12 @@ def _(c):
 
 @case("params-missing-file", 1, "{scratch}/nowhere.yaml", "not found")
 def _(c):
-    return c.argv("status", params=c.scratch / "nowhere.yaml")
+    return c.argv("params", params=c.scratch / "nowhere.yaml")
 
 
 @case("params-bad-override", 1, "simulate.frames")
 def _(c):
-    return c.argv("-S", "simulate.frames=many", "status")
+    return c.argv("-S", "simulate.frames=many", "params")
 
 
 @case("params-source-missing", 1, "{scratch}/gone.mcap", "scenes.tiny")
@@ -700,3 +700,51 @@ def test_real_full_disk(namespaces, pristine, tmp_path):
     assert "Traceback" not in text
     assert f"{tmp}/" in text and "No space left on device [ENOSPC]" in text and "free some space" in text, text
     assert tree_state(root) == before
+
+
+# ----------------------------------------------------------------------------- goals import is all or nothing
+
+def test_goals_import_whose_routes_fail_changes_nothing(pristine, tmp_path, monkeypatch, capsys):
+    """The goals stage rebuilds with the edit, then routes fails: params.yaml keeps its bytes, the stored
+    edit is removed, and goals are rebuilt without the edit (same content digest as before)."""
+    import stages.routes
+    from pipeline.errors import StageError
+    from pipeline.manifest import Manifest
+
+    root = copy_workspace(pristine[0], tmp_path / "ws")
+    (tmp_path / "scratch").mkdir()
+    c = Ctx(root, tmp_path / "scratch", json.loads(json.dumps(pristine[1])))
+    params_text = (root / "params.yaml").read_bytes()
+    manifests = {s: Manifest.read(root / "manifests" / SCENE / f"{s}.json") for s in ("goals", "routes")}
+
+    def routes_fail(ctx):
+        raise StageError("no route reaches the edited goal")  # a failure after goals was rebuilt
+
+    monkeypatch.setattr(stages.routes, "run", routes_fail)
+    c.goals_doc["goals"][0]["feedback"]["landmark"] = "It is next to the window."
+    code = main(goals_import(c, c.goals_doc))
+    out, err = capsys.readouterr()
+    assert code == 1 and "Traceback" not in out + err
+    assert "no route reaches the edited goal" in err and "params.yaml unchanged" in " ".join(err.split())
+    assert (root / "params.yaml").read_bytes() == params_text
+    assert not (root / "goals_edits").exists()
+    for stage, before in manifests.items():
+        after = Manifest.read(root / "manifests" / SCENE / f"{stage}.json")
+        assert (after.params_digest, after.inputs, after.outputs) == (before.params_digest, before.inputs,
+                                                                      before.outputs), stage
+
+
+def test_goals_import_records_the_edit_once_rebuilt(pristine, tmp_path, capsys):
+    """The good path beside the failures above: the edit is rebuilt into goals.zarr, then params.yaml names it."""
+    from pipeline.goals.store import Goals
+    from pipeline.manifest import Manifest
+
+    root = copy_workspace(pristine[0], tmp_path / "ws")
+    (tmp_path / "scratch").mkdir()
+    c = Ctx(root, tmp_path / "scratch", json.loads(json.dumps(pristine[1])))
+    c.goals_doc["goals"][0]["feedback"]["landmark"] = "It is next to the window."
+    assert main(goals_import(c, c.goals_doc)) == 0, capsys.readouterr()
+    rel = yaml.safe_load((root / "params.yaml").read_text())["goals"]["edits"][SCENE]
+    assert (root / rel).is_file() and rel.startswith("goals_edits/tiny-")
+    assert Goals(c.art / "goals.zarr").document.goals[0].feedback.landmark == "It is next to the window."
+    assert Manifest.read(root / "manifests" / SCENE / "goals.json").params[f"goals.edits.{SCENE}"] == rel
