@@ -182,6 +182,8 @@ class WorldUp:
                 self.estimate = estimate_up(depth, poses, self.intrinsics, source=self.source)
                 self.R = R_zup_from_up(self.estimate.up)
                 self.log(f"world_up auto: {self.estimate.describe()}; rotated onto +z")
+        elif not self.identity:
+            self.log(f"world_up: {self.record()['how']}; rotated onto +z")
         for b in itertools.chain(pending, blocks):
             b.T_world_camera = rotate_world(self.R, b.T_world_camera)
             yield b
