@@ -81,7 +81,9 @@ def frames_contact_sheet(frames_path: Path, out_png: Path, *, count: int = 6, wi
         row = np.concatenate(tiles, axis=1)
         cv2.putText(row, f"frame {i}", (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
         rows.append(row)
-    return write_png(out_png, np.concatenate(rows, axis=0))
+    sheet = add_colorbar(np.concatenate(rows, axis=0), 0.0, 10.0, "depth (m; black = invalid)")
+    legend = [(None, "columns: colour | depth")] + ([(None, "| instance ids (one colour each)")] if fs.has_instance else [])
+    return write_png(out_png, add_legend(sheet, legend))
 
 
 def _text_width(text: str, scale: float = 0.45) -> int:

@@ -1,4 +1,5 @@
-"""North-up PNGs of a ``recon.zarr`` grid (``zipon render <scene> --what ...``), with a scale bar."""
+"""North-up PNGs of a ``recon.zarr`` grid (``zipon render <scene> --what ...``), with a scale bar, and a colour
+bar (height) or a legend (obstacles, navigable) saying what the colours mean."""
 
 from __future__ import annotations
 
@@ -38,8 +39,34 @@ def grid_image(recon: Recon, what: str) -> tuple[np.ndarray, str]:
         top = max(float(np.nanmax(h)) if np.isfinite(h).any() else 1.0, 0.1)
         img = matplotlib.colormaps["viridis"](np.clip(np.nan_to_num(h, nan=0.0) / top, 0, 1))[..., :3]
         img[~np.isfinite(h)] = 1.0
-        return img, f"height above floor (0 .. {top:.2f} m)"
+        return img, "height of the top surface above the floor"
     raise ConfigError(f"render --what {what!r}: expected one of {', '.join(WHATS)}")
+
+
+LEGENDS = {
+    "obstacles": [((1.0, 1.0, 1.0), "free"), ((0.0, 0.0, 0.0), "occupied"), ((0.55, 0.55, 0.55), "unknown")],
+    "navigable": [((0.2, 0.7, 0.3), "navigable"), ((0.85, 0.85, 0.85), "free, too close to obstacles"),
+                  ((0.0, 0.0, 0.0), "occupied"), ((0.55, 0.55, 0.55), "unknown")],
+}
+
+
+def _key(fig, ax, recon: Recon, what: str) -> None:
+    """The colour bar of the height map (metres above the floor) or the legend of a categorical grid."""
+    if what == "height":
+        import matplotlib
+        from matplotlib.cm import ScalarMappable
+        from matplotlib.colors import Normalize
+
+        h = recon.height
+        top = max(float(np.nanmax(h)) if np.isfinite(h).any() else 1.0, 0.1)
+        bar = fig.colorbar(ScalarMappable(Normalize(0.0, top), matplotlib.colormaps["viridis"]), ax=ax,
+                           fraction=0.035, pad=0.02)
+        bar.set_label("m above the floor (white: unknown)")
+    elif what in LEGENDS:
+        from matplotlib.patches import Patch
+
+        handles = [Patch(facecolor=c, edgecolor="0.3", label=t) for c, t in LEGENDS[what]]
+        ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
 
 
 def _nice_length(span_m: float) -> float:
@@ -80,6 +107,7 @@ def render_recon(recon_path: str | Path, what: str, out_png: str | Path, *, crop
     ax.annotate("N", xy=(xb - 0.05 * (xb - xa), yb - 0.04 * (yb - ya)),
                 xytext=(xb - 0.05 * (xb - xa), yb - 0.14 * (yb - ya)), color="red", ha="center",
                 arrowprops={"arrowstyle": "->", "color": "red"})
+    _key(fig, ax, recon, what)
     ax.set_xlabel("x (m, east)")
     ax.set_ylabel("y (m, north)")
     ax.set_title(f"{Path(recon_path).parent.name}: {title}", fontsize=10)
