@@ -891,15 +891,23 @@ class StageConfig(Section):
     params keys it is built from; the stage's params digest covers exactly their values (recorded in the
     manifest, compared key by key by ``zipon status``, and listed as ``params`` in ``dvc.yaml``). A test
     perturbs every other key of the params and checks the config does not change.
+
+    The defaults serve a config whose fields are whole params sections, named as in ``params.yaml``
+    (``reconstruct: ReconstructParams``); a config that reads parts of sections or per-scene entries
+    overrides both.
     """
 
     @classmethod
     def param_keys(cls, params: Params, scene: str) -> list[str]:
-        raise NotImplementedError(f"{cls.__qualname__}.param_keys")
+        unknown = [name for name in cls.model_fields if name not in Params.model_fields]
+        if unknown:
+            raise TypeError(f"{cls.__qualname__}: fields {unknown} are not params sections; override param_keys "
+                            "and from_params")
+        return list(cls.model_fields)
 
     @classmethod
     def from_params(cls, params: Params, scene: str) -> "StageConfig":
-        raise NotImplementedError(f"{cls.__qualname__}.from_params")
+        return cls(**{name: getattr(params, name) for name in cls.param_keys(params, scene)})
 
     @classmethod
     def extra_inputs(cls, params: Params, scene: str) -> dict[str, str]:

@@ -13,7 +13,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from pipeline.config import GridParams, Params, ReconstructParams, StageConfig, digest_value
+from pipeline.config import GridParams, ReconstructParams, StageConfig, digest_value
 from pipeline.errors import StageError
 from pipeline.frames import FrameStore
 from pipeline.recon import grids as grids_mod
@@ -111,13 +111,6 @@ class Config(StageConfig):
     reconstruct: ReconstructParams
     grid: GridParams
 
-    @classmethod
-    def param_keys(cls, params: Params, scene: str) -> list[str]:
-        return ["reconstruct", "grid"]
-
-    @classmethod
-    def from_params(cls, params: Params, scene: str) -> "Config":
-        return cls(reconstruct=params.reconstruct, grid=params.grid)
 
 
 def run(ctx: StageContext) -> dict:

@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from pipeline.config import Params, RoutesParams, StageConfig
+from pipeline.config import RoutesParams, StageConfig
 from pipeline.errors import LineageError
 from pipeline.goals.store import Goals
 from pipeline.recon import Recon
@@ -32,13 +32,6 @@ class Config(StageConfig):
 
     routes: RoutesParams
 
-    @classmethod
-    def param_keys(cls, params: Params, scene: str) -> list[str]:
-        return ["routes"]
-
-    @classmethod
-    def from_params(cls, params: Params, scene: str) -> "Config":
-        return cls(routes=params.routes)
 
 
 def run(ctx: StageContext) -> dict:

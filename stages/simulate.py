@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pipeline.config import Params, SimulateParams, StageConfig
+from pipeline.config import SimulateParams, StageConfig
 from pipeline.runner import StageContext
 from pipeline.sim import simulate_scene
 
@@ -12,13 +12,6 @@ class Config(StageConfig):
 
     simulate: SimulateParams
 
-    @classmethod
-    def param_keys(cls, params: Params, scene: str) -> list[str]:
-        return ["simulate"]
-
-    @classmethod
-    def from_params(cls, params: Params, scene: str) -> "Config":
-        return cls(simulate=params.simulate)
 
 
 def run(ctx: StageContext) -> dict:
