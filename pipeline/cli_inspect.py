@@ -85,8 +85,7 @@ def goals_export(
     """
     from pipeline.goals.edits import export_goals
 
-    ws, _ = G.load()
-    out.print(str(export_goals(ws.artifact("goals", scene), out_file)))
+    out.print(str(export_goals(_scene(scene).path("goals"), out_file)))
 
 
 @goals_app.command("import")

@@ -77,10 +77,10 @@ def test_scene_page_with_pictures_and_episodes_renders_in_chromium(built_scene, 
     from orion_eval.run import run_eval
 
     ws, params = built_scene
-    run_eval(ws, params, tmp_path, methods=["vlmap", "cf"], feedback=["mixed"], seeds=[0], progress=False)
+    run_eval(ws, params, tmp_path, methods=["vlmap"], feedback=["mixed"], seeds=[0], progress=False)
     page = (tmp_path / "scenes" / "tiny.html").read_text()
     assert "Episode browser" in page and "episode_vlmap.png" in page and "goals.png" in page
-    for name in ("goals.png", "routes.png", "episode_vlmap.png", "episode_cf.png"):
+    for name in ("goals.png", "routes.png", "episode_vlmap.png"):
         assert (tmp_path / "scenes" / "tiny" / name).stat().st_size > 5000, name
     assert list((tmp_path / "scenes" / "tiny").glob("query_vlmap_*.png"))
     assert "agent (step" in page and "user:" in page  # the dialogue

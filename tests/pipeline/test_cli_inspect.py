@@ -56,6 +56,8 @@ def test_query_bad_inputs_exit_1_with_clear_messages(built_scene, capsys):
     assert "choose one of ['vlmap', 'cfmap']" in capsys.readouterr().err
     assert cli(ws, "render", "nope") == 1
     assert "unknown scene 'nope'" in capsys.readouterr().err
+    assert cli(ws, "goals", "export", "nope", "-o", "nope.yaml") == 1
+    assert "unknown scene 'nope'" in capsys.readouterr().err
 
 
 def test_query_without_candidates_says_why(built_scene, capsys):
