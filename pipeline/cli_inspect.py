@@ -346,8 +346,9 @@ def encoders_check(
 def eval_cmd(
     out_dir: Path = typer.Option(Path("eval_out"), "--out", "-o", help="folder for results.json, report.html, episode logs"),
     scenes: list[str] = typer.Option([], "--scene", "-s", help="scenes (repeatable; default: params eval.scenes)"),
-    methods: list[str] = typer.Option([], "--method", "-m", help="human | cow | vlmap | cf | orion, or "
-                                      "module:Class of your own Agent subclass (repeatable; default: eval.methods)"),
+    methods: list[str] = typer.Option([], "--method", "-m", help="human | cow | vlmap | cf | orion, a name an "
+                                      "installed package registers (entry points zipon.agents), or module:Class of "
+                                      "your own Agent subclass (repeatable; default: eval.methods)"),
     feedback: list[str] = typer.Option([], "--feedback", "-f", help="feedback settings (repeatable; default: all)"),
     seeds: Optional[int] = typer.Option(None, "--seeds", min=1, help="number of seeds: 0 .. N-1 (default: params "
                                         "eval.seeds)"),

@@ -3,7 +3,11 @@
 An agent is a subclass of :class:`orion_eval.agents.Agent` with a ``name`` and a
 ``run(m, instruction, goal_name)`` method acting through the ORION modules ``m``
 (``retrieve_map``, ``goto_object``, ``talk``, ...); pass the class itself in ``agents`` beside the
-built-in names ('human', 'cow', 'vlmap', 'cf', 'orion').
+built-in names ('human', 'cow', 'vlmap', 'cf', 'orion'), or install a package that registers it in the
+``zipon.agents`` entry-point group and pass its name::
+
+    [project.entry-points."zipon.agents"]
+    greedy = "my_package.agents:Greedy"
 """
 
 from __future__ import annotations
@@ -48,6 +52,10 @@ def agent_names(agents: Sequence | None) -> tuple[list[str] | None, dict[str, ty
     for a in agents:
         if isinstance(a, str):
             names.append(a)
+            if a not in AGENTS:
+                plugin = plugin_agent(a)
+                if plugin is not None:
+                    classes[a] = plugin
             continue
         if not (isinstance(a, type) and issubclass(a, Agent)):
             raise ConfigError(f"agents: {a!r} is neither a method name nor a subclass of orion_eval.agents.Agent")
@@ -62,3 +70,37 @@ def agent_names(agents: Sequence | None) -> tuple[list[str] | None, dict[str, ty
         classes[name] = a
         names.append(name)
     return names, classes
+
+
+ENTRY_POINT_GROUP = "zipon.agents"
+
+
+def plugin_agent(name: str) -> type | None:
+    """The Agent subclass an installed package registers as ``name`` in the ``zipon.agents`` entry points, or None."""
+    from importlib.metadata import entry_points
+
+    from orion_eval.agents import Agent
+
+    found = list(entry_points(group=ENTRY_POINT_GROUP, name=name))
+    if not found:
+        return None
+    ep = found[0]
+    try:
+        cls = ep.load()
+    except Exception as err:  # noqa: BLE001 - any import failure of a third-party package is reported the same way
+        raise ConfigError(f"agent {name!r}: entry point {ep.value!r} ({ENTRY_POINT_GROUP}) failed to load: "
+                          f"{type(err).__name__}: {err}") from None
+    if not (isinstance(cls, type) and issubclass(cls, Agent)):
+        raise ConfigError(f"agent {name!r}: entry point {ep.value!r} ({ENTRY_POINT_GROUP}) is not a subclass of "
+                          f"orion_eval.agents.Agent")
+    if getattr(cls, "name", None) != name:
+        raise ConfigError(f"agent {name!r}: entry point {ep.value!r} names a class whose `name` is "
+                          f"{getattr(cls, 'name', None)!r}; they must agree")
+    return cls
+
+
+def plugin_agent_names() -> list[str]:
+    """Names registered in the ``zipon.agents`` entry-point group (installed packages)."""
+    from importlib.metadata import entry_points
+
+    return sorted({ep.name for ep in entry_points(group=ENTRY_POINT_GROUP)})
