@@ -7,10 +7,12 @@ smooth synthetic images. Each log size is written and ingested in its own subpro
 compares the two ways of decoding ``sensor_msgs/Image``: the numpy CDR parser the reader uses, and
 ``mcap_ros2``'s generic decoder, and the readers: the MCAP fast path (``mcap``) against ``rosbags``
 reading the same log as ``.mcap``, as a ROS 1 ``.bag`` and as a ROS 2 ``.db3`` (converted with
-``rosbags.convert``). One JSON object per line on stdout.
+``rosbags.convert``), and the same frames written as 7-Scenes, TUM, Replica and ScanNet folders (by the
+test fixtures' writers, ``tests/fixtures/raw_datasets.py``). One JSON object per line on stdout.
 
     .venv/bin/python benchmarks/bench_ingest.py [--sizes 140 1400] [--transport raw|compressed]
-        [--codecs zstd lz4] [--readers mcap rosbag-mcap rosbag-ros1 rosbag-db3] [--synthetic]
+        [--codecs zstd lz4] [--readers mcap rosbag-mcap rosbag-ros1 rosbag-db3 7scenes tum replica scannet]
+        [--synthetic]
 """
 
 from __future__ import annotations
@@ -115,6 +117,37 @@ def child_convert(log: Path, out: Path, kind: str) -> dict:
             "bag_mb": round(size / 2**20, 1)}
 
 
+class _Cycled:
+    """Frame ``i`` of ``n`` is ``frames[i % len(frames)]``, without materialising ``n`` frames."""
+
+    def __init__(self, frames: np.ndarray, n: int):
+        self.frames, self.n = frames, n
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        return self.frames[i % len(self.frames)]
+
+
+def child_folder(frames: Path, n: int, out: Path, fmt: str) -> dict:
+    """Write ``n`` frames as a ``fmt`` dataset folder with the test fixtures' writers; returns its path."""
+    sys.path.insert(0, str(ROOT))
+    from pipeline.geometry import Intrinsics
+    from tests.fixtures import raw_datasets as rd
+
+    data = np.load(frames)
+    stamps = rd.T0_NS + np.round(np.arange(n) * 1e9 / FPS).astype(np.int64)
+    rec = rd.Recording(_Cycled(data["rgb"], n), _Cycled(data["depth"], n), _Cycled(data["instance"], n),
+                       rd.trajectory((stamps - rd.T0_NS) * 1e-9), stamps, Intrinsics.from_hfov(W, H, 90.0))
+    writers = {"7scenes": rd.write_7scenes, "tum": rd.write_tum, "replica": rd.write_replica,
+               "scannet": rd.write_scannet}
+    t0 = time.perf_counter()
+    root = writers[fmt](out, rec)
+    return {"what": "write_folder", "format": fmt, "frames": n, "seconds": round(time.perf_counter() - t0, 2),
+            "path": str(root)}
+
+
 def child_ingest(log: Path, out: Path, n: int, codec: str, fmt: str = "auto") -> dict:
     """Ingest ``log``; wall and CPU time (the machine may be shared: CPU seconds per frame is the stable figure)."""
     from pipeline.config import IngestParams
@@ -178,11 +211,13 @@ def _child(argv: list[str]) -> dict:
 
 # reader variant -> (container written from the MCAP log, --format)
 READERS = {"mcap": (None, "mcap"), "rosbag-mcap": (None, "rosbag"), "rosbag-ros1": ("log.bag", "rosbag"),
-           "rosbag-db3": ("log_db3", "rosbag")}
+           "rosbag-db3": ("log_db3", "rosbag"), "7scenes": ("folder", "7scenes"), "tum": ("folder", "tum"),
+           "replica": ("folder", "replica"), "scannet": ("folder", "scannet")}
 
 
 def compare_readers(tmp: Path, log: Path, n: int, codec: str, names: list[str], mcap_result: dict | None) -> dict:
-    """Ingest the same frames through each reader variant; returns name -> ingest result."""
+    """Ingest the same frames through each reader variant; returns name -> ingest result. Folder formats
+    synthesise their own stamps (and TUM interpolates poses), so only the reading cost compares."""
     out = {}
     for name in names:
         container, fmt = READERS[name]
@@ -190,7 +225,11 @@ def compare_readers(tmp: Path, log: Path, n: int, codec: str, names: list[str], 
             out[name] = mcap_result
             continue
         src = log
-        if container:
+        if container == "folder":
+            written = _child(["folder", str(tmp / "frames.npz"), str(n), str(tmp / f"folder_{name}"), fmt])
+            print(json.dumps(written), flush=True)
+            src = Path(written["path"])
+        elif container:
             src = tmp / container
             print(json.dumps(_child(["convert", str(log), str(src), name])), flush=True)
         res = _child(["ingest", str(src), str(tmp / f"frames_{name}.zarr"), str(n), codec, fmt])
@@ -220,6 +259,8 @@ def main() -> None:
             res = child_ingest(Path(rest[0]), Path(rest[1]), int(rest[2]), rest[3], rest[4])
         elif kind == "convert":
             res = child_convert(Path(rest[0]), Path(rest[1]), rest[2])
+        elif kind == "folder":
+            res = child_folder(Path(rest[0]), int(rest[1]), Path(rest[2]), rest[3])
         elif kind == "frames":
             res = {"origin": make_frames(Path(rest[0]), int(rest[1]), bool(int(rest[2])))}
         else:

@@ -91,7 +91,9 @@ class ScanNetReader(Reader):
         depth = Intrinsics.from_K(K_d, wd, hd) if K_d is not None else self.out
         E = {n: _matrix(intr_dir / f"extrinsic_{n}.txt", f"{n} extrinsics") if (intr_dir / f"extrinsic_{n}.txt").is_file()
              else np.eye(4) for n in ("color", "depth")}
-        self.registration = DepthRegistration(depth, self.out, invert_pose(E["color"]) @ E["depth"])
+        T_color_depth = invert_pose(E["color"]) @ E["depth"]
+        same = depth == self.out and np.allclose(T_color_depth, np.eye(4), rtol=0, atol=1e-12)
+        self.registration = None if same else DepthRegistration(depth, self.out, T_color_depth)
         self.stamps = frame_stamps_ns(np.array(self.ids), self.params.folder_fps)
         return SourceInfo(
             intrinsics=self.out, has_instance=False, pose_chain=[PoseLink("world", "camera")],
@@ -102,7 +104,9 @@ class ScanNetReader(Reader):
                 "conversions": [
                     f"colour: {wc}x{hc} resampled to the depth's {wd}x{hd} (area); K "
                     f"{'ingest.camera_override' if o else 'intrinsic_color.txt'} scaled: {self.out.to_dict()}",
-                    f"depth: {self.registration.describe()} (intrinsic_depth.txt, extrinsic_*.txt)",
+                    "depth: " + (f"{self.registration.describe()} (intrinsic_depth.txt, extrinsic_*.txt)"
+                                 if self.registration else "on the colour camera (same K at the depth size, identity "
+                                 "extrinsics): stored as recorded"),
                     f"stamps: synthesised as frame number / ingest.folder_fps ({self.params.folder_fps} Hz)",
                     f"pose: pose/N.txt camera(optical)-to-world, re-orthonormalised by SVD (ingest.pose_orthonormal_tol"
                     f" = {self.params.pose_orthonormal_tol}); {len(dropped)} frames with -inf poses dropped; "
@@ -115,8 +119,11 @@ class ScanNetReader(Reader):
         for k, (i, stamp) in enumerate(zip(self.ids, self.stamps.tolist())):
             yield Sample(POSE, stamp, k, self.poses[i], key="world->camera", rigid=True)
             yield Sample(RGB, stamp, k, lambda i=i, k=k: self._colour(i, k))
-            yield Sample(DEPTH, stamp, k, lambda i=i, k=k: self.registration(
-                read_depth16(self.path / f"depth/{i}.png", k, "uint16 millimetres")))
+            yield Sample(DEPTH, stamp, k, lambda i=i, k=k: self._depth(i, k))
+
+    def _depth(self, i: int, k: int) -> np.ndarray:
+        depth = read_depth16(self.path / f"depth/{i}.png", k, "uint16 millimetres")
+        return self.registration(depth) if self.registration else depth
 
     def _colour(self, i: int, k: int) -> np.ndarray:
         img = read_image(self.path / f"color/{i}.{self.color_ext}", flags=cv2.IMREAD_COLOR, frame=k, what="colour")
