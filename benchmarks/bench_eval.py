@@ -3,8 +3,10 @@
     .venv/bin/python benchmarks/bench_eval.py                       # builds one simulated scene in a temp dir
     .venv/bin/python benchmarks/bench_eval.py --params PATH [--scene S]   # an existing workspace
 
-Prints one JSON object per line:
+Prints one JSON object per line (the built scene's maps come from the simulated perception models,
+``encoders.simulated: perception``, and the CoW / ORION agents detect with the simulated detector):
 
+- ``perception``: which perception model built each map and what detection runs on;
 - ``retrieve_map``: ms per query (first call per text, i.e. MapQuery + candidates; and cached);
 - ``episodes``: per method, episodes/s over one scene x 7 feedback settings x 5 seeds (one process),
   against the reference of the same episodes with a FRESH scene context per episode (no shared
@@ -40,7 +42,7 @@ BUILD = """\
 scenes:
   bench: {source: simulate}
 simulate: {frames: 240, width: 320, height: 240}
-encoders: {simulated: oracle, oracle: {out_size: [60, 80]}}
+encoders: {simulated: perception}
 """
 
 
@@ -76,6 +78,11 @@ def main() -> None:
     scene = args.scene or next(iter(params.scenes))
     arts = Artifacts(ws, params, scene)
     ctx = SceneContext(arts)
+    from orion_eval.run import _detection_kind, _encoder_names
+
+    encoders = _encoder_names(ws, params, scene)
+    print(json.dumps({"bench": "eval", "figure": "perception", "maps": {k: v["kind"] for k, v in encoders.items()},
+                      "detection": _detection_kind(params, encoders)}))
 
     # retrieve_map: the first query of a text (MapQuery + candidates) and a repeated one
     names = [g.name for g in arts.goals.goals]

@@ -4,8 +4,9 @@ and the oracle's retrieval figures under controlled noise.
 Segmentation (the figures the simulated perception models are calibrated on, ConceptFusion's protocol
 as used in ConceptGraphs Table I): every map cell is labelled with the best-scoring text among the
 scene's object classes and the background words (wall, floor, ceiling, other); over the ground-truth
-object cells (``class_masks``; object cells the map never observed count as misses, background cells
-are left out, as Replica's wall / floor / ceiling are), per class accuracy = recall and IoU, then
+object cells (``class_masks``; a cell the map never observed takes its nearest observed cell's label, as
+the protocol labels each ground-truth point by its nearest map point; background cells are left out,
+as Replica's wall / floor / ceiling are), per class accuracy = recall and IoU, then
 ``mAcc`` = mean accuracy over classes and ``F-mIoU`` = IoU weighted by each class's share of cells.
 
 Modes (one JSON object per line, then a table):
@@ -31,6 +32,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+from scipy.ndimage import distance_transform_edt
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
@@ -57,9 +59,15 @@ def segmentation_metrics(mq: MapQuery, gt: GTScene) -> dict:
     label = np.full(grid.rows * grid.cols, -1, np.int64)
     for i, c in enumerate(classes):  # a cell in two classes' masks keeps the later class (rare: stacked objects)
         label[masks[c].ravel()] = i
-    pred = np.full(grid.rows * grid.cols, -2, np.int64)  # unobserved: no prediction (a miss)
+    pred = np.full(grid.rows * grid.cols, -2, np.int64)
     text = mq.text_features(classes + list(BACKGROUND_VOCAB))
     pred[mq.map.cell] = mq.map.dot(text).argmax(dim=1).numpy()
+    # a ground-truth cell the map never observed takes the label of the nearest observed cell (the protocol
+    # labels each ground-truth point by its nearest map point)
+    seen = (pred >= 0).reshape(grid.rows, grid.cols)
+    if seen.any():
+        _, (rr, cc) = distance_transform_edt(~seen, return_indices=True)
+        pred = pred.reshape(grid.rows, grid.cols)[rr, cc].ravel()
     ev = label >= 0
     n_eval = int(ev.sum())
     per_class, accs, fiou = {}, [], 0.0

@@ -57,14 +57,15 @@ class _PerceptionParams(_Section):
     seed: int = Field(0, description="seed of every draw (per object and per frame); the same seed gives the same map")
     out_size: CellSize = Field((120, 160), description="feature (height, width), cells (LSeg and ConceptFusion: 120x160)")
     confusion_temperature: float = Field(
-        0.02, gt=0, description="a confused object takes class c' with probability ~ exp(cos(c, c') / T) over all "
-        "LVIS names (real CLIP similarities: chair->armchair/stool, desk->table); T = 0.02 puts most mass on the "
-        "3-5 nearest names (modelling choice)"
+        0.02, gt=0, description="a confused object takes class c' with probability ~ exp(cos(c, c') / T) over the "
+        "scene's other classes and the background (real CLIP similarities: desk->table 0.93, cabinet->nightstand); "
+        "T = 0.02 puts most mass on the 2-3 nearest (modelling choice)"
     )
     object_confusion: float = Field(
         0.35, ge=0, le=1, description="probability an object is confused in most views (a persistent error: the same "
-        "object looks like its neighbour class from every side); set with frame_confusion so the map's mAcc on the "
-        "demo scenes lands near the published figure (see benchmarks/quality_maps.py)"
+        "object looks like its neighbour class from every side); set with blur_cells so the vlmap's mAcc / F-mIoU "
+        "on sim_00 (41.0 / 44.5 at blur 2.5; 52.8 / 49.7 at 0.2 and blur 4) brackets LSeg's 33.4 / 51.5 "
+        "(benchmarks/quality_maps.py)"
     )
     object_confusion_strength: tuple[float, float] = Field(
         (0.5, 1.0), description="mixing weight (uniform in [lo, hi]) of the confused class in a persistently "
@@ -93,7 +94,7 @@ class SimulatedLSegParams(_PerceptionParams):
     confusions toward CLIP-similar classes, low-confidence background. Not a trained model."""
 
     blur_cells: float = Field(
-        2.5, ge=0, description="gaussian sigma (feature cells) of the per-class masks before features are mixed: "
+        3.0, ge=0, description="gaussian sigma (feature cells) of the per-class masks before features are mixed: "
         "LSeg's ViT-L/16 tokens are 16 px of a 480 px crop (4 cells of 120), its decoder upsamples them, so edges "
         "bleed over ~2-3 cells and objects thinner than ~2 cells are washed out"
     )
@@ -104,17 +105,18 @@ class SimulatedCFParams(_PerceptionParams):
     neighbouring regions, global-context mixing. Not a trained model."""
 
     object_confusion: float = Field(
-        0.45, ge=0, le=1, description="as for the LSeg-like model; higher: a region's CLIP crop is classified as "
-        "a whole (ConceptFusion mAcc 24.2 vs LSeg 33.4 in ConceptGraphs Table I)"
+        0.7, ge=0, le=1, description="as for the LSeg-like model; higher: a region's CLIP crop is classified as "
+        "a whole (ConceptFusion mAcc 24.2 / F-mIoU 31.3 vs LSeg 33.4 / 51.5 in ConceptGraphs Table I; on sim_00 "
+        "0.45 gave 36.6 / 49.3, 0.6 with merge 0.3 gave 31.5 / 46.7, benchmarks/quality_maps.py)"
     )
-    object_confusion_strength: tuple[float, float] = Field((0.6, 1.0), description="see simulated_lseg")
+    object_confusion_strength: tuple[float, float] = Field((0.7, 1.0), description="see simulated_lseg")
     frame_confusion: float = Field(0.2, ge=0, le=1, description="see simulated_lseg (a whole region per frame)")
     attribute_weight: float = Field(
         0.5, ge=0, description="CLIP crops keep colour and material better than LSeg's class-trained head "
         "(modelling choice: text side uses 0.5 for colour)"
     )
     merge_probability: float = Field(
-        0.15, ge=0, le=1, description="per frame, probability two touching objects are one region (SAM/felzenszwalb "
+        0.3, ge=0, le=1, description="per frame, probability two touching objects are one region (SAM/felzenszwalb "
         "under-segmentation: the lamp with its nightstand); both get the area-weighted mean feature"
     )
     min_region_frac: float = Field(

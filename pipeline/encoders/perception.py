@@ -10,9 +10,10 @@ ground-truth diagnostic. Settings and the figure each was set from: :mod:`pipeli
 Both read the frame's instance image and the scene's ground truth (``bind_scene``). Per object,
 once per scene: its class feature (the class's CLIP row), plus its colour / material directions with
 ``attribute_weight``; with probability ``object_confusion`` it is persistently mixed toward a class c'
-drawn from ``exp(cos(c, c') / confusion_temperature)`` over all LVIS names (so chairs turn into
-armchairs or stools, desks into tables, far more often than into toilets). Per frame and object, with
-probability ``frame_confusion`` it takes a freshly drawn c' in that view.
+drawn from ``exp(cos(c, c') / confusion_temperature)`` over the scene's other classes and the
+background (so desks turn into tables, cabinets into nightstands, far more often than chairs into
+toilets). Per frame and object, with probability ``frame_confusion`` it takes a freshly drawn c' in
+that view.
 
 ``simulated_lseg`` (dense, the vlmap's): every cell mixes the features of the classes around it with
 gaussian weights of ``blur_cells`` (boundary bleeding; thin and small objects washed out by the
@@ -83,8 +84,7 @@ class SimulatedPerception(Encoder):
         self.weights = self.space.path  # the embeddings file is this model's 'weights' (digest in identity)
         self.out_size = tuple(params.out_size)
         self._gt: GTScene | None = None
-        # confusion distribution over LVIS rows (cumulative), per distinct class vector
-        self._lvis_cum_cache: dict[bytes, np.ndarray] = {}
+        self._cum_cache: dict[bytes, np.ndarray] = {}  # confusion distribution (cumulative) per class vector
 
     @classmethod
     def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "SimulatedPerception":
@@ -107,17 +107,18 @@ class SimulatedPerception(Encoder):
 
     # ------------------------------------------------------------------ per-object tables
     def _confused(self, base: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """LVIS rows drawn for each of ``base`` (N,D) class vectors at uniforms ``u`` (N,) (itself excluded)."""
+        """Rows of the scene's vocabulary (its classes and the background) drawn for each of ``base`` (N,D)
+        class vectors at uniforms ``u`` (N,), itself excluded."""
         out = np.empty((len(base), self.dim))
         for i, b in enumerate(base):  # one draw per object (not per pixel)
             k = b.tobytes()
-            if k not in self._lvis_cum_cache:
-                s = self.space.rows @ b
-                logits = np.where(s > 0.999, -np.inf, (s - s.max()) / self.p.confusion_temperature)
-                pr = np.exp(logits - logits[np.isfinite(logits)].max())
-                self._lvis_cum_cache[k] = np.cumsum(pr / pr.sum())
-            cum = self._lvis_cum_cache[k]
-            out[i] = self.space.rows[min(int(np.searchsorted(cum, u[i])), len(cum) - 1)]
+            if k not in self._cum_cache:
+                s = self._vocab @ b
+                logits = np.where(s > 0.999, -np.inf, s / self.p.confusion_temperature)
+                pr = np.exp(logits - logits[np.isfinite(logits)].max()) if np.isfinite(logits).any() else s * 0 + 1
+                self._cum_cache[k] = np.cumsum(pr / pr.sum())
+            cum = self._cum_cache[k]
+            out[i] = self._vocab[min(int(np.searchsorted(cum, u[i])), len(cum) - 1)]
         return out
 
     def bind_scene(self, gt: "GTScene | None") -> None:
@@ -131,6 +132,10 @@ class SimulatedPerception(Encoder):
         self._attr = np.stack([self.space.compose([], [" ".join(o.color_name.lower().split())], [o.material],
                                                   self.p.attribute_weight, self.p.attribute_weight * 0.6)
                                for o in objs]) if objs else np.zeros((0, self.dim))
+        self._background = self.space.background_vector
+        self._scene_classes = np.unique(self._class, axis=0) if objs else np.zeros((0, self.dim))
+        self._vocab = np.concatenate([self._scene_classes, self._background[None]])
+        self._cum_cache = {}
         rng = np.random.default_rng([self.p.seed, int.from_bytes(
             hashlib.blake2b(f"{self.name}\0{gt.name}".encode(), digest_size=8).digest(), "little")])
         n = len(objs)
@@ -139,8 +144,6 @@ class SimulatedPerception(Encoder):
         strength = np.where(hit, rng.uniform(lo, hi, n), 0.0)
         other = self._confused(self._class, rng.random(n)) if n else self._class
         self._identity = (1 - strength)[:, None] * self._class + strength[:, None] * other
-        self._scene_classes = np.unique(self._class, axis=0) if n else np.zeros((0, self.dim))
-        self._background = self.space.background_vector
 
     def _object_rows(self, ids: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """``(K,D)`` features of the objects ``ids`` (row index into the scene's objects) in this frame."""

@@ -137,9 +137,10 @@ def test_confusions_go_to_clip_similar_classes(name, space):
     own = np.stack([space.class_vector(c) for c in classes])
     centre = out[30, [i * 10 + 4 for i in range(len(classes))]]  # (8,D)
     cos_own = (centre * own).sum(1)
-    assert (cos_own < 0.99).all()  # every object took another class ...
-    # ... a CLIP neighbour of its own (all LVIS rows: mean cosine 0.74)
-    assert np.mean(cos_own) > 0.82
+    assert (cos_own < 0.99).all()  # every object took another class of the scene ...
+    pair = own @ own.T
+    random_other = (pair.sum() - np.trace(pair)) / (len(classes) * (len(classes) - 1))
+    assert np.mean(cos_own) > random_other + 0.03  # ... mostly a CLIP neighbour, not a random one
 
 
 # ----------------------------------------------------------------------------- LSeg-like
