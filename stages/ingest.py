@@ -36,7 +36,8 @@ def ingest(source: Path, out_path: Path, params: IngestParams, fmt: str = "auto"
     log(f"reading {label} as {reader.name}: {info.intrinsics.width}x{info.intrinsics.height}, "
         f"pose from {' -> '.join(lk.name for lk in info.pose_chain)}")
     matcher = FrameMatcher(info, params, label)
-    world = WorldUp(params, reader.world_up, info.intrinsics, source=label, log=log)
+    world = WorldUp(params, reader.world_up, info.intrinsics, levelled=reader.world_up_levelled, source=label,
+                    log=log)
     if info.ground_truth is not None and not world.identity:
         raise InputDataError(f"ingest.world_up {params.world_up!r} would rotate a log that carries ground truth",
                              path=label, field="ingest.world_up", expected="'dataset' or '+z' for simulated logs")

@@ -91,8 +91,10 @@ class Reader(ABC):
     """A raw format. Subclasses are registered with :func:`register` and built by :func:`open_reader`."""
 
     name: ClassVar[str]
-    # The up axis of the dataset's world as documented by the dataset (ingest.world_up 'dataset').
+    # The up axis of the dataset's world as documented by the dataset (ingest.world_up 'dataset'), and whether
+    # that axis is up only approximately (levelled on the floor when one is found, pipeline.readers.world_up).
     world_up: ClassVar[str] = "+z"
+    world_up_levelled: ClassVar[bool] = False
 
     def __init__(self, path: Path, params: IngestParams):
         self.path = Path(path)

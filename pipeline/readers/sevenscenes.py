@@ -8,8 +8,8 @@ to colour (a known property of 7-Scenes); frames are stored as given.
 
 Poses as released are orthonormal only to their print precision (~2.5e-4 on real sequences): each
 is re-orthonormalised by SVD within ``ingest.pose_orthonormal_tol`` and refused beyond it, naming
-the file. The world is the first Kinect frame, so y points down: ``world_up`` is ``-y`` (turned
-to z-up by :mod:`pipeline.readers.world_up`; ``ingest.world_up: auto`` levels it on the floor).
+the file. The world is the first Kinect frame, so y points down, as far as that frame was level:
+``world_up`` is ``-y``, levelled on the floor when one is seen (:mod:`pipeline.readers.world_up`).
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ class SevenScenesReader(Reader):
     """See the module doc."""
 
     world_up = "-y"
+    world_up_levelled = True  # the first Kinect frame is level only as far as the person held it level
 
     @classmethod
     def detect(cls, path: Path) -> bool:

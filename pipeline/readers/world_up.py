@@ -3,7 +3,11 @@
 zipon's world is z-up (DESIGN.md); datasets are not: 7-Scenes' world is the first Kinect frame
 (y down), Habitat's is y up. ``ingest.world_up`` states the source world's up axis:
 
-- ``dataset`` (default): the reader's documented convention (:attr:`Reader.world_up`);
+- ``dataset`` (default): the reader's documented convention (:attr:`Reader.world_up`). Where that axis
+  is up only approximately (:attr:`Reader.world_up_levelled`: 7-Scenes' world is its first camera,
+  y down only as far as that camera was level), the floor found as for ``auto`` levels it when the
+  floor's normal lies within ``LEVEL_MAX_TILT_DEG`` of the axis; otherwise the axis is used as is.
+  Both outcomes are logged;
 - ``+z``, ``-z``, ``+y``, ``-y``, ``+x``, ``-x``: stated by the user;
 - ``auto``: gravity estimated as the normal of the dominant horizontal plane (the floor, or a table
   top in close-up sequences: both are level) in the first ``ingest.world_up_auto_frames`` frames.
@@ -30,6 +34,7 @@ from pipeline.frames import FrameBlock
 from pipeline.geometry import WORLD_UP_AXES, Intrinsics, R_zup_from_up, rotate_world
 
 PRIOR_MAX_ANGLE_DEG = 35.0  # surface normals this close to the prior (level image-right axes) may be the floor
+LEVEL_MAX_TILT_DEG = 30.0  # a documented axis is levelled on the floor when the floor lies this close to it
 WIDE_PRIOR_ANGLE_DEG = 60.0  # ... to the cameras' mean image-up, which the pitch tilts (cameras that never turned)
 PLANE_BAND_M = 0.03  # half-height of the band of points fit as the plane
 MIN_PLANE_POINTS = 500
@@ -127,49 +132,75 @@ def _level_plane(n_w: np.ndarray, p_w: np.ndarray, prior: np.ndarray, cone_deg: 
     return up, len(pts)
 
 
-def estimate_up(depth_mm: np.ndarray, T_world_camera: np.ndarray, intr: Intrinsics, *, source: str = "",
-                max_frames: int = 16) -> UpEstimate:
+def find_level_plane(depth_mm: np.ndarray, T_world_camera: np.ndarray, intr: Intrinsics, *, max_frames: int = 16
+                     ) -> UpEstimate | str:
     """Up ``(3,)`` of the world of ``T_world_camera`` ``(N,4,4)`` from depth ``(N,H,W)`` uint16 mm: the plane
-    with the most points among those found near each of :func:`gravity_priors`.
-
-    Raises :class:`InputDataError` when no level plane can be found (say the axis with ``ingest.world_up``).
-    """
+    with the most points among those found near each of :func:`gravity_priors`; or why there is none."""
     n = len(depth_mm)
-    advice = "a level floor or table seen from above; or set ingest.world_up to the dataset's up axis"
     priors = gravity_priors(T_world_camera)
     if not priors:
-        raise InputDataError("world_up auto: the cameras' image-up directions disagree, no prior for gravity",
-                             path=source, field="ingest.world_up", expected=advice)
+        return "the cameras' image-up directions disagree, no prior for gravity"
     pick = np.unique(np.round(np.linspace(0, n - 1, min(n, max_frames))).astype(int))
     n_w, p_w = _surface_samples(depth_mm, T_world_camera, intr, pick)
     up, points = max((_level_plane(n_w, p_w, g, cone) for g, cone in priors), key=lambda r: r[1])
     if points == 0:
-        raise InputDataError(f"world_up auto: no level plane of {MIN_PLANE_POINTS}+ depth samples in the first {n} "
-                             "frames", path=source, field="ingest.world_up", expected=advice)
+        return f"no level plane of {MIN_PLANE_POINTS}+ depth samples in the first {n} frames"
     axis, tilt = _nearest_axis(up)
     return UpEstimate(up=up, nearest_axis=axis, tilt_deg=tilt, plane_points=points, frames=len(pick))
+
+
+def estimate_up(depth_mm: np.ndarray, T_world_camera: np.ndarray, intr: Intrinsics, *, source: str = "",
+                max_frames: int = 16) -> UpEstimate:
+    """:func:`find_level_plane`, raising :class:`InputDataError` when there is none (state the axis instead)."""
+    found = find_level_plane(depth_mm, T_world_camera, intr, max_frames=max_frames)
+    if isinstance(found, str):
+        raise InputDataError(f"world_up auto: {found}", path=source, field="ingest.world_up",
+                             expected="a level floor or table seen from above; or set ingest.world_up to the "
+                                      "dataset's up axis")
+    return found
 
 
 class WorldUp:
     """The world-up conversion of one ingest: :meth:`apply` rotates the poses of every block."""
 
-    def __init__(self, params: IngestParams, dataset_up: str, intrinsics: Intrinsics, *, source: str = "",
-                 log: Callable[[str], None] = print):
+    def __init__(self, params: IngestParams, dataset_up: str, intrinsics: Intrinsics, *, levelled: bool = False,
+                 source: str = "", log: Callable[[str], None] = print):
         self.setting = params.world_up
         self.auto_frames = params.world_up_auto_frames
         self.intrinsics, self.source, self.log = intrinsics, source, log
         self.estimate: UpEstimate | None = None
+        self.level_note = ""
         self.source_up = dataset_up if self.setting == "dataset" else self.setting
+        self.levelled = levelled and self.setting == "dataset"
         self.R = None if self.setting == "auto" else R_zup_from_up(self.source_up)
 
     @property
     def identity(self) -> bool:
-        return self.setting != "auto" and self.source_up == "+z"
+        return self.setting != "auto" and self.source_up == "+z" and not self.levelled
+
+    def _find_floor(self, pending: list[FrameBlock]) -> None:
+        depth = np.concatenate([b.depth_mm for b in pending])[: self.auto_frames]
+        poses = np.concatenate([b.T_world_camera for b in pending])[: self.auto_frames]
+        if self.setting == "auto":
+            self.estimate = estimate_up(depth, poses, self.intrinsics, source=self.source)
+            self.R = R_zup_from_up(self.estimate.up)
+            self.log(f"world_up auto: {self.estimate.describe()}; rotated onto +z")
+            return
+        est = find_level_plane(depth, poses, self.intrinsics)
+        if isinstance(est, str):
+            self.level_note = f"not levelled: {est}"
+        elif est.nearest_axis == self.source_up and est.tilt_deg <= LEVEL_MAX_TILT_DEG:
+            self.estimate, self.R = est, R_zup_from_up(est.up)
+            self.level_note = f"levelled on the floor: {est.describe()}"
+        else:
+            self.level_note = (f"not levelled: the densest level plane ({est.describe()}) is not within "
+                               f"{LEVEL_MAX_TILT_DEG} deg of {self.source_up}")
+        self.log(f"world_up: {self.record()['how']}; rotated onto +z")
 
     def apply(self, blocks: Iterable[FrameBlock]) -> Iterator[FrameBlock]:
         blocks = iter(blocks)
         pending: list[FrameBlock] = []
-        if self.R is None:  # auto: hold the first frames back until the floor is found in them
+        if self.R is None or self.levelled:  # hold the first frames back until the floor is found in them
             held = 0
             for b in blocks:
                 pending.append(b)
@@ -177,11 +208,7 @@ class WorldUp:
                 if held >= self.auto_frames:
                     break
             if pending:
-                depth = np.concatenate([b.depth_mm for b in pending])[: self.auto_frames]
-                poses = np.concatenate([b.T_world_camera for b in pending])[: self.auto_frames]
-                self.estimate = estimate_up(depth, poses, self.intrinsics, source=self.source)
-                self.R = R_zup_from_up(self.estimate.up)
-                self.log(f"world_up auto: {self.estimate.describe()}; rotated onto +z")
+                self._find_floor(pending)
         elif not self.identity:
             self.log(f"world_up: {self.record()['how']}; rotated onto +z")
         for b in itertools.chain(pending, blocks):
@@ -191,14 +218,19 @@ class WorldUp:
     def record(self) -> dict:
         """What goes into frames.zarr attrs ``world_up``."""
         rec = {"setting": self.setting,
-               "source_up": self.source_up if self.estimate is None else self.estimate.up.tolist(),
+               "source_up": self.source_up if self.setting != "auto" or self.estimate is None
+               else self.estimate.up.tolist(),
                "R_zup_from_source": None if self.R is None else self.R.tolist()}
         if self.setting == "dataset":
             rec["how"] = f"the reader's documented convention: the dataset's world has {self.source_up} up"
+            if self.level_note:
+                rec["how"] += f", {self.level_note}"
         elif self.estimate is not None:
             rec["how"] = f"estimated: {self.estimate.describe()}"
-            rec["estimate"] = {"nearest_axis": self.estimate.nearest_axis, "tilt_deg": self.estimate.tilt_deg,
-                               "plane_points": self.estimate.plane_points, "frames": self.estimate.frames}
         else:
             rec["how"] = f"stated by ingest.world_up: {self.source_up} up"
+        if self.estimate is not None:
+            rec["estimate"] = {"up": self.estimate.up.tolist(), "nearest_axis": self.estimate.nearest_axis,
+                               "tilt_deg": self.estimate.tilt_deg, "plane_points": self.estimate.plane_points,
+                               "frames": self.estimate.frames}
         return rec

@@ -24,6 +24,21 @@ def rendered(tmp_path_factory):
     return write_7scenes_rendered(tmp_path_factory.mktemp("sevenscenes"))
 
 
+@pytest.fixture(scope="module")
+def tilted(rendered, tmp_path_factory):
+    """The rendered sequence as if its first Kinect frame had been pitched 12 deg: the y-down world is tilted."""
+    import shutil
+
+    root, poses, gt = rendered
+    copy = tmp_path_factory.mktemp("tilted") / "seq-01"
+    shutil.copytree(root, copy)
+    a = np.radians(12.0)
+    Rx = np.array([[1, 0, 0, 0], [0, np.cos(a), -np.sin(a), 0], [0, np.sin(a), np.cos(a), 0], [0, 0, 0, 1.0]])
+    for f in sorted(copy.glob("frame-*.pose.txt")):
+        np.savetxt(f, Rx @ np.loadtxt(f), fmt="%.7e")
+    return copy, poses, gt
+
+
 def test_stamps_from_folder_fps_and_invalid_depth(tmp_path):
     rec = make_recording(4)
     root = write_7scenes(tmp_path, rec)
@@ -42,7 +57,8 @@ def test_released_poses_are_reorthonormalised_and_turned_z_up(tmp_path):
     assert 1e-4 < rigid_error(on_disk) < 1e-3  # as released: not rigid to the matcher's 1e-4
     logs = []
     ingest_path(root, tmp_path / "f.zarr", IngestParams(), log=logs.append)
-    assert "world_up: the reader's documented convention: the dataset's world has -y up; rotated onto +z" in logs
+    assert ("world_up: the reader's documented convention: the dataset's world has -y up, not levelled: no level "
+            "plane of 500+ depth samples in the first 5 frames; rotated onto +z") in logs  # random depth: no floor
     fs = FrameStore(tmp_path / "f.zarr")
     assert rigid_error(fs.poses()).max() < 1e-12
     assert np.abs(fs.poses() - rec.poses).max() < 1e-3  # y-down world -> the recording's z-up world
@@ -108,6 +124,22 @@ def test_auto_world_up_finds_the_floor(rendered, tmp_path):
     assert np.abs(fs.poses()[:, 2, :] - poses[:, 2, :]).max() < 3e-3
 
 
+def test_tilted_first_frame_is_levelled_on_the_floor(tilted, tmp_path):
+    root, poses, _ = tilted
+    logs = []
+    ingest_path(root, tmp_path / "f.zarr", IngestParams(), log=logs.append)
+    fs = FrameStore(tmp_path / "f.zarr")
+    up = fs.attrs["world_up"]
+    assert up["source_up"] == "-y" and "levelled on the floor" in up["how"]
+    assert up["estimate"]["tilt_deg"] == pytest.approx(12.0, abs=0.2)
+    assert np.abs(fs.poses()[:, 2, :] - poses[:, 2, :]).max() < 5e-3  # optical axes and heights as rendered
+    assert any("levelled on the floor" in m for m in logs)
+    # stating the axis takes it literally: the floor stays 12 deg off
+    ingest_path(root, tmp_path / "g.zarr", IngestParams(world_up="-y"), **QUIET)
+    off = np.abs(FrameStore(tmp_path / "g.zarr").poses()[:, 2, :3] - poses[:, 2, :3]).max()
+    assert off > np.sin(np.radians(12.0)) * 0.5
+
+
 def test_auto_world_up_without_a_level_plane_is_refused(tmp_path):
     rec = make_recording(4)  # random depth: no plane anywhere
     root = write_7scenes(tmp_path, rec)
@@ -116,9 +148,10 @@ def test_auto_world_up_without_a_level_plane_is_refused(tmp_path):
     assert not (tmp_path / "f.zarr").exists()
 
 
-def test_released_sequence_ingest_reconstruct_render(rendered, tmp_path, capsys):
-    """A 7-Scenes sequence as released goes through ingest -> reconstruct -> render with no hand edits."""
-    root, _, gt = rendered
+def test_released_sequence_ingest_reconstruct_render(tilted, tmp_path, capsys):
+    """A 7-Scenes sequence as released (a y-down world tilted by its first frame, skewed poses) goes through
+    ingest -> reconstruct -> render with no hand edits."""
+    root, _, gt = tilted
     (tmp_path / "params.yaml").write_text(f"scenes:\n  kitchen: {{source: {root}}}\n"
                                           "reconstruct: {voxel_size_m: 0.05, depth_stride: 2}\n")
     base = ["-q", "-p", str(tmp_path / "params.yaml"), "--data-dir", str(tmp_path / "data"),
