@@ -67,11 +67,11 @@ _SOLID_TOP_MAX_TSDF = 0.9
 _SOLID_TOP_MIN_RISE = 0.1
 _SLAB_MAX_M = 0.075  # solid_tops: an unobserved run at most this tall between seen free space is a thin board
 _SLAB_MIN_AREA_M2 = 0.25  # ... where such cells form a patch at least this big
-# in_front_of_faces: side-facing points (|n_z| < 0.3) within 0.4 cell of a centre (the nearest 64: a face's
-# points over the band's height, at least 5) vote; an upward/downward-facing point within 5 mm of the
-# centre means a top or underside over it.
-_FACE_NZ, _FACE_RADIUS_CELLS, _FACE_K, _FACE_MIN_POINTS, _FLAT_NZ, _FLAT_RADIUS_M = 0.3, 0.4, 64, 5, 0.7, 0.005
-_FACE_BLOCK = 8192  # candidate cells per block (~40 MB of neighbour arrays)
+# in_front_of_faces: every side-facing point (|n_z| < 0.3) within 0.4 cell of a centre votes (at least 5:
+# a face's points over the band's height); an upward/downward-facing point within 5 mm of the centre means
+# a top or underside over it.
+_FACE_NZ, _FACE_RADIUS_CELLS, _FACE_MIN_POINTS, _FLAT_NZ, _FLAT_RADIUS_M = 0.3, 0.4, 5, 0.7, 0.005
+_FACE_BLOCK_ENTRIES = 1 << 19  # candidate cells x neighbours per block (~50 MB of neighbour arrays)
 
 
 @dataclass
@@ -388,6 +388,11 @@ def in_front_of_faces(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: 
     (``solid_z`` from :class:`Columns`: a seat under a backrest keeps its cell). Cells with an
     upward- or downward-facing point over the centre (a top) keep their evidence, as do cells with
     fewer than five nearby points (inside thick solids). Candidates go in blocks (bounded memory).
+
+    Every point within the radius votes, not the nearest few: a face's points stack in columns at
+    one xy, so a cap on the neighbour count would cut through points tied in distance, and which of
+    them are kept would depend on the order of ``xyz`` (open3d's hash-map order, which changes from
+    run to run). The result is a function of the point set alone.
     """
     out = np.zeros((grid.rows, grid.cols), dtype=bool)
     z_rel = xyz[:, 2] - floor_z
@@ -402,13 +407,20 @@ def in_front_of_faces(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: 
     nxy /= np.linalg.norm(nxy, axis=1, keepdims=True)
     side_tree = cKDTree(pts)
     flat_tree = cKDTree(xyz[flat, :2].astype(np.float64)) if flat.any() else None
-    k = min(_FACE_K, len(pts))
+    radius = _FACE_RADIUS_CELLS * grid.cell_size_m
     all_rc = np.argwhere(candidates)
-    for start in range(0, len(all_rc), _FACE_BLOCK):
-        rc = all_rc[start : start + _FACE_BLOCK]
-        centres = grid.cell_to_world(rc)
-        dist, idx = side_tree.query(centres, k=k, distance_upper_bound=_FACE_RADIUS_CELLS * grid.cell_size_m)
-        dist, idx = dist.reshape(len(rc), k), idx.reshape(len(rc), k)
+    all_centres = grid.cell_to_world(all_rc)
+    most = int(side_tree.query_ball_point(all_centres, radius, return_length=True).max())
+    if most < _FACE_MIN_POINTS:
+        return out
+    k = most + 1  # one column more than any disc holds, so none is cut (checked below)
+    block = max(1, _FACE_BLOCK_ENTRIES // k)
+    for start in range(0, len(all_rc), block):
+        rc, centres = all_rc[start : start + block], all_centres[start : start + block]
+        dist, idx = side_tree.query(centres, k=k, distance_upper_bound=radius)
+        while np.isfinite(dist[:, -1]).any():  # the disc count and the k-nearest bound disagreed by a rounding
+            k *= 2
+            dist, idx = side_tree.query(centres, k=k, distance_upper_bound=radius)
         near = np.isfinite(dist)
         j = np.where(near, idx, 0)
         signed = np.where(near, np.einsum("nkd,nkd->nk", centres[:, None, :] - pts[j], nxy[j]), np.nan)

@@ -242,3 +242,23 @@ def test_an_unseen_board_between_seen_air_is_solid_where_it_spans_a_patch():
     low = {k: 1.0 for k in (*range(20, 24), 26, 27, 28)}  # the gap at levels 24-25 instead of 28-29
     rows = [columns([(r, c) for c in range(2, 14)], board if r % 2 else low) for r in range(2, 14)]
     assert not column_occupancy(grid, 0.0, rows, p).occupied.any()
+
+
+def test_every_face_point_in_reach_votes_so_the_order_of_the_points_does_not_matter():
+    # A convex corner's edge: 70 side points stacked at one xy, 1 cm from the centre of cell (1, 1), all
+    # at exactly the same distance. 36 on the face the centre lies in front of (+6 mm), 34 on the other
+    # (-10 mm): the median of all of them is positive. A cap on the neighbour count would keep some of
+    # the tied points and drop others by their position in the array (open3d's hash-map order).
+    grid = GridSpec(4, 4, 0.05, (0.0, 0.2))
+    centre = grid.cell_to_world(np.array([[1, 1]]))[0]
+    n = 70
+    xyz = np.c_[np.full(n, centre[0] + 0.01), np.full(n, centre[1]), np.linspace(0.15, 1.45, n)]
+    normals = np.where((np.arange(n) < 36)[:, None], [-0.6, 0.8, 0.0], [1.0, 0.0, 0.0])
+    candidates = np.zeros((4, 4), bool)
+    candidates[1, 1] = True
+    solid_z = np.full((4, 4, 2), np.nan, np.float32)
+    rng = np.random.default_rng(0)
+    for _ in range(12):
+        perm = rng.permutation(n)
+        cleared = in_front_of_faces(grid, 0.0, xyz[perm], normals[perm], candidates, solid_z, ReconstructParams())
+        assert np.argwhere(cleared).tolist() == [[1, 1]]
