@@ -88,12 +88,29 @@ def write_recon(path: Path, grids: Grids, poses: np.ndarray, fused: np.ndarray, 
         arr.attrs.update({**meaning, **a})
 
 
+def canonical_point_order(*columns: np.ndarray) -> np.ndarray:
+    """Indices sorting rows lexicographically by all ``columns`` (each ``(N, c)``), the first column first.
+
+    Rows equal in every column are interchangeable, so the sorted arrays do not depend on the input order.
+    """
+    keys = np.concatenate([np.asarray(c).reshape(len(c), -1) for c in columns], axis=1)
+    return np.lexsort(keys.T[::-1])
+
+
 def canonical_mesh(mesh: o3d.geometry.TriangleMesh) -> o3d.geometry.TriangleMesh:
-    """The same mesh with vertices sorted by position and triangles sorted, for byte-stable files."""
+    """The same mesh with vertices sorted by position (then colour) and triangles sorted, for byte-stable files.
+
+    Vertices equal in position and colour (a zero crossing exactly at a voxel, shared by its edges) are
+    merged: their order, hence the triangles' indices, would otherwise follow open3d's hash-map order.
+    """
     v = np.asarray(mesh.vertices)
-    order = np.lexsort((v[:, 2], v[:, 1], v[:, 0]))
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
+    c = np.asarray(mesh.vertex_colors) if mesh.has_vertex_colors() else np.zeros((len(v), 0))
+    order = canonical_point_order(v, c)
+    rows = np.c_[v, c][order]
+    first = np.r_[True, np.any(rows[1:] != rows[:-1], axis=1)] if len(v) else np.zeros(0, bool)
+    rank = np.empty(len(v), np.int64)
+    rank[order] = np.cumsum(first) - 1
+    order = order[first]
     tri = rank[np.asarray(mesh.triangles)]
     if len(tri):
         # Rotate each triangle to start at its smallest index (winding kept), then sort the rows.
@@ -118,8 +135,8 @@ def write_mesh(path: Path, mesh: o3d.geometry.TriangleMesh) -> dict:
 
 
 def write_points(path: Path, xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray) -> dict:
-    """Write surface points as a sorted binary PLY (positions m, normals, colours)."""
-    order = np.lexsort((xyz[:, 2], xyz[:, 1], xyz[:, 0]))
+    """Write surface points as a binary PLY (positions m, normals, colours) in :func:`canonical_point_order`."""
+    order = canonical_point_order(xyz, normals, colors)
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz[order].astype(np.float64)))
     pcd.normals = o3d.utility.Vector3dVector(normals[order].astype(np.float64))
     pcd.colors = o3d.utility.Vector3dVector(colors[order].astype(np.float64) / 255.0)

@@ -7,6 +7,12 @@ the number of frames; frames are streamed from ``frames.zarr`` in blocks.
 Voxel lattice: the TSDF value of integer voxel ``k`` is the signed distance sampled at the world
 point ``k * voxel_size_m`` (positive in front of a surface, negative behind it, truncated to
 [-1, 1] in units of ``sdf_trunc_m``).
+
+Order: the hash map's slots are handed out by racing threads, so open3d returns blocks, points and
+mesh vertices in an order that changes from run to run (the values do not). Everything read out of
+the volume is put in a canonical order (points sorted here, voxel blocks by block coordinate, meshes
+by :func:`pipeline.recon.store.canonical_mesh` when written), so the same frames give the same arrays
+and the same bytes for any thread count.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from pipeline.config import ReconstructParams
 from pipeline.errors import InputDataError
 from pipeline.frames import FrameBlock, FrameStore
 from pipeline.geometry import Intrinsics, invert_pose
+from pipeline.recon.store import canonical_point_order
 
 o3c = o3d.core
 _CPU = o3c.Device("CPU:0")
@@ -214,7 +221,10 @@ def extract_mesh(volume: o3d.t.geometry.VoxelBlockGrid, p: ReconstructParams) ->
 
 def extract_points(volume: o3d.t.geometry.VoxelBlockGrid, p: ReconstructParams
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Surface points: positions ``(N,3)`` float32 m, unit normals ``(N,3)`` float32, colours ``(N,3)`` uint8."""
+    """Surface points: positions ``(N,3)`` float32 m, unit normals ``(N,3)`` float32, colours ``(N,3)`` uint8.
+
+    In canonical order (:func:`pipeline.recon.store.canonical_point_order`), not open3d's hash-map order.
+    """
     pcd = volume.extract_point_cloud(weight_threshold=p.min_weight)
     if "positions" not in pcd.point or pcd.point.positions.shape[0] == 0:
         z = np.zeros((0, 3), np.float32)
@@ -225,7 +235,9 @@ def extract_points(volume: o3d.t.geometry.VoxelBlockGrid, p: ReconstructParams
     normals = normals / np.maximum(norm, 1e-12)
     colors = pcd.point.colors.numpy() if "colors" in pcd.point else np.zeros_like(xyz)
     scale = 255.0 if colors.size and colors.max() <= 1.0 + 1e-6 else 1.0
-    return xyz, normals, np.clip(np.round(colors * scale), 0, 255).astype(np.uint8)
+    colors = np.clip(np.round(colors * scale), 0, 255).astype(np.uint8)
+    order = canonical_point_order(xyz, normals, colors)
+    return xyz[order], normals[order], colors[order]
 
 
 def iter_voxels(volume: o3d.t.geometry.VoxelBlockGrid, p: ReconstructParams, *, blocks_per_chunk: int = 1024,
@@ -233,9 +245,13 @@ def iter_voxels(volume: o3d.t.geometry.VoxelBlockGrid, p: ReconstructParams, *, 
     """Observed voxels (weight >= ``min_weight``, default ``p.min_weight``) in chunks of blocks (bounded memory).
 
     Yields integer lattice coordinates ``(M,3)`` int32 (world point = ``k * voxel_size_m``) and
-    truncated SDF values ``(M,)`` float32.
+    truncated SDF values ``(M,)`` float32. Blocks come sorted by block coordinate, so the chunks are
+    the same in every run (the hash map's own order is not).
     """
-    active = volume.hashmap().active_buf_indices().to(o3c.int32)
+    hashmap = volume.hashmap()
+    active = hashmap.active_buf_indices().to(o3c.int64)
+    block_xyz = hashmap.key_tensor()[active].numpy()
+    active = o3c.Tensor(active.numpy()[np.lexsort(block_xyz.T[::-1])].astype(np.int32))
     tsdf_all = volume.attribute("tsdf").reshape((-1,))
     weight_all = volume.attribute("weight").reshape((-1,))
     n = active.shape[0]

@@ -1,4 +1,4 @@
-"""TSDF fusion: streaming, empty frames, and honest failure on bad depth."""
+"""TSDF fusion: streaming, empty frames, honest failure on bad depth, and a canonical read-out order."""
 
 import numpy as np
 import pytest
@@ -8,6 +8,7 @@ from pipeline.errors import InputDataError
 from pipeline.frames import FrameStore
 from pipeline.geometry import Intrinsics
 from pipeline.recon import tsdf
+from pipeline.recon.store import canonical_point_order
 from tests.fixtures.recon_scenes import box_room_gt, box_room_poses, render_frames, write_frames
 
 INTR = Intrinsics.from_hfov(96, 72, 90.0)
@@ -59,3 +60,24 @@ def test_mostly_invalid_depth_fails_naming_the_first_frame(arrays, tmp_path):
     # Depth beyond depth_max_m counts as invalid too.
     with pytest.raises(InputDataError, match="frame 0: 24 of 24 frames"):
         tsdf.fuse(FrameStore(path), ReconstructParams(depth_min_m=0.1, depth_max_m=0.2))
+
+
+def test_points_and_voxels_come_out_in_one_canonical_order_not_the_hash_maps(arrays, tmp_path):
+    gt, poses, rgb, depth = arrays
+    store = FrameStore(write_frames(tmp_path / "f.zarr", gt, rgb, depth, poses, INTR))
+    p = ReconstructParams(min_weight=1.0)
+    runs = []
+    for _ in range(2):
+        volume = tsdf.fuse(store, p).volume
+        points = tsdf.extract_points(volume, p)
+        chunks = list(tsdf.iter_voxels(volume, p, blocks_per_chunk=1))
+        runs.append((points, chunks))
+        # Points sorted by position, normal, colour; one block per chunk, blocks by block coordinate.
+        assert (canonical_point_order(*points) == np.arange(len(points[0]))).all()
+        blocks = np.array([lattice[0] // p.block_resolution for lattice, _ in chunks])
+        assert all((lattice // p.block_resolution == b).all() for (lattice, _), b in zip(chunks, blocks))
+        assert (np.lexsort(blocks.T[::-1]) == np.arange(len(blocks))).all() and len(np.unique(blocks, axis=0)) == len(blocks)
+    (points_a, chunks_a), (points_b, chunks_b) = runs
+    assert all(np.array_equal(a, b) for a, b in zip(points_a, points_b))
+    assert len(chunks_a) == len(chunks_b)
+    assert all(np.array_equal(la, lb) and np.array_equal(ta, tb) for (la, ta), (lb, tb) in zip(chunks_a, chunks_b))
