@@ -6,9 +6,17 @@ RGB-D odometry aligns the frame to that rendering (the pattern of open3d's dense
 with too few inliers, or that moves the frame more than ``refine_max_correction_m`` from the
 prediction, is rejected and the prediction kept. Refined poses are written to ``recon.zarr``;
 ``frames.zarr`` is never modified.
+
+open3d's odometry sums its normal equations with a parallel reduction whose float summation order
+follows the thread schedule: run to run, poses would differ by up to millimetres (and every artifact
+after them). The odometry therefore runs on one thread (:func:`_serial_open3d`), which sums in a fixed
+order: the same frames give the same poses for any number of threads or workers.
 """
 
 from __future__ import annotations
+
+import threading
+from contextlib import contextmanager
 
 import numpy as np
 import open3d as o3d
@@ -20,6 +28,19 @@ o3c = o3d.core
 _MIN_FITNESS = 0.1  # fraction of frame pixels matched to the model (it is sparse early on)
 _MIN_PYRAMID_PX = 60  # coarsest odometry level keeps at least this many pixels per side
 _WARMUP_FRAMES = 3  # the first frames build the model at their recorded poses
+_SERIAL = threading.Lock()  # open3d's thread limit is process-wide: one serial section at a time
+
+
+@contextmanager
+def _serial_open3d():
+    """Run the enclosed open3d calls on one thread (reductions in a fixed order); the previous limit is restored."""
+    with _SERIAL:
+        before = o3d.utility.get_max_threads()
+        o3d.utility.set_max_threads(1)
+        try:
+            yield
+        finally:
+            o3d.utility.set_max_threads(before)
 
 
 class PoseRefiner:
@@ -65,9 +86,10 @@ class PoseRefiner:
         source = o3d.t.geometry.RGBDImage(color, depth)  # uint16 mm: odometry applies depth_scale
         levels = max(1, int(np.log2(min(intr.width, intr.height) / _MIN_PYRAMID_PX)) + 1)
         try:
-            res = o3d.t.pipelines.odometry.rgbd_odometry_multi_scale(
-                source, target, K, o3c.Tensor(np.eye(4)), 1000.0, p.depth_max_m,
-                [o3d.t.pipelines.odometry.OdometryConvergenceCriteria(8)] * levels, self.method)
+            with _serial_open3d():
+                res = o3d.t.pipelines.odometry.rgbd_odometry_multi_scale(
+                    source, target, K, o3c.Tensor(np.eye(4)), 1000.0, p.depth_max_m,
+                    [o3d.t.pipelines.odometry.OdometryConvergenceCriteria(8)] * levels, self.method)
         except RuntimeError:  # open3d raises when too few correspondences are found
             self.rejected.append(index)
             return T_pred

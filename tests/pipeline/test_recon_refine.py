@@ -52,3 +52,26 @@ def test_refinement_off_keeps_recorded_poses_and_reports_it(tmp_path):
                     GridParams(rows=100, cols=160))
     assert s["refinement"] == {"enabled": False, "max_moved_m": 0.0, "median_moved_m": 0.0}
     assert np.array_equal(Recon(tmp_path / "r.zarr").poses, FrameStore(frames).poses())
+
+
+@pytest.mark.skipif(not TUM.is_dir(), reason="real data folder not present")
+def test_refined_poses_are_the_same_bits_for_any_number_of_open3d_threads(tmp_path):
+    import open3d as o3d
+
+    store = FrameStore(write_tum_frames(tmp_path / "tum.zarr", TUM))
+    p = ReconstructParams(refine_poses=True, depth_stride=2)
+    runs = []
+    try:
+        for threads in (1, 0, 0):  # one thread, then open3d's default (every core) twice
+            o3d.utility.set_max_threads(threads)
+            limit = o3d.utility.get_max_threads()
+            refiner = PoseRefiner(p)
+            fusion = tsdf.fuse(store, p, frames=range(12), refiner=refiner)
+            runs.append(np.stack([fusion.T_world_camera[i] for i in range(12)]))
+            assert refiner.summary()["frames_aligned"] >= 6
+            assert o3d.utility.get_max_threads() == limit  # the caller's thread limit is restored
+    finally:
+        o3d.utility.set_max_threads(0)
+    recorded = store.poses()[:12]
+    assert not np.allclose(runs[0], recorded, atol=1e-6)  # refinement moved the frames ...
+    assert np.array_equal(runs[0], runs[1]) and np.array_equal(runs[1], runs[2])  # ... the same way every time
