@@ -227,3 +227,28 @@ def test_goals_stage_reads_navchat_files_in_navchats_frame(tmp_path):
                                              r"observed map"):
         _goals_stage(tmp_path / "wrong", frames, recon, {**settings, "navchat_grid": {"origin": "recon_grid"},
                                                          "navchat_dirs": {"house": str(folder)}})
+
+
+def test_frame_from_an_ingested_navchat_recording_matches_navchats_own_formula(tmp_path):
+    """navchat's CoordinateTransform.agt2grd_pose, written out here from its Habitat base pose, against the frame
+    zipon builds from the ingested recording's first camera pose (habitat_to_world + NavchatFrame)."""
+    from pipeline.config import IngestParams
+    from pipeline.frames import FrameStore
+    from stages.ingest import ingest_path
+    from tests.fixtures.raw_datasets import make_recording, navchat_base, write_navchat
+
+    root = write_navchat(tmp_path, make_recording(3))
+    for sub, ext in (("rgb", "png"), ("depth", "npy"), ("semantic", "npy"), ("pose", "txt")):
+        (root / sub / f"abcScene_0.{ext}").unlink()  # the recording starts at frame 1: turned 0.35 rad, moved
+    ingest_path(root, tmp_path / "f.zarr", IngestParams(), log=lambda m: None)
+    frame = NavchatFrame.from_first_pose(FrameStore(tmp_path / "f.zarr").poses()[0])
+    p0, yaw0 = navchat_base(1)
+    assert yaw0 != 0 and p0[0] != 0
+    c, s = np.cos(yaw0), np.sin(yaw0)
+    R_y = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])  # the base's rotation about Habitat's +y
+    rng = np.random.default_rng(1)
+    for q in p0 + rng.uniform(-6, 6, (200, 3)) * [1, 0, 1]:
+        agent = R_y.T @ (q - p0)  # x right, z backward of the initial agent
+        navchat_cell = [300 + int(agent[0] / 0.05), 300 + int(agent[2] / 0.05)]
+        world = [q[0], -q[2]]  # Habitat (x, y, z) -> zipon (x, -z, y)
+        assert frame.to_cells(world).tolist() == navchat_cell
