@@ -192,11 +192,13 @@ class IngestParams(Section):
     )
     world_up: Literal["dataset", "auto", "+z", "-z", "+y", "-y", "+x", "-x"] = Field(
         "dataset", description="the source world's up axis, rotated to zipon's +z: 'dataset' = the reader's "
-        "documented convention (7-Scenes -y, everything else +z), 'auto' = the normal of the dominant floor plane "
+        "documented convention (7-Scenes -y, levelled on the floor when one is seen; everything else +z), 'auto' = "
+        "the normal of the dominant floor plane "
         "seen in the first world_up_auto_frames frames (logged and stored in frames.zarr attrs world_up)"
     )
     world_up_auto_frames: int = Field(
-        48, gt=0, description="frames at the start of the log that world_up 'auto' looks for the floor in"
+        48, gt=0, description="frames at the start of the log that world_up 'auto' (and 7-Scenes' levelling) looks "
+        "for the floor in"
     )
     pose_orthonormal_tol: float = Field(
         1e-3, gt=0, description="poses stored as matrices (7-Scenes, Replica, ScanNet) whose rotation is orthonormal "
