@@ -481,6 +481,25 @@ def _(c):
     return c.argv("goals", "import", SCENE, str(c.scratch / "absent.yaml"))
 
 
+def objects_file(c: Ctx, first: dict) -> list[str]:
+    """An objects file (goals.objects: file) whose first object is ``first`` over a valid one."""
+    obj = {"key": "chair_0", "cls": "chair", "instance_id": 1, "footprint": [[0, 0], [1, 0], [1, 1]],
+           "mass_center": [0.7, 0.3], **first}
+    path = c.file("objects.yaml", yaml.safe_dump({"rooms": [], "objects": [obj]}))
+    return c.argv("-S", "goals.objects=file", "-S", f"goals.objects_files.{SCENE}={path}",
+                  "run", "--stage", "goals", "--force", "--scheduler", "sync")
+
+
+@case("objects-file-bool-for-int", 1, "{scratch}/objects.yaml", "objects[0].instance_id", "boolean")
+def _(c):
+    return objects_file(c, {"instance_id": True})
+
+
+@case("objects-file-nan-footprint", 1, "{scratch}/objects.yaml", "objects[0].footprint[1][0]", "finite")
+def _(c):
+    return objects_file(c, {"footprint": [[0, 0], [float("nan"), 0], [1, 1]]})
+
+
 # --- tampered stores (zipon verify / status --verify: every artifact reported, corrupt ones included)
 
 def chunk_of(store: Path, array: str) -> Path:

@@ -12,37 +12,52 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import cv2
 import numpy as np
 import skimage.draw
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError
 
 from pipeline.errors import InputDataError
 from pipeline.geometry import GridSpec
 from pipeline.scene_gt import GTScene
 
 
+def strict_number(value: object) -> object:
+    """Numbers in user files are numbers: ``true`` and ``"3"`` are not (pydantic's lax mode takes both).
+    Finite values are the models' business (``allow_inf_nan=False``)."""
+    if isinstance(value, bool):
+        raise ValueError(f"expected a number, got {str(value).lower()} (a boolean)")
+    if isinstance(value, str):
+        raise ValueError(f"expected a number, got the string {value!r}")
+    return value
+
+
+Number = Annotated[float, BeforeValidator(strict_number)]
+Count = Annotated[int, BeforeValidator(strict_number)]
+XY = tuple[Number, Number]
+
+
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class RoomRecord(_Model):
     id: str = Field(description="unique room id, e.g. 'bedroom_1'")
     type: str = Field(description="bedroom, living room, kitchen, bathroom, office, ...")
-    polygon: list[tuple[float, float]] = Field(default_factory=list, description="floor outline, world x/y metres")
+    polygon: list[XY] = Field(default_factory=list, description="floor outline, world x/y metres")
 
 
 class ObjectRecord(_Model):
     key: str = Field(description="unique object key in the scene, e.g. 'chair_0'")
     cls: str = Field(description="object class, e.g. 'chair'")
-    instance_id: int = Field(ge=0, description="instance id in the instance images (0 = unknown)")
+    instance_id: Count = Field(ge=0, description="instance id in the instance images (0 = unknown)")
     room: str | None = Field(None, description="id of the room it stands in")
-    footprint: list[tuple[float, float]] = Field(min_length=3, description="floor polygon, world x/y metres, CCW")
-    mass_center: tuple[float, float] = Field(description="centroid of the footprint, world x/y metres")
-    z_range: tuple[float, float] = Field((0.0, 1.0), description="bottom and top above the floor, metres")
+    footprint: list[XY] = Field(min_length=3, description="floor polygon, world x/y metres, CCW")
+    mass_center: XY = Field(description="centroid of the footprint, world x/y metres")
+    z_range: XY = Field((0.0, 1.0), description="bottom and top above the floor, metres")
     size: Literal["big", "small"] = Field("big", description="big (furniture) or small (on or beside furniture)")
     color_name: str = ""
     material: str = ""

@@ -38,22 +38,10 @@ import yaml
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
 
 from pipeline.errors import InputDataError
-from pipeline.goals.objects import read_structured, validation_error
+from pipeline.goals.objects import XY, read_structured, strict_number, validation_error
 
 DOC_FORMAT = "zipon-goals"
 DOC_VERSION = 1
-
-
-def _number(value: object) -> object:
-    """Numbers are numbers: ``true`` and ``"3"`` are not (pydantic's lax mode would take both)."""
-    if isinstance(value, bool):
-        raise ValueError(f"expected a number, got {str(value).lower()} (a boolean)")
-    if isinstance(value, str):
-        raise ValueError(f"expected a number, got the string {value!r}")
-    return value
-
-
-Number = Annotated[float, BeforeValidator(_number)]  # finite: the models set allow_inf_nan=False
 
 
 class _M(BaseModel):
@@ -87,12 +75,12 @@ class ObjectEntry(_M):
     cls: str = Field(alias="class")
     identity: str = Field(min_length=1)
     room: str | None = None
-    position_xy: tuple[Number, Number] = Field(description="world x, y metres (finite)")
+    position_xy: XY = Field(description="world x, y metres (finite)")
 
 
 class GoalsDocument(_M):
     format: Literal["zipon-goals"] = DOC_FORMAT
-    format_version: Annotated[Literal[1], BeforeValidator(_number)] = DOC_VERSION
+    format_version: Annotated[Literal[1], BeforeValidator(strict_number)] = DOC_VERSION
     scene: str
     rooms: dict[str, RoomEntry] = Field(default_factory=dict)
     objects: dict[str, ObjectEntry]
