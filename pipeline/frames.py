@@ -4,7 +4,8 @@ Format (version 1)::
 
     frames.zarr/                 attrs: artifact="frames", format_version, intrinsics {fx,fy,cx,cy,width,height},
     │                                   K, depth_unit="mm", depth_range_m, conventions, provenance, matching,
-    │                                   n_frames, ground_truth (simulated scenes: the scene's objects and rooms)
+    │                                   n_frames, ground_truth (simulated scenes: the scene's objects and rooms),
+    │                                   world_up (the source's up axis, how it was chosen, the rotation to z-up)
     ├── rgb       (N,H,W,3) uint8    colour, RGB order
     ├── depth     (N,H,W)   uint16   z-depth in millimetres, 0 = invalid
     ├── pose      (N,4,4)   float64  T_world_camera (OpenCV optical camera, z-up world)
