@@ -118,12 +118,18 @@ def scenes_on_disk(ws: Workspace) -> list[str]:
 
 
 def verify_all(ws: Workspace, params: Params, stages: dict[str, StageSpec]) -> list[VerifyRow]:
-    """One row per artifact on disk or recorded in a manifest, for the scenes in params and on disk."""
+    """One row per artifact on disk or recorded in a manifest, for the scenes in params and on disk.
+
+    A raw log of a scene not in params that no stage recorded (``zipon simulate`` writes them, users copy
+    theirs there) is an input, not an artifact: it gets no row.
+    """
     rows = []
     for scene, stage in plan(stages, params, list(params.scenes)):
         rows += verify_stage(ws, stages[stage], scene)
     for scene in (s for s in scenes_on_disk(ws) if s not in params.scenes):
         for stage in stage_order(stages):
+            if not stages[stage].inputs and not ws.manifest(scene, stage).exists():
+                continue  # a raw log nobody recorded
             for row in verify_stage(ws, stages[stage], scene):
                 row.note = f"scene not in {ws.params_path.name}"
                 rows.append(row)

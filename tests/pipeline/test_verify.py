@@ -69,6 +69,9 @@ def test_scenes_on_disk_but_not_in_params_are_verified(built):
     orphan = rows[("orphan", "ingest", "frames")]
     assert not orphan.ok and orphan.problem.startswith("no manifest") and orphan.note == "scene not in params.yaml"
     assert ("orphan", "simulate", "raw_log") not in rows  # nothing there, nothing reported
+    shutil.copy(ws.artifact("raw_log", "s0"), ws.artifact("raw_log", "recorded"))  # as `zipon simulate` writes
+    assert "recorded" in scenes_on_disk(ws)
+    assert not any(r.scene == "recorded" for r in verify_all(ws, params, TOY_STAGES))  # an input, not an artifact
 
 
 def test_locate_corruption_names_the_file(built):
