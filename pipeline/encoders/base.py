@@ -46,6 +46,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from pipeline.encoders.choice import encoder_choice, load  # noqa: F401  (encoder_choice re-exported)
 from pipeline.errors import ConfigError, InputDataError, MissingInputError
 
 if TYPE_CHECKING:
@@ -365,28 +366,6 @@ def register(cls: type[Encoder]) -> type[Encoder]:
     return cls
 
 
-def encoder_choice(params: "EncodersParams", which: str | None = None, *, simulated: bool = False) -> str:
-    """The encoder name a stage uses: ``which`` is 'vlmap', 'cfmap' or an encoder name (None = vlmap).
-
-    For a simulated scene ``encoders.simulated`` (when set) overrides the stage's choice; the name
-    'perception' means ``simulated_lseg`` for the vlmap and ``simulated_cf`` for the cfmap.
-    """
-    import pipeline.encoders  # noqa: F401  (importing the package registers every implementation)
-
-    which = which or "vlmap"
-    if simulated and params.simulated is not None:
-        name = params.simulated
-    elif which in ("vlmap", "cfmap"):
-        name = getattr(params, which)
-    elif which not in ENCODERS:
-        raise ConfigError(f"encoder {which!r}: unknown (choose one of {sorted(ENCODERS)} or 'vlmap'/'cfmap')")
-    else:
-        name = which
-    if name == "perception":  # one setting, each map its model: LSeg-like for the vlmap, ConceptFusion-like for the cfmap
-        name = "simulated_cf" if which == "cfmap" else "simulated_lseg"
-    return name
-
-
 def build_encoder(params: "EncodersParams", which: str | None = None, *, simulated: bool = False,
                   runtime: "RunParams | None" = None) -> Encoder:
     """Build the encoder chosen in ``params`` for a map stage (``which`` = 'vlmap' / 'cfmap') or by name.
@@ -398,6 +377,7 @@ def build_encoder(params: "EncodersParams", which: str | None = None, *, simulat
 
     runtime = runtime or RunParams()
     name = encoder_choice(params, which, simulated=simulated)
+    load(name)
     if runtime.torch_threads:
         torch.set_num_threads(runtime.torch_threads)
     device = resolve_device(runtime.device)

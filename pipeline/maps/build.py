@@ -17,9 +17,6 @@ import numpy as np
 from pipeline.config import EncodersParams, MapsParams, Params, RunParams, StageConfig, section_keys
 from pipeline.errors import StageError
 from pipeline.frames import FrameStore
-from pipeline.maps.fusion import (Lattice, TopDownAccumulator, VoxelAccumulator, fill_unseen, locate_block,
-                                  point_weights)
-from pipeline.maps.store import write_map
 
 Kind = Literal["vlmap", "cfmap"]
 # maps.* fields that only one kind of map reads
@@ -44,7 +41,7 @@ class MapConfig(StageConfig):
     @classmethod
     def _encoder(cls, params: Params, scene: str) -> tuple[str, list[str]]:
         """(encoder name, the params keys that choose it and configure it)."""
-        from pipeline.encoders.base import encoder_choice
+        from pipeline.encoders.choice import encoder_choice
 
         enc = params.encoders
         simulated = params.scenes[scene].simulated
@@ -95,6 +92,9 @@ def build_map(
 
     from pipeline.encoders import build_encoder
     from pipeline.encoders.base import resolve_device
+    from pipeline.maps.fusion import (Lattice, TopDownAccumulator, VoxelAccumulator, fill_unseen, locate_block,
+                                      point_weights)
+    from pipeline.maps.store import write_map
     from pipeline.recon import Recon
     from pipeline.scene_gt import GTScene
 

@@ -33,15 +33,19 @@ reader of one region reads only the chunks of its tiles; a query reads ``top/fea
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 import zarr
 
 from pipeline.errors import ArtifactError, MissingInputError
 from pipeline.geometry import GridSpec
-from pipeline.maps.fusion import FusedCells, FusedVoxels, Lattice
 from pipeline.store import compressor, new_group
+
+if TYPE_CHECKING:  # torch is imported where features are read: the stage configs and `zipon status` need none
+    import torch
+
+    from pipeline.maps.fusion import FusedCells, FusedVoxels, Lattice
 
 FORMAT_VERSION = 1
 ARTIFACTS = ("vlmap", "cfmap")
@@ -190,10 +194,14 @@ class SemanticMap:
         Not cached: a full fp32 copy is 737 MB for a 600x600x512 map. Callers that score many
         queries should keep :meth:`features16` and use :meth:`dot` (upcast per chunk).
         """
+        import torch
+
         return self.features16().to(torch.float32)
 
     def features16(self) -> torch.Tensor:
         """``(N,D)`` float16 unit-norm features as stored (cached; half the memory of fp32)."""
+        import torch
+
         if self._features is None:
             self._features = torch.from_numpy(np.ascontiguousarray(self.group["top"]["features"][...]))
         return self._features
@@ -202,6 +210,8 @@ class SemanticMap:
             chunk_rows: int = 65536) -> torch.Tensor:
         """``(N,T)`` (or ``(len(rows),T)``) float32 scores ``features @ text.T`` for ``text`` ``(T,D)`` or ``(D,)``,
         upcasting ``chunk_rows`` rows of the fp16 features at a time (as fast as an fp32 product, half the memory)."""
+        import torch
+
         from pipeline.maps.levels import chunked_scores
 
         t = text[None] if text.ndim == 1 else text
@@ -225,6 +235,8 @@ class SemanticMap:
 
     def features_at(self, rc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Features ``(K,D)`` float32 at ``(K,2)`` (row, col) cells and a ``(K,)`` observed mask (zeros elsewhere)."""
+        import torch
+
         rc = np.asarray(rc, np.int64).reshape(-1, 2)
         inside = self.grid.inside(rc)
         rows = np.full(len(rc), -1, np.int64)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.config import MapsParams
+from pipeline.config import QueryParams
 from pipeline.encoders.oracle import OracleEncoder
 from pipeline.errors import ArtifactError, InputDataError, LineageError
 from pipeline.geometry import GridSpec
@@ -42,7 +42,7 @@ def map_path(tmp_path_factory):
 
 def _query(map_path, **kw):
     navigable = kw.pop("navigable", None)
-    return MapQuery(SemanticMap(map_path), ENC, MapsParams(min_candidate_area_m2=0.05, **kw), navigable=navigable)
+    return MapQuery(SemanticMap(map_path), ENC, QueryParams(min_candidate_area_m2=0.05, **kw), navigable=navigable)
 
 
 def test_wins_and_heatmap(map_path):
@@ -102,7 +102,7 @@ def test_approach_points_and_grid_checks(map_path):
 
 def test_encoder_mismatch_is_refused(map_path):
     with pytest.raises(ArtifactError, match="map built with encoder 'oracle' \\(dim 64\\), query encoder is 'oracle' \\(dim 512\\)"):
-        MapQuery(SemanticMap(map_path), OracleEncoder(dim=512), MapsParams())
+        MapQuery(SemanticMap(map_path), OracleEncoder(dim=512), QueryParams())
 
 
 def test_parse_pose():
@@ -132,8 +132,8 @@ def test_low_rank_scoring_gives_the_exact_wins_and_candidates(tmp_path):
     path = tmp_path / "vlmap.zarr"
     write_map(path, artifact_attrs("vlmap", FORMAT_VERSION, "vlmap", "x", encoder=ENC.identity()), GRID,
               Lattice(GRID, 0.0, 0.0, 2.0, 0.1), cells, tile_cells=16)
-    exact = MapQuery(SemanticMap(path), ENC, MapsParams(query_rank=0))
-    low = MapQuery(SemanticMap(path), ENC, MapsParams(query_rank=3, query_lowrank_min_cells=10))
+    exact = MapQuery(SemanticMap(path), ENC, QueryParams(query_rank=0))
+    low = MapQuery(SemanticMap(path), ENC, QueryParams(query_rank=3, query_lowrank_min_cells=10))
     for text in ("chair", "bed", "red table"):
         a, b = exact.query(text, (1.0, 1.0, 0.0)), low.query(text, (1.0, 1.0, 0.0))
         assert a.wins.any() and (a.wins == b.wins).all()

@@ -1,0 +1,50 @@
+"""Choosing and loading encoders by name: stage configs need no torch, one encoder loads one module."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from pipeline.config import EncodersParams
+from pipeline.encoders.choice import MODULES, encoder_choice, load
+from pipeline.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def _modules_after(code: str) -> dict:
+    probe = (f"import sys, json\n{code}\n"
+             "print(json.dumps({m: m in sys.modules for m in ('torch', 'torchvision', 'open_clip')}))")
+    out = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_stage_configs_name_their_encoder_without_importing_torch():
+    got = _modules_after(
+        "from pipeline.config import Params\n"
+        "from pipeline.maps.build import VlmapConfig, CfmapConfig\n"
+        "import stages.vlmap, stages.cfmap, pipeline.maps\n"
+        "p = Params.model_validate({'scenes': {'s': {'source': 'simulate'}}, 'encoders': {'simulated': 'oracle'}})\n"
+        "assert VlmapConfig.from_params(p, 's').encoder == 'oracle'\n"
+        "assert 'encoders.oracle' in CfmapConfig.param_keys(p, 's')")
+    assert got == {"torch": False, "torchvision": False, "open_clip": False}
+
+
+def test_building_one_encoder_imports_only_its_module():
+    got = _modules_after("from pipeline.config import EncodersParams\nfrom pipeline.encoders import build_encoder\n"
+                         "build_encoder(EncodersParams(), 'oracle')")
+    assert got == {"torch": True, "torchvision": False, "open_clip": False}
+
+
+def test_every_listed_name_is_registered_by_its_module_and_unknown_names_are_config_errors():
+    from pipeline.encoders import ENCODERS
+
+    load()
+    assert set(MODULES) == set(ENCODERS)
+    assert all(ENCODERS[n].__module__ == f"pipeline.encoders.{m}" for n, m in MODULES.items())
+    with pytest.raises(ConfigError, match="'nope': unknown .*oracle"):
+        encoder_choice(EncodersParams(), "nope")
