@@ -573,6 +573,18 @@ def _(c):
     return c.argv("run", "--stage", "reconstruct", "--force", "--scheduler", "sync")
 
 
+@case("read-only-run", 1, "Read-only file system", "{root}/data/", "EROFS", "writable")
+def _(c):
+    c.fault = (errno.EROFS, c.data)
+    return c.argv("run", "--stage", "routes", "--force", "--scheduler", "sync")
+
+
+@case("read-only-render", 1, "Read-only file system", "{root}/data/artifacts/tiny/renders", "EROFS")
+def _(c):
+    c.fault = (errno.EROFS, c.data)
+    return c.argv("render", SCENE, "--what", "navigable")
+
+
 @case("read-only-ingest", 1, "Read-only file system", "{root}/data/", "EROFS", "writable")
 def _(c):
     c.fault = (errno.EROFS, c.data)
