@@ -194,7 +194,8 @@ def status(
 
 @app.command()
 def verify():
-    """Re-hash every artifact and compare with its manifest; exit 1 on any mismatch. Example: `zipon verify`"""
+    """Re-hash every artifact on disk and compare it with its manifest (corrupt ones, ones without a manifest and
+    scenes no longer in the params file included); exit 1 on any mismatch. Example: `zipon verify`"""
     from pipeline.verify import verify_all
     from stages import STAGES
 
