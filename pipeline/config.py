@@ -90,7 +90,7 @@ class SimulateParams(Section):
     """Procedural indoor scenes rendered to ROS 2 MCAP logs (the embedded default data)."""
 
     seed: int = Field(0, description="base seed; each scene's seed is derived from it and the scene name")
-    frames: int = Field(240, gt=0, description="frames recorded per scene")
+    frames: int = Field(240, ge=2, description="frames recorded per scene (at least 2: a walk has a start and an end)")
     width: int = Field(640, gt=0, description="image width, pixels")
     height: int = Field(480, gt=0, description="image height, pixels")
     hfov_deg: float = Field(90.0, gt=0, lt=180, description="horizontal field of view, degrees")
@@ -804,7 +804,10 @@ def load_params(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -
     if not path.is_file():
         raise ConfigError(f"{path}: params file not found (run zipon from the project folder or pass --params)")
     try:
-        raw = yaml.safe_load(path.read_text()) or {}
+        raw = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"{path}: not UTF-8 text (byte {err.start}: {err.object[err.start:err.start + 1]!r}); "
+                          f"save it as UTF-8") from None
     except yaml.YAMLError as err:
         raise ConfigError(f"{path}: not valid YAML: {err}") from None
     if not isinstance(raw, dict):

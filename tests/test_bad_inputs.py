@@ -333,7 +333,7 @@ def _(c):
     return with_params(c, BASE + "simulate: {frames: true}\n")
 
 
-@case("params-frames-too-few", 1, "simulate.frames", xfail="config.py (lead): simulate.frames accepts 1")
+@case("params-frames-too-few", 1, "simulate.frames")
 def _(c):
     return with_params(c, BASE + "simulate: {frames: 1}\n")
 
@@ -363,8 +363,7 @@ def _(c):
     return with_params(c, BASE + "simulate: {frames: [1, 2\n")
 
 
-@case("params-not-utf8", 1, "{scratch}/params.yaml", "UTF-8",
-      xfail="config.py (lead): load_params raises UnicodeDecodeError")
+@case("params-not-utf8", 1, "{scratch}/params.yaml", "UTF-8")
 def _(c):
     return with_params(c, BASE.encode() + b"# caf\xe9\n")
 
