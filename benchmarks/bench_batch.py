@@ -84,11 +84,11 @@ def zipon(params: Path, *args: str) -> tuple[float, float]:
     return wall, (peak[-1] / 1024.0 if peak else float("nan"))
 
 
-def manifests(root: Path, scenes: list[str]) -> dict[str, list[dict]]:
-    """stage -> the manifests' ``timing`` + frame count of every scene."""
-    out: dict[str, list[dict]] = {s: [] for s in STAGES}
+def manifests(root: Path, scenes: list[str], stages: list[str]) -> dict[str, list[dict]]:
+    """stage -> the manifests' ``timing`` of every scene."""
+    out: dict[str, list[dict]] = {s: [] for s in stages}
     for scene in scenes:
-        for stage in STAGES:
+        for stage in stages:
             m = json.loads((root / "manifests" / scene / f"{stage}.json").read_text())
             out[stage].append(m["timing"])
     return out
@@ -161,7 +161,9 @@ def main() -> None:
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--target-frames", type=int, default=14_159, help="frames of the batch the rate is projected to")
     ap.add_argument("--kernel-frames", type=int, default=64, help="frames the open3d integrate kernel is timed on")
-    ap.add_argument("--keep", type=Path, default=None, help="work in this folder and keep it (default: a temp dir)")
+    ap.add_argument("--stages", nargs="+", default=list(STAGES), choices=STAGES, help="stages to time (default: all)")
+    ap.add_argument("--keep", type=Path, default=None,
+                    help="work in this folder and keep it (default: a temp dir); logs already there are reused")
     args = ap.parse_args()
 
     import torch
@@ -188,7 +190,7 @@ def main() -> None:
     first = True
     try:
         for workers in args.workers:
-            run_args = ["-S", f"run.workers={workers}", "run", "--force", *sum((["--stage", s] for s in STAGES), [])]
+            run_args = ["-S", f"run.workers={workers}", "run", "--force", *sum((["--stage", s] for s in args.stages), [])]
             wall, peak = zipon(params, *run_args)
             if first:  # frames.zarr exists now: time open3d alone on the first scene's frames
                 secs, n = kernel_integrate(params, data / "artifacts" / scenes[0] / "frames.zarr", args.kernel_frames)
@@ -197,8 +199,8 @@ def main() -> None:
                      kernel_frames={"zstd_decode": total, "o3d_integrate": n, "index_add": 16},
                      feature_rows=[h * w, p.encoders.oracle.dim], loadavg=load())
                 first = False
-            timing = manifests(root, scenes)
-            for stage in STAGES:
+            timing = manifests(root, scenes, args.stages)
+            for stage in args.stages:
                 t = timing[stage]
                 secs = sum(x["seconds"] for x in t)
                 cpu = sum(x.get("cpu_seconds", float("nan")) for x in t)

@@ -277,8 +277,11 @@ def _unit_means(sums: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
     at 5 m, and ``normalize`` clamps norms below 1e-12, which would shrink such a cell's feature
     towards zero instead of giving it unit norm.
     """
-    w = weight.to(torch.float64).clamp_min(1e-300)[:, None]
-    return torch.nn.functional.normalize((sums.to(torch.float64) / w).float(), dim=1)
+    out = torch.empty(sums.shape, dtype=torch.float32, device=sums.device)
+    for s in range(0, len(sums), 1 << 15):  # row chunks: float64 temporaries of 128 MB at most (D = 512)
+        w = weight[s : s + (1 << 15)].to(torch.float64).clamp_min(1e-300)[:, None]
+        out[s : s + len(w)] = torch.nn.functional.normalize((sums[s : s + len(w)].to(torch.float64) / w).float(), dim=1)
+    return out
 
 
 def _flat_features(features: torch.Tensor, device: torch.device) -> torch.Tensor:
