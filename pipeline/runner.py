@@ -246,7 +246,10 @@ def peak_rss_mb() -> float:
 
 
 def limit_native_threads(n: int) -> None:
-    """Cap BLAS/OpenMP/torch threads inside a worker (dask runs one task per worker thread)."""
+    """Cap BLAS/OpenMP/torch/open3d threads inside a worker (dask runs one task per worker thread).
+
+    Speed only: outputs do not depend on thread counts (open3d's parallel reductions are made canonical or
+    run single-threaded where they would; see pipeline.recon)."""
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = str(n)
     try:
@@ -254,6 +257,12 @@ def limit_native_threads(n: int) -> None:
 
         torch.set_num_threads(n)
     except ImportError:
+        pass
+    try:
+        import open3d as o3d  # 0.20 runs its kernels on TBB threads, which OMP_NUM_THREADS does not cap
+
+        o3d.utility.set_max_threads(n)
+    except (ImportError, AttributeError):
         pass
 
 

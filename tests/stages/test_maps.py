@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.config import parse_params
+from pipeline.config import digest_value, parse_params, project
 from pipeline.maps.build import MAP_CONFIGS, build_map
 from pipeline.maps.evaluate import evaluate_map, sample_poses
 from pipeline.maps.query import open_query, query_map
@@ -54,7 +54,9 @@ def test_artifacts_describe_themselves(built):
     tmp, out, frames, gt, params, summaries = built
     for name in ("vlmap", "cfmap"):
         m = SemanticMap(out / f"{name}.zarr")
-        assert m.artifact == name and m.attrs["stage"] == name and m.attrs["params_digest"] == "blake2b:test"
+        keys = STAGES[name].config_class().param_keys(params, "box")
+        assert m.artifact == name and m.attrs["stage"] == name
+        assert m.attrs["params_digest"] == digest_value(project(params, keys))
         assert m.encoder["name"] == "oracle" and m.encoder["diagnostic"] is True and m.dim == 512
         assert m.grid == Recon(tmp / "recon.zarr").grid
         assert m.attrs["frames"] == {"n_frames": 48, "fused": 48}
