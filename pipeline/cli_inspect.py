@@ -417,6 +417,8 @@ def view(
     max_frames: int = typer.Option(240, "--max-frames", min=1, help="at most this many evenly spaced frames"),
     mesh_voxel: float = typer.Option(0.04, "--mesh-voxel", min=0.0, help="merge mesh vertices within this size, "
                                      "metres (0 = the full TSDF mesh)"),
+    mesh_top: float = typer.Option(2.2, "--mesh-top", help="leave out mesh triangles above this height over the "
+                                   "floor, metres (the ceiling hides the rooms from above); a negative value keeps all"),
 ):
     """Write a rerun recording of a scene: frames (colour, depth) on a timeline with the camera and trajectory,
     the TSDF mesh, top-down grids and a query heatmap as textured planes, goals as labelled 3D boxes, routes,
@@ -430,7 +432,8 @@ def view(
     ws, params = sc.dataset.workspace, sc.dataset.params
     target = out_file or ws.renders(scene) / f"{scene}.rrd"
     s = write_recording(ws, params, scene, target, episode=episode, eval_dir=eval_dir, method=method,
-                        feedback=feedback, seed=seed, query=text, max_frames=max_frames, mesh_voxel_m=mesh_voxel)
+                        feedback=feedback, seed=seed, query=text, max_frames=max_frames, mesh_voxel_m=mesh_voxel,
+                        mesh_top_m=mesh_top if mesh_top >= 0 else None)
     parts = [f"{s['frames']} frames", f"{s.get('mesh_vertices', 0):,} mesh vertices",
              f"grids {', '.join(s.get('grids', [])) or 'none'}", f"{s.get('goal_boxes', 0)} goal boxes",
              f"{s.get('routes', 0)} routes"]

@@ -22,7 +22,7 @@ Entities (world frame right-handed, z up, metres; see :mod:`pipeline.geometry`):
 
 Colour frames are JPEG-compressed (``jpeg_quality``), at most ``max_frames`` evenly spaced frames
 are logged and the mesh is simplified to ``mesh_voxel_m``; depth is lossless (16-bit PNG), which
-dominates the size: a 240-frame 640x480 demo scene writes 24 MB (40 MB with the full mesh).
+dominates the size: a 240-frame 640x480 demo scene writes 21 MB (40 MB with the full mesh).
 """
 
 from __future__ import annotations
@@ -42,14 +42,15 @@ LAYER_GAP_M = 0.25  # grids are stacked this far apart below the floor, so none 
 def write_recording(ws, params, scene: str, out: str | Path, *, episode: str | None = None,
                     eval_dir: str | Path | None = None, method: str | None = None, feedback: str | None = None,
                     seed: int | None = None, query: str | None = None, max_frames: int = 240,
-                    jpeg_quality: int = 85, mesh_voxel_m: float = 0.04) -> dict:
+                    jpeg_quality: int = 85, mesh_voxel_m: float = 0.04, mesh_top_m: float | None = 2.2) -> dict:
     """Write the recording of ``scene`` to ``out`` (written aside, then renamed into place); returns a summary.
 
     ``episode`` (a routes episode id) replays that episode from the evaluation logs in ``eval_dir``
     (``episodes/<scene>.episodes.jsonl.gz``), the first run matching ``method`` / ``feedback`` /
     ``seed`` when given. ``query`` (default: the class of the scene's first goal) is drawn as a heatmap.
     ``mesh_voxel_m`` > 0 merges mesh vertices within that size (open3d vertex clustering: about a third of the
-    bytes at 0.04 m on a TSDF of 0.02 m voxels); 0 logs the full mesh.
+    bytes at 0.04 m on a TSDF of 0.02 m voxels); 0 logs the full mesh. ``mesh_top_m`` leaves out triangles
+    entirely above that height over the floor (the ceiling, which hides the rooms from above); None keeps them.
     """
     import rerun as rr
 
@@ -72,13 +73,14 @@ def write_recording(ws, params, scene: str, out: str | Path, *, episode: str | N
     summary: dict = {"scene": scene}
     try:
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        summary["frames"] = _log_frames(rec, rr, art["frames"], max_frames, jpeg_quality)
+        summary["frames"], xyz = _log_frames(rec, rr, art["frames"], max_frames, jpeg_quality)
+        rec.send_blueprint(_blueprint(ep_log is not None, xyz))
         recon = None
         if art["recon"].exists():
             from pipeline.recon import Recon
 
             recon = Recon(art["recon"])
-            summary["mesh_vertices"] = _log_mesh(rec, rr, recon, mesh_voxel_m)
+            summary["mesh_vertices"] = _log_mesh(rec, rr, recon, mesh_voxel_m, mesh_top_m)
             result = _query(ws, params, scene, art, query)
             summary["query"] = None if result is None else result.text
             summary["grids"] = _log_grids(rec, rr, recon, result)
@@ -107,10 +109,30 @@ def write_recording(ws, params, scene: str, out: str | Path, *, episode: str | N
     return summary
 
 
+def _blueprint(with_episode: bool, camera_xyz: np.ndarray):
+    """The default layout: the 3D scene (seen from above the walk, south of it) beside the colour and depth
+    images, the dialogue when an episode is replayed, and the frame timeline selected."""
+    import rerun.blueprint as rrb
+
+    lo, hi = camera_xyz.min(axis=0), camera_xyz.max(axis=0)
+    centre = (lo + hi) / 2
+    span = float(max(hi[0] - lo[0], hi[1] - lo[1], 2.0)) + 2.0
+    eye = rrb.EyeControls3D(position=centre + np.array([0.0, -0.7 * span, 1.1 * span]),
+                            look_target=[centre[0], centre[1], lo[2] - 1.0], eye_up=[0.0, 0.0, 1.0])
+
+    side = [rrb.Spatial2DView(origin="/world/camera/image", contents=["/world/camera/image/rgb"], name="colour"),
+            rrb.Spatial2DView(origin="/world/camera/image", contents=["/world/camera/image/depth"], name="depth (mm)")]
+    if with_episode:
+        side.append(rrb.TextLogView(origin="/dialogue", name="dialogue"))
+    return rrb.Blueprint(rrb.Horizontal(rrb.Spatial3DView(origin="/world", name="scene (z up, metres)", eye_controls=eye),
+                                        rrb.Vertical(*side), column_shares=[3, 2]),
+                         rrb.TimePanel(timeline="frame"), collapse_panels=False)
+
+
 # ----------------------------------------------------------------------------- frames and geometry
 
-def _log_frames(rec, rr, frames_path: Path, max_frames: int, jpeg_quality: int) -> int:
-    """Colour, depth, camera and trajectory; returns the number of frames logged."""
+def _log_frames(rec, rr, frames_path: Path, max_frames: int, jpeg_quality: int) -> tuple[int, np.ndarray]:
+    """Colour, depth, camera and trajectory; returns the number of frames logged and the ``(N,3)`` camera positions."""
     import cv2
 
     from pipeline.frames import FrameStore
@@ -142,11 +164,16 @@ def _log_frames(rec, rr, frames_path: Path, max_frames: int, jpeg_quality: int) 
         rec.log("world/camera/image/rgb", rr.EncodedImage(contents=jpg.tobytes(), media_type="image/jpeg"))
         rec.log("world/camera/image/depth", rr.EncodedDepthImage(png.tobytes(), media_type="image/png", meter=1000.0))
     rec.reset_time()
-    return int(len(keep))
+    return int(len(keep)), poses[ok, :3, 3]
 
 
-def _log_mesh(rec, rr, recon, voxel_m: float) -> int:
+def _log_mesh(rec, rr, recon, voxel_m: float, top_m: float | None) -> int:
     mesh = recon.mesh()
+    if top_m is not None and len(mesh.triangles):
+        z = np.asarray(mesh.vertices)[:, 2]
+        above = (z[np.asarray(mesh.triangles)] > recon.floor_z + top_m).all(axis=1)
+        mesh.remove_triangles_by_mask(above)
+        mesh.remove_unreferenced_vertices()
     if voxel_m > 0:
         import open3d as o3d
 

@@ -60,17 +60,30 @@ def test_recording_holds_every_layer_and_the_episode(built_scene, evaluated, tmp
 
     import rerun as rr
 
+    import numpy as np
+
+    from pipeline.recon import Recon
+
     goals, routes = Goals(ws.artifact("goals", "tiny")), Routes(ws.artifact("routes", "tiny"))
-    boxes = strips = None
-    for chunk in rr.chunk.RrdReader(rrd).stream():
+    recon = Recon(ws.artifact("recon", "tiny"))
+    boxes = strips = mesh_xyz = None
+    reader = rr.chunk.RrdReader(rrd)
+    assert len(reader.blueprints()) == 1  # the default layout travels with the recording
+    for chunk in reader.stream():
         batch = chunk.to_record_batch()
         if chunk.entity_path == "/world/goals":
             boxes = batch.column("Boxes3D:labels")[0].as_py()
         if chunk.entity_path == "/world/routes":
             strips = batch.column("LineStrips3D:strips")[0].as_py()
+        if chunk.entity_path == "/world/mesh":
+            mesh_xyz = np.asarray(batch.column("Mesh3D:vertex_positions")[0].as_py())
     assert len(boxes) == sum(len(g.object_keys) for g in goals.goals)
     assert any(goals.goals[0].name in b for b in boxes)
     assert len(strips) == len(routes.episodes)
+    # the ceiling is left out (default --mesh-top 2.2 m) and the mesh simplified (--mesh-voxel 0.04 m)
+    full = np.asarray(recon.mesh().vertices)
+    assert full[:, 2].max() > recon.floor_z + 2.3 and mesh_xyz[:, 2].max() < recon.floor_z + 2.3
+    assert len(mesh_xyz) < 0.8 * len(full)
 
 
 def test_view_errors_exit_1(built_scene, evaluated, tmp_path, capsys):
