@@ -151,7 +151,7 @@ def child_folder(frames: Path, n: int, out: Path, fmt: str) -> dict:
 def child_ingest(log: Path, out: Path, n: int, codec: str, fmt: str = "auto") -> dict:
     """Ingest ``log``; wall and CPU time (the machine may be shared: CPU seconds per frame is the stable figure)."""
     from pipeline.config import IngestParams
-    from stages.ingest import ingest_path
+    from pipeline.readers.ingest import ingest_path
 
     rss0 = _peak_rss_mb()
     t0, c0 = time.perf_counter(), _cpu_s()

@@ -41,8 +41,8 @@ SWEEP_SIM = {"width": 160, "height": 120, "rooms_min": 3, "rooms_max": 3}
 
 def prepare(workdir: Path, scene: str, n_frames: int, small: bool = False) -> Path:
     from pipeline.config import IngestParams, SimulateParams
+    from pipeline.readers.ingest import ingest_path
     from pipeline.sim import simulate_scene
-    from stages.ingest import ingest_path
 
     tag = f"{scene}_{n_frames}" + ("_small" if small else "")
     frames = workdir / f"{tag}.zarr"

@@ -1,24 +1,46 @@
 """Objects -> personalized goals with feedback: selection, names, FB, and applying user edits.
 
-One pure function, :func:`build_goals`, from plain inputs (objects, grid, wall/navigable arrays, a
-start pose, settings) to a :class:`~pipeline.goals.schema.GoalsDocument` plus the structured
-landmarks; the goals stage only reads artifacts and writes the result.
+:func:`build_scene_goals` is the work of the ``goals`` stage: objects of one scene (GT in frames.zarr, a
+user file, or navchat annotations; :func:`load_objects`) -> ``goals.zarr``. Landmark line of sight
+uses the GT walls when the scene is simulated, else recon's occupied cells outside object footprints
+(:func:`wall_grid`); procedural text starts from the recording's first camera pose (:func:`start_pose`)
+and ends in the goal region the routes stage uses (:func:`region_function`:
+:func:`pipeline.routes.region.group_region`, line of sight on ``recon_mesh.ply``), planned as the
+routes stage plans its episodes. A user edit (``goals.edits[scene]``, written by ``zipon goals import``)
+replaces the generated document after it is checked against the scene's objects. Format:
+:mod:`pipeline.goals.store`.
+
+Its core is one pure function, :func:`build_goals`, from plain inputs (objects, grid, wall/navigable
+arrays, a start pose, settings) to a :class:`~pipeline.goals.schema.GoalsDocument` plus the
+structured landmarks.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
 
 import numpy as np
+from scipy import ndimage
 
-from pipeline.errors import InputDataError, StageError
-from pipeline.geometry import GridSpec
+from pipeline.config import GoalsParams, RoutesParams
+from pipeline.errors import ConfigError, InputDataError, StageError
+from pipeline.frames import FrameStore
+from pipeline.geometry import GridSpec, camera_yaw
 from pipeline.goals.feedback import FEEDBACK_KINDS, FeedbackContext, GoalDraft
 from pipeline.goals.feedback.landmark import find_landmarks
 from pipeline.goals.naming import assign_rooms, ensure_unique, personalize, same_goal_groups
-from pipeline.goals.objects import ObjectSet, rasterize_polygons
+from pipeline.goals.navchat import check_navchat_coverage, import_navchat, navchat_frame
+from pipeline.goals.objects import ObjectSet, objects_from_file, objects_from_gt, rasterize_polygons
 from pipeline.goals.schema import (Feedback, GoalEntry, GoalsDocument, ObjectEntry, RoomEntry,
-                                   check_against_objects)
+                                   check_against_objects, document_digest, load_document)
+from pipeline.goals.store import write_goals
+from pipeline.recon import OCCUPIED, UNKNOWN, Recon
+from pipeline.routes.actions import RoutePlanner, RouteSettings
+from pipeline.routes.region import MeshSight, group_region, recorded_camera_height
+from pipeline.scene_gt import GTScene
 
 GOAL_TYPES = ("big", "small", "ambiguous")
 
@@ -158,3 +180,131 @@ def prune_document(doc: GoalsDocument, object_keys: set[str]) -> tuple[GoalsDocu
             dropped.append(g.id)
     objects = {k: v for k, v in doc.objects.items() if k in object_keys}
     return doc.model_copy(update={"goals": kept, "objects": objects}), dropped
+
+
+# ----------------------------------------------------------------------------- one scene (the goals stage's work)
+
+# GT walls block line of sight from this height above the floor (skirting and floor-level clutter do not)
+WALL_MIN_HEIGHT_M = 0.05
+# without GT walls, occupied cells within this distance of an object footprint are the object, not a wall
+OBJECT_MARGIN_M = 0.15
+
+
+def load_objects(scene: str, frames: FrameStore, grid: GridSpec, p: GoalsParams, root: Path, log=print
+                 ) -> tuple[ObjectSet, GoalsDocument | None, GTScene | None]:
+    """``(ObjectSet, navchat goals document | None, GTScene | None)`` per ``goals.objects``; paths in ``p``
+    are relative to ``root`` (the params file's folder)."""
+    gt = frames.ground_truth
+    kind = p.objects
+    if kind == "auto":
+        kind = "gt" if gt else "file" if scene in p.objects_files else "navchat" if scene in p.navchat_dirs else ""
+    if kind == "gt":
+        if not gt:
+            raise InputDataError("no ground truth (attrs.ground_truth) to take objects from", path=frames.path,
+                                 field="attrs.ground_truth", expected="a simulated scene, or goals.objects: file")
+        scene_gt = GTScene.model_validate(gt)
+        return objects_from_gt(scene_gt, scene), None, scene_gt
+    if kind == "file":
+        if scene not in p.objects_files:
+            raise ConfigError(f"goals.objects_files.{scene}: no objects file given for scene {scene!r}")
+        return objects_from_file(root / p.objects_files[scene], scene), None, None
+    if kind == "navchat":
+        if scene not in p.navchat_dirs:
+            raise ConfigError(f"goals.navchat_dirs.{scene}: no navchat folder given for scene {scene!r}")
+        objset, doc = import_navchat(root / p.navchat_dirs[scene], navchat_frame(p.navchat_grid, frames, grid), scene,
+                                     log=log)
+        return objset, doc, None
+    raise ConfigError(f"goals.objects: scene {scene!r} has no ground truth; give goals.objects_files.{scene} "
+                      f"or goals.navchat_dirs.{scene}")
+
+
+def wall_grid(objset: ObjectSet, recon: Recon, gt: GTScene | None, object_index: np.ndarray) -> np.ndarray:
+    """``(rows, cols)`` bool cells that block line of sight: GT walls (from :data:`WALL_MIN_HEIGHT_M` up to the
+    wall height), else occupied cells farther than :data:`OBJECT_MARGIN_M` from every object footprint."""
+    grid = recon.grid
+    if gt is not None:
+        return gt.occupancy(grid, WALL_MIN_HEIGHT_M, gt.wall_height_m, objects=False)
+    near_obj = ndimage.binary_dilation(object_index > 0,
+                                       iterations=max(1, int(round(OBJECT_MARGIN_M / grid.cell_size_m))))
+    return (recon.occupancy == OCCUPIED) & ~near_obj
+
+
+def region_function(recon: Recon, objset: ObjectSet, success_m: float):
+    """``(members, object_index, keys) -> (rows, cols)`` bool goal region, exactly as the routes stage
+    computes it (:func:`pipeline.routes.region.group_region`; line of sight by ray casting
+    ``recon_mesh.ply`` from the recording's median camera height). The mesh is read on first use."""
+    objects = {o.key: o for o in objset.objects}
+    state: dict = {}
+
+    def region(members, object_index, keys):
+        if "sight" not in state:
+            cam_h = recorded_camera_height(recon.poses, recon.floor_z)
+            state["sight"] = MeshSight.from_mesh(recon.mesh_path, floor_z=recon.floor_z, camera_height_m=cam_h,
+                                                 grid=recon.grid)
+        return group_region(recon.navigable, object_index, list(keys), members, objects, recon.grid,
+                            state["sight"], success_m=success_m)
+
+    return region
+
+
+def start_pose(frames: FrameStore) -> tuple[float, float, float] | None:
+    """``(x_m, y_m, yaw_rad)`` of the recording's first camera with a finite pose, or None."""
+    poses = frames.poses()
+    ok = np.flatnonzero(np.isfinite(poses).all(axis=(1, 2)))
+    if not ok.size:
+        return None
+    T = poses[ok[0]]
+    return float(T[0, 3]), float(T[1, 3]), float(camera_yaw(T))
+
+
+def build_scene_goals(frames: FrameStore, recon: Recon, out_path: Path, attrs: dict, *, scene: str, goals: GoalsParams,
+                      routes: RoutesParams, root: Path, log: Callable[[str], None] = print) -> dict:
+    """The goals of ``scene`` written to a new ``goals.zarr`` at ``out_path`` (``attrs``: its artifact attrs);
+    ``routes`` plans the procedural feedback as the routes stage plans its episodes. Paths in ``goals`` are
+    relative to ``root``. Returns the summary figures (the stage's manifest summary)."""
+    t0 = time.perf_counter()
+    p, rp = goals, routes
+    grid = recon.grid
+    objset, navchat_doc, gt = load_objects(scene, frames, grid, p, root, log=log)
+    if objset.source == "navchat":
+        check_navchat_coverage(objset, grid, recon.occupancy != UNKNOWN, p.navchat_max_outside,
+                               path=p.navchat_dirs[scene], log=log)
+    edits, edits_path, edits_info = navchat_doc, None, None
+    if scene in p.edits:
+        edits_path = root / p.edits[scene]
+        edits = load_document(edits_path)
+        digest = document_digest(edits)
+        if digest not in edits_path.name:
+            raise InputDataError(f"content digest {digest} is not in the file name; the file was changed after "
+                                 f"import (import it again: zipon goals import)", path=edits_path)
+        edits_info = {"path": p.edits[scene], "digest": digest}
+    dropped: list[str] = []
+    if edits is not None and p.edits_missing_objects == "drop":
+        edits, dropped = prune_document(edits, {o.key for o in objset.objects})
+        for d in dropped:
+            log(f"edited goal {d} dropped: its objects no longer exist")
+    planner = RoutePlanner(recon.navigable, grid, RouteSettings(rp.step_m, rp.turn_deg, rp.clearance_m,
+                                                                rp.stop_radius_m))
+    settings = GoalSettings(seed=p.seed, max_goals=p.max_goals, mix=tuple(p.mix),
+                            same_goal_radius_m=p.same_goal_radius_m, landmark_radius_m=p.landmark_radius_m,
+                            max_landmarks=p.max_landmarks, landmark_min_area_m2=p.landmark_min_area_m2,
+                            exclude_classes=tuple(p.exclude_classes))
+    object_index = rasterize_polygons([np.asarray(o.footprint) for o in objset.objects], grid)
+    walls = wall_grid(objset, recon, gt, object_index)
+    pose0 = start_pose(frames)
+    res = build_goals(objset, grid, walls, planner=planner, start_pose=pose0, settings=settings, edits=edits,
+                      edits_path=edits_path, goal_region=region_function(recon, objset, rp.success_m))
+    write_goals(out_path, document=res.document, objset=objset, landmarks=res.landmarks,
+                object_index=res.object_index, grid=grid, attrs=attrs, start_pose=pose0, edits=edits_info)
+    built = res.document.goals
+    types = {t: sum(g.type == t for g in built) for t in GOAL_TYPES}
+    log(f"{len(built)} goals ({types['big']} big, {types['small']} small, {types['ambiguous']} ambiguous) "
+        f"from {len(objset.objects)} {objset.source} objects")
+    return {
+        "objects": len(objset.objects), "objects_source": objset.source, "goals": len(built), **types,
+        "same_goal_groups": sum(len(g.objects) > 1 for g in built),
+        "with_landmarks": sum(bool(g.feedback.landmark) for g in built),
+        "with_procedural": sum(g.feedback.procedural is not None for g in built),
+        "edited": bool(res.edited), "dropped_edited_goals": dropped,
+        "seconds": round(time.perf_counter() - t0, 3),
+    }

@@ -1,4 +1,5 @@
-"""Raw-data readers (one file per format) behind :class:`pipeline.readers.base.Reader`, and the shared matcher."""
+"""Raw-data readers (one file per format) behind :class:`pipeline.readers.base.Reader`, the shared matcher, and
+:mod:`~pipeline.readers.ingest` (the ingest stage's work: source -> ``frames.zarr``)."""
 
 from pipeline.readers import mcap, navchat, replica, rosbag, scannet, sevenscenes, tum  # noqa: F401  (register the readers)
 from pipeline.readers.base import READERS, Reader, Sample, SourceInfo, detect_format, open_reader

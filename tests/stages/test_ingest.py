@@ -9,10 +9,10 @@ import numpy as np
 from pipeline.config import parse_params
 from pipeline.frames import FrameStore
 from pipeline.paths import Workspace
+from pipeline.readers.ingest import ingest_path
 from pipeline.runner import run_stage
 from pipeline.store import content_digest
 from stages import STAGES
-from stages.ingest import ingest_path
 from tests.fixtures.raw_datasets import make_recording, write_mcap
 
 

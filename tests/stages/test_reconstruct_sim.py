@@ -8,7 +8,7 @@ from pipeline.recon import FREE, Recon
 from pipeline.recon.evaluate import grid_accuracy
 
 sim = pytest.importorskip("pipeline.sim")
-ingest_mod = pytest.importorskip("stages.ingest")
+ingest_mod = pytest.importorskip("pipeline.readers.ingest")
 
 
 def test_simulated_apartment_grids_match_the_ground_truth_floor_plan(tmp_path):

@@ -234,7 +234,7 @@ def test_frame_from_an_ingested_navchat_recording_matches_navchats_own_formula(t
     zipon builds from the ingested recording's first camera pose (habitat_to_world + NavchatFrame)."""
     from pipeline.config import IngestParams
     from pipeline.frames import FrameStore
-    from stages.ingest import ingest_path
+    from pipeline.readers.ingest import ingest_path
     from tests.fixtures.raw_datasets import make_recording, navchat_base, write_navchat
 
     root = write_navchat(tmp_path, make_recording(3))

@@ -15,7 +15,7 @@ from pipeline.config import IngestParams, SceneFormat
 from pipeline.errors import InputDataError, MissingInputError
 from pipeline.frames import FrameStore
 from pipeline.readers import READERS, detect_format, open_reader
-from stages.ingest import ingest_path
+from pipeline.readers.ingest import ingest_path
 from tests.fixtures.raw_datasets import (decoded, make_recording, navchat_expected_poses, write_7scenes, write_bag,
                                          write_mcap, write_navchat, write_replica, write_scannet, write_tum)
 

@@ -8,8 +8,8 @@ import pytest
 from pipeline.config import IngestParams, IngestTopics
 from pipeline.errors import InputDataError
 from pipeline.frames import FrameStore
+from pipeline.readers.ingest import ingest_path
 from pipeline.scene_gt import Box, GTObject, GTRoom, GTScene
-from stages.ingest import ingest_path
 from tests.fixtures.raw_datasets import RawLog, make_recording, write_mcap, write_raw_log
 
 QUIET = {"log": lambda m: None}

@@ -10,7 +10,7 @@ from pipeline.errors import InputDataError
 from pipeline.frames import FrameStore
 from pipeline.geometry import habitat_to_world, pose_from_tq
 from pipeline.readers import open_reader
-from stages.ingest import ingest_path
+from pipeline.readers.ingest import ingest_path
 from tests.fixtures.raw_datasets import cli_ingest, make_recording, navchat_base, write_navchat
 
 QUIET = {"log": lambda m: None}

@@ -10,8 +10,8 @@ from pipeline.config import IngestParams
 from pipeline.errors import InputDataError
 from pipeline.frames import FrameStore
 from pipeline.geometry import Intrinsics
+from pipeline.readers.ingest import ingest_path
 from pipeline.readers.registration import DepthRegistration
-from stages.ingest import ingest_path
 from tests.fixtures.raw_datasets import cli_ingest, write_realsense_mcap
 
 QUIET = {"log": lambda m: None}

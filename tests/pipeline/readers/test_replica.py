@@ -8,7 +8,7 @@ import pytest
 from pipeline.config import IngestParams
 from pipeline.errors import InputDataError
 from pipeline.frames import FrameStore
-from stages.ingest import ingest_path
+from pipeline.readers.ingest import ingest_path
 from tests.fixtures.raw_datasets import cli_ingest, make_recording, write_replica
 
 QUIET = {"log": lambda m: None}

@@ -10,7 +10,7 @@ from pipeline.config import IngestParams
 from pipeline.errors import InputDataError
 from pipeline.frames import FrameStore
 from pipeline.readers import detect_format
-from stages.ingest import ingest_path
+from pipeline.readers.ingest import ingest_path
 from tests.fixtures.raw_datasets import BAG_KINDS, cli_ingest, make_recording, write_bag
 
 QUIET = {"log": lambda m: None}

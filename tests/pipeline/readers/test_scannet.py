@@ -9,7 +9,7 @@ from pipeline.config import IngestParams
 from pipeline.errors import InputDataError
 from pipeline.frames import FrameStore
 from pipeline.geometry import Intrinsics
-from stages.ingest import ingest_path
+from pipeline.readers.ingest import ingest_path
 from tests.fixtures.raw_datasets import cli_ingest, make_recording, write_scannet
 
 QUIET = {"log": lambda m: None}

@@ -12,7 +12,7 @@ from pipeline.config import IngestParams
 from pipeline.errors import InputDataError
 from pipeline.frames import FrameStore
 from pipeline.geometry import rigid_error
-from stages.ingest import ingest_path
+from pipeline.readers.ingest import ingest_path
 from tests.fixtures.raw_datasets import make_recording, write_7scenes, write_7scenes_rendered
 
 QUIET = {"log": lambda m: None}

@@ -13,8 +13,8 @@ from pipeline.errors import InputDataError
 from pipeline.frames import FrameStore
 from pipeline.geometry import pose_from_tq
 from pipeline.readers import open_reader
+from pipeline.readers.ingest import ingest_path
 from pipeline.readers.tum import tum_depth_to_mm
-from stages.ingest import ingest_path
 from tests.fixtures.raw_datasets import make_recording, write_tum
 
 REAL = Path(__file__).resolve().parents[4] / "shared/data/real/tum_fr1_rpy_head30"

@@ -1,0 +1,232 @@
+"""The house's layering, read from the source with ``ast`` (nothing is imported):
+
+stages -> pipeline packages -> stores / geometry / config. The library (``pipeline``, ``orion_eval``,
+``zipon``) never imports ``stages``; each ``stages/<name>.py`` is its ``Config`` and a short ``run(ctx)``
+over one library function; no two project modules import each other at module level. The checks are
+run on a small made-up tree first, so a check that finds nothing has been seen to find something.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("pipeline", "stages", "orion_eval", "zipon")
+LIBRARY = ("pipeline", "orion_eval", "zipon")
+
+# Library files allowed to import `stages`, each with the issue item that removes the exception.
+STAGES_IMPORT_ALLOWED = {
+    # The CLI runs the stage registry, so it is a client above the stages, not library code; issue 16 item 5
+    # moves it into a `cli` package (cli/common.py, cli/build.py, cli/inspect.py) outside the library.
+    "pipeline/cli.py": "issue 16 item 5",
+    "pipeline/cli_inspect.py": "issue 16 item 5",
+}
+# Module-level import cycles that exist today, each with the issue item that removes it.
+MODULE_LEVEL_CYCLES_ALLOWED = {
+    # cli.py registers the inspect commands by a mid-file import, and cli_inspect.py imports cli's app and
+    # private helpers back (`python -m pipeline.cli` fails on it); issue 16 item 5: the CLI becomes a package.
+    frozenset({"pipeline.cli", "pipeline.cli_inspect"}): "issue 16 item 5",
+}
+# Cycles closed only by imports inside functions (they work, but a module still needs its importer).
+DEFERRED_CYCLES_ALLOWED = {
+    **MODULE_LEVEL_CYCLES_ALLOWED,
+    # store.SemanticMap.scores imports levels.chunked_scores, levels imports store.SemanticMap;
+    # issue 16 item 5: chunked_scores moves to a leaf module.
+    frozenset({"pipeline.maps.store", "pipeline.maps.levels"}): "issue 16 item 5",
+    # zipon.api's run_eval calls zipon.evaluate.run_eval, which opens datasets through zipon.api (the facade
+    # and its evaluator are one unit; no issue item removes this yet).
+    frozenset({"zipon.api", "zipon.evaluate"}): "none yet",
+    # The encoder registry is filled on demand (pipeline.encoders.choice.load imports every implementation
+    # inside a function so that building a stage config imports no torch); each implementation imports base.
+    frozenset({"pipeline.encoders.base", "pipeline.encoders.choice", "pipeline.encoders.conceptfusion",
+               "pipeline.encoders.lseg", "pipeline.encoders.maskclip", "pipeline.encoders.oracle",
+               "pipeline.encoders.perception", "pipeline.encoders.perception_text",
+               "pipeline.encoders.torchscript"}): "by design (lazy registry, pipeline/encoders/choice.py)",
+}
+
+
+# ----------------------------------------------------------------------------- reading imports
+
+
+def project_modules(root: Path, packages=PACKAGES) -> dict[str, Path]:
+    """``{dotted module name: file}`` of every module of ``packages`` under ``root``."""
+    found = {}
+    for pkg in packages:
+        for path in sorted((root / pkg).rglob("*.py")):
+            parts = list(path.relative_to(root).with_suffix("").parts)
+            found[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return found
+
+
+def _is_type_checking(test: ast.expr) -> bool:
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
+
+
+def _module_level(body: list[ast.stmt]):
+    """Import statements Python runs when the module is imported: the module body, its if/try/with blocks and
+    class bodies; not functions, not ``if TYPE_CHECKING:`` blocks."""
+    for node in body:
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            yield node
+        elif isinstance(node, ast.If):
+            if not _is_type_checking(node.test):
+                yield from _module_level(node.body)
+            yield from _module_level(node.orelse)
+        elif isinstance(node, ast.Try):
+            for block in (node.body, node.orelse, node.finalbody, *(h.body for h in node.handlers)):
+                yield from _module_level(block)
+        elif isinstance(node, (ast.With, ast.ClassDef)):
+            yield from _module_level(node.body)
+
+
+def imports(path: Path, module: str, modules: dict[str, Path], *, module_level: bool) -> list[tuple[str, int]]:
+    """``(project module, line)`` for every import in ``path``: ``from a import b`` names ``a.b`` when that is a
+    module, else ``a``; relative imports are resolved against ``module``'s package."""
+    tree = ast.parse(path.read_bytes(), filename=str(path))
+    nodes = _module_level(tree.body) if module_level else (
+        n for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom)))
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found = []
+    for node in nodes:
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        else:
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")
+                base = ".".join(parts[: len(parts) - node.level + 1] + ([node.module] if node.module else []))
+            names = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names]
+        found += [(name, node.lineno) for name in names if name.split(".")[0] in PACKAGES]
+    return found
+
+
+def import_cycles(modules: dict[str, Path], *, module_level: bool) -> list[frozenset[str]]:
+    """Strongly connected groups of two or more modules in the import graph (Tarjan, iterative)."""
+    graph = {m: sorted({n for n, _ in imports(p, m, modules, module_level=module_level) if n in modules} - {m})
+             for m, p in modules.items()}
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    groups = []
+    for start in graph:
+        if start in index:
+            continue
+        work = [(start, iter(graph[start]))]
+        index[start] = low[start] = len(index)
+        stack.append(start)
+        on_stack.add(start)
+        while work:
+            node, edges = work[-1]
+            nxt = next(edges, None)
+            if nxt is None:
+                work.pop()
+                if work:
+                    low[work[-1][0]] = min(low[work[-1][0]], low[node])
+                if low[node] == index[node]:
+                    group = set()
+                    while True:
+                        member = stack.pop()
+                        on_stack.discard(member)
+                        group.add(member)
+                        if member == node:
+                            break
+                    if len(group) > 1:
+                        groups.append(frozenset(group))
+            elif nxt not in index:
+                index[nxt] = low[nxt] = len(index)
+                stack.append(nxt)
+                on_stack.add(nxt)
+                work.append((nxt, iter(graph[nxt])))
+            elif nxt in on_stack:
+                low[node] = min(low[node], index[nxt])
+    return groups
+
+
+def stage_imports(root: Path) -> list[str]:
+    """``file:line imports stages`` for every library file (any scope) that imports the ``stages`` package."""
+    modules = project_modules(root)
+    return [f"{path.relative_to(root).as_posix()}:{line} imports {name}"
+            for module, path in modules.items() if module.split(".")[0] in LIBRARY
+            for name, line in imports(path, module, modules, module_level=False) if name.split(".")[0] == "stages"]
+
+
+def _outside(groups: list[frozenset[str]], allowed) -> list[list[str]]:
+    return [sorted(g) for g in groups if not any(g <= a for a in allowed)]
+
+
+# ----------------------------------------------------------------------------- the checks, first on a made-up tree
+
+
+@pytest.fixture
+def toy_tree(tmp_path):
+    files = {
+        "pipeline/__init__.py": "",
+        "pipeline/a.py": "from pipeline import b\n",
+        "pipeline/b.py": "from . import a\n",  # a <-> b at module level
+        "pipeline/c.py": "def f():\n    from pipeline import d\n",
+        "pipeline/d.py": "from pipeline.c import f\n",  # c <-> d only through a function
+        "pipeline/e.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from pipeline import a\n",
+        "pipeline/sub/__init__.py": "from .leaf import X\n",
+        "pipeline/sub/leaf.py": "X = 1\n",
+        "pipeline/cli.py": "def main():\n    from stages import STAGES\n",
+        "stages/__init__.py": "from pipeline import a\n",
+        "orion_eval/__init__.py": "",
+        "zipon/__init__.py": "import stages.x\n",
+    }
+    for rel, text in files.items():
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text(text)
+    return tmp_path
+
+
+def test_the_checks_find_what_a_made_up_tree_holds(toy_tree):
+    modules = project_modules(toy_tree)
+    assert set(import_cycles(modules, module_level=True)) == {frozenset({"pipeline.a", "pipeline.b"})}
+    assert set(import_cycles(modules, module_level=False)) == {frozenset({"pipeline.a", "pipeline.b"}),
+                                                               frozenset({"pipeline.c", "pipeline.d"})}
+    assert stage_imports(toy_tree) == ["pipeline/cli.py:2 imports stages", "zipon/__init__.py:1 imports stages.x"]
+
+
+# ----------------------------------------------------------------------------- the checks on the project
+
+
+def test_the_library_never_imports_stages():
+    found = [f for f in stage_imports(ROOT) if f.split(":")[0] not in STAGES_IMPORT_ALLOWED]
+    assert found == [], "the library imports the stages (stages -> pipeline, never back)"
+
+
+def test_no_import_cycles_at_module_level():
+    cycles = import_cycles(project_modules(ROOT), module_level=True)
+    assert _outside(cycles, MODULE_LEVEL_CYCLES_ALLOWED) == []
+
+
+def test_no_new_cycles_through_imports_inside_functions():
+    cycles = import_cycles(project_modules(ROOT), module_level=False)
+    assert _outside(cycles, DEFERRED_CYCLES_ALLOWED) == []
+
+
+STAGE_MODULES = sorted(p for p in (ROOT / "stages").glob("*.py") if p.name != "__init__.py")
+
+
+@pytest.mark.parametrize("path", STAGE_MODULES, ids=lambda p: p.stem)
+def test_a_stage_is_its_config_and_a_short_run_over_the_library(path):
+    """The stage rule (DESIGN.md): ``Config`` + ``run(ctx)`` of at most 40 lines and no loop of its own; it imports
+    the library, not another stage."""
+    tree = ast.parse(path.read_text())
+    defs = {n.name: n for n in tree.body if isinstance(n, (ast.FunctionDef, ast.ClassDef))}
+    configs = {t.id for n in tree.body if isinstance(n, ast.Assign) for t in n.targets if isinstance(t, ast.Name)}
+    assert "Config" in defs or "Config" in configs, f"{path.name}: no Config"
+    run = defs.get("run")
+    assert isinstance(run, ast.FunctionDef), f"{path.name}: no run(ctx)"
+    assert run.end_lineno - run.lineno + 1 <= 40, f"{path.name}: run() has {run.end_lineno - run.lineno + 1} lines"
+    loops = [n.lineno for n in ast.walk(run) if isinstance(n, (ast.For, ast.While, ast.comprehension))]
+    assert loops == [], f"{path.name}: run() loops at lines {loops}; the work belongs in the library"
+    modules = project_modules(ROOT)
+    own = [n for n, _ in imports(path, f"stages.{path.stem}", modules, module_level=False)]
+    assert [n for n in own if n.split(".")[0] == "stages"] == []
+    assert any(n.split(".")[0] == "pipeline" for n in own)
