@@ -77,9 +77,23 @@ def test_recording_holds_every_layer_and_the_episode(built_scene, evaluated, tmp
             strips = batch.column("LineStrips3D:strips")[0].as_py()
         if chunk.entity_path == "/world/mesh":
             mesh_xyz = np.asarray(batch.column("Mesh3D:vertex_positions")[0].as_py())
+        if chunk.entity_path == "/world/grids/color":
+            corners = np.asarray(batch.column("Mesh3D:vertex_positions")[0].as_py())
+            fmt = batch.column("Mesh3D:albedo_texture_format")[0].as_py()[0]
+            texture = np.asarray(batch.column("Mesh3D:albedo_texture_buffer")[0].as_py()[0], np.uint8)
     assert len(boxes) == sum(len(g.object_keys) for g in goals.goals)
     assert any(goals.goals[0].name in b for b in boxes)
     assert len(strips) == len(routes.episodes)
+    # the colour grid's plane: its first corner is the north-west corner of the observed cells and its texture is
+    # the recon colour of those cells, row 0 the north edge (so the plane is drawn north-up, like the PNGs)
+    seen = np.argwhere(recon.occupancy != 0)
+    (r0, c0), (r1, c1) = seen.min(axis=0), seen.max(axis=0) + 1
+    g = recon.grid
+    nw = g.cell_to_world(np.array([r0, c0])) + np.array([-g.cell_size_m / 2, g.cell_size_m / 2])
+    assert np.allclose(corners[0, :2], nw, atol=1e-4) and corners[2, 0] > corners[0, 0]  # east of the west edge
+    assert corners[2, 1] < corners[0, 1] and np.allclose(corners[:, 2], recon.floor_z - 0.25)
+    assert (fmt["width"], fmt["height"]) == (c1 - c0, r1 - r0)
+    assert np.array_equal(texture.reshape(r1 - r0, c1 - c0, 3), recon.color[r0:r1, c0:c1])
     # the ceiling is left out (default --mesh-top 2.2 m) and the mesh simplified (--mesh-voxel 0.04 m)
     full = np.asarray(recon.mesh().vertices)
     assert full[:, 2].max() > recon.floor_z + 2.3 and mesh_xyz[:, 2].max() < recon.floor_z + 2.3
