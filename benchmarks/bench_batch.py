@@ -13,6 +13,9 @@ measured in the same run, single-threaded, on the same data:
 - ``vlmap`` / ``cfmap``: ``torch.index_add_`` of ``h*w`` x ``D`` fp32 feature rows per frame (the
   encoder's output size) into an accumulator: the scatter every dense fusion has to do.
 
+It also runs each map stage's unit of work once more in-process on the first scene and prints the
+encoder's share of its CPU time (``encoder_share``; target: the oracle at most 5 %).
+
 Each run's line also gives its wall time, frames/s over the whole batch, the largest worker's
 peak RSS (``ru_maxrss`` of the run's processes) and the wall time the same rate implies for the
 paper's 14,159 frames (``--target-frames``). The machine's load average is printed before and
@@ -150,6 +153,42 @@ def kernel_index_add(h: int, w: int, dim: int, frames: int = 16, cells: int = 40
     return (time.perf_counter() - t0) / frames
 
 
+def encoder_share(params_path: Path, root: Path, scene: str, kind: str) -> dict:
+    """Seconds of one map stage's unit of work (``build_map``) on ``scene`` and of the encoder inside it
+    (the encoder's ``encode_images`` timed by a wrapper), in this process, single-threaded."""
+    from pipeline.config import load_params
+    from pipeline.encoders.base import Encoder
+    from pipeline.maps.build import MAP_CONFIGS, build_map
+    from pipeline.maps import fusion, store  # noqa: F401  (imported before timing: not the stage's work)
+    from pipeline.recon import Recon  # noqa: F401
+    from pipeline.scene_gt import GTScene  # noqa: F401
+
+    spent = [0.0]
+    encode = Encoder.encode_images
+
+    def timed(self, *a, **kw):
+        t0 = time.process_time()
+        try:
+            return encode(self, *a, **kw)
+        finally:
+            spent[0] += time.process_time() - t0
+
+    params = load_params(params_path)
+    config = MAP_CONFIGS[kind].from_params(params, scene)
+    art = root / "data" / "artifacts" / scene
+    out = Path(tempfile.mkdtemp(prefix=f"share-{kind}-")) / f"{kind}.zarr"
+    Encoder.encode_images = timed
+    try:
+        t0 = time.process_time()
+        build_map(config, art / "frames.zarr", art / "recon.zarr", out, {"artifact": kind, "format_version": 1})
+        stage = time.process_time() - t0
+    finally:
+        Encoder.encode_images = encode
+        shutil.rmtree(out.parent, ignore_errors=True)
+    return {"map": kind, "encoder": config.encoder, "stage_cpu_s": round(stage, 3), "encoder_cpu_s": round(spent[0], 3),
+            "encoder_share": round(spent[0] / stage, 4)}
+
+
 # ----------------------------------------------------------------------------- main
 
 def main() -> None:
@@ -198,6 +237,10 @@ def main() -> None:
                 emit(bench="batch", kind="kernels", s_per_frame={k: round(v, 6) for k, v in kernels.items()},
                      kernel_frames={"zstd_decode": total, "o3d_integrate": n, "index_add": 16},
                      feature_rows=[h * w, p.encoders.oracle.dim], loadavg=load())
+                for kind in ("vlmap", "cfmap"):
+                    if kind in args.stages:
+                        emit(bench="batch", kind="encoder_share", scene=scenes[0], frames=args.frames,
+                             **encoder_share(params, root, scenes[0], kind), loadavg=load())
                 first = False
             timing = manifests(root, scenes, args.stages)
             for stage in args.stages:
