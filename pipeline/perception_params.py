@@ -63,9 +63,9 @@ class _PerceptionParams(_Section):
     )
     object_confusion: float = Field(
         0.35, ge=0, le=1, description="probability an object is confused in most views (a persistent error: the same "
-        "object looks like its neighbour class from every side); set with blur_cells so the vlmap's mAcc / F-mIoU "
-        "on sim_00 (41.0 / 44.5 at blur 2.5; 52.8 / 49.7 at 0.2 and blur 4) brackets LSeg's 33.4 / 51.5 "
-        "(benchmarks/quality_maps.py)"
+        "object looks like its neighbour class from every side); with blur_cells 3 the vlmap's mAcc / F-mIoU on the "
+        "two demo scenes is 39.1 / 43.5 against LSeg's 33.4 / 51.5 (0.2 with blur 4 gave 52.8 / 49.7 on sim_00; "
+        "benchmarks/quality_maps.py)"
     )
     object_confusion_strength: tuple[float, float] = Field(
         (0.5, 1.0), description="mixing weight (uniform in [lo, hi]) of the confused class in a persistently "
@@ -105,18 +105,19 @@ class SimulatedCFParams(_PerceptionParams):
     neighbouring regions, global-context mixing. Not a trained model."""
 
     object_confusion: float = Field(
-        0.7, ge=0, le=1, description="as for the LSeg-like model; higher: a region's CLIP crop is classified as "
-        "a whole (ConceptFusion mAcc 24.2 / F-mIoU 31.3 vs LSeg 33.4 / 51.5 in ConceptGraphs Table I; on sim_00 "
-        "0.45 gave 36.6 / 49.3, 0.6 with merge 0.3 gave 31.5 / 46.7, benchmarks/quality_maps.py)"
+        0.55, ge=0, le=1, description="as for the LSeg-like model; higher: a region's CLIP crop is classified as "
+        "a whole (ConceptFusion mAcc 24.2 / F-mIoU 31.3 vs LSeg 33.4 / 51.5 in ConceptGraphs Table I); on the two "
+        "demo scenes 0.45 with merges 0.15 gave 30.7 / 37.1, 0.7 with merges 0.3 gave 14.0 / 12.3 "
+        "(benchmarks/quality_maps.py)"
     )
-    object_confusion_strength: tuple[float, float] = Field((0.7, 1.0), description="see simulated_lseg")
+    object_confusion_strength: tuple[float, float] = Field((0.6, 1.0), description="see simulated_lseg")
     frame_confusion: float = Field(0.2, ge=0, le=1, description="see simulated_lseg (a whole region per frame)")
     attribute_weight: float = Field(
         0.5, ge=0, description="CLIP crops keep colour and material better than LSeg's class-trained head "
         "(modelling choice: text side uses 0.5 for colour)"
     )
     merge_probability: float = Field(
-        0.3, ge=0, le=1, description="per frame, probability two touching objects are one region (SAM/felzenszwalb "
+        0.2, ge=0, le=1, description="per frame, probability two touching objects are one region (SAM/felzenszwalb "
         "under-segmentation: the lamp with its nightstand); both get the area-weighted mean feature"
     )
     min_region_frac: float = Field(
