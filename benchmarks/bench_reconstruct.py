@@ -63,8 +63,8 @@ def prepare(workdir: Path, scene: str, n_frames: int, small: bool = False) -> Pa
 def worker(frames_path: Path, every: int, out_dir: Path) -> None:
     from pipeline.config import GridParams, ReconstructParams
     from pipeline.frames import FrameStore
+    from pipeline.recon.build import reconstruct
     from pipeline.recon.evaluate import evaluate_grids
-    from stages.reconstruct import reconstruct
 
     p, grid = ReconstructParams(), GridParams()
     store = FrameStore(frames_path)

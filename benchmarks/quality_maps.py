@@ -147,7 +147,7 @@ def print_table(rows: list[dict]) -> None:
 
 def fixture_settings(n_poses: int, n_frames: int, width: int, height: int):
     """The ray-cast box room with the oracle: clean, feature noise, class confusion, depth noise."""
-    from stages.reconstruct import reconstruct
+    from pipeline.recon.build import reconstruct
     from tests.fixtures.recon_scenes import write_box_room_frames
 
     settings = [

@@ -1,108 +1,14 @@
 """Stage ``reconstruct``: ``frames.zarr`` -> ``recon.zarr`` + ``recon_mesh.ply`` + ``recon_points.ply``.
 
-TSDF fusion of every frame (streamed in blocks; optional frame-to-model pose refinement), then
-the mesh and surface points, the floor height and the top-down grids (occupancy, navigable,
-colour, height) on the project grid. The format is documented in :mod:`pipeline.recon.store`.
+The work (TSDF fusion, mesh and points, floor, top-down grids) is :func:`pipeline.recon.build.reconstruct`;
+this module holds the stage's config and entry point.
 """
 
 from __future__ import annotations
 
-import time
-from pathlib import Path
-from typing import Callable, Sequence
-
-import numpy as np
-
-from pipeline.config import GridParams, ReconstructParams, StageConfig, digest_value
-from pipeline.errors import StageError
-from pipeline.frames import FrameStore
-from pipeline.recon import grids as grids_mod
-from pipeline.recon import tsdf
-from pipeline.recon.refine import PoseRefiner
-from pipeline.recon.store import ARTIFACT, FORMAT_VERSION, write_mesh, write_points, write_recon
+from pipeline.config import GridParams, ReconstructParams, StageConfig
+from pipeline.recon.build import reconstruct
 from pipeline.runner import StageContext
-from pipeline.store import artifact_attrs
-
-
-def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_path: Path,
-                p: ReconstructParams, grid: GridParams, *, frames: Sequence[int] | None = None,
-                params_digest: str | None = None, log: Callable[[str], None] = lambda m: None, progress=None) -> dict:
-    """Fuse ``frames_path`` (``frames``: a subset of frame indices; default all) and write the outputs.
-
-    Returns the summary figures (the stage's manifest summary).
-    """
-    store = FrameStore(frames_path)
-    grids_mod.lattice_ratio(grid, p)  # fail on a bad voxel/cell pairing before the long part
-    t0 = time.perf_counter()
-    refiner = PoseRefiner(p) if p.refine_poses else None
-    fusion = tsdf.fuse(store, p, frames=frames, refiner=refiner, progress=progress)
-    t_fuse = time.perf_counter() - t0
-    if fusion.empty_frames:
-        log(f"warning: {len(fusion.empty_frames)} frames without valid depth skipped (first: {fusion.empty_frames[0]})")
-
-    t1 = time.perf_counter()
-    mesh = tsdf.extract_mesh(fusion.volume, p)
-    xyz, normals, colors = tsdf.extract_points(fusion.volume, p)
-    if len(mesh.triangles) == 0 or len(xyz) == 0:
-        raise StageError(f"{frames_path}: the fused volume has no surface ({len(fusion.frames_fused)} frames fused); "
-                         f"an empty scene, or no place seen in {p.min_weight:g}+ frames (reconstruct.min_weight)")
-    mesh_info = write_mesh(mesh_path, mesh)
-    points_info = write_points(points_path, xyz, normals, colors)
-    del mesh
-    t_extract = time.perf_counter() - t1
-
-    t2 = time.perf_counter()
-    voxels = tsdf.iter_voxels(fusion.volume, p, min_weight=p.occupancy_min_weight)
-    grids = grids_mod.build_grids(xyz, normals, colors, voxels, fusion.T_world_camera, grid, p, source=str(frames_path))
-    t_grids = time.perf_counter() - t2
-    if grids.stats["points_outside_grid"]:
-        log(f"warning: {grids.stats['points_outside_grid']} surface points lie outside the grid "
-            f"({grids.stats['points_outside_fraction']:.2%}); they are counted, not mapped")
-
-    poses = np.full((store.n_frames, 4, 4), np.nan)
-    fused = np.zeros(store.n_frames, dtype=bool)
-    for i, T in fusion.T_world_camera.items():
-        poses[i], fused[i] = T, True
-    recorded = store.poses().astype(np.float64)
-    moved = np.linalg.norm(poses[fused, :3, 3] - recorded[fused, :3, 3], axis=1)
-    refinement = {"enabled": p.refine_poses, "max_moved_m": round(float(moved.max()), 5),
-                  "median_moved_m": round(float(np.median(moved)), 5)}
-    if refiner is not None:
-        refinement.update(refiner.summary())
-    figures = {
-        "frames": store.n_frames,
-        "frames_fused": len(fusion.frames_fused),
-        "frames_empty": len(fusion.empty_frames),
-        "tsdf_blocks": fusion.n_blocks,
-        "mesh_vertices": mesh_info["vertices"],
-        "mesh_triangles": mesh_info["triangles"],
-        "bounds_min": mesh_info["bounds_min"],
-        "bounds_max": mesh_info["bounds_max"],
-        "points": points_info["count"],
-        **grids.stats,
-        "grid_origin_xy": [round(v, 4) for v in grids.grid.origin_xy],
-        "seconds_fuse": round(t_fuse, 3),
-        "seconds_extract": round(t_extract, 3),
-        "seconds_grids": round(t_grids, 3),
-        "frames_per_s": round(len(fusion.frames_fused) / max(t_fuse, 1e-9), 2),
-        "refinement": refinement,
-    }
-    attrs = artifact_attrs(
-        ARTIFACT, FORMAT_VERSION, "reconstruct", params_digest or digest_value(p.model_dump(mode="json")),
-        floor_estimated=p.floor_z_m is None,
-        robot_radius_m=p.robot_radius_m,
-        height_band_m=[p.obstacle_min_height_m, p.obstacle_max_height_m],
-        tsdf={"voxel_size_m": p.voxel_size_m, "sdf_trunc_m": p.sdf_trunc_m, "min_weight": p.min_weight,
-              "occupancy_min_weight": p.occupancy_min_weight, "depth_range_m": [p.depth_min_m, p.depth_max_m],
-              "depth_stride": p.depth_stride, "blocks": fusion.n_blocks},
-        mesh=mesh_info, points=points_info,
-        frames={"n_frames": store.n_frames, "fused": len(fusion.frames_fused), "empty": fusion.empty_frames[:100]},
-        refinement=refinement,
-        conventions={"world": "right-handed, z up, metres (as frames.zarr)", "grid": grids.grid.ORIENTATION},
-        source_frames_attrs={k: store.attrs[k] for k in ("conventions", "provenance") if k in store.attrs},
-    )
-    write_recon(recon_path, grids, poses, fused, attrs)
-    return figures
 
 
 class Config(StageConfig):
@@ -110,7 +16,6 @@ class Config(StageConfig):
 
     reconstruct: ReconstructParams
     grid: GridParams
-
 
 
 def run(ctx: StageContext) -> dict:

@@ -13,7 +13,6 @@ class Config(StageConfig):
     simulate: SimulateParams
 
 
-
 def run(ctx: StageContext) -> dict:
     """Write ``ctx.outputs['raw_log']`` for scene ``ctx.scene`` with ``ctx.config.simulate``; returns the summary."""
     summary = simulate_scene(ctx.scene, ctx.config.simulate, ctx.outputs["raw_log"],

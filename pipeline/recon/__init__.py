@@ -3,7 +3,9 @@
 Modules: :mod:`~pipeline.recon.tsdf` (fusion, extraction), :mod:`~pipeline.recon.grids` (floor,
 occupancy, navigable, colour, height), :mod:`~pipeline.recon.refine` (optional pose refinement),
 :mod:`~pipeline.recon.store` (the ``recon.zarr`` format, documented there as a tree, and the
-:class:`Recon` reader), :mod:`~pipeline.recon.evaluate` (held-out depth error),
+:class:`Recon` reader), :mod:`~pipeline.recon.build` (the reconstruct stage's work:
+:func:`~pipeline.recon.build.reconstruct`),
+:mod:`~pipeline.recon.evaluate` (held-out depth error),
 :mod:`~pipeline.recon.render` (north-up PNGs).
 """
 

@@ -44,7 +44,7 @@ def test_a_perturbed_pose_is_pulled_back_toward_the_model(tmp_path):
 def test_refinement_off_keeps_recorded_poses_and_reports_it(tmp_path):
     from pipeline.config import GridParams
     from pipeline.recon import Recon
-    from stages.reconstruct import reconstruct
+    from pipeline.recon.build import reconstruct
     from tests.fixtures.recon_scenes import write_box_room_frames
 
     frames, _ = write_box_room_frames(tmp_path / "f.zarr", n_frames=24, width=96, height=72)

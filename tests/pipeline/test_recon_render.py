@@ -5,8 +5,8 @@ import pytest
 
 from pipeline.config import GridParams, ReconstructParams
 from pipeline.errors import ConfigError
+from pipeline.recon.build import reconstruct
 from pipeline.recon.render import WHATS, render_recon
-from stages.reconstruct import reconstruct
 from tests.fixtures.recon_scenes import write_box_room_frames
 
 

@@ -11,10 +11,10 @@ from pipeline.maps.query import open_query, query_map
 from pipeline.maps.store import SemanticMap
 from pipeline.paths import Workspace
 from pipeline.recon import Recon
+from pipeline.recon.build import reconstruct
 from pipeline.runner import StageContext
 from stages import STAGES
 from stages.cfmap import run as run_cfmap
-from stages.reconstruct import reconstruct
 from stages.vlmap import run as run_vlmap
 from tests.fixtures.recon_scenes import write_box_room_frames
 

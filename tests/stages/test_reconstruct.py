@@ -9,10 +9,11 @@ from pipeline.config import GridParams, ReconstructParams, parse_params
 from pipeline.errors import InputDataError, StageError
 from pipeline.paths import Workspace
 from pipeline.recon import Recon
+from pipeline.recon.build import reconstruct
 from pipeline.recon.evaluate import grid_accuracy
 from pipeline.runner import StageContext
 from stages import STAGES
-from stages.reconstruct import reconstruct, run
+from stages.reconstruct import run
 from tests.fixtures.recon_scenes import write_box_room_frames
 
 FLOOR_Z = 0.3  # not zero, so the floor must really be estimated

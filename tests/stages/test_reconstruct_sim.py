@@ -12,7 +12,7 @@ ingest_mod = pytest.importorskip("pipeline.readers.ingest")
 
 
 def test_simulated_apartment_grids_match_the_ground_truth_floor_plan(tmp_path):
-    from stages.reconstruct import reconstruct
+    from pipeline.recon.build import reconstruct
 
     # A small procedural apartment (3 rooms), walked in full at low resolution: the test budget's size.
     sp = SimulateParams(frames=160, width=160, height=120, rooms_min=3, rooms_max=3)
