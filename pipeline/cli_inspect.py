@@ -397,6 +397,10 @@ def _print_eval(results: dict, out_dir: Path) -> None:
         for setting, m in by_feedback.items():
             table.add_row(method, setting, f"{m['SR']:.1f}", f"{m['SPL']:.1f}", f"{m['SIT']:.1f}", str(m["episodes"]))
     out.print(table)
+    from orion_eval.report import run_notes
+
+    for note in run_notes(results["run"]):  # which perception built the maps, what detection ran on
+        out.print(note)
     out.print(f"results: {Path(out_dir) / 'results.json'}\nreport:  {Path(out_dir) / 'report.html'}")
 
 
