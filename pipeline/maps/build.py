@@ -9,8 +9,9 @@ skipped and counted.
 
 from __future__ import annotations
 
+from enum import Enum
 from pathlib import Path
-from typing import Callable, ClassVar, Iterable, Literal
+from typing import Callable, ClassVar, Iterable
 
 import numpy as np
 
@@ -18,10 +19,34 @@ from pipeline.config import EncodersParams, MapsParams, Params, RunParams, Stage
 from pipeline.errors import StageError
 from pipeline.frames import FrameStore
 
-Kind = Literal["vlmap", "cfmap"]
+
+class MapKind(str, Enum):
+    """The two kinds of semantic map, one stage each; the value is the stage's (and params section's) name."""
+
+    VLMAP = "vlmap"  # pixel features fused straight into the top-down cells (VLMaps)
+    CFMAP = "cfmap"  # fused into sparse 3-D voxels, then projected top-down (ConceptFusion)
+
+    def __str__(self) -> str:
+        return self.value
+
+    @property
+    def fuses_voxels(self) -> bool:
+        """Whether the map is fused in 3-D voxels (then projected by the height rule) rather than in cells."""
+        return self is MapKind.CFMAP
+
+    @property
+    def own_fields(self) -> tuple[str, ...]:
+        """The ``maps.*`` fields only this kind of map reads."""
+        return KIND_FIELDS[self]
+
+    def weight_sigma_m(self, p: MapsParams) -> float:
+        """This kind's confidence-weight sigma (``maps.<kind>_weight_sigma_m``)."""
+        return p.cfmap_weight_sigma_m if self is MapKind.CFMAP else p.vlmap_weight_sigma_m
+
+
 # maps.* fields that only one kind of map reads
-KIND_FIELDS: dict[str, tuple[str, ...]] = {"vlmap": ("vlmap_weight_sigma_m",),
-                                           "cfmap": ("cfmap_weight_sigma_m", "cfmap_voxels")}
+KIND_FIELDS: dict[MapKind, tuple[str, ...]] = {MapKind.VLMAP: ("vlmap_weight_sigma_m",),
+                                               MapKind.CFMAP: ("cfmap_weight_sigma_m", "cfmap_voxels")}
 
 
 class MapConfig(StageConfig):
@@ -29,14 +54,14 @@ class MapConfig(StageConfig):
     and the encoder it uses with that encoder's own settings only (``encoders.lseg.crop_size`` is not part of a
     ConceptFusion map). Query settings (``query``) and devices, batch sizes, threads (``run``) are in no digest."""
 
-    kind: ClassVar[Kind]
+    kind: ClassVar[MapKind]
     maps: MapsParams
     encoder: str
     encoders: EncodersParams
 
     @classmethod
     def _other_fields(cls) -> tuple[str, ...]:
-        return tuple(f for k, fields in KIND_FIELDS.items() if k != cls.kind for f in fields)
+        return tuple(f for k in MapKind if k is not cls.kind for f in k.own_fields)
 
     @classmethod
     def _encoder(cls, params: Params, scene: str) -> tuple[str, list[str]]:
@@ -45,10 +70,10 @@ class MapConfig(StageConfig):
 
         enc = params.encoders
         simulated = params.scenes[scene].simulated
-        name = encoder_choice(enc, cls.kind, simulated=simulated)
+        name = encoder_choice(enc, cls.kind.value, simulated=simulated)
         keys = ["encoders.simulated"] if simulated else []
         if not (simulated and enc.simulated is not None):
-            keys.append(f"encoders.{cls.kind}")
+            keys.append(f"encoders.{cls.kind.value}")
         if name in EncodersParams.model_fields:
             keys.append(f"encoders.{name}")
         return name, keys
@@ -67,14 +92,14 @@ class MapConfig(StageConfig):
 
 
 class VlmapConfig(MapConfig):
-    kind = "vlmap"
+    kind = MapKind.VLMAP
 
 
 class CfmapConfig(MapConfig):
-    kind = "cfmap"
+    kind = MapKind.CFMAP
 
 
-MAP_CONFIGS: dict[str, type[MapConfig]] = {"vlmap": VlmapConfig, "cfmap": CfmapConfig}
+MAP_CONFIGS: dict[str, type[MapConfig]] = {cfg.kind.value: cfg for cfg in (VlmapConfig, CfmapConfig)}
 
 
 def build_map(
@@ -111,8 +136,8 @@ def build_map(
     encoder.bind_scene(GTScene.model_validate(gt) if gt else None)
     lattice = Lattice(recon.grid, recon.floor_z, p.min_height_m, p.max_height_m, p.level_height_m)
     device = resolve_device(runtime.fusion_device)
-    sigma = p.vlmap_weight_sigma_m if kind == "vlmap" else p.cfmap_weight_sigma_m
-    acc = (VoxelAccumulator if kind == "cfmap" else TopDownAccumulator)(lattice, encoder.dim, device=device)
+    sigma = kind.weight_sigma_m(p)
+    acc = (VoxelAccumulator if kind.fuses_voxels else TopDownAccumulator)(lattice, encoder.dim, device=device)
     blocks = fs.iter_blocks(p.block_frames, rgb=encoder.reads_rgb, instance=fs.has_instance)
     n_blocks = -(-fs.n_frames // p.block_frames)
     if progress is not None:
@@ -135,7 +160,7 @@ def build_map(
             fused_frames += int(ok.sum())
             pixels += pts.n_fused
     voxels = None
-    if kind == "cfmap":
+    if kind.fuses_voxels:
         voxels = acc.result()
         cells = voxels.top_down()
         if not p.cfmap_voxels:
