@@ -78,6 +78,12 @@ class _PerceptionParams(_Section):
         0.3, ge=0, description="weight of the object's colour / material direction in its pixel features (text "
         "side: colour 0.5, material 0.3 against the class, as in 'a red chair' vs 'a chair' ~0.9 in CLIP)"
     )
+    attribute_confusion: float = Field(
+        0.4, ge=0, le=1, description="probability an object's colour (and, drawn apart, its material) is perceived as "
+        "another catalogue colour / material, persistently: CLIP binds attributes to objects little better than "
+        "chance (ARO VG-Attribution, Yuksekgonul et al. ICLR 2023: CLIP ViT-B/32 62 % where chance is 50 %; recalled, "
+        "a modelling anchor)"
+    )
     noise_cells: int = Field(
         12, gt=0, description="edge (feature cells) of the coarse grid of the smooth false responses (a ViT patch "
         "group: 12 cells of 120 = 1/10 of the image height)"
@@ -116,6 +122,7 @@ class SimulatedCFParams(_PerceptionParams):
         0.5, ge=0, description="CLIP crops keep colour and material better than LSeg's class-trained head "
         "(modelling choice: text side uses 0.5 for colour)"
     )
+    attribute_confusion: float = Field(0.3, ge=0, le=1, description="see simulated_lseg (CLIP crops: fewer misreads)")
     merge_probability: float = Field(
         0.2, ge=0, le=1, description="per frame, probability two touching objects are one region (SAM/felzenszwalb "
         "under-segmentation: the lamp with its nightstand); both get the area-weighted mean feature"

@@ -9,7 +9,8 @@ ground-truth diagnostic. Settings and the figure each was set from: :mod:`pipeli
 
 Both read the frame's instance image and the scene's ground truth (``bind_scene``). Per object,
 once per scene: its class feature (the class's CLIP row), plus its colour / material directions with
-``attribute_weight``; with probability ``object_confusion`` it is persistently mixed toward a class c'
+``attribute_weight`` (each misread as another catalogue colour / material with probability
+``attribute_confusion``); with probability ``object_confusion`` it is persistently mixed toward a class c'
 drawn from ``exp(cos(c, c') / confusion_temperature)`` over the scene's other classes and the
 background (so desks turn into tables, cabinets into nightstands, far more often than chairs into
 toilets). Per frame and object, with probability ``frame_confusion`` it takes a freshly drawn c' in
@@ -44,6 +45,7 @@ from pipeline.encoders.conceptfusion import fuse_region_features
 from pipeline.encoders.perception_text import ClipTextSpace, load_text_space, resolve_embeddings
 from pipeline.errors import ConfigError, InputDataError
 from pipeline.perception_params import SimulatedCFParams, SimulatedLSegParams
+from pipeline.sim.catalog import COLOURS, MATERIALS
 
 if TYPE_CHECKING:
     from pipeline.config import EncodersParams
@@ -129,9 +131,6 @@ class SimulatedPerception(Encoder):
         objs = gt.objects
         self._ids = np.array([o.id for o in objs], np.int64)
         self._class = np.stack([self.space.class_vector(o.cls) for o in objs]) if objs else np.zeros((0, self.dim))
-        self._attr = np.stack([self.space.compose([], [" ".join(o.color_name.lower().split())], [o.material],
-                                                  self.p.attribute_weight, self.p.attribute_weight * 0.6)
-                               for o in objs]) if objs else np.zeros((0, self.dim))
         self._background = self.space.background_vector
         self._scene_classes = np.unique(self._class, axis=0) if objs else np.zeros((0, self.dim))
         self._vocab = np.concatenate([self._scene_classes, self._background[None]])
@@ -144,6 +143,18 @@ class SimulatedPerception(Encoder):
         strength = np.where(hit, rng.uniform(lo, hi, n), 0.0)
         other = self._confused(self._class, rng.random(n)) if n else self._class
         self._identity = (1 - strength)[:, None] * self._class + strength[:, None] * other
+        # colour / material as perceived: misread (another catalogue colour / material) with attribute_confusion
+        colours, materials = sorted(COLOURS), sorted(MATERIALS)
+        attrs = []
+        for o in objs:
+            colour, material = " ".join(o.color_name.lower().split()), o.material
+            if rng.random() < self.p.attribute_confusion:
+                colour = rng.choice([c for c in colours if c != colour])
+            if rng.random() < self.p.attribute_confusion:
+                material = rng.choice([m for m in materials if m != material])
+            attrs.append(self.space.compose([], [str(colour)], [str(material)], self.p.attribute_weight,
+                                            self.p.attribute_weight * 0.6))
+        self._attr = np.stack(attrs) if attrs else np.zeros((0, self.dim))
 
     def _object_rows(self, ids: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """``(K,D)`` features of the objects ``ids`` (row index into the scene's objects) in this frame."""

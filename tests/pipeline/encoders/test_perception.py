@@ -214,9 +214,12 @@ def test_cf_keeps_attributes_better_than_lseg():
     inst = frames({1: (slice(10, 50), slice(5, 35)), 2: (slice(10, 50), slice(45, 75))})
     kw = dict(object_confusion=0.0, frame_confusion=0.0, background_noise=0.0, object_noise=0.0)
     gaps = {}
-    for name in ("simulated_lseg", "simulated_cf"):
-        e = encoder(name, **kw, **({"merge_probability": 0.0} if name == "simulated_cf" else {}))
+    for name, misread in (("simulated_lseg", 0.0), ("simulated_cf", 0.0), ("simulated_cf", 1.0)):
+        e = encoder(name, attribute_confusion=misread, **kw,
+                    **({"merge_probability": 0.0} if name == "simulated_cf" else {}))
         e.bind_scene(gt)
         s, _ = scores(e, inst, ["red chair"])
-        gaps[name] = s[0, 30, 20, 0] - s[0, 30, 60, 0]
-    assert gaps["simulated_cf"] > gaps["simulated_lseg"] > 0
+        gaps[name, misread] = s[0, 30, 20, 0] - s[0, 30, 60, 0]
+    assert gaps["simulated_cf", 0.0] > gaps["simulated_lseg", 0.0] > 0
+    # colours always misread: the red chair is no longer told from the blue one
+    assert abs(gaps["simulated_cf", 1.0]) < 0.5 * gaps["simulated_cf", 0.0]
