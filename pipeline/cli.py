@@ -61,7 +61,7 @@ def _globals(
     overrides: list[str] = typer.Option(
         [], "--set", "-S", help="override a param for this run, e.g. -S simulate.frames=100 (repeatable)"
     ),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bars"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", metavar="", help="no progress bars"),
 ):
     G.params, G.data_dir, G.manifests_dir, G.overrides, G.quiet = params, data_dir, manifests_dir, tuple(overrides), quiet
 
@@ -125,7 +125,7 @@ def _run(scenes: list[str], stages_wanted: list[str] | None, force: bool, schedu
 def run(
     scene: list[str] = typer.Option([], "--scene", "-s", help="only these scenes (repeatable; default: all in params)"),
     stage: list[str] = typer.Option([], "--stage", help="only these stages (repeatable)"),
-    force: bool = typer.Option(False, "--force", help="rerun even when up to date"),
+    force: bool = typer.Option(False, "--force", metavar="", help="rerun even when up to date"),
     scheduler: Optional[str] = typer.Option(
         None, "--scheduler", help="sync | threads | processes | a dask.distributed address (default: params run.scheduler)"
     ),
@@ -142,7 +142,7 @@ def run(
 def stage_cmd(
     name: str = typer.Argument(..., help="stage name, e.g. ingest"),
     scene: str = typer.Option(..., "--scene", "-s", help="scene name from params.yaml"),
-    force: bool = typer.Option(False, "--force", help="rerun even when up to date"),
+    force: bool = typer.Option(False, "--force", metavar="", help="rerun even when up to date"),
 ):
     """Run one stage of one scene (what dvc.yaml calls). Example: `zipon stage ingest --scene sim_00`"""
     if not _run([scene], [name], force, "sync", record_dvc=False):
@@ -151,8 +151,8 @@ def stage_cmd(
 
 @app.command()
 def status(
-    check: bool = typer.Option(False, "--check", help="exit 1 when any stage is stale (for CI and scripts)"),
-    rehash: bool = typer.Option(False, "--verify", help="also re-hash every built output against its manifest "
+    check: bool = typer.Option(False, "--check", metavar="", help="exit 1 when any stage is stale (for CI and scripts)"),
+    rehash: bool = typer.Option(False, "--verify", metavar="", help="also re-hash every built output against its manifest "
                                 "(as `zipon verify` does); exit 1 when content differs"),
 ):
     """Show which stages are up to date and, for the others, what changed: the code files, the params keys
@@ -258,7 +258,7 @@ def ingest(
     path: Path = typer.Argument(..., exists=False, help="MCAP log, TUM / 7-Scenes / navchat folder"),
     scene: str = typer.Option(..., "--scene", "-s", help="scene name for the artifacts"),
     fmt: str = typer.Option("auto", "--format", help="auto | mcap | rosbag | tum | 7scenes | navchat | replica | scannet"),
-    force: bool = typer.Option(False, "--force", help="rerun even when up to date"),
+    force: bool = typer.Option(False, "--force", metavar="", help="rerun even when up to date"),
 ):
     """Ingest one raw log or dataset folder into DATA/artifacts/SCENE/frames.zarr (with its manifest).
 
@@ -284,8 +284,8 @@ def ingest(
 
 @app.command("params")
 def params_cmd(
-    defaults: bool = typer.Option(False, "--defaults", help="print every tunable with its default"),
-    write: bool = typer.Option(False, "--write", help="rewrite params.yaml in place, complete and documented"),
+    defaults: bool = typer.Option(False, "--defaults", metavar="", help="print every tunable with its default"),
+    write: bool = typer.Option(False, "--write", metavar="", help="rewrite params.yaml in place, complete and documented"),
 ):
     """Print the resolved params (or the full defaults, a starting params.yaml); `--write` completes params.yaml.
 
@@ -308,7 +308,7 @@ def params_cmd(
 
 
 @app.command("dvc")
-def dvc_cmd(check: bool = typer.Option(False, "--check", help="only check dvc.yaml is current (exit 1 if not)")):
+def dvc_cmd(check: bool = typer.Option(False, "--check", metavar="", help="only check dvc.yaml is current (exit 1 if not)")):
     """Write dvc.yaml from the stage registry and params.yaml (so `dvc repro` runs the same DAG).
 
     Example: `zipon dvc && dvc repro`
