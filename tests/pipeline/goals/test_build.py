@@ -1,0 +1,77 @@
+"""The goals stage's work as a library call (:func:`pipeline.goals.build.build_scene_goals`) and its parts,
+on the hand-made house (GT frames.zarr + GT-grid recon.zarr)."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from pipeline.config import GoalsParams, RoutesParams
+from pipeline.errors import ConfigError, InputDataError
+from pipeline.frames import FrameStore
+from pipeline.goals.build import (OBJECT_MARGIN_M, WALL_MIN_HEIGHT_M, build_scene_goals, load_objects, start_pose,
+                                  wall_grid)
+from pipeline.goals.edits import export_goals
+from pipeline.goals.objects import rasterize_polygons
+from pipeline.goals.store import ARTIFACT, FORMAT_VERSION, Goals
+from pipeline.recon import OCCUPIED, Recon
+from pipeline.scene_gt import GTScene
+from pipeline.store import artifact_attrs
+from tests.fixtures.goal_scenes import write_house_artifacts
+
+
+@pytest.fixture(scope="module")
+def house(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("house_goals")
+    frames, recon = write_house_artifacts(tmp, start_xy=(2.5, 1.8), start_yaw=0.4)
+    frames, recon = FrameStore(frames), Recon(recon)
+    return tmp, frames, recon, _build(tmp, frames, recon, "goals.zarr")
+
+
+def _build(tmp, frames, recon, out, **goals):
+    return build_scene_goals(frames, recon, tmp / out, artifact_attrs(ARTIFACT, FORMAT_VERSION, "goals", "test"),
+                             scene="house", goals=GoalsParams(**goals), routes=RoutesParams(), root=tmp,
+                             log=lambda m: None)
+
+
+def test_build_scene_goals_writes_the_goals_of_the_scene(house):
+    tmp, frames, recon, summary = house
+    goals = Goals(tmp / "goals.zarr")
+    assert summary["goals"] == len(goals.goals) == 10 and summary["objects"] == 11
+    assert summary["objects_source"] == "gt" and summary["edited"] is False
+    assert summary["big"] + summary["small"] + summary["ambiguous"] == 10
+    np.testing.assert_allclose(goals.attrs["start_pose"], (2.5, 1.8, 0.4), atol=1e-6)
+
+
+def test_an_edits_file_changed_after_import_is_refused_and_nothing_is_written(house):
+    tmp, frames, recon, _ = house
+    export_goals(tmp / "goals.zarr", tmp / "edited.yaml")  # never imported: its name carries no digest
+    with pytest.raises(InputDataError, match="is not in the file name; the file was changed after import"):
+        _build(tmp, frames, recon, "goals_edited.zarr", edits={"house": "edited.yaml"})
+    assert not (tmp / "goals_edited.zarr").exists()
+
+
+def test_objects_from_a_file_without_a_file_is_a_config_error_naming_the_key(house):
+    tmp, frames, recon, _ = house
+    with pytest.raises(ConfigError, match=r"goals\.objects_files\.house: no objects file given"):
+        load_objects("house", frames, recon.grid, GoalsParams(objects="file"), tmp)
+
+
+def test_walls_are_gt_walls_or_occupied_cells_away_from_objects(house):
+    _, frames, recon, _ = house
+    objset, _, gt = load_objects("house", frames, recon.grid, GoalsParams(), recon.path)
+    assert isinstance(gt, GTScene)
+    index = rasterize_polygons([np.asarray(o.footprint) for o in objset.objects], recon.grid)
+    walls_gt = wall_grid(objset, recon, gt, index)
+    assert np.array_equal(walls_gt, gt.occupancy(recon.grid, WALL_MIN_HEIGHT_M, gt.wall_height_m, objects=False))
+    walls = wall_grid(objset, recon, None, index)
+    margin = ndimage.binary_dilation(index > 0, iterations=round(OBJECT_MARGIN_M / recon.grid.cell_size_m))
+    occupied = recon.occupancy == OCCUPIED
+    assert not (walls & margin).any() and np.array_equal(walls, occupied & ~margin)
+    assert (occupied & margin).sum() > 0  # objects' own occupied cells were left out
+    assert (walls & walls_gt).sum() > 0.8 * walls_gt.sum()  # the GT walls are occupied cells away from objects
+
+
+def test_start_pose_is_the_first_camera_pose(house):
+    _, frames, _, _ = house
+    x, y, yaw = start_pose(frames)
+    assert (x, y) == pytest.approx((2.5, 1.8)) and yaw == pytest.approx(0.4)
