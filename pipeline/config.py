@@ -421,9 +421,10 @@ class EncodersParams(Section):
     The oracle is a diagnostic built from ground truth; it runs only where chosen explicitly.
     """
 
-    vlmap: EncoderName = Field("lseg", description="encoder of the vlmap stage (VLMaps uses lseg)")
-    cfmap: EncoderName = Field("conceptfusion", description="encoder of the cfmap stage")
-    simulated: EncoderName | None = Field(
+    vlmap: str = Field("lseg", description="encoder of the vlmap stage (VLMaps uses lseg); a built-in name or "
+                       "one an installed package registers in the zipon.encoders entry points")
+    cfmap: str = Field("conceptfusion", description="encoder of the cfmap stage (built-in or plugin, as vlmap)")
+    simulated: str | None = Field(
         "oracle",
         description="encoder used INSTEAD of vlmap/cfmap for simulated scenes: 'perception' = simulated perception "
         "models (simulated_lseg for the vlmap, simulated_cf for the cfmap), 'oracle' = the ground-truth diagnostic; "
@@ -436,6 +437,23 @@ class EncodersParams(Section):
     oracle: OracleParams = OracleParams()
     simulated_lseg: SimulatedLSegParams = SimulatedLSegParams()
     simulated_cf: SimulatedCFParams = SimulatedCFParams()
+    plugins: dict[str, dict[str, Any]] = Field(
+        default_factory=dict, description="plugin encoder name -> its settings (the plugin's from_params reads "
+        "params.plugins[name]); part of a map's digest when the map uses that plugin"
+    )
+
+    @field_validator("vlmap", "cfmap", "simulated")
+    @classmethod
+    def _known_encoder(cls, name: str | None) -> str | None:
+        if name is None or name in get_args(EncoderName):
+            return name
+        from pipeline.encoders.choice import plugin_names
+
+        installed = plugin_names()
+        if name not in installed:
+            raise ValueError(f"unknown encoder {name!r}: built-in {list(get_args(EncoderName))}, installed plugins "
+                             f"(zipon.encoders entry points) {installed}")
+        return name
 
 
 class MapsParams(Section):

@@ -133,11 +133,13 @@ def content_digest(path: Path) -> str:
 
 
 def files_digest(paths: list[Path]) -> str:
-    """Digest of raw inputs (a log file, or every file of a dataset folder)."""
+    """Digest of raw inputs (a log file, or every file of a dataset folder or code package; Python's
+    ``__pycache__`` folders, rewritten whenever code is imported, are left out)."""
     h = hashlib.blake2b(digest_size=16)
     for p in paths:
         p = Path(p)
-        files = sorted(q for q in p.rglob("*") if q.is_file()) if p.is_dir() else [p]
+        files = (sorted(q for q in p.rglob("*") if q.is_file() and "__pycache__" not in q.parts) if p.is_dir()
+                 else [p])
         for file in files:
             h.update(f"\0file:{file.name}\0".encode())
             _hash_file(file, h)

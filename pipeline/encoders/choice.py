@@ -10,6 +10,8 @@ import open_clip or torchvision); a name it does not know loads every implementa
 from __future__ import annotations
 
 import importlib
+import importlib.util
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.errors import ConfigError
@@ -24,8 +26,65 @@ MODULES: dict[str, str] = {
 }
 
 
+#: entry-point group through which installed packages add encoders: ``name = "module:Class"``
+PLUGIN_GROUP = "zipon.encoders"
+
+
+def plugin_names() -> list[str]:
+    """Encoder names installed packages register in the ``zipon.encoders`` entry-point group."""
+    from importlib.metadata import entry_points
+
+    return sorted({ep.name for ep in entry_points(group=PLUGIN_GROUP)})
+
+
+def _plugin_entry(name: str):
+    from importlib.metadata import entry_points
+
+    found = list(entry_points(group=PLUGIN_GROUP, name=name))
+    return found[0] if found else None
+
+
+def plugin_source(name: str) -> str | None:
+    """The source folder (a package) or file (a module) of plugin encoder ``name``, without importing it;
+    None for a built-in encoder. Map stages hash it as an input: the plugin's code is outside zipon's."""
+    if name in MODULES:
+        return None
+    ep = _plugin_entry(name)
+    if ep is None:
+        return None
+    spec = importlib.util.find_spec(ep.value.split(":")[0].split(".")[0])
+    if spec is None or spec.origin is None:
+        raise ConfigError(f"encoder {name!r}: entry point {ep.value!r} ({PLUGIN_GROUP}) names a module that is "
+                          "not installed")
+    origin = Path(spec.origin)
+    return str(origin.parent if origin.name == "__init__.py" else origin)
+
+
+def _load_plugin(name: str) -> bool:
+    """Register plugin encoder ``name`` from its entry point; False when no package provides it."""
+    from pipeline.encoders.base import ENCODERS, Encoder
+
+    ep = _plugin_entry(name)
+    if ep is None:
+        return False
+    try:
+        cls = ep.load()
+    except Exception as err:  # noqa: BLE001 - a third party's import error, reported with its entry point
+        raise ConfigError(f"encoder {name!r}: entry point {ep.value!r} ({PLUGIN_GROUP}) failed to load: "
+                          f"{type(err).__name__}: {err}") from None
+    if not (isinstance(cls, type) and issubclass(cls, Encoder)):
+        raise ConfigError(f"encoder {name!r}: entry point {ep.value!r} is not a subclass of "
+                          "pipeline.encoders.base.Encoder")
+    if getattr(cls, "name", None) != name:
+        raise ConfigError(f"encoder {name!r}: entry point {ep.value!r} gives a class whose `name` is "
+                          f"{getattr(cls, 'name', None)!r}; they must agree")
+    ENCODERS[name] = cls
+    return True
+
+
 def load(name: str | None = None) -> None:
-    """Register the implementation of encoder ``name`` (None or an unlisted name: every implementation)."""
+    """Register the implementation of encoder ``name`` (None or an unlisted name: every implementation);
+    names no built-in module has are looked up in the ``zipon.encoders`` entry points."""
     from pipeline.encoders.base import ENCODERS
 
     if name in ENCODERS:
@@ -34,6 +93,8 @@ def load(name: str | None = None) -> None:
         importlib.import_module(f"pipeline.encoders.{MODULES[name]}")
         if name in ENCODERS:
             return
+    if name is not None and _load_plugin(name):
+        return
     from pipeline.encoders import conceptfusion, lseg, maskclip, oracle, perception, torchscript  # noqa: F401
 
 

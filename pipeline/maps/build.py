@@ -76,6 +76,8 @@ class MapConfig(StageConfig):
             keys.append(f"encoders.{cls.kind.value}")
         if name in EncodersParams.model_fields:
             keys.append(f"encoders.{name}")
+        elif name in enc.plugins:
+            keys.append(f"encoders.plugins.{name}")
         return name, keys
 
     @classmethod
@@ -87,8 +89,19 @@ class MapConfig(StageConfig):
         name, _ = cls._encoder(params, scene)
         defaults = MapsParams()
         maps = params.maps.model_copy(update={f: getattr(defaults, f) for f in cls._other_fields()})
-        own = {name: getattr(params.encoders, name)} if name in EncodersParams.model_fields else {}
+        enc = params.encoders
+        own = ({name: getattr(enc, name)} if name in EncodersParams.model_fields
+               else {"plugins": {name: enc.plugins[name]}} if name in enc.plugins else {})
         return cls(maps=maps, encoder=name, encoders=EncodersParams(**own))
+
+    @classmethod
+    def extra_inputs(cls, params: Params, scene: str) -> dict[str, str]:
+        """A plugin encoder's source (package folder or module file): its code is outside zipon's import
+        closure, so its content is hashed as an input of the map."""
+        from pipeline.encoders.choice import plugin_source
+
+        source = plugin_source(cls._encoder(params, scene)[0])
+        return {"encoder_plugin": source} if source else {}
 
 
 class VlmapConfig(MapConfig):
