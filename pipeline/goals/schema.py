@@ -109,8 +109,11 @@ class GoalsDocument(_M):
         for k, o in self.objects.items():
             by_identity.setdefault(o.identity.lower(), set()).add(k)
         for ident, keys in sorted(by_identity.items()):
-            if len(keys) > 1 and not any(keys <= t for t in together):
-                raise ValueError(f"objects {sorted(keys)} share the identity {ident!r} but are not one goal's group")
+            # objects one name refers to must be found together: a goal naming one of them names the group
+            # (objects of no goal may share a name: nobody is sent to them)
+            if len(keys) > 1 and any(keys & t for t in together) and not any(keys <= t for t in together):
+                raise ValueError(f"objects {sorted(keys)} share the identity {ident!r} but a goal names only some "
+                                 f"of them")
         return self
 
 

@@ -189,3 +189,18 @@ def test_render_goals_and_routes(built):
         png = render_goals(recon, tmp / "goals.zarr", tmp / "routes.zarr", what, tmp / f"{what}.png")
         img = cv2.imread(str(png))
         assert img is not None and img.shape[0] > 300 and img.shape[1] > 400
+
+
+@pytest.mark.parametrize("max_goals", [4, 5])
+def test_few_goals_leave_same_named_objects_out_together(built, max_goals):
+    """Two chairs share one name; when their group is not among the chosen goals the document is still valid
+    (it failed with a raw validation error before)."""
+    tmp, ws, frames, recon, *_ = built
+    params = parse_params({"scenes": {"house": {"source": "simulate"}}, "goals": {"max_goals": max_goals}})
+    summary = _run("goals", ws, params, {"frames": frames, "recon": recon}, tmp / f"goals-{max_goals}.zarr")
+    goals = Goals(tmp / f"goals-{max_goals}.zarr")
+    assert summary["goals"] == len(goals.goals) == max_goals
+    named = [set(g.object_keys) for g in goals.goals]
+    chairs = {k for k, o in goals.document.objects.items() if o.identity == "the metal chair"}
+    assert len(chairs) == 2
+    assert not any(chairs & n for n in named) or any(chairs <= n for n in named)
