@@ -27,7 +27,10 @@ Both grow their feature storage by doubling (memory bounded by the observed cell
 by the number of frames) and add a whole block with one sparse one-hot x dense product over the
 slots the block touches (pixels that are not fused are empty rows), so no Python loop runs over
 pixels or points. Means are taken as ``sum / weight`` before normalising (ConceptFusion weights
-reach 1e-15 at 5 m).
+reach 1e-15 at 5 m). Features whose cells take rows of a small table
+(:class:`~pipeline.encoders.base.PaletteFeatures`: the oracle) are added in factored form: point
+weights summed per (slot, table row), then one weighted table row per pair, so a block costs
+``O(points + pairs x D)`` instead of ``O(points x D)``.
 """
 
 from __future__ import annotations
