@@ -64,7 +64,7 @@ class _PerceptionParams(_Section):
     object_confusion: float = Field(
         0.35, ge=0, le=1, description="probability an object is confused in most views (a persistent error: the same "
         "object looks like its neighbour class from every side); with blur_cells 3 the vlmap's mAcc / F-mIoU on the "
-        "two demo scenes is 39.1 / 43.5 against LSeg's 33.4 / 51.5 (0.2 with blur 4 gave 52.8 / 49.7 on sim_00; "
+        "two demo scenes is 39.6 / 45.2 against LSeg's 33.4 / 51.5 (0.2 with blur 4 gave 52.8 / 49.7 on sim_00; "
         "benchmarks/quality_maps.py)"
     )
     object_confusion_strength: tuple[float, float] = Field(
