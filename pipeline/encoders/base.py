@@ -151,6 +151,8 @@ class Encoder(ABC):
     normalization: ClassVar[str] = "l2"
     #: True only for the ground-truth oracle; maps record it so nobody mistakes it for perception.
     diagnostic: ClassVar[bool] = False
+    #: True for encoders that read the scene's ground truth (the oracle, the simulated perception models)
+    needs_ground_truth: ClassVar[bool] = False
     #: False for encoders that never look at the colour images (the oracle): readers may then skip decoding them.
     reads_rgb: ClassVar[bool] = True
 
@@ -398,7 +400,7 @@ def check_encoder(params: "EncodersParams", which: str | None = None, *, simulat
     depth = np.full((1, 240, 320), 2.0, np.float32)
     instance = np.zeros((1, 240, 320), np.uint16)
     instance[:, 60:180, 80:240] = 1
-    if enc.diagnostic:
+    if enc.diagnostic or enc.needs_ground_truth:
         from pipeline.scene_gt import GTScene
 
         enc.bind_scene(GTScene.model_validate({

@@ -77,6 +77,7 @@ class SimulatedPerception(Encoder):
     profile: ClassVar[str]
     kind: ClassVar[str]
     reads_rgb = False  # features come from the instance image and the scene's ground truth
+    needs_ground_truth = True
 
     def __init__(self, params: SimulatedLSegParams | SimulatedCFParams, *, batch_size: int = 4):
         super().__init__(device="cpu", batch_size=batch_size)  # table look-ups and small products

@@ -91,6 +91,16 @@ def test_perception_choice_gives_each_map_its_model():
     assert "simulated ConceptFusion-like" in ident["kind"] and "not a trained model" in ident["kind"]
 
 
+def test_check_runs_the_models_on_a_synthetic_scene():
+    from pipeline.encoders import check_encoder
+
+    p = EncodersParams.model_validate({"simulated": "perception"})
+    for which, name in (("vlmap", "simulated_lseg"), ("cfmap", "simulated_cf")):
+        report = check_encoder(p, which, simulated=True)
+        assert report["identity"]["name"] == name and report["feature_grid"] == [120, 160]
+        assert report["text_shape"] == [1, 512] and report["valid_fraction"] == 1.0
+
+
 # ----------------------------------------------------------------------------- both models
 
 @pytest.mark.parametrize("name", ["simulated_lseg", "simulated_cf"])
