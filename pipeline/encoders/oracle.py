@@ -61,6 +61,15 @@ def _words(text: str) -> list[str]:
     return [SYNONYMS.get(w, w) for w in re.findall(r"[a-z]+", text.lower())]
 
 
+def _centre_pixels(n_pixels: int, n_cells: int) -> slice | np.ndarray:
+    """Index of the pixel at each cell centre along one axis (pixel-corner convention, as
+    :meth:`DenseFeatures.resample_depth`): a strided slice when a cell is a whole number of pixels."""
+    if n_pixels % n_cells == 0:
+        step = n_pixels // n_cells
+        return slice(step // 2, None, step)
+    return np.minimum(((np.arange(n_cells) + 0.5) * n_pixels / n_cells).astype(np.int64), n_pixels - 1)
+
+
 @register
 class OracleEncoder(Encoder):
     """Ground-truth features for simulated scenes (a diagnostic); see the module docstring."""
@@ -224,10 +233,10 @@ class OracleEncoder(Encoder):
                                  expected="(B,H,W) uint16 ids (simulated scenes)")
         B, H, W = instance.shape
         h, w = self.out_size
-        rows = np.minimum(((np.arange(h) + 0.5) * H / h).astype(np.int64), H - 1)
-        cols = np.minimum(((np.arange(w) + 0.5) * W / w).astype(np.int64), W - 1)
-        sampled = instance[:, rows[:, None], cols[None, :]].astype(np.int64)
-        index = self._lut[np.clip(sampled, 0, len(self._lut) - 1)]  # unknown ids fall back to background (row 0)
+        sampled = instance[:, _centre_pixels(H, h)][:, :, _centre_pixels(W, w)]
+        if sampled.dtype.kind == "i":
+            sampled = np.maximum(sampled, 0)
+        index = self._lut[np.minimum(sampled, len(self._lut) - 1)]  # unknown ids fall back to background (row 0)
         valid = torch.ones((B, h, w), dtype=torch.bool)
         if self.confusion <= 0 and self.noise_std <= 0:
             return PaletteFeatures(self._unit, torch.from_numpy(index), valid, (H, W))

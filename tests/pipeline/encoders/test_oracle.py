@@ -10,7 +10,7 @@ from pipeline.encoders import build_encoder
 from pipeline.encoders.base import DenseFeatures, PaletteFeatures
 from pipeline.encoders.oracle import OracleEncoder, _words
 from pipeline.errors import ConfigError
-from tests.pipeline.encoders.conftest import gt_scene, toy_batch
+from tests.pipeline.encoders.conftest import RUNTIME, gt_scene, toy_batch
 
 
 def oracle(params, **over):
@@ -58,7 +58,7 @@ def test_confusion_and_noise_make_it_imperfect_on_purpose(params):
 
 
 def test_needs_ground_truth_and_instances(params):
-    enc = build_encoder(params, "oracle")
+    enc = build_encoder(params, "oracle", runtime=RUNTIME)
     rgb, _, inst = toy_batch(1)
     with pytest.raises(ConfigError, match="needs the scene's ground truth"):
         enc.encode_images(rgb, instance=inst)
@@ -84,15 +84,16 @@ def _reference(enc: OracleEncoder, instance: np.ndarray) -> np.ndarray:
     return out
 
 
-def test_cells_are_row_lookups_of_one_table_per_scene():
-    enc = OracleEncoder(out_size=(12, 16), batch_size=2)
+@pytest.mark.parametrize("out_size", [(12, 16), (10, 14)])  # whole pixel blocks per cell, and not
+def test_cells_are_row_lookups_of_one_table_per_scene(out_size):
+    enc = OracleEncoder(out_size=out_size, batch_size=2)
     enc.bind_scene(gt_scene())
     rgb, _, inst = toy_batch(3)
     inst[0, :8, :8] = 77  # an id the scene does not know: background
     out = enc.encode_images(rgb, instance=inst)
     assert isinstance(out, PaletteFeatures) and out.palette.shape == (4, enc.dim)  # background + 3 objects, shared
     np.testing.assert_array_equal(out.features.numpy(), _reference(enc, inst))  # exact, not approximately
-    assert out.valid.all() and out.size == (12, 16)
+    assert out.valid.all() and out.size == out_size
     one = enc.encode_images(rgb[1:2], instance=inst[1:2])
     assert torch.equal(one.features[0], out.features[1])  # independent of batching
 
