@@ -10,7 +10,7 @@ import torch
 
 os.environ["HF_HUB_OFFLINE"] = "1"
 
-from pipeline.config import EncodersParams  # noqa: E402
+from pipeline.config import EncodersParams, RunParams  # noqa: E402
 from pipeline.scene_gt import GTScene  # noqa: E402
 from tests.fixtures import dense_encoders as de  # noqa: E402
 
@@ -83,11 +83,14 @@ def toy_batch(n: int = 3, seed: int = 0):
     return rgb, depth, inst
 
 
+# devices, batch sizes and threads are run settings (in no digest); the tests run small batches on the CPU
+RUNTIME = RunParams(device="cpu", encoder_batch_size=2)
+
+
 def encoders_params(tiny_clip, torchscript_files, **extra) -> EncodersParams:
     arch, weights = tiny_clip
     image, text = torchscript_files
     raw = {
-        "device": "cpu", "batch_size": 2,
         "maskclip": {"arch": arch, "weights": weights, "input_size": (48, 64)},
         "conceptfusion": {"arch": arch, "weights": weights, "out_size": (12, 16),
                           "regions": {"generator": "rgbd", "work_height": 48}},

@@ -14,14 +14,14 @@ from pipeline.encoders.lseg import LSegEncoder, load_lseg_net
 from pipeline.encoders.lseg_net import tiny_arch
 from pipeline.errors import ConfigError, InputDataError, MissingInputError
 from pipeline.geometry import Intrinsics
-from tests.pipeline.encoders.conftest import IMAGE_HW, encoders_params, gt_scene, toy_batch
+from tests.pipeline.encoders.conftest import RUNTIME, IMAGE_HW, encoders_params, gt_scene, toy_batch
 
 
 def make_encoder(name: str, params, lseg_ckpt: str) -> Encoder:
     if name == "lseg":  # the public network is too big for unit tests: same code, reduced sizes
         return LSegEncoder(load_lseg_net(Path(lseg_ckpt), tiny_arch()), weights=Path(lseg_ckpt), crop_size=64,
-                           base_size=80, out_size=(12, 16), batch_size=params.batch_size)
-    enc = build_encoder(params, name)
+                           base_size=80, out_size=(12, 16), batch_size=RUNTIME.encoder_batch_size)
+    enc = build_encoder(params, name, runtime=RUNTIME)
     enc.bind_scene(gt_scene())
     return enc
 
@@ -113,43 +113,45 @@ def test_every_encoder_has_a_params_section():
 def test_real_encoder_without_weights_is_a_config_error():
     from pipeline.config import EncodersParams
 
-    p = EncodersParams(device="cpu")
+    p = EncodersParams()
     for name in ("lseg", "maskclip", "conceptfusion"):
         with pytest.raises(ConfigError, match=rf"encoders\.{name}\.weights is not set"):
-            build_encoder(p, name)
+            build_encoder(p, name, runtime=RUNTIME)
     with pytest.raises(ConfigError, match=r"encoders\.torchscript\.image_file is not set"):
-        build_encoder(p, "torchscript")
+        build_encoder(p, "torchscript", runtime=RUNTIME)
 
 
 def test_missing_weights_file_names_param_and_file(tmp_path):
     from pipeline.config import EncodersParams
 
     missing = tmp_path / "nope.ckpt"
-    p = EncodersParams(device="cpu", lseg={"weights": str(missing)})
+    p = EncodersParams(lseg={"weights": str(missing)})
     with pytest.raises(MissingInputError, match=rf"encoders\.lseg\.weights: weights file {missing} not found"):
-        build_encoder(p, "vlmap")
+        build_encoder(p, "vlmap", runtime=RUNTIME)
 
 
 def test_wrong_weights_file_names_param_and_file(tmp_path, tiny_clip, torchscript_files):
     arch, weights = tiny_clip
     p = encoders_params(tiny_clip, torchscript_files, maskclip={"arch": "ViT-B-32"})  # tiny weights, big arch
     with pytest.raises(ConfigError, match=rf"encoders\.maskclip\.weights: {weights} does not match the model"):
-        build_encoder(p, "maskclip")
+        build_encoder(p, "maskclip", runtime=RUNTIME)
     garbage = tmp_path / "garbage.ckpt"
     garbage.write_bytes(b"not a checkpoint")
     p = encoders_params(tiny_clip, torchscript_files, lseg={"weights": str(garbage)})
     with pytest.raises(ConfigError, match=rf"encoders\.lseg\.weights: {garbage} does not match"):
-        build_encoder(p, "lseg")
+        build_encoder(p, "lseg", runtime=RUNTIME)
 
 
 def test_choice_per_stage_and_simulated_override(params):
     assert encoder_choice(params, "vlmap") == "lseg"
     assert encoder_choice(params, "cfmap") == "conceptfusion"
-    assert encoder_choice(params, "cfmap", simulated=True) == "conceptfusion"  # not overridden unless set
+    unset = params.model_copy(update={"simulated": None})
+    assert encoder_choice(unset, "cfmap", simulated=True) == "conceptfusion"  # not overridden unless set
+    assert encoder_choice(params, "cfmap", simulated=True) == "oracle"  # the default for simulated scenes
     sim = params.model_copy(update={"simulated": "oracle"})
     assert encoder_choice(sim, "vlmap", simulated=True) == "oracle"
     assert encoder_choice(sim, "vlmap", simulated=False) == "lseg"
-    enc = build_encoder(sim, "vlmap", simulated=True)
+    enc = build_encoder(sim, "vlmap", simulated=True, runtime=RUNTIME)
     assert enc.name == "oracle" and enc.identity()["diagnostic"] is True
     with pytest.raises(ConfigError, match="unknown"):
         encoder_choice(params, "clipseg")
@@ -167,14 +169,15 @@ def test_params_validation_names_the_key():
 def test_threads_and_device_params(params):
     before = torch.get_num_threads()
     try:
-        build_encoder(params.model_copy(update={"threads": 1}), "oracle")
+        build_encoder(params, "oracle", runtime=RUNTIME.model_copy(update={"torch_threads": 1}))
         assert torch.get_num_threads() == 1
     finally:
         torch.set_num_threads(before)
     if not torch.cuda.is_available():
-        with pytest.raises(ConfigError, match=r"encoders\.device: 'cuda' requested"):
-            build_encoder(params.model_copy(update={"device": "cuda"}), "oracle")
-        assert build_encoder(params.model_copy(update={"device": "auto"}), "maskclip").device.type == "cpu"
+        with pytest.raises(ConfigError, match=r"run\.device: 'cuda' requested"):
+            build_encoder(params, "oracle", runtime=RUNTIME.model_copy(update={"device": "cuda"}))
+        auto = RUNTIME.model_copy(update={"device": "auto"})
+        assert build_encoder(params, "maskclip", runtime=auto).device.type == "cpu"
 
 
 def test_check_encoder_reports_identity_and_shapes(params):

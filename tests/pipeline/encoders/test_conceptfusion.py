@@ -8,7 +8,7 @@ import torch
 
 from pipeline.encoders import build_encoder
 from pipeline.encoders.conceptfusion import fuse_region_features
-from tests.pipeline.encoders.conftest import encoders_params, toy_batch
+from tests.pipeline.encoders.conftest import RUNTIME, encoders_params, toy_batch
 
 
 def test_fusion_matches_the_paper_formula():
@@ -28,9 +28,9 @@ def test_fusion_matches_the_paper_formula():
 
 @pytest.fixture(scope="module")
 def gt_encoder(tiny_clip, torchscript_files):
-    p = encoders_params(tiny_clip, torchscript_files, batch_size=2,
+    p = encoders_params(tiny_clip, torchscript_files,
                         conceptfusion={"regions": {"generator": "gt", "gt_background": False, "work_height": 48}})
-    return build_encoder(p, "conceptfusion")
+    return build_encoder(p, "conceptfusion", runtime=RUNTIME)
 
 
 def test_cells_outside_regions_are_invalid_not_zero_filled(gt_encoder):
@@ -62,7 +62,7 @@ def test_region_crops_are_batched_across_regions_and_frames(gt_encoder):
 
 
 def test_default_rgbd_regions_cover_the_objects(params):
-    enc = build_encoder(params, "conceptfusion")
+    enc = build_encoder(params, "conceptfusion", runtime=RUNTIME)
     rgb, depth, inst = toy_batch(2)
     out = enc.encode_images(rgb, depth_m=depth)
     ids = inst[:, 2::4, 2::4]

@@ -10,12 +10,12 @@ from pipeline.config import MaskClipParams
 from pipeline.encoders import build_encoder
 from pipeline.encoders.maskclip import maskclip_patch_features, vit_tokens
 from pipeline.errors import ConfigError
-from tests.pipeline.encoders.conftest import encoders_params, toy_batch
+from tests.pipeline.encoders.conftest import RUNTIME, encoders_params, toy_batch
 
 
 @pytest.fixture(scope="module")
 def encoder(params):
-    return build_encoder(params, "maskclip")
+    return build_encoder(params, "maskclip", runtime=RUNTIME)
 
 
 def test_token_path_is_open_clips(encoder):
@@ -58,4 +58,4 @@ def test_default_is_vit_b32_in_the_512d_text_space():
 def test_input_size_must_fit_the_patches(tiny_clip, torchscript_files):
     p = encoders_params(tiny_clip, torchscript_files, maskclip={"input_size": (50, 64)})
     with pytest.raises(ConfigError, match=r"encoders\.maskclip\.input_size \(50, 64\) must be multiples"):
-        build_encoder(p, "maskclip")
+        build_encoder(p, "maskclip", runtime=RUNTIME)

@@ -15,7 +15,7 @@ from pipeline.encoders.perception_text import SIM_CLASS_LVIS, load_text_space, r
 from pipeline.errors import ConfigError, InputDataError, MissingInputError
 from pipeline.scene_gt import GTScene
 from pipeline.sim.catalog import TEMPLATES
-from tests.pipeline.encoders.conftest import gt_scene, toy_batch
+from tests.pipeline.encoders.conftest import RUNTIME, gt_scene, toy_batch
 
 H, W = 60, 80
 
@@ -86,7 +86,7 @@ def test_perception_choice_gives_each_map_its_model():
     assert encoder_choice(p, "vlmap", simulated=True) == "simulated_lseg"
     assert encoder_choice(p, "cfmap", simulated=True) == "simulated_cf"
     assert encoder_choice(p, "vlmap", simulated=False) == "lseg"
-    ident = build_encoder(p, "cfmap", simulated=True).identity()
+    ident = build_encoder(p, "cfmap", simulated=True, runtime=RUNTIME).identity()
     assert ident["profile"] == "conceptfusion" and ident["diagnostic"] is False
     assert "simulated ConceptFusion-like" in ident["kind"] and "not a trained model" in ident["kind"]
 

@@ -8,11 +8,11 @@ import torch
 from pipeline.encoders import build_encoder
 from pipeline.errors import ConfigError
 from tests.fixtures.dense_encoders import TinyDenseImage, TinyText
-from tests.pipeline.encoders.conftest import encoders_params, toy_batch
+from tests.pipeline.encoders.conftest import RUNTIME, encoders_params, toy_batch
 
 
 def test_scripted_files_reproduce_the_eager_modules(params):
-    enc = build_encoder(params, "torchscript")
+    enc = build_encoder(params, "torchscript", runtime=RUNTIME)
     rgb, _, _ = toy_batch(2)
     out = enc.encode_images(rgb)
     x = torch.from_numpy(rgb).permute(0, 3, 1, 2).float() / 255.0
@@ -29,13 +29,13 @@ def test_factory_path(tiny_clip, torchscript_files):
     p = encoders_params(tiny_clip, torchscript_files,
                         torchscript={"image_file": None, "text_file": None,
                                      "factory": "tests.fixtures.dense_encoders:make", "name": "my-encoder"})
-    enc = build_encoder(p, "torchscript")
+    enc = build_encoder(p, "torchscript", runtime=RUNTIME)
     assert enc.name == "my-encoder" and enc.temperature == 0.05 and enc.dim == 16
     assert enc.identity()["factory"] == "tests.fixtures.dense_encoders:make"
     bad = encoders_params(tiny_clip, torchscript_files,
                           torchscript={"image_file": None, "text_file": None, "factory": "tests.fixtures:nothing"})
     with pytest.raises(ConfigError, match=r"encoders\.torchscript\.factory 'tests\.fixtures:nothing'"):
-        build_encoder(bad, "torchscript")
+        build_encoder(bad, "torchscript", runtime=RUNTIME)
 
 
 def test_a_file_that_is_not_torchscript(tmp_path, tiny_clip, torchscript_files):
@@ -43,4 +43,4 @@ def test_a_file_that_is_not_torchscript(tmp_path, tiny_clip, torchscript_files):
     junk.write_bytes(b"junk")
     p = encoders_params(tiny_clip, torchscript_files, torchscript={"image_file": str(junk)})
     with pytest.raises(ConfigError, match=rf"encoders\.torchscript\.image_file: {junk} is not a TorchScript module"):
-        build_encoder(p, "torchscript")
+        build_encoder(p, "torchscript", runtime=RUNTIME)
