@@ -339,7 +339,8 @@ def encoders_check(
     from pipeline.encoders import check_encoder
 
     _, params = G.load()
-    out.print_json(json.dumps(check_encoder(params.encoders, which, simulated=simulated), default=str))
+    report = check_encoder(params.encoders, which, simulated=simulated, runtime=params.run)
+    out.print_json(json.dumps(report, default=str))
 
 
 @app.command("eval")
