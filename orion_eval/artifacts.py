@@ -39,7 +39,7 @@ class Artifacts:
         man = Manifest.read(self.ws.manifest(self.scene, stage))
         if man is None:
             raise MissingInputError(f"{self.ws.manifest(self.scene, stage)}: no manifest of stage {stage} for scene "
-                                    f"{self.scene!r} (run: zipon run --scenes {self.scene})")
+                                    f"{self.scene!r} (run: zipon run -s {self.scene})")
         return man
 
     def check_lineage(self, stages: tuple[str, ...] = ("vlmap", "cfmap", "goals", "routes")) -> dict[str, str]:
@@ -61,7 +61,7 @@ class Artifacts:
                     raise LineageError(
                         f"scene {self.scene}: {stage} was built from {name} {got}, but "
                         f"{self.ws.manifest(self.scene, LINEAGE[stage][name])} records {name} {shared[name]} "
-                        f"(manifest {self.ws.manifest(self.scene, stage)}); rerun: zipon run --scenes {self.scene}")
+                        f"(manifest {self.ws.manifest(self.scene, stage)}); rerun: zipon run -s {self.scene}")
         return shared
 
     # ------------------------------------------------------------------ artifacts

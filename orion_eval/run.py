@@ -100,7 +100,7 @@ def _resolve(params: Params, scenes, methods, feedback, seeds, agent_classes=Non
     scenes = list(scenes or ep.scenes or params.scenes)
     unknown = [s for s in scenes if s not in params.scenes]
     if unknown:
-        raise ConfigError(f"--scenes: unknown scene(s) {unknown}; params.yaml has {sorted(params.scenes)}")
+        raise ConfigError(f"-s/--scene: unknown scene(s) {unknown}; params.yaml has {sorted(params.scenes)}")
     from orion_eval.agents import AGENTS
 
     methods = list(methods or ep.methods)

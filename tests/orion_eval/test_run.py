@@ -80,7 +80,7 @@ def test_unknown_names_are_config_errors(tiny_scene, tmp_path):
         run_eval(ws, params, tmp_path, methods=["gpt"], progress=False)
     with pytest.raises(ConfigError, match="--feedback: unknown setting"):
         run_eval(ws, params, tmp_path, feedback=["shouting"], progress=False)
-    with pytest.raises(ConfigError, match="--scenes: unknown scene"):
+    with pytest.raises(ConfigError, match="--scene: unknown scene"):
         run_eval(ws, params, tmp_path, scenes=["nope"], progress=False)
 
 
