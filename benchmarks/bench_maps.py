@@ -176,7 +176,7 @@ def bench_fusion(h: int, w: int, d: int, n_frames: int, naive_points: int, block
 
 
 def bench_query(observed_fraction: float, repeats: int):
-    from pipeline.config import MapsParams
+    from pipeline.config import QueryParams
     from pipeline.encoders.oracle import OracleEncoder
     from pipeline.maps.fusion import FusedCells
     from pipeline.maps.query import MapQuery
@@ -207,7 +207,7 @@ def bench_query(observed_fraction: float, repeats: int):
                   tile_cells=64)
         for mode, rank in (("low-rank 64 + exact rescoring", 64), ("exact", 0)):
             t0 = time.perf_counter()
-            mq = MapQuery(SemanticMap(path), enc, MapsParams(query_rank=rank))
+            mq = MapQuery(SemanticMap(path), enc, QueryParams(query_rank=rank))
             mq.query("chair", (3.0, 1.5, 0.0))  # warm: text cache, basis
             t_open = time.perf_counter() - t0
             times = []
