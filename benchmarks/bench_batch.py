@@ -18,7 +18,9 @@ encoder's share of its CPU time (``encoder_share``; target: the oracle at most 5
 
 Each run's line also gives its wall time, frames/s over the whole batch, the largest worker's
 peak RSS (``ru_maxrss`` of the run's processes) and the wall time the same rate implies for the
-paper's 14,159 frames (``--target-frames``). The machine's load average is printed before and
+paper's 14,159 frames (``--target-frames``), and the wall time its CPU seconds imply when the
+workers each have a core of their own (``projected_wall_min_if_cpu_bound``: CPU seconds per frame
+x target frames / workers; the figure for an otherwise idle machine, ignoring scene imbalance). The machine's load average is printed before and
 after: on a shared machine wall times are upper bounds, CPU seconds are the steadier figure.
 One JSON object per line on stdout.
 
@@ -243,6 +245,7 @@ def main() -> None:
                              **encoder_share(params, root, scenes[0], kind), loadavg=load())
                 first = False
             timing = manifests(root, scenes, args.stages)
+            cpu_total = sum(x.get("cpu_seconds", float("nan")) for t in timing.values() for x in t)
             for stage in args.stages:
                 t = timing[stage]
                 secs = sum(x["seconds"] for x in t)
@@ -261,6 +264,8 @@ def main() -> None:
             emit(bench="batch", kind="run", workers=workers, frames=total, wall_s=round(wall, 1),
                  frames_per_s=round(rate, 2), peak_rss_mb_largest_process=round(peak, 1),
                  projected_wall_min_for_target=round(args.target_frames / rate / 60, 1),
+                 cpu_s=round(cpu_total, 1), projected_wall_min_if_cpu_bound=round(
+                     args.target_frames * cpu_total / total / min(workers, os.cpu_count() or 1) / 60, 1),
                  target_frames=args.target_frames, loadavg=load())
     finally:
         if args.keep is None:
