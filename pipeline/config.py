@@ -447,9 +447,9 @@ class EncodersParams(Section):
     def _known_encoder(cls, name: str | None) -> str | None:
         if name is None or name in get_args(EncoderName):
             return name
-        from pipeline.encoders.choice import plugin_names
+        from pipeline import plugins
 
-        installed = plugin_names()
+        installed = plugins.names(plugins.ENCODERS_GROUP)
         if name not in installed:
             raise ValueError(f"unknown encoder {name!r}: built-in {list(get_args(EncoderName))}, installed plugins "
                              f"(zipon.encoders entry points) {installed}")

@@ -14,6 +14,7 @@ import importlib.util
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from pipeline import plugins
 from pipeline.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -27,21 +28,16 @@ MODULES: dict[str, str] = {
 
 
 #: entry-point group through which installed packages add encoders: ``name = "module:Class"``
-PLUGIN_GROUP = "zipon.encoders"
+PLUGIN_GROUP = plugins.ENCODERS_GROUP
 
 
 def plugin_names() -> list[str]:
     """Encoder names installed packages register in the ``zipon.encoders`` entry-point group."""
-    from importlib.metadata import entry_points
-
-    return sorted({ep.name for ep in entry_points(group=PLUGIN_GROUP)})
+    return plugins.names(PLUGIN_GROUP)
 
 
 def _plugin_entry(name: str):
-    from importlib.metadata import entry_points
-
-    found = list(entry_points(group=PLUGIN_GROUP, name=name))
-    return found[0] if found else None
+    return plugins.entry(PLUGIN_GROUP, name)
 
 
 def plugin_source(name: str) -> str | None:

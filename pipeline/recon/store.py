@@ -32,13 +32,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import open3d as o3d
 
 from pipeline.errors import ArtifactError, MissingInputError
 from pipeline.geometry import GridSpec
 from pipeline.recon.grids import OCCUPANCY_CODES, Grids
 from pipeline.store import compressor, new_group, open_group
+
+if TYPE_CHECKING:  # open3d is imported where meshes and points are written: reading a recon needs none of it
+    import open3d as o3d
 
 ARTIFACT = "recon"
 FORMAT_VERSION = 1
@@ -103,6 +107,8 @@ def canonical_mesh(mesh: o3d.geometry.TriangleMesh) -> o3d.geometry.TriangleMesh
     Vertices equal in position and colour (a zero crossing exactly at a voxel, shared by its edges) are
     merged: their order, hence the triangles' indices, would otherwise follow open3d's hash-map order.
     """
+    import open3d as o3d
+
     v = np.asarray(mesh.vertices)
     c = np.asarray(mesh.vertex_colors) if mesh.has_vertex_colors() else np.zeros((len(v), 0))
     order = canonical_point_order(v, c)
@@ -126,6 +132,8 @@ def canonical_mesh(mesh: o3d.geometry.TriangleMesh) -> o3d.geometry.TriangleMesh
 
 def write_mesh(path: Path, mesh: o3d.geometry.TriangleMesh) -> dict:
     """Write a canonical binary PLY; returns its description for attrs and the stage summary."""
+    import open3d as o3d
+
     mesh = canonical_mesh(mesh)
     if not o3d.io.write_triangle_mesh(str(path), mesh, write_ascii=False, compressed=False):
         raise ArtifactError(f"{path}: open3d could not write the mesh")
@@ -136,6 +144,8 @@ def write_mesh(path: Path, mesh: o3d.geometry.TriangleMesh) -> dict:
 
 def write_points(path: Path, xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray) -> dict:
     """Write surface points as a binary PLY (positions m, normals, colours) in :func:`canonical_point_order`."""
+    import open3d as o3d
+
     order = canonical_point_order(xyz, normals, colors)
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz[order].astype(np.float64)))
     pcd.normals = o3d.utility.Vector3dVector(normals[order].astype(np.float64))
@@ -208,4 +218,6 @@ class Recon:
         return self._beside("points", POINTS_SUFFIX)
 
     def mesh(self) -> o3d.geometry.TriangleMesh:
+        import open3d as o3d
+
         return o3d.io.read_triangle_mesh(str(self.mesh_path))
