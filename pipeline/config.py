@@ -51,18 +51,6 @@ class Section(BaseModel):
         if isinstance(value, str) and admits <= {int, float, type(None)}:
             raise ValueError(f"expected a number, got the string {value!r}")
         return value
-        for name, value in data.items():
-            info = cls.model_fields.get(name)
-            if info is None or not isinstance(value, (bool, str)):
-                continue
-            admits = _scalar_types(info.annotation)
-            if object in admits or type(value) in admits:
-                continue
-            if isinstance(value, bool) and admits & {int, float}:
-                raise ValueError(f"{name}: expected a number, got {str(value).lower()} (a boolean)")
-            if isinstance(value, str) and admits <= {int, float, type(None)}:
-                raise ValueError(f"{name}: expected a number, got the string {value!r}")
-        return data
 
 
 # ----------------------------------------------------------------------------- scenes

@@ -13,7 +13,6 @@ input's digest changed; :func:`staleness` names which.
 
 from __future__ import annotations
 
-import hashlib
 import importlib
 import importlib.util
 import os

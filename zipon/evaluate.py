@@ -77,30 +77,14 @@ ENTRY_POINT_GROUP = "zipon.agents"
 
 def plugin_agent(name: str) -> type | None:
     """The Agent subclass an installed package registers as ``name`` in the ``zipon.agents`` entry points, or None."""
-    from importlib.metadata import entry_points
-
     from orion_eval.agents import Agent
+    from pipeline import plugins
 
-    found = list(entry_points(group=ENTRY_POINT_GROUP, name=name))
-    if not found:
-        return None
-    ep = found[0]
-    try:
-        cls = ep.load()
-    except Exception as err:  # noqa: BLE001 - any import failure of a third-party package is reported the same way
-        raise ConfigError(f"agent {name!r}: entry point {ep.value!r} ({ENTRY_POINT_GROUP}) failed to load: "
-                          f"{type(err).__name__}: {err}") from None
-    if not (isinstance(cls, type) and issubclass(cls, Agent)):
-        raise ConfigError(f"agent {name!r}: entry point {ep.value!r} ({ENTRY_POINT_GROUP}) is not a subclass of "
-                          f"orion_eval.agents.Agent")
-    if getattr(cls, "name", None) != name:
-        raise ConfigError(f"agent {name!r}: entry point {ep.value!r} names a class whose `name` is "
-                          f"{getattr(cls, 'name', None)!r}; they must agree")
-    return cls
+    return plugins.load_class(ENTRY_POINT_GROUP, name, Agent, "orion_eval.agents.Agent", "agent")
 
 
 def plugin_agent_names() -> list[str]:
     """Names registered in the ``zipon.agents`` entry-point group (installed packages)."""
-    from importlib.metadata import entry_points
+    from pipeline import plugins
 
-    return sorted({ep.name for ep in entry_points(group=ENTRY_POINT_GROUP)})
+    return plugins.names(ENTRY_POINT_GROUP)

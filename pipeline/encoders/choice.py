@@ -60,20 +60,9 @@ def _load_plugin(name: str) -> bool:
     """Register plugin encoder ``name`` from its entry point; False when no package provides it."""
     from pipeline.encoders.base import ENCODERS, Encoder
 
-    ep = _plugin_entry(name)
-    if ep is None:
+    cls = plugins.load_class(PLUGIN_GROUP, name, Encoder, "pipeline.encoders.base.Encoder", "encoder")
+    if cls is None:
         return False
-    try:
-        cls = ep.load()
-    except Exception as err:  # noqa: BLE001 - a third party's import error, reported with its entry point
-        raise ConfigError(f"encoder {name!r}: entry point {ep.value!r} ({PLUGIN_GROUP}) failed to load: "
-                          f"{type(err).__name__}: {err}") from None
-    if not (isinstance(cls, type) and issubclass(cls, Encoder)):
-        raise ConfigError(f"encoder {name!r}: entry point {ep.value!r} is not a subclass of "
-                          "pipeline.encoders.base.Encoder")
-    if getattr(cls, "name", None) != name:
-        raise ConfigError(f"encoder {name!r}: entry point {ep.value!r} gives a class whose `name` is "
-                          f"{getattr(cls, 'name', None)!r}; they must agree")
     ENCODERS[name] = cls
     return True
 
