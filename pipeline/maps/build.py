@@ -1,7 +1,7 @@
 """Build one semantic map from ``frames.zarr`` + ``recon.zarr``: the unit of work of the vlmap/cfmap stages.
 
 Frames stream in blocks of ``maps.block_frames``; each block is encoded in batches of
-``encoders.batch_size`` and fused with one vectorized scatter (:mod:`pipeline.maps.fusion`), so
+``run.encoder_batch_size`` and fused with one vectorized scatter (:mod:`pipeline.maps.fusion`), so
 memory is bounded by the map (observed cells / voxels), never by the number of frames. Poses
 come from ``recon.zarr`` (the poses the geometry was fused with); frames recon did not fuse are
 skipped and counted.
