@@ -35,7 +35,7 @@ import numpy as np  # noqa: E402
 import open_clip  # noqa: E402
 import torch  # noqa: E402
 
-from pipeline.config import EncodersParams  # noqa: E402
+from pipeline.config import EncodersParams, RunParams  # noqa: E402
 from pipeline.encoders import build_encoder  # noqa: E402
 from pipeline.encoders.lseg import LSegEncoder, load_lseg_net  # noqa: E402
 from pipeline.encoders.lseg_net import LSEG_VITL16_384, LSegArch, LSegNet  # noqa: E402
@@ -114,10 +114,14 @@ def emit(**kw) -> None:
     print(json.dumps({**kw, "load_avg_1min": round(os.getloadavg()[0], 2)}), flush=True)
 
 
+def runtime(args) -> RunParams:
+    """The run settings the encoders are timed with: CPU, the chosen batch size and threads."""
+    return RunParams(device="cpu", encoder_batch_size=args.batch, torch_threads=args.threads)
+
+
 def bench_maskclip(weights: Path, args, rgb) -> None:
-    p = EncodersParams(device="cpu", batch_size=args.batch, threads=args.threads,
-                       maskclip={"arch": "ViT-B-32", "weights": str(weights)})
-    enc = build_encoder(p, "maskclip")
+    p = EncodersParams(maskclip={"arch": "ViT-B-32", "weights": str(weights)})
+    enc = build_encoder(p, "maskclip", runtime=runtime(args))
     bare = open_clip.create_model("ViT-B-32", pretrained=None, force_image_size=(480, 640)).eval()
     x = torch.cat([enc.preprocess(rgb[i : i + args.batch]) for i in range(0, len(rgb), args.batch)])
     enc.encode_images(rgb[: args.batch])  # warm-up
@@ -132,9 +136,8 @@ def bench_maskclip(weights: Path, args, rgb) -> None:
 
 def bench_conceptfusion(weights: Path, args, rgb, depth, inst) -> None:
     for gen in ("rgbd", "gt"):
-        p = EncodersParams(device="cpu", batch_size=args.batch, threads=args.threads,
-                           conceptfusion={"arch": "ViT-B-32", "weights": str(weights), "regions": {"generator": gen}})
-        enc = build_encoder(p, "conceptfusion")
+        p = EncodersParams(conceptfusion={"arch": "ViT-B-32", "weights": str(weights), "regions": {"generator": gen}})
+        enc = build_encoder(p, "conceptfusion", runtime=runtime(args))
         regions = [enc.regions(rgb[i], depth[i], inst[i]) for i in range(len(rgb))]
         n_crops = sum(len(r) + 1 for r in regions)
         # the same crop batches the encoder runs: per batch of frames, 64 crops per pass
@@ -179,7 +182,7 @@ def bench_lseg(tmp: Path, args, rgb) -> None:
 def bench_oracle(args, rgb, inst) -> None:
     from tests.pipeline.encoders.conftest import gt_scene
 
-    enc = build_encoder(EncodersParams(device="cpu", batch_size=args.batch, threads=args.threads), "oracle")
+    enc = build_encoder(EncodersParams(), "oracle", runtime=runtime(args))
     enc.bind_scene(gt_scene())
     t = timed(lambda: enc.encode_images(rgb, instance=np.minimum(inst, 3)), args.repeat)
     emit(encoder="oracle", images=len(rgb), batch_size=args.batch, threads=torch.get_num_threads(),
