@@ -6,10 +6,20 @@ anything is evaluated, :meth:`Artifacts.check_lineage` compares the reconstructi
 (``manifests/<scene>/reconstruct.json``) with the ``recon`` input digest recorded in each downstream
 manifest (vlmap, cfmap, goals, routes) and the goals digest recorded by routes; any mismatch is a
 :class:`~pipeline.errors.LineageError` naming both manifests.
+
+The action space (``step_m``, ``turn_deg``) and the success radius are facts of ``routes.zarr``: the
+episodes' reference paths, goal regions and replays were made with them, so the evaluator reads them
+from the artifact (:meth:`Artifacts.action_space`), never from the params. :meth:`Artifacts.check_action_space`
+(run with the lineage check) refuses params that disagree with the artifact: ``routes.step_m``,
+``routes.turn_deg`` or ``routes.success_m`` differing from what routes.zarr was built with (rebuild the
+routes), or ``eval.success_distance_m`` differing from the routes' ``success_m`` (the paper rule's
+radius is the one the goal regions were cut with; the eval key must repeat it) — so one evaluation
+never mixes two action spaces or two success radii.
 """
 
 from __future__ import annotations
 
+import math
 from functools import cached_property
 from pathlib import Path
 
@@ -33,6 +43,7 @@ class Artifacts:
         self.ws, self.params, self.scene = ws, params, scene
         if check:
             self.check_lineage()
+            self.check_action_space()
 
     # ------------------------------------------------------------------ lineage
     def manifest(self, stage: str) -> Manifest:
@@ -63,6 +74,27 @@ class Artifacts:
                         f"{self.ws.manifest(self.scene, LINEAGE[stage][name])} records {name} {shared[name]} "
                         f"(manifest {self.ws.manifest(self.scene, stage)}); rerun: zipon run -s {self.scene}")
         return shared
+
+    def action_space(self) -> tuple[float, float, float]:
+        """``(step_m, turn_deg, success_m)`` that routes.zarr was built with (what the evaluator uses)."""
+        r = self.routes
+        return r.step_m, r.turn_deg, r.success_m
+
+    def check_action_space(self) -> None:
+        """Raise :class:`LineageError` when the params in force disagree with routes.zarr's action space or
+        success radius (see the module docstring)."""
+        step_m, turn_deg, success_m = self.action_space()
+        rp, src = self.params.routes, self.ws.params_path
+        for key, ours, built in (("routes.step_m", rp.step_m, step_m), ("routes.turn_deg", rp.turn_deg, turn_deg),
+                                 ("routes.success_m", rp.success_m, success_m)):
+            if not math.isclose(ours, built, rel_tol=0.0, abs_tol=1e-9):
+                raise LineageError(f"{key} {ours:g} in {src} but routes.zarr of {self.scene} was built with "
+                                   f"{built:g}: rebuild with zipon run -s {self.scene}")
+        ours = self.params.eval.success_distance_m
+        if not math.isclose(ours, success_m, rel_tol=0.0, abs_tol=1e-9):
+            raise LineageError(f"eval.success_distance_m {ours:g} in {src} but routes.zarr of {self.scene} was built "
+                               f"with success_m {success_m:g}: the goal regions are cut with the routes' radius; set "
+                               f"eval.success_distance_m to routes.success_m")
 
     # ------------------------------------------------------------------ artifacts
     def path(self, name: str) -> Path:

@@ -56,18 +56,19 @@ class SceneContext:
         ep, rp = self.params.eval, self.params.routes
         self.grid = arts.grid
         self.navigable = arts.navigable
-        self.step_m, self.turn_deg = rp.step_m, rp.turn_deg
-        self.world = World(self.navigable, self.grid, step_m=rp.step_m, turn_deg=rp.turn_deg)
+        # the action space and success radius routes.zarr was built with (Artifacts checks the params agree)
+        self.step_m, self.turn_deg, self.success_m = arts.action_space()
+        self.world = World(self.navigable, self.grid, step_m=self.step_m, turn_deg=self.turn_deg)
         self.planner = NavPlanner(self.navigable, self.grid,
-                                  RouteSettings(rp.step_m, rp.turn_deg, ep.clearance_m, ep.stop_radius_m))
+                                  RouteSettings(self.step_m, self.turn_deg, ep.clearance_m, ep.stop_radius_m))
         # the user's procedural feedback uses the routes stage's own settings, to the stored goal region
         self.user_planner = NavPlanner(self.navigable, self.grid,
-                                       RouteSettings(rp.step_m, rp.turn_deg, rp.clearance_m, 0.0))
+                                       RouteSettings(self.step_m, self.turn_deg, rp.clearance_m, 0.0))
         self.success = SuccessRule(self.grid, arts.height, arts.camera_height_m, rule=ep.success_rule,
-                                   distance_m=ep.success_distance_m, hfov_deg=ep.hfov_deg, sight=self.sight)
+                                   distance_m=self.success_m, hfov_deg=ep.hfov_deg, sight=self.sight)
         # route targets (pipeline.routes.region) are explicit cells: a zero stop radius keeps them as they are
         self.view_planner = NavPlanner(self.navigable, self.grid,
-                                       RouteSettings(rp.step_m, rp.turn_deg, ep.clearance_m, 0.0))
+                                       RouteSettings(self.step_m, self.turn_deg, ep.clearance_m, 0.0))
         self._map_cache: dict[tuple[str, str], list[MapObject]] = {}
         self._view_cache: dict[tuple, object] = {}
         self._det_cache: dict[tuple, list[Detection]] = {}
@@ -100,7 +101,7 @@ class SceneContext:
 
     def goal_target(self, key, object_mask: np.ndarray, center_xy, z_levels) -> tuple[np.ndarray, np.ndarray]:
         """Full-grid ``(region, target)`` for an object the agent found (map candidate, detection): the
-        routes module's :func:`~pipeline.routes.region.goal_region` (``eval.success_distance_m``, the same
+        routes module's :func:`~pipeline.routes.region.goal_region` (routes.zarr's ``success_m``, the same
         line of sight as the success rule) and its :func:`~pipeline.routes.region.route_target`
         (``eval.stop_radius_m``), which a walk aims for and the region it finishes in. Cached per ``key``."""
         cache = self.__dict__.setdefault("_goal_targets", {})
@@ -109,7 +110,7 @@ class SceneContext:
 
             ep = self.params.eval
             region = goal_region(self.navigable, object_mask, self.grid, center_xy, z_levels, self.sight,
-                                 success_m=ep.success_distance_m)
+                                 success_m=self.success_m)
             cache[key] = (region, route_target(region, object_mask, self.grid, stop_radius_m=ep.stop_radius_m))
         return cache[key]
 

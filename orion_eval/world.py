@@ -1,14 +1,14 @@
 """The evaluation world: the agent's body on the navigable grid, its actions, and the success rule.
 
 Actions (the paper's): ``TurnLeft`` / ``TurnRight`` by ``turn_deg`` (15 deg; left = counter-clockwise),
-``MoveForward`` by ``step_m`` (0.25 m), and ``Talk`` (counted by the episode, see
+``MoveForward`` by ``step_m`` (0.25 m) — both as routes.zarr records them — and ``Talk`` (counted by the episode, see
 :mod:`orion_eval.episode`). A forward step collides when any point of it (sampled every third of a
 cell) leaves the navigable cells; the agent then stays put, as in Habitat and in
 :func:`pipeline.routes.verify.replay`.
 
 Success (``eval.success_rule``):
 
-- ``paper``: the agent is within ``success_distance_m`` (1.5 m) of the goal's footprint (0 inside),
+- ``paper``: the agent is within routes.zarr's ``success_m`` (1.5 m) of the goal's footprint (0 inside),
   the goal's mass centre lies inside the ``hfov_deg`` (90 deg) ego view, and it is in line of sight;
 - ``navchat``: navchat's tighter bands on (distance, |bearing|): (0.6 m, 45 deg), (1.2 m, 30 deg),
   (1.4 m, 15 deg — standing in for "enough goal pixels near the image centre"), plus line of sight.

@@ -122,6 +122,21 @@ class Routes:
                            self._path_xy[self._path_off[i]: self._path_off[i + 1]],
                            self._actions[self._act_off[i]: self._act_off[i + 1]], r["instruction"])
 
+    @property
+    def step_m(self) -> float:
+        """Forward action the routes were built with, metres (``action_space.step_m``)."""
+        return float(self.attrs["action_space"]["step_m"])
+
+    @property
+    def turn_deg(self) -> float:
+        """Turn action the routes were built with, degrees (``action_space.turn_deg``)."""
+        return float(self.attrs["action_space"]["turn_deg"])
+
+    @property
+    def success_m(self) -> float:
+        """Success radius the goal regions and replays were built with, metres."""
+        return float(self.attrs["success_m"])
+
     def for_goal(self, goal_id: str) -> list[EpisodeView]:
         return [e for e in self.episodes if e.goal_id == goal_id]
 

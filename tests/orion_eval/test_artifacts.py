@@ -34,3 +34,44 @@ def test_mismatched_reconstruction_is_a_lineage_error(tiny_scene, tmp_path):
     (manifests / "tiny" / "routes.json").unlink()
     with pytest.raises(MissingInputError, match="no manifest of stage routes"):
         Artifacts(other, params, "tiny", check=False).check_lineage(("routes",))
+
+
+def test_action_space_comes_from_routes_zarr(tiny_scene):
+    ws, params = tiny_scene
+    arts = Artifacts(ws, params, "tiny")
+    recorded = arts.routes.attrs
+    assert arts.action_space() == (recorded["action_space"]["step_m"], recorded["action_space"]["turn_deg"],
+                                   recorded["success_m"]) == (0.25, 15.0, 1.5)
+
+
+def test_params_disagreeing_with_routes_are_a_lineage_error(tiny_scene):
+    ws, params = tiny_scene
+    step = params.model_copy(update={"routes": params.routes.model_copy(update={"step_m": 0.3})})
+    with pytest.raises(LineageError, match=r"routes\.step_m 0\.3 in .*params\.yaml but routes\.zarr of tiny was "
+                                           r"built with 0\.25: rebuild with zipon run -s tiny"):
+        Artifacts(ws, step, "tiny")
+    turn = params.model_copy(update={"routes": params.routes.model_copy(update={"turn_deg": 30.0})})
+    with pytest.raises(LineageError, match=r"routes\.turn_deg 30 in .* built with 15:"):
+        Artifacts(ws, turn, "tiny")
+    radius = params.model_copy(update={"eval": params.eval.model_copy(update={"success_distance_m": 1.0})})
+    with pytest.raises(LineageError, match=r"eval\.success_distance_m 1 in .* built with success_m 1\.5: .*set "
+                                           r"eval\.success_distance_m to routes\.success_m"):
+        Artifacts(ws, radius, "tiny")
+    Artifacts(ws, radius, "tiny", check=False)  # reading alone is not refused
+
+
+def test_zipon_eval_refuses_another_step_size(tiny_scene, tmp_path, capsys):
+    from pipeline.cli import main
+
+    ws, _ = tiny_scene
+    text = ws.params_path.read_text().replace("routes: {episodes_per_goal: 2}",
+                                              "routes: {episodes_per_goal: 2, step_m: 0.3}")
+    assert "step_m: 0.3" in text
+    (tmp_path / "params.yaml").write_text(text)
+    out = tmp_path / "out"
+    code = main(["-q", "-p", str(tmp_path / "params.yaml"), "--data-dir", str(ws.data_dir),
+                 "--manifests-dir", str(ws.manifests_dir), "eval", "-o", str(out), "-m", "cow"])
+    assert code == 1
+    err = " ".join((capsys.readouterr().err).split())
+    assert "routes.step_m 0.3 in" in err and "routes.zarr of tiny was built with 0.25: rebuild with zipon run -s tiny" in err
+    assert not (out / "results.json").exists()
