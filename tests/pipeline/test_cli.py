@@ -109,3 +109,14 @@ def test_strict_params_types_name_the_key(tmp_path, capsys):
         assert main(["-p", str(p), "status"]) == 1, body
         err = capsys.readouterr().err.replace("\n", " ")
         assert message in err, (body, err)
+
+
+def test_python_dash_m_runs_the_same_cli():
+    """`python -m pipeline.cli` is the `zipon` command (the package's commands register without an import cycle)."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "pipeline.cli", "--help"], capture_output=True, text=True,
+                          env={"COLUMNS": "200", "PATH": ""}, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert all(f" {name} " in done.stdout for name in ("run", "demo", "query", "eval", "goals", "encoders"))

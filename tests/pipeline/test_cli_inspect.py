@@ -1,4 +1,4 @@
-"""The commands on built artifacts (pipeline/cli_inspect.py) on the session's tiny scene: one consistent CLI."""
+"""The commands on built artifacts (pipeline/cli/inspect.py) on the session's tiny scene: one consistent CLI."""
 
 import json
 import math
@@ -70,7 +70,7 @@ def test_query_without_candidates_says_why(built_scene, capsys):
 
 
 def test_no_candidates_reason_names_the_threshold_that_failed():
-    from pipeline.cli_inspect import no_candidates_reason
+    from pipeline.cli.inspect import no_candidates_reason
     from pipeline.config import QueryParams
     from pipeline.geometry import GridSpec
     from pipeline.maps.query import QueryResult

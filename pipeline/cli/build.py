@@ -1,125 +1,17 @@
-"""The ``zipon`` command line. Only this module turns errors into messages and exit codes."""
+"""``zipon`` commands that build and check the dataset: run, stage, status, verify, simulate, ingest, params, dvc,
+demo."""
 
 from __future__ import annotations
 
-import sys
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from pipeline.errors import ZiponError
+from pipeline.cli.common import G, app, console, out, print_eval, print_outcomes, run_stages
 
-app = typer.Typer(
-    add_completion=False,
-    no_args_is_help=True,
-    pretty_exceptions_show_locals=False,
-    rich_markup_mode="markdown",
-    help="**zipon** — raw RGB-D robot logs → versioned ZIPON datasets (scenes, semantic maps, goals, routes) "
-    "and the orion_eval evaluator.\n\nStart with `zipon demo`; `zipon COMMAND --help` shows examples.",
-)
-console = Console(stderr=True)
-out = Console()
-
-
-@dataclass
-class Globals:
-    params: Optional[Path] = None
-    data_dir: Optional[Path] = None
-    manifests_dir: Optional[Path] = None
-    overrides: tuple[str, ...] = ()
-    quiet: bool = False
-
-    def workspace(self):
-        from pipeline.paths import Workspace
-
-        return Workspace.resolve(self.params, self.data_dir, self.manifests_dir)
-
-    def load(self):
-        from pipeline.config import load_params
-
-        ws = self.workspace()
-        return ws, load_params(ws.params_path, self.overrides)
-
-
-G = Globals()
-
-
-@app.callback()
-def _globals(
-    params: Optional[Path] = typer.Option(None, "--params", "-p", help="params file (default ./params.yaml)"),
-    data_dir: Optional[Path] = typer.Option(
-        None, "--data-dir", envvar="ZIPON_DATA", help="data root (default: data/ beside params.yaml)"
-    ),
-    manifests_dir: Optional[Path] = typer.Option(
-        None, "--manifests-dir", envvar="ZIPON_MANIFESTS", help="manifests root (default: manifests/ beside params.yaml)"
-    ),
-    overrides: list[str] = typer.Option(
-        [], "--set", "-S", help="override a param for this run, e.g. -S simulate.frames=100 (repeatable)"
-    ),
-    quiet: bool = typer.Option(False, "--quiet", "-q", metavar="", help="no progress bars"),
-):
-    G.params, G.data_dir, G.manifests_dir, G.overrides, G.quiet = params, data_dir, manifests_dir, tuple(overrides), quiet
-
-
-# ----------------------------------------------------------------------------- helpers
-
-def _print_outcomes(outcomes) -> bool:
-    table = Table(title="zipon run", show_lines=False)
-    for col in ("scene", "stage", "status", "seconds", "note"):
-        table.add_column(col)
-    styles = {"ran": "green", "skipped": "dim", "failed": "red", "blocked": "yellow"}
-    for o in outcomes:
-        note = o.reason if o.status != "failed" else o.error.splitlines()[0]
-        table.add_row(o.scene, o.stage, f"[{styles[o.status]}]{o.status}[/]", f"{o.seconds:.1f}" if o.seconds else "", note)
-    out.print(table)
-    failed = [o for o in outcomes if o.status == "failed"]
-    for o in failed:
-        console.print(f"[red]error[/red] {o.scene}/{o.stage}: {escape(o.error)}", highlight=False, soft_wrap=True)
-    return not failed
-
-
-def _scenes(params, scenes: list[str]) -> list[str]:
-    from pipeline.errors import ConfigError
-
-    if not scenes:
-        return list(params.scenes)
-    unknown = [s for s in scenes if s not in params.scenes]
-    if unknown:
-        raise ConfigError(f"unknown scene(s) {unknown}; params.yaml scenes: {sorted(params.scenes)}")
-    return scenes
-
-
-def _run(scenes: list[str], stages_wanted: list[str] | None, force: bool, scheduler: str | None,
-         record_dvc: bool = True) -> bool:
-    """Run the plan; then record what is built in dvc.lock (not for `zipon stage`, which `dvc repro` calls
-    while it holds DVC's lock and records the result itself)."""
-    from pipeline.errors import ConfigError
-    from pipeline.runner import plan, run_many
-    from stages import STAGES
-
-    ws, params = G.load()
-    for s in stages_wanted or []:
-        if s not in STAGES:
-            raise ConfigError(f"unknown stage {s!r}; stages: {list(STAGES)}")
-    pairs = plan(STAGES, params, _scenes(params, scenes), stages_wanted)
-    outcomes = run_many(ws, params, STAGES, pairs, force=force, scheduler=scheduler, show_progress=not G.quiet)
-    ok = _print_outcomes(outcomes)
-    if record_dvc:
-        from pipeline.dvcfile import sync_dvc_lock
-
-        done = [(o.scene, o.stage) for o in outcomes if o.status in ("ran", "skipped")]
-        note = sync_dvc_lock(ws, params, STAGES, done, G.overrides)
-        if note:
-            console.print(f"[dim]{note}[/dim]")
-    return ok
-
-
-# ----------------------------------------------------------------------------- commands
 
 @app.command()
 def run(
@@ -134,7 +26,7 @@ def run(
 
     Examples: `zipon run` · `zipon run -s sim_00 --stage ingest --force` · `zipon run --scheduler tcp://host:8786`
     """
-    if not _run(scene, stage or None, force, scheduler):
+    if not run_stages(scene, stage or None, force, scheduler):
         raise typer.Exit(1)
 
 
@@ -145,7 +37,7 @@ def stage_cmd(
     force: bool = typer.Option(False, "--force", metavar="", help="rerun even when up to date"),
 ):
     """Run one stage of one scene (what dvc.yaml calls). Example: `zipon stage ingest --scene sim_00`"""
-    if not _run([scene], [name], force, "sync", record_dvc=False):
+    if not run_stages([scene], [name], force, "sync", record_dvc=False):
         raise typer.Exit(1)
 
 
@@ -275,7 +167,7 @@ def ingest(
     params = parse_params(raw, origin="zipon ingest")
     outcomes = run_many(ws, params, STAGES, [(scene, "ingest")], force=force, scheduler="sync",
                         show_progress=not G.quiet)
-    ok = _print_outcomes(outcomes)
+    ok = print_outcomes(outcomes)
     if not ok:
         raise typer.Exit(1)
     out.print(f"frames: {ws.artifact('frames', scene)}\nTo build the rest with `zipon run`, add to params.yaml:\n"
@@ -331,10 +223,6 @@ def dvc_cmd(check: bool = typer.Option(False, "--check", metavar="", help="only 
     out.print(f"wrote {path}")
 
 
-# Commands on built artifacts live in their own module; importing it registers them here.
-from pipeline import cli_inspect  # noqa: E402,F401
-from pipeline.cli_inspect import _print_eval  # noqa: E402
-
 
 @app.command()
 def demo(
@@ -348,7 +236,7 @@ def demo(
     """
     from pipeline.demo import render_all
 
-    ok = _run([], None, False, scheduler)
+    ok = run_stages([], None, False, scheduler)
     ws, params = G.load()
     built = [s for s in params.scenes if ws.artifact("routes", s).exists()]
     pictures = render_all(ws, params, list(params.scenes))
@@ -358,7 +246,7 @@ def demo(
 
         eval_dir = ws.data_dir / "eval" / "demo"
         results = run_eval(ws, params, eval_dir, scenes=built, seeds=list(range(eval_seeds)), progress=not G.quiet)
-        _print_eval(results, eval_dir)
+        print_eval(results, eval_dir)
         report = eval_dir / "report.html"
     table = Table(title="zipon demo: where things are")
     table.add_column("what", no_wrap=True)
@@ -373,36 +261,3 @@ def demo(
     out.print(table)
     if not ok:
         raise typer.Exit(1)
-
-
-# ----------------------------------------------------------------------------- entry point
-
-def main(argv: list[str] | None = None) -> int:
-    """Console entry: run the app; turn zipon errors and OS errors (disk full, read-only, permissions)
-    into a one-line message naming the path and exit code 1; usage errors exit 2."""
-    from typer._click.exceptions import ClickException
-
-    from pipeline.errors import os_error_message
-
-    try:
-        # standalone_mode=False: typer RETURNS the code of typer.Exit(n) instead of raising it.
-        code = app(args=argv, standalone_mode=False, prog_name="zipon")
-    except ZiponError as err:
-        console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False, soft_wrap=True)
-        return 1
-    except OSError as err:  # after ZiponError: MissingInputError is a FileNotFoundError too
-        console.print(f"[red]error:[/red] {escape(os_error_message(err))}", highlight=False, soft_wrap=True)
-        return 1
-    except typer.Exit as e:
-        return e.exit_code
-    except typer.Abort:
-        console.print("aborted")
-        return 130
-    except ClickException as e:  # usage errors: typer's own message and exit code 2
-        e.show()
-        return e.exit_code
-    return code if isinstance(code, int) else 0
-
-
-def entry() -> None:
-    sys.exit(main())

@@ -1,7 +1,4 @@
-"""``zipon`` commands that look at built artifacts: render, query, goals, encoders, recon-eval, eval.
-
-Registered on the app of :mod:`pipeline.cli` when that module imports this one.
-"""
+"""``zipon`` commands that look at built artifacts: render, query, goals, encoders, recon-eval, eval, view."""
 
 from __future__ import annotations
 
@@ -11,7 +8,7 @@ from typing import Optional
 import typer
 from rich.table import Table
 
-from pipeline.cli import G, _run, app, console, out
+from pipeline.cli.common import G, app, console, out, print_eval, run_stages
 from pipeline.errors import ZiponError
 
 
@@ -116,7 +113,7 @@ def goals_import(
     G.overrides = (*before, f"goals.edits.{scene}={rel}")  # the rebuild sees the edit; params.yaml not yet
     failure: Exception | None = None
     try:  # dvc.lock follows params.yaml, so it is recorded below once the edit is in params.yaml
-        ok = _run([scene], ["goals", "routes"], False, "sync", record_dvc=False)
+        ok = run_stages([scene], ["goals", "routes"], False, "sync", record_dvc=False)
     except Exception as err:  # noqa: BLE001 - re-raised below, after undoing what this command wrote
         ok, failure = False, err
     finally:
@@ -136,7 +133,7 @@ def goals_import(
                    if (path.read_bytes() if path.is_file() else None) != published[stage]]
         if rebuilt:
             console.print(f"rebuilding {scene}'s {' and '.join(rebuilt)} without the edit")
-            _run([scene], rebuilt, False, "sync")
+            run_stages([scene], rebuilt, False, "sync")
         if failure is not None:
             raise failure
         raise typer.Exit(1)
@@ -370,7 +367,7 @@ def eval_cmd(
     agents = [_agent_class(m) if ":" in m else m for m in methods] or None
     results = run_eval(Dataset(ws, params), out_dir, scenes=scenes or None, agents=agents, feedback=feedback or None,
                        seeds=seed_list or seeds, progress=not G.quiet)
-    _print_eval(results, out_dir)
+    print_eval(results, out_dir)
 
 
 def _agent_class(spec: str):
@@ -388,21 +385,6 @@ def _agent_class(spec: str):
         raise ConfigError(f"--method {spec!r}: cannot import it ({err}); expected module:Class of an Agent "
                           f"subclass importable from here") from None
     return obj
-
-
-def _print_eval(results: dict, out_dir: Path) -> None:
-    table = Table(title="orion_eval: mean over seeds (%)")
-    for col in ("method", "feedback", "SR", "SPL", "SIT", "episodes"):
-        table.add_column(col)
-    for method, by_feedback in results["overall"].items():
-        for setting, m in by_feedback.items():
-            table.add_row(method, setting, f"{m['SR']:.1f}", f"{m['SPL']:.1f}", f"{m['SIT']:.1f}", str(m["episodes"]))
-    out.print(table)
-    from orion_eval.report import run_notes
-
-    for note in run_notes(results["run"]):  # which perception built the maps, what detection ran on
-        out.print(note)
-    out.print(f"results: {Path(out_dir) / 'results.json'}\nreport:  {Path(out_dir) / 'report.html'}")
 
 
 @app.command()

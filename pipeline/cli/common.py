@@ -1,0 +1,135 @@
+"""What every ``zipon`` command shares: the app, the global options (:data:`G`), the consoles, and the helpers
+that run the stage plan and print its outcomes and evaluation results. The commands live in
+:mod:`pipeline.cli.build` and :mod:`pipeline.cli.inspect`; :mod:`pipeline.cli` imports both and turns errors into
+messages and exit codes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_show_locals=False,
+    rich_markup_mode="markdown",
+    help="**zipon** — raw RGB-D robot logs → versioned ZIPON datasets (scenes, semantic maps, goals, routes) "
+    "and the orion_eval evaluator.\n\nStart with `zipon demo`; `zipon COMMAND --help` shows examples.",
+)
+console = Console(stderr=True)
+out = Console()
+
+
+@dataclass
+class Globals:
+    params: Optional[Path] = None
+    data_dir: Optional[Path] = None
+    manifests_dir: Optional[Path] = None
+    overrides: tuple[str, ...] = ()
+    quiet: bool = False
+
+    def workspace(self):
+        from pipeline.paths import Workspace
+
+        return Workspace.resolve(self.params, self.data_dir, self.manifests_dir)
+
+    def load(self):
+        from pipeline.config import load_params
+
+        ws = self.workspace()
+        return ws, load_params(ws.params_path, self.overrides)
+
+
+G = Globals()
+
+
+@app.callback()
+def _globals(
+    params: Optional[Path] = typer.Option(None, "--params", "-p", help="params file (default ./params.yaml)"),
+    data_dir: Optional[Path] = typer.Option(
+        None, "--data-dir", envvar="ZIPON_DATA", help="data root (default: data/ beside params.yaml)"
+    ),
+    manifests_dir: Optional[Path] = typer.Option(
+        None, "--manifests-dir", envvar="ZIPON_MANIFESTS", help="manifests root (default: manifests/ beside params.yaml)"
+    ),
+    overrides: list[str] = typer.Option(
+        [], "--set", "-S", help="override a param for this run, e.g. -S simulate.frames=100 (repeatable)"
+    ),
+    quiet: bool = typer.Option(False, "--quiet", "-q", metavar="", help="no progress bars"),
+):
+    G.params, G.data_dir, G.manifests_dir, G.overrides, G.quiet = params, data_dir, manifests_dir, tuple(overrides), quiet
+
+
+# ----------------------------------------------------------------------------- helpers
+
+def print_outcomes(outcomes) -> bool:
+    table = Table(title="zipon run", show_lines=False)
+    for col in ("scene", "stage", "status", "seconds", "note"):
+        table.add_column(col)
+    styles = {"ran": "green", "skipped": "dim", "failed": "red", "blocked": "yellow"}
+    for o in outcomes:
+        note = o.reason if o.status != "failed" else o.error.splitlines()[0]
+        table.add_row(o.scene, o.stage, f"[{styles[o.status]}]{o.status}[/]", f"{o.seconds:.1f}" if o.seconds else "", note)
+    out.print(table)
+    failed = [o for o in outcomes if o.status == "failed"]
+    for o in failed:
+        console.print(f"[red]error[/red] {o.scene}/{o.stage}: {escape(o.error)}", highlight=False, soft_wrap=True)
+    return not failed
+
+
+def select_scenes(params, scenes: list[str]) -> list[str]:
+    from pipeline.errors import ConfigError
+
+    if not scenes:
+        return list(params.scenes)
+    unknown = [s for s in scenes if s not in params.scenes]
+    if unknown:
+        raise ConfigError(f"unknown scene(s) {unknown}; params.yaml scenes: {sorted(params.scenes)}")
+    return scenes
+
+
+def run_stages(scenes: list[str], stages_wanted: list[str] | None, force: bool, scheduler: str | None,
+         record_dvc: bool = True) -> bool:
+    """Run the plan; then record what is built in dvc.lock (not for `zipon stage`, which `dvc repro` calls
+    while it holds DVC's lock and records the result itself)."""
+    from pipeline.errors import ConfigError
+    from pipeline.runner import plan, run_many
+    from stages import STAGES
+
+    ws, params = G.load()
+    for s in stages_wanted or []:
+        if s not in STAGES:
+            raise ConfigError(f"unknown stage {s!r}; stages: {list(STAGES)}")
+    pairs = plan(STAGES, params, select_scenes(params, scenes), stages_wanted)
+    outcomes = run_many(ws, params, STAGES, pairs, force=force, scheduler=scheduler, show_progress=not G.quiet)
+    ok = print_outcomes(outcomes)
+    if record_dvc:
+        from pipeline.dvcfile import sync_dvc_lock
+
+        done = [(o.scene, o.stage) for o in outcomes if o.status in ("ran", "skipped")]
+        note = sync_dvc_lock(ws, params, STAGES, done, G.overrides)
+        if note:
+            console.print(f"[dim]{note}[/dim]")
+    return ok
+
+
+def print_eval(results: dict, out_dir: Path) -> None:
+    """The evaluation's mean SR / SPL / SIT table, its run notes and where its results and report are."""
+    table = Table(title="orion_eval: mean over seeds (%)")
+    for col in ("method", "feedback", "SR", "SPL", "SIT", "episodes"):
+        table.add_column(col)
+    for method, by_feedback in results["overall"].items():
+        for setting, m in by_feedback.items():
+            table.add_row(method, setting, f"{m['SR']:.1f}", f"{m['SPL']:.1f}", f"{m['SIT']:.1f}", str(m["episodes"]))
+    out.print(table)
+    from orion_eval.report import run_notes
+
+    for note in run_notes(results["run"]):  # which perception built the maps, what detection ran on
+        out.print(note)
+    out.print(f"results: {Path(out_dir) / 'results.json'}\nreport:  {Path(out_dir) / 'report.html'}")
