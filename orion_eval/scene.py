@@ -59,16 +59,17 @@ class SceneContext:
         # the action space and success radius routes.zarr was built with (Artifacts checks the params agree)
         self.step_m, self.turn_deg, self.success_m = arts.action_space()
         self.world = World(self.navigable, self.grid, step_m=self.step_m, turn_deg=self.turn_deg)
-        self.planner = NavPlanner(self.navigable, self.grid,
-                                  RouteSettings(self.step_m, self.turn_deg, ep.clearance_m, ep.stop_radius_m))
+        space = {"step_m": self.step_m, "turn_deg": self.turn_deg}
+        self.planner = NavPlanner(self.navigable, self.grid, RouteSettings.from_config(
+            rp, **space, clearance_m=ep.clearance_m, stop_radius_m=ep.stop_radius_m))
         # the user's procedural feedback uses the routes stage's own settings, to the stored goal region
         self.user_planner = NavPlanner(self.navigable, self.grid,
-                                       RouteSettings(self.step_m, self.turn_deg, rp.clearance_m, 0.0))
+                                       RouteSettings.from_config(rp, **space, stop_radius_m=0.0))
         self.success = SuccessRule(self.grid, arts.height, arts.camera_height_m, rule=ep.success_rule,
                                    distance_m=self.success_m, hfov_deg=ep.hfov_deg, sight=self.sight)
         # route targets (pipeline.routes.region) are explicit cells: a zero stop radius keeps them as they are
-        self.view_planner = NavPlanner(self.navigable, self.grid,
-                                       RouteSettings(self.step_m, self.turn_deg, ep.clearance_m, 0.0))
+        self.view_planner = NavPlanner(self.navigable, self.grid, RouteSettings.from_config(
+            rp, **space, clearance_m=ep.clearance_m, stop_radius_m=0.0))
         self._map_cache: dict[tuple[str, str], list[MapObject]] = {}
         self._view_cache: dict[tuple, object] = {}
         self._det_cache: dict[tuple, list[Detection]] = {}

@@ -283,8 +283,7 @@ def build_scene_goals(frames: FrameStore, recon: Recon, out_path: Path, attrs: d
         edits, dropped = prune_document(edits, {o.key for o in objset.objects})
         for d in dropped:
             log(f"edited goal {d} dropped: its objects no longer exist")
-    planner = RoutePlanner(recon.navigable, grid, RouteSettings(rp.step_m, rp.turn_deg, rp.clearance_m,
-                                                                rp.stop_radius_m))
+    planner = RoutePlanner(recon.navigable, grid, RouteSettings.from_config(rp))
     settings = GoalSettings(seed=p.seed, max_goals=p.max_goals, mix=tuple(p.mix),
                             same_goal_radius_m=p.same_goal_radius_m, landmark_radius_m=p.landmark_radius_m,
                             max_landmarks=p.max_landmarks, landmark_min_area_m2=p.landmark_min_area_m2,

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from pipeline.config import RoutesParams
 from pipeline.geometry import GridSpec
 from pipeline.routes.fmm import (GeodesicPath, geodesic_field, planning_mask, segment_free, shortest_path,
                                  target_region)
@@ -250,10 +251,23 @@ def procedural_allowed(parts: list[RoutePart], agent_room: str | None, goal_room
 
 @dataclass(frozen=True)
 class RouteSettings:
-    step_m: float = 0.25
-    turn_deg: float = 15.0
-    clearance_m: float = 0.15
-    stop_radius_m: float = 1.0
+    """How a :class:`RoutePlanner` plans and discretizes routes. Build it with :meth:`from_config` (no
+    defaults here: the ``routes`` params own them)."""
+
+    step_m: float  # forward action, metres
+    turn_deg: float  # turn action, degrees
+    clearance_m: float  # planned paths keep this far from non-navigable cells
+    stop_radius_m: float  # without a region, aim for cells this close to the footprint
+
+    @classmethod
+    def from_config(cls, routes: RoutesParams | None = None, *, step_m: float | None = None,
+                    turn_deg: float | None = None, clearance_m: float | None = None,
+                    stop_radius_m: float | None = None) -> RouteSettings:
+        """The routes stage's settings from its ``routes`` section (default: the params' defaults); a keyword
+        replaces one field (the evaluator: routes.zarr's action space, its own clearance and stop radius)."""
+        p = RoutesParams() if routes is None else routes
+        given = {"step_m": step_m, "turn_deg": turn_deg, "clearance_m": clearance_m, "stop_radius_m": stop_radius_m}
+        return cls(**{name: float(getattr(p, name) if value is None else value) for name, value in given.items()})
 
 
 @dataclass
@@ -271,13 +285,15 @@ class RoutePlanner:
     """Shortest routes to goals on one navigable grid; the FMM field of each goal is cached.
 
     ``navigable``: ``(rows, cols)`` bool. Goals are given as a footprint mask ``(rows, cols)`` bool
-    or as a world point ``goal_xy`` (its cell stands for the object).
+    or as a world point ``goal_xy`` (its cell stands for the object). ``settings`` default: the
+    ``routes`` params' defaults (:meth:`RouteSettings.from_config`).
     """
 
-    def __init__(self, navigable: np.ndarray, grid: GridSpec, settings: RouteSettings = RouteSettings()):
-        self.grid, self.settings = grid, settings
+    def __init__(self, navigable: np.ndarray, grid: GridSpec, settings: RouteSettings | None = None):
+        self.grid = grid
+        self.settings = RouteSettings.from_config() if settings is None else settings
         self.navigable = np.asarray(navigable, dtype=bool)
-        self.plan_mask = planning_mask(self.navigable, grid, settings.clearance_m)
+        self.plan_mask = planning_mask(self.navigable, grid, self.settings.clearance_m)
         self._fields: dict[object, np.ndarray] = {}
         self._goals: dict[object, np.ndarray] = {}  # cells a route must end in, per (key, region)
         self.raise_failures = False  # True: a route found but not drivable raises instead of returning None
@@ -396,7 +412,7 @@ class RoutePlanner:
 
 
 def procedural_instruction(navigable: np.ndarray, grid: GridSpec, pose_xy_yaw, goal_xy, *,
-                           object_mask: np.ndarray | None = None, settings: RouteSettings = RouteSettings(),
+                           object_mask: np.ndarray | None = None, settings: RouteSettings | None = None,
                            planner: RoutePlanner | None = None) -> str | None:
     """The procedural feedback from ``pose_xy_yaw`` = (x, y, yaw) (world metres, radians) to the goal.
 

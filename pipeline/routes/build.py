@@ -49,7 +49,7 @@ def build_routes(goals: Goals, recon: Recon, out_path: Path, attrs: dict, p: Rou
         centres = np.array([goals.objects[k].mass_center for k in g.object_keys], np.float64).reshape(-1, 2)
         targets.append(GoalTarget(g.id, np.isin(index, [keys.index(k) + 1 for k in g.object_keys]),
                                   list(g.footprints), centres, g.room_id, region))
-    settings = RouteSettings(p.step_m, p.turn_deg, p.clearance_m, p.stop_radius_m)
+    settings = RouteSettings.from_config(p)
     eps = make_episodes(recon.navigable, recon.grid, targets, episodes_per_goal=p.episodes_per_goal,
                         min_geodesic_m=p.min_geodesic_m, seed=p.seed, settings=settings, success_m=p.success_m,
                         hfov_deg=p.hfov_deg,

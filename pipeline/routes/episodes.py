@@ -78,13 +78,15 @@ def sample_starts(fld: np.ndarray, plan_mask: np.ndarray, grid: GridSpec, n: int
 
 
 def make_episodes(navigable: np.ndarray, grid: GridSpec, goals: list[GoalTarget], *, episodes_per_goal: int,
-                  min_geodesic_m: float, seed: int, settings: RouteSettings = RouteSettings(),
+                  min_geodesic_m: float, seed: int, settings: RouteSettings | None = None,
                   success_m: float = 1.5, hfov_deg: float = 90.0, progress=lambda it, **kw: it) -> EpisodeSet:
     """Episodes for every goal (the per-goal seed is ``(seed, goal index)``).
 
     A goal without ``region`` falls back to the cells within ``settings.stop_radius_m`` of its footprint
-    (no line-of-sight test; kept for callers without a reconstruction mesh)."""
+    (no line-of-sight test; kept for callers without a reconstruction mesh). ``settings`` default: the
+    ``routes`` params' defaults (:meth:`RouteSettings.from_config`)."""
     planner = RoutePlanner(navigable, grid, settings)
+    settings = planner.settings
     planner.raise_failures = True  # an undrivable route is reported as rejected, with its reason
     out = EpisodeSet()
     for gi, goal in enumerate(progress(goals, description="episodes")):

@@ -79,8 +79,7 @@ def test_procedural_feedback_ends_in_the_routes_goal_region(built):
     tmp, _, _, recon_path, *_ = built
     routes, goals, recon = Routes(tmp / "routes.zarr"), Goals(tmp / "goals.zarr"), Recon(recon_path)
     rp = parse_params({"scenes": {"house": {"source": "simulate"}}}).routes
-    planner = RoutePlanner(recon.navigable, recon.grid, RouteSettings(rp.step_m, rp.turn_deg, rp.clearance_m,
-                                                                      rp.stop_radius_m))
+    planner = RoutePlanner(recon.navigable, recon.grid, RouteSettings.from_config(rp))
     start = tuple(goals.attrs["start_pose"])
     said = 0
     for g in goals.goals:

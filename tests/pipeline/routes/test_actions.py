@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from pipeline.routes.actions import (FORWARD, LEFT, RIGHT, STOP, RoutePlanner, follow_polyline, procedural_allowed,
-                                     procedural_instruction, route_parts, route_text)
+from pipeline.routes.actions import (FORWARD, LEFT, RIGHT, STOP, RoutePlanner, RouteSettings, follow_polyline,
+                                     procedural_allowed, procedural_instruction, route_parts, route_text)
 from tests.fixtures.goal_scenes import corridor_grid
 
 F, L, R = FORWARD, LEFT, RIGHT
@@ -28,7 +28,9 @@ def test_follow_polyline_lattice_headings_and_stop():
 @pytest.mark.parametrize("yaw,first", [(0.0, "go forward 5 meters"), (np.pi, "turn around"), (np.pi / 2, "turn right")])
 def test_procedural_from_any_pose_in_an_l_corridor(yaw, first):
     nav, grid = corridor_grid()
-    text = procedural_instruction(nav, grid, (0.3, 0.5, yaw), (5.5, 4.8))
+    # 0.15 m clearance keeps the route off the corner (the params' 0.1 cuts it: "go forward 4.5 meters")
+    text = procedural_instruction(nav, grid, (0.3, 0.5, yaw), (5.5, 4.8),
+                                  settings=RouteSettings.from_config(clearance_m=0.15))
     assert text.startswith(first) and text.endswith("turn left, go forward 3 meters")
 
 
@@ -55,3 +57,15 @@ def test_a_walk_that_stops_short_of_its_target_finishes_inside_it():
     route = RoutePlanner(nav, grid).route(start, target, region=True)
     res = replay(route.actions, start, nav, grid, [], region=target)
     assert res.in_region and res.collisions == 0 and res.final_xyyaw[0] == pytest.approx(3.2)  # one more step: 2+ cells inside
+
+
+def test_route_settings_come_from_the_routes_params():
+    from pipeline.config import RoutesParams
+    from pipeline.geometry import GridSpec
+
+    p = RoutesParams(step_m=0.3, turn_deg=30.0, clearance_m=0.2, stop_radius_m=0.8)
+    assert RouteSettings.from_config(p) == RouteSettings(0.3, 30.0, 0.2, 0.8)
+    assert RouteSettings.from_config(p, step_m=0.25, stop_radius_m=0.0) == RouteSettings(0.25, 30.0, 0.2, 0.0)
+    d = RoutesParams()  # the default planner is the params' default (clearance 0.1, not a second default)
+    assert RoutePlanner(np.ones((4, 4), bool), GridSpec(4, 4, 0.05, (0.0, 0.2))).settings == RouteSettings(
+        d.step_m, d.turn_deg, d.clearance_m, d.stop_radius_m) == RouteSettings.from_config()

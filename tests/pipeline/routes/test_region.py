@@ -62,7 +62,7 @@ def test_episodes_end_in_region_and_reject_behind_wall():
     fp = [GRID.cell_to_world(np.array([[50, 42], [50, 45], [53, 45], [53, 42]]))]
     goal = GoalTarget("g", obj, fp, centre, None, region)
     eps = make_episodes(nav, GRID, [goal], episodes_per_goal=3, min_geodesic_m=1.0, seed=0,
-                        settings=RouteSettings(0.25, 15.0, 0.05, 1.0), success_m=1.5)
+                        settings=RouteSettings.from_config(clearance_m=0.05), success_m=1.5)
     assert eps.episodes and not eps.unreachable
     for e in eps.episodes:
         end = GRID.world_to_cell(e.path_xy[-1])
