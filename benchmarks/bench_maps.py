@@ -222,7 +222,7 @@ def bench_query(observed_fraction: float, repeats: int):
 
 
 def bench_scores(repeats: int):
-    from pipeline.maps.levels import chunked_scores
+    from pipeline.maps.scoring import chunked_scores
 
     n, d = 600 * 600, 512
     g = torch.Generator().manual_seed(0)

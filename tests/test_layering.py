@@ -29,9 +29,6 @@ MODULE_LEVEL_CYCLES_ALLOWED: dict[frozenset[str], str] = {}
 # Cycles closed only by imports inside functions (they work, but a module still needs its importer).
 DEFERRED_CYCLES_ALLOWED = {
     **MODULE_LEVEL_CYCLES_ALLOWED,
-    # store.SemanticMap.scores imports levels.chunked_scores, levels imports store.SemanticMap;
-    # issue 16 item 5: chunked_scores moves to a leaf module.
-    frozenset({"pipeline.maps.store", "pipeline.maps.levels"}): "issue 16 item 5",
     # zipon.api's run_eval calls zipon.evaluate.run_eval, which opens datasets through zipon.api (the facade
     # and its evaluator are one unit; no issue item removes this yet).
     frozenset({"zipon.api", "zipon.evaluate"}): "none yet",

@@ -212,7 +212,7 @@ class SemanticMap:
         upcasting ``chunk_rows`` rows of the fp16 features at a time (as fast as an fp32 product, half the memory)."""
         import torch
 
-        from pipeline.maps.levels import chunked_scores
+        from pipeline.maps.scoring import chunked_scores
 
         t = text[None] if text.ndim == 1 else text
         f = self.features16()

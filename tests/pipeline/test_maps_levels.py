@@ -8,7 +8,8 @@ from pipeline.encoders.oracle import OracleEncoder
 from pipeline.errors import ArtifactError
 from pipeline.geometry import GridSpec
 from pipeline.maps.fusion import BlockPoints, Lattice, VoxelAccumulator
-from pipeline.maps.levels import LevelScorer, chunked_scores
+from pipeline.maps.levels import LevelScorer
+from pipeline.maps.scoring import chunked_scores
 from pipeline.maps.store import FORMAT_VERSION, SemanticMap, write_map
 from pipeline.store import artifact_attrs
 
