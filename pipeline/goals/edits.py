@@ -10,7 +10,6 @@
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import yaml
@@ -89,8 +88,3 @@ def record_goals_edit(params_path: Path, scene: str, rel_path: str) -> None:
     text = buf.getvalue()
     parse_params(yaml.safe_load(text), origin=str(params_path))
     write_text_atomic(params_path, text)
-
-
-def edit_digest_from_name(path: str) -> str | None:
-    m = re.search(r"-([0-9a-f]{12})\.ya?ml$", path)
-    return m.group(1) if m else None

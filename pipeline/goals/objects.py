@@ -79,9 +79,6 @@ class ObjectSet(_Model):
     def by_key(self) -> dict[str, ObjectRecord]:
         return {o.key: o for o in self.objects}
 
-    def room_types(self) -> dict[str, str]:
-        return {r.id: r.type for r in self.rooms}
-
 
 # ----------------------------------------------------------------------------- polygons
 

@@ -63,10 +63,6 @@ class Lattice:
     def cells(self) -> int:
         return self.grid.rows * self.grid.cols
 
-    def level_bottom_z(self, level: np.ndarray) -> np.ndarray:
-        """World z (metres) of the bottom of ``level``."""
-        return self.floor_z + self.min_height_m + np.asarray(level) * self.level_height_m
-
     def to_attrs(self) -> dict:
         return {
             "floor_z": float(self.floor_z),

@@ -31,7 +31,6 @@ connected components.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import asdict, dataclass, field
@@ -100,9 +99,6 @@ class QueryResult:
             "seconds": round(self.seconds, 5),
             "candidates": [asdict(c) for c in self.candidates],
         }
-
-    def to_json_text(self) -> str:
-        return json.dumps(self.to_json(), indent=2)
 
 
 class MapQuery:

@@ -1,16 +1,13 @@
 """Accuracy of a reconstruction: held-out depth error, and grid IoU against a simulated scene's ground truth.
 
-Held-out depth error: fuse all frames but every ``holdout_every``-th, render depth at the held-out poses.
-
-``python -m pipeline.recon.evaluate FRAMES_ZARR [--holdout-every N]`` prints one JSON line.
+Held-out depth error: fuse all frames but every ``holdout_every``-th, render depth at the held-out poses
+(``zipon recon-eval FRAMES_ZARR [--holdout-every N]`` prints it as JSON).
 Depth is ray-cast from the extracted mesh (open3d ``RaycastingScene`` with
 :func:`pipeline.recon.tsdf.pinhole_rays`: OpenCV pixel centres, ``t_hit`` is z-depth) and compared with the measured depth on pixels valid in both.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -130,17 +127,3 @@ def evaluate_holdout(frames_path: str | Path, params: ReconstructParams | None =
         "per_frame_median_m": per_frame,
         "voxel_size_m": p.voxel_size_m,
     }
-
-
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("frames", type=Path)
-    ap.add_argument("--holdout-every", type=int, default=10)
-    ap.add_argument("--voxel-size", type=float, default=None, help="override reconstruct.voxel_size_m")
-    args = ap.parse_args(argv)
-    p = ReconstructParams() if args.voxel_size is None else ReconstructParams(voxel_size_m=args.voxel_size)
-    print(json.dumps({"frames": str(args.frames), **evaluate_holdout(args.frames, p, args.holdout_every)}))
-
-
-if __name__ == "__main__":
-    main()
