@@ -133,6 +133,15 @@ def sync_dvc_lock(ws: Workspace, params: Params, stages: dict[str, StageSpec], p
     why = dvc_lock_target(ws, overrides)
     if why or not pairs:
         return f"dvc.lock not updated: {why}" if why else ""
+    from contextlib import chdir
+
+    from dvc.repo import Repo
+
+    try:
+        repo = Repo(str(ws.root))
+    except Exception as err:  # not a usable DVC project (e.g. .dvc/ without git or core.no_scm): DVC cannot run here
+        first = str(err).splitlines()[0] if str(err) else ""
+        return f"dvc.lock not updated: DVC cannot open {ws.root} ({type(err).__name__}: {first})"
     path = ws.root / "dvc.yaml"
     text = render_dvc_yaml(ws, params, stages)
     notes = []
@@ -140,11 +149,7 @@ def sync_dvc_lock(ws: Workspace, params: Params, stages: dict[str, StageSpec], p
         write_text_atomic(path, text)
         notes.append(f"wrote {path}")
     try:
-        from contextlib import chdir
-
-        from dvc.repo import Repo
-
-        with chdir(ws.root), Repo(str(ws.root)) as repo:  # DVC resolves stage paths from the working directory
+        with chdir(ws.root), repo:  # DVC resolves stage paths from the working directory
             for scene, stage in pairs:
                 repo.commit(f"dvc.yaml:{stage}@{scene}", force=True)
     except Exception as err:  # DVC's own errors have no common base worth naming

@@ -110,3 +110,16 @@ def test_dvc_repro_runs_the_same_stages_offline(tmp_path):
     for stage in ("simulate", "ingest"):
         assert staleness(ws, params, STAGES, STAGES[stage], "t0") == ""
     assert "ingest@t0" not in _dvc(tmp_path, env, "status")
+
+
+def test_a_folder_dvc_cannot_open_builds_and_says_why_dvc_lock_was_left(tmp_path, capsys):
+    """A .dvc/ folder outside git (and without core.no_scm) is not a DVC project DVC can run: the run succeeds,
+    says why dvc.lock was not written, and writes no dvc.yaml there."""
+    from pipeline.cli import main
+
+    (tmp_path / ".dvc").mkdir()
+    (tmp_path / "params.yaml").write_text("scenes:\n  a: {source: simulate}\n"
+                                          "simulate: {frames: 4, width: 160, height: 120, rooms_min: 2, rooms_max: 2}\n")
+    assert main(["-q", "-p", str(tmp_path / "params.yaml"), "run", "--stage", "simulate"]) == 0
+    assert "dvc.lock not updated: DVC cannot open" in capsys.readouterr().err.replace("\n", " ")
+    assert not (tmp_path / "dvc.yaml").exists() and not (tmp_path / "dvc.lock").exists()
