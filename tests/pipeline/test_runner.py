@@ -127,11 +127,39 @@ def test_staleness_reasons(workspace):
     assert staleness(workspace, params, TOY_STAGES, spec, "s0") == "output frames missing"
 
 
-def test_dask_local_cluster_runs_scenes_in_parallel(workspace):
-    distributed = pytest.importorskip("distributed")
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        _, outcomes = run_all(workspace, ["simulate.frames=8"], scheduler=cluster.scheduler_address)
-    assert [o.status for o in outcomes] == ["ran"] * 4
+def test_a_dask_scheduler_and_workers_started_as_on_a_cluster_run_the_scenes(workspace, tmp_path):
+    """`dask scheduler` and `dask worker` processes (as a cluster or a SLURM job starts them, sharing the data
+    root's filesystem) run the scenes; a serial rerun then finds everything up to date."""
+    pytest.importorskip("distributed")
+    dask_cli = [sys.executable, "-m", "dask"]
+    info = tmp_path / "scheduler.json"
+    repo = str(__import__("tests").__path__[0] + "/..")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([repo, os.environ.get("PYTHONPATH", "")])}
+    procs = [subprocess.Popen(dask_cli + ["scheduler", "--scheduler-file", str(info), "--port", "0",
+                                         "--no-dashboard"], env=env, cwd=repo,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        deadline = time.time() + 60
+        while not info.exists() and time.time() < deadline:
+            time.sleep(0.2)
+        assert info.exists(), "the dask scheduler did not start"
+        procs.append(subprocess.Popen(dask_cli + ["worker", "--scheduler-file", str(info), "--nworkers", "2",
+                                                  "--nthreads", "1", "--no-dashboard"], env=env, cwd=repo,
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        from distributed import Client
+
+        address = json.loads(info.read_text())["address"]
+        with Client(address, timeout=60) as client:
+            client.wait_for_workers(2, timeout=120)
+            pids = set(client.run(os.getpid).values())
+        assert len(pids) == 2 and os.getpid() not in pids
+        _, outcomes = run_all(workspace, ["simulate.frames=8"], scheduler=address)
+        assert [o.status for o in outcomes] == ["ran"] * 4
+    finally:
+        for proc in reversed(procs):
+            proc.terminate()
+        for proc in procs:
+            proc.wait(timeout=30)
     _, serial = run_all(workspace, ["simulate.frames=8"])
     assert {o.status for o in serial} == {"skipped"}  # the cluster's results are the serial ones
 
