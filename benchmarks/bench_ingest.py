@@ -28,21 +28,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _common import ROOT, peak_rss_mb
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 H, W, FPS = 480, 640, 10.0
-
-
-def _peak_rss_mb() -> float:
-    """This process's peak RSS: VmHWM (per address space, so a fork's inherited ru_maxrss does not leak in)."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def make_frames(out: Path, n_unique: int, synthetic: bool) -> str:
@@ -132,7 +120,6 @@ class _Cycled:
 
 def child_folder(frames: Path, n: int, out: Path, fmt: str) -> dict:
     """Write ``n`` frames as a ``fmt`` dataset folder with the test fixtures' writers; returns its path."""
-    sys.path.insert(0, str(ROOT))
     from pipeline.geometry import Intrinsics
     from tests.fixtures import raw_datasets as rd
 
@@ -153,7 +140,7 @@ def child_ingest(log: Path, out: Path, n: int, codec: str, fmt: str = "auto") ->
     from pipeline.config import IngestParams
     from pipeline.readers.ingest import ingest_path
 
-    rss0 = _peak_rss_mb()
+    rss0 = peak_rss_mb()
     t0, c0 = time.perf_counter(), _cpu_s()
     summary = ingest_path(log, out, IngestParams(codec=codec), fmt, log=lambda m: None)
     s, cpu = time.perf_counter() - t0, _cpu_s() - c0
@@ -163,8 +150,8 @@ def child_ingest(log: Path, out: Path, n: int, codec: str, fmt: str = "auto") ->
             "frames_per_s": round(m / s, 1), "cpu_ms_per_frame": round(cpu * 1e3 / m, 2),
             # upper bound on 2 idle cores: reading and compressing/writing overlap in two threads
             "frames_per_s_cpu_bound_2_cores": round(2.0 * m / cpu, 1),
-            "peak_rss_mb": round(_peak_rss_mb(), 1), "rss_after_imports_mb": round(rss0, 1),
-            "frames_zarr_mb": round(size / 2**20, 1), "loadavg_1min": round(os.getloadavg()[0], 2)}
+            "peak_rss_mb": round(peak_rss_mb(), 1), "rss_after_imports_mb": round(rss0, 1),
+            "frames_zarr_mb": round(size / 2**20, 1), "load_avg_1m": round(os.getloadavg()[0], 2)}
 
 
 def child_decode(log: Path, n: int) -> dict:

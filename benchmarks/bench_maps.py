@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import subprocess
 import sys
 import tempfile
@@ -34,15 +33,16 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from _common import emit, peak_rss_mb
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from pipeline.geometry import GridSpec, Intrinsics  # noqa: E402
-from pipeline.maps.fusion import Lattice, TopDownAccumulator, VoxelAccumulator, locate_block, point_weights  # noqa: E402
-
-
-def emit(**kw):
-    print(json.dumps(kw), flush=True)
+from pipeline.geometry import GridSpec, Intrinsics
+from pipeline.maps.fusion import (
+    Lattice,
+    TopDownAccumulator,
+    VoxelAccumulator,
+    locate_block,
+    point_weights,
+)
 
 
 def scene_frames(n: int, width: int, height: int):
@@ -255,13 +255,13 @@ def memory_child(n_frames: int) -> None:
     lat = lattice()
     acc = TopDownAccumulator(lat, 512)
     valid = np.ones((16, 120, 160), bool)
-    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # inputs + synthetic features in memory
+    before = peak_rss_mb()  # inputs + synthetic features in memory
     for s in range(0, n_frames, 16):
         idx = np.arange(s, min(s + 16, n_frames)) % 140
         pts = locate_block(lat, d120[idx], valid[: len(idx)], poses[idx], intr, depth_min_m=0.1, depth_max_m=5.0)
         acc.add(pts, feats[: len(idx)])
     res = acc.result()
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    peak = peak_rss_mb()
     print(json.dumps({"frames": n_frames, "cells": len(res.cell), "peak_rss_mb": round(peak, 1),
                       "fusion_rss_growth_mb": round(peak - before, 1)}))
 

@@ -25,16 +25,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
+from _common import emit, peak_rss_mb
 
 SWEEP_SIM = {"width": 160, "height": 120, "rooms_min": 3, "rooms_max": 3}
 
@@ -55,8 +52,8 @@ def prepare(workdir: Path, scene: str, n_frames: int, small: bool = False) -> Pa
         simulate_scene(scene, SimulateParams(frames=n_frames, **(SWEEP_SIM if small else {})), log)
     t1 = time.perf_counter()
     ingest_path(log, frames, IngestParams(), "mcap", log=lambda m: None)
-    print(json.dumps({"step": "prepare", "scene": scene, "frames": n_frames,
-                      "simulate_s": round(t1 - t0, 1), "ingest_s": round(time.perf_counter() - t1, 1)}), flush=True)
+    emit(step="prepare", scene=scene, frames=n_frames, simulate_s=round(t1 - t0, 1),
+         ingest_s=round(time.perf_counter() - t1, 1))
     return frames
 
 
@@ -74,17 +71,17 @@ def worker(frames_path: Path, every: int, out_dir: Path) -> None:
     s = reconstruct(frames_path, out_dir / "recon.zarr", out_dir / "recon_mesh.ply", out_dir / "recon_points.ply",
                     p, grid, frames=sel)
     total = time.perf_counter() - t0
-    rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    rss_mb = peak_rss_mb()
     acc = evaluate_grids(frames_path, out_dir / "recon.zarr", p) if store.ground_truth else {}
     acc.pop("recon", None)
-    print(json.dumps({
+    emit(**{
         "run": "all" if every == 1 else f"every{every}", "frames": str(frames_path), "frames_fused": s["frames_fused"],
         "threads": int(os.environ.get("OMP_NUM_THREADS", "0")), "fuse_frames_per_s": s["frames_per_s"],
         "fuse_s": s["seconds_fuse"], "extract_s": s["seconds_extract"], "grids_s": s["seconds_grids"],
         "total_s": round(total, 2), "tsdf_blocks": s["tsdf_blocks"], "mesh_triangles": s["mesh_triangles"],
         "peak_rss_mb": round(rss_mb, 1), "rss_mb_per_1k_blocks": round(rss_mb / max(s["tsdf_blocks"], 1) * 1000, 1),
-        **acc, "load_avg_1m": round(os.getloadavg()[0], 2),
-    }), flush=True)
+        **acc,
+    })
 
 
 def main() -> None:
@@ -123,7 +120,7 @@ def main() -> None:
             summary.update({f"{key}_mean": round(sum(values) / len(values), 4), f"{key}_min": min(values),
                             f"{key}_scenes_ge_0.9": sum(v >= 0.9 for v in values)})
         summary["floor_error_m_max"] = max(r["floor_error_m"] for r in swept)
-        print(json.dumps(summary), flush=True)
+        emit(**summary)
 
 
 if __name__ == "__main__":

@@ -10,16 +10,14 @@ call per frame (the naive loop); "batched" casts ``render_block_frames`` frames 
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _common import emit
 
-from pipeline.config import SimulateParams  # noqa: E402
-from pipeline.sim import SceneRenderer, SimulatedRecording, simulate_scene  # noqa: E402
+from pipeline.config import SimulateParams
+from pipeline.sim import SceneRenderer, SimulatedRecording, simulate_scene
 
 
 def _render_fps(rec: SimulatedRecording, renderer: SceneRenderer, block: int, limit: int) -> float:
@@ -45,17 +43,15 @@ def main() -> None:
     n = min(frames, 48)
     ref = _render_fps(rec, renderer, 1, n)
     batched = _render_fps(rec, renderer, params.render_block_frames, n)
-    print(json.dumps({"bench": "render", "frames": n, "width": params.width, "height": params.height,
-                      "reference_one_cast_per_frame_fps": round(ref, 2),
-                      "batched_fps": round(batched, 2), "block_frames": params.render_block_frames,
-                      "speedup": round(batched / ref, 2), "plan_seconds": round(plan_s, 3),
-                      "actions": rec.actions}))
+    emit(bench="render", frames=n, width=params.width, height=params.height,
+         reference_one_cast_per_frame_fps=round(ref, 2), batched_fps=round(batched, 2),
+         block_frames=params.render_block_frames, speedup=round(batched / ref, 2), plan_seconds=round(plan_s, 3),
+         actions=rec.actions)
     with tempfile.TemporaryDirectory() as tmp:
         summary = simulate_scene(args.scene, params, Path(tmp) / "scene.mcap")
-    print(json.dumps({"bench": "end_to_end", "frames": frames, "seconds": summary["seconds"],
-                      "fps": round(frames / summary["seconds"], 2),
-                      "render_seconds": summary["render_seconds"], "mcap_bytes": summary["bytes"],
-                      "objects": summary["objects"], "rooms": summary["rooms"]}))
+    emit(bench="end_to_end", frames=frames, seconds=summary["seconds"], fps=round(frames / summary["seconds"], 2),
+         render_seconds=summary["render_seconds"], mcap_bytes=summary["bytes"], objects=summary["objects"],
+         rooms=summary["rooms"])
 
 
 if __name__ == "__main__":
