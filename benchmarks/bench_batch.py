@@ -20,8 +20,8 @@ Each run's line also gives its wall time, frames/s over the whole batch, the lar
 peak RSS (``ru_maxrss`` of the run's processes) and the wall time the same rate implies for the
 paper's 14,159 frames (``--target-frames``), and the wall time its CPU seconds imply when the
 workers each have a core of their own (``projected_wall_min_if_cpu_bound``: CPU seconds per frame
-x target frames / workers; the figure for an otherwise idle machine, ignoring scene imbalance). The machine's load average is printed before and
-after: on a shared machine wall times are upper bounds, CPU seconds are the steadier figure.
+x target frames / workers; the figure for an otherwise idle machine, ignoring scene imbalance). The machine's 1-minute load average is printed on
+every line: on a shared machine wall times are upper bounds, CPU seconds are the steadier figure.
 One JSON object per line on stdout.
 
     .venv/bin/python benchmarks/bench_batch.py                      # 10 scenes x 1,416 frames (slow)
@@ -42,19 +42,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _common import ROOT, emit
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 STAGES = ("ingest", "reconstruct", "vlmap", "cfmap", "goals", "routes")
 KERNEL_OF = {"ingest": "zstd_decode", "reconstruct": "o3d_integrate", "vlmap": "index_add", "cfmap": "index_add"}
-
-
-def emit(**kw) -> None:
-    print(json.dumps(kw), flush=True)
-
-
-def load() -> list[float]:
-    return [round(x, 2) for x in os.getloadavg()]
 
 
 def write_params(root: Path, scenes: int, frames: int, width: int, height: int) -> Path:
@@ -160,8 +151,8 @@ def encoder_share(params_path: Path, root: Path, scene: str, kind: str) -> dict:
     (the encoder's ``encode_images`` timed by a wrapper), in this process, single-threaded."""
     from pipeline.config import load_params
     from pipeline.encoders.base import Encoder
-    from pipeline.maps.build import MAP_CONFIGS, build_map
     from pipeline.maps import fusion, store  # noqa: F401  (imported before timing: not the stage's work)
+    from pipeline.maps.build import MAP_CONFIGS, build_map
     from pipeline.recon import Recon  # noqa: F401
     from pipeline.scene_gt import GTScene  # noqa: F401
 
@@ -215,9 +206,9 @@ def main() -> None:
     params = write_params(root, args.scenes, args.frames, args.width, args.height)
     scenes = [f"sim_{i:02d}" for i in range(args.scenes)]
     emit(bench="batch", kind="setup", scenes=args.scenes, frames_per_scene=args.frames, size=[args.width, args.height],
-         cpus=os.cpu_count(), loadavg=load(), root=str(root))
+         cpus=os.cpu_count(), root=str(root))
     t_logs, _ = zipon(params, "run", "--stage", "simulate")
-    emit(bench="batch", kind="logs_written", seconds=round(t_logs, 1), timed=False, loadavg=load())
+    emit(bench="batch", kind="logs_written", seconds=round(t_logs, 1), timed=False)
 
     from pipeline.config import load_params
 
@@ -238,11 +229,11 @@ def main() -> None:
                 kernels["o3d_integrate"] = secs / n
                 emit(bench="batch", kind="kernels", s_per_frame={k: round(v, 6) for k, v in kernels.items()},
                      kernel_frames={"zstd_decode": total, "o3d_integrate": n, "index_add": 16},
-                     feature_rows=[h * w, p.encoders.oracle.dim], loadavg=load())
+                     feature_rows=[h * w, p.encoders.oracle.dim])
                 for kind in ("vlmap", "cfmap"):
                     if kind in args.stages:
                         emit(bench="batch", kind="encoder_share", scene=scenes[0], frames=args.frames,
-                             **encoder_share(params, root, scenes[0], kind), loadavg=load())
+                             **encoder_share(params, root, scenes[0], kind))
                 first = False
             timing = manifests(root, scenes, args.stages)
             cpu_total = sum(x.get("cpu_seconds", float("nan")) for t in timing.values() for x in t)
@@ -266,7 +257,7 @@ def main() -> None:
                  projected_wall_min_for_target=round(args.target_frames / rate / 60, 1),
                  cpu_s=round(cpu_total, 1), projected_wall_min_if_cpu_bound=round(
                      args.target_frames * cpu_total / total / min(workers, os.cpu_count() or 1) / 60, 1),
-                 target_frames=args.target_frames, loadavg=load())
+                 target_frames=args.target_frames)
     finally:
         if args.keep is None:
             shutil.rmtree(root, ignore_errors=True)
