@@ -14,7 +14,6 @@ With ``--importtime`` it also prints the slowest top-level imports of each comma
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import resource
 import statistics
@@ -23,13 +22,10 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from _common import ROOT, emit
+
 TARGETS_S = {"--help": 1.0, "status": 1.0, "params": 1.0, "query": 1.5}
 ENTRY = "import sys; from pipeline.cli import main; sys.exit(main(sys.argv[1:]))"
-
-
-def emit(**kw) -> None:
-    print(json.dumps(kw), flush=True)
 
 
 def run_once(cmd: list[str], cwd: Path, extra: tuple[str, ...] = ()) -> tuple[float, float, subprocess.CompletedProcess]:
@@ -77,7 +73,7 @@ def main() -> None:
         commands["query"] = ["query", scene, args.text]
     else:
         emit(bench="cli", kind="skipped", command="query", why=f"no vlmap under {ws}/data/artifacts (run zipon demo)")
-    emit(bench="cli", kind="setup", workspace=str(ws), scene=scene, repeats=args.repeats, loadavg=os.getloadavg())
+    emit(bench="cli", kind="setup", workspace=str(ws), scene=scene, repeats=args.repeats)
     for name, cmd in commands.items():
         walls, cpus = [], []
         for _ in range(args.repeats):
@@ -88,8 +84,7 @@ def main() -> None:
             cpus.append(cpu)
         row = {"bench": "cli", "kind": "command", "command": f"zipon {' '.join(cmd)}",
                "median_wall_s": round(statistics.median(walls), 3), "walls_s": [round(w, 3) for w in walls],
-               "median_cpu_s": round(statistics.median(cpus), 3), "target_s": TARGETS_S[name],
-               "loadavg": [round(x, 2) for x in os.getloadavg()]}
+               "median_cpu_s": round(statistics.median(cpus), 3), "target_s": TARGETS_S[name]}
         if args.importtime:
             _, _, proc = run_once(cmd, ws, extra=("-X", "importtime"))
             row["slowest_imports_s"] = slowest_imports(proc.stderr, 8)

@@ -21,24 +21,21 @@ Usage: ``python benchmarks/bench_encoders.py [--threads 2] [--batch 4] [--images
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import numpy as np
+import open_clip
+import torch
+from _common import emit
 
-import numpy as np  # noqa: E402
-import open_clip  # noqa: E402
-import torch  # noqa: E402
-
-from pipeline.config import EncodersParams, RunParams  # noqa: E402
-from pipeline.encoders import build_encoder  # noqa: E402
-from pipeline.encoders.lseg import LSegEncoder, load_lseg_net  # noqa: E402
-from pipeline.encoders.lseg_net import LSEG_VITL16_384, LSegArch, LSegNet  # noqa: E402
+from pipeline.config import EncodersParams, RunParams
+from pipeline.encoders import build_encoder
+from pipeline.encoders.lseg import LSegEncoder, load_lseg_net
+from pipeline.encoders.lseg_net import LSEG_VITL16_384, LSegArch, LSegNet
 
 
 def frames(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -108,10 +105,6 @@ def figures(n: int, t: dict, extra_cpu: float = 0.0) -> dict:
         "pair_ratios": t["ratios"],
         **({"region_share_pct": round(100 * extra_cpu / t["enc_cpu"], 1)} if extra_cpu else {}),
     }
-
-
-def emit(**kw) -> None:
-    print(json.dumps({**kw, "load_avg_1min": round(os.getloadavg()[0], 2)}), flush=True)
 
 
 def runtime(args) -> RunParams:
