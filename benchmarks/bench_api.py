@@ -15,13 +15,11 @@ PATH is what ``zipon.open`` takes (a params.yaml, its folder, or a data root). P
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
-import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _common import emit
 
 
 def main() -> None:
@@ -60,19 +58,19 @@ def main() -> None:
     grid.features.sel(x=goal.mass_center[0], y=goal.mass_center[1], method="nearest").values
     t_sel = time.perf_counter() - t
     store = scene.vlmap.store
-    print(json.dumps({"api": {"scene": scene.name, "cells": store.n_cells, "dim": store.dim,
-                              "import_open_s": round(t_open, 2), "first_query_s": round(t_first, 2),
-                              "first_query_imports_s": round(t_imports, 2),
-                              "repeat_query_median_s": round(statistics.median(repeats), 4),
-                              "to_xarray_s": round(t_x, 2), "one_cell_sel_s": round(t_sel, 3),
-                              "candidates": len(result.candidates)}}))
+    emit(api={"scene": scene.name, "cells": store.n_cells, "dim": store.dim,
+              "import_open_s": round(t_open, 2), "first_query_s": round(t_first, 2),
+              "first_query_imports_s": round(t_imports, 2),
+              "repeat_query_median_s": round(statistics.median(repeats), 4),
+              "to_xarray_s": round(t_x, 2), "one_cell_sel_s": round(t_sel, 3),
+              "candidates": len(result.candidates)})
     if args.rrd:
         from pipeline.viewer import write_recording
 
         t = time.perf_counter()
         s = write_recording(ds.workspace, ds.params, scene.name, args.rrd)
-        print(json.dumps({"viewer": {"seconds": round(time.perf_counter() - t, 1), "bytes": s["bytes"],
-                                     "frames": s["frames"], "mesh_vertices": s.get("mesh_vertices")}}))
+        emit(viewer={"seconds": round(time.perf_counter() - t, 1), "bytes": s["bytes"],
+                     "frames": s["frames"], "mesh_vertices": s.get("mesh_vertices")})
 
 
 if __name__ == "__main__":

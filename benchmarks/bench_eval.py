@@ -19,24 +19,21 @@ Prints one JSON object per line (the built scene's maps come from the simulated 
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from _common import emit
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from orion_eval.agents import build_agent  # noqa: E402
-from orion_eval.artifacts import Artifacts  # noqa: E402
-from orion_eval.episode import run_episode  # noqa: E402
-from orion_eval.run import scene_tasks  # noqa: E402
-from orion_eval.scene import SceneContext  # noqa: E402
-from orion_eval.user import FEEDBACK_SETTINGS  # noqa: E402
-from pipeline.config import load_params  # noqa: E402
-from pipeline.paths import Workspace  # noqa: E402
+from orion_eval.agents import build_agent
+from orion_eval.artifacts import Artifacts
+from orion_eval.episode import run_episode
+from orion_eval.run import scene_tasks
+from orion_eval.scene import SceneContext
+from orion_eval.user import FEEDBACK_SETTINGS
+from pipeline.config import load_params
+from pipeline.paths import Workspace
 
 BUILD = """\
 scenes:
@@ -73,7 +70,7 @@ def main() -> None:
         tmp = tempfile.TemporaryDirectory()
         t = time.perf_counter()
         ws = build(Path(tmp.name))
-        print(json.dumps({"bench": "eval", "figure": "build_scene_s", "value": round(time.perf_counter() - t, 1)}))
+        emit(**{"bench": "eval", "figure": "build_scene_s", "value": round(time.perf_counter() - t, 1)})
     params = load_params(ws.params_path)
     scene = args.scene or next(iter(params.scenes))
     arts = Artifacts(ws, params, scene)
@@ -81,8 +78,8 @@ def main() -> None:
     from orion_eval.run import _detection_kind, _encoder_names
 
     encoders = _encoder_names(ws, params, scene)
-    print(json.dumps({"bench": "eval", "figure": "perception", "maps": {k: v["kind"] for k, v in encoders.items()},
-                      "detection": _detection_kind(params, encoders)}))
+    emit(**{"bench": "eval", "figure": "perception", "maps": {k: v["kind"] for k, v in encoders.items()},
+            "detection": _detection_kind(params, encoders)})
 
     # retrieve_map: the first query of a text (MapQuery + candidates) and a repeated one
     names = [g.name for g in arts.goals.goals]
@@ -102,10 +99,10 @@ def main() -> None:
         t = time.perf_counter()
         run.modules.retrieve_map(n, "vlmap")
         again.append(time.perf_counter() - t)
-    print(json.dumps({"bench": "eval", "figure": "retrieve_map_ms", "first_median": round(1e3 * float(np.median(first)), 2),
-                      "first_max": round(1e3 * float(np.max(first)), 2),
-                      "cached_median": round(1e3 * float(np.median(again)), 3), "queries": len(names),
-                      "goal_ms": 20}))
+    emit(**{"bench": "eval", "figure": "retrieve_map_ms", "first_median": round(1e3 * float(np.median(first)), 2),
+            "first_max": round(1e3 * float(np.max(first)), 2),
+            "cached_median": round(1e3 * float(np.median(again)), 3), "queries": len(names),
+            "goal_ms": 20})
 
     # episodes per method over every feedback setting and seed, one process
     seeds = list(range(args.seeds))
@@ -127,19 +124,19 @@ def main() -> None:
             run_episode(SceneContext(Artifacts(ws, params, scene, check=False)), task, agent, goal, rng=rng)
         dt_ref = time.perf_counter() - t
         per_method[method] = (len(tasks), dt)
-        print(json.dumps({"bench": "eval", "figure": "episodes_per_s", "method": method, "episodes": len(tasks),
-                          "seconds": round(dt, 2), "episodes_per_s": round(len(tasks) / dt, 2),
-                          "reference_fresh_context_episodes_per_s": round(len(ref) / dt_ref, 2)}))
+        emit(**{"bench": "eval", "figure": "episodes_per_s", "method": method, "episodes": len(tasks),
+                "seconds": round(dt, 2), "episodes_per_s": round(len(tasks) / dt, 2),
+                "reference_fresh_context_episodes_per_s": round(len(ref) / dt_ref, 2)})
 
     # paper-sized run: 10 scenes x ~12 goals x 7 settings x 4 methods x 5 seeds on 2 processes
     four = ("cow", "vlmap", "cf", "orion")
     n_goals = len({g for g in (e.goal_id for e in arts.routes.episodes)})
     scene_s = sum(per_method[m][1] for m in four) * (12 / max(1, n_goals)) * (5 / len(seeds))
     total = 10 * scene_s / 2
-    print(json.dumps({"bench": "eval", "figure": "paper_run_estimate_s", "episodes": 10 * 12 * 7 * 4 * 5,
-                      "per_scene_s_one_core": round(scene_s, 1), "two_cores_s": round(total, 1), "goal_s": 600,
-                      "scene_goals_measured": n_goals, "note": "scaled from one measured scene; scenes run in "
-                      "parallel processes (eval.workers=2)"}))
+    emit(**{"bench": "eval", "figure": "paper_run_estimate_s", "episodes": 10 * 12 * 7 * 4 * 5,
+            "per_scene_s_one_core": round(scene_s, 1), "two_cores_s": round(total, 1), "goal_s": 600,
+            "scene_goals_measured": n_goals, "note": "scaled from one measured scene; scenes run in "
+            "parallel processes (eval.workers=2)"})
     if tmp is not None:
         tmp.cleanup()
 

@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _common import ROOT, peak_rss_mb
+from _common import ROOT, emit, peak_rss_mb
 
 H, W, FPS = 480, 640, 10.0
 
@@ -151,7 +151,7 @@ def child_ingest(log: Path, out: Path, n: int, codec: str, fmt: str = "auto") ->
             # upper bound on 2 idle cores: reading and compressing/writing overlap in two threads
             "frames_per_s_cpu_bound_2_cores": round(2.0 * m / cpu, 1),
             "peak_rss_mb": round(peak_rss_mb(), 1), "rss_after_imports_mb": round(rss0, 1),
-            "frames_zarr_mb": round(size / 2**20, 1), "load_avg_1m": round(os.getloadavg()[0], 2)}
+            "frames_zarr_mb": round(size / 2**20, 1)}
 
 
 def child_decode(log: Path, n: int) -> dict:
@@ -214,15 +214,15 @@ def compare_readers(tmp: Path, log: Path, n: int, codec: str, names: list[str], 
         src = log
         if container == "folder":
             written = _child(["folder", str(tmp / "frames.npz"), str(n), str(tmp / f"folder_{name}"), fmt])
-            print(json.dumps(written), flush=True)
+            emit(**written)
             src = Path(written["path"])
         elif container:
             src = tmp / container
-            print(json.dumps(_child(["convert", str(log), str(src), name])), flush=True)
+            emit(**_child(["convert", str(log), str(src), name]))
         res = _child(["ingest", str(src), str(tmp / f"frames_{name}.zarr"), str(n), codec, fmt])
         res["reader"] = name
         out[name] = res
-        print(json.dumps(res), flush=True)
+        emit(**res)
     return out
 
 
@@ -258,35 +258,34 @@ def main() -> None:
         tmp = Path(tmp)
         t0 = time.perf_counter()
         origin = _child(["frames", str(tmp / "frames.npz"), str(args.sim_frames), str(int(args.synthetic))])["origin"]
-        print(json.dumps({"what": "setup", "frames_from": origin, "seconds": round(time.perf_counter() - t0, 1),
-                          "cpus": os.cpu_count(), "size": f"{W}x{H}"}), flush=True)
+        emit(**{"what": "setup", "frames_from": origin, "seconds": round(time.perf_counter() - t0, 1),
+                "cpus": os.cpu_count(), "size": f"{W}x{H}"})
         results, readers = {}, {}
         for n in args.sizes:
             log = tmp / f"log_{n}.mcap"
-            print(json.dumps(_child(["write", str(tmp / "frames.npz"), str(n), str(log), args.transport])), flush=True)
+            emit(**_child(["write", str(tmp / "frames.npz"), str(n), str(log), args.transport]))
             for codec in args.codecs:
                 res = _child(["ingest", str(log), str(tmp / f"frames_{n}_{codec}.zarr"), str(n), codec, "mcap"])
                 results[(n, codec)] = res
-                print(json.dumps(res), flush=True)
+                emit(**res)
             if n == max(args.sizes) and args.transport == "raw":
-                print(json.dumps(_child(["decode", str(log), str(n)])), flush=True)
+                emit(**_child(["decode", str(log), str(n)]))
             if n == max(args.sizes):
                 readers = compare_readers(tmp, log, n, args.codecs[0], args.readers, results.get((n, args.codecs[0])))
             log.unlink()
         lo, hi = min(args.sizes), max(args.sizes)
         for codec in args.codecs:
             a, b = results[(lo, codec)], results[(hi, codec)]
-            print(json.dumps({"what": "summary", "codec": codec, "transport": args.transport,
-                              "frames_per_s": b["frames_per_s"],
-                              "frames_per_s_cpu_bound_2_cores": b["frames_per_s_cpu_bound_2_cores"],
-                              "peak_rss_mb": {str(lo): a["peak_rss_mb"], str(hi): b["peak_rss_mb"]},
-                              "rss_ratio_long_vs_short": round(b["peak_rss_mb"] / a["peak_rss_mb"], 3),
-                              "goal_frames_per_s": 100}), flush=True)
+            emit(**{"what": "summary", "codec": codec, "transport": args.transport,
+                    "frames_per_s": b["frames_per_s"],
+                    "frames_per_s_cpu_bound_2_cores": b["frames_per_s_cpu_bound_2_cores"],
+                    "peak_rss_mb": {str(lo): a["peak_rss_mb"], str(hi): b["peak_rss_mb"]},
+                    "rss_ratio_long_vs_short": round(b["peak_rss_mb"] / a["peak_rss_mb"], 3),
+                    "goal_frames_per_s": 100})
         if readers:
-            print(json.dumps({"what": "summary_readers", "frames": hi, "codec": args.codecs[0],
-                              "frames_per_s": {k: v["frames_per_s"] for k, v in readers.items()},
-                              "cpu_ms_per_frame": {k: v["cpu_ms_per_frame"] for k, v in readers.items()}}),
-                  flush=True)
+            emit(**{"what": "summary_readers", "frames": hi, "codec": args.codecs[0],
+                    "frames_per_s": {k: v["frames_per_s"] for k, v in readers.items()},
+                    "cpu_ms_per_frame": {k: v["cpu_ms_per_frame"] for k, v in readers.items()}})
 
 
 if __name__ == "__main__":
