@@ -333,7 +333,3 @@ def episode_browser(ws, scene: str, out_dir: Path, setting: str, methods: list[s
              "goal": e["goal"], "episode": e["episode"], "success": e["success"], "end": e["end"],
              "talk_turns": e["talk_turns"], "travelled_m": e["travelled_m"], "instruction": e["log"]["instruction"],
              "dialogue": e["log"]["dialogue"]} for e, p in zip(chosen, pngs)]
-
-
-def load_results(out_dir: Path) -> dict:
-    return json.loads((Path(out_dir) / "results.json").read_text())

@@ -161,18 +161,6 @@ class SceneContext:
             cache[goal.id] = self.arts.routes.goal_region(goal.id)
         return cache[goal.id]
 
-    def stored_goal_target(self, goal) -> np.ndarray:
-        """Full-grid route target of a GROUND-TRUTH goal: the goal region stored by the routes stage
-        (``routes.zarr``), cut to its route target with the routes stage's stop radius. Cached per goal."""
-        cache = self.__dict__.setdefault("_stored_targets", {})
-        if goal.id not in cache:
-            from pipeline.routes.region import route_target
-
-            region = self.stored_goal_region(goal)
-            cache[goal.id] = route_target(region, self.footprint_mask(goal.object_keys), self.grid,
-                                          stop_radius_m=self.params.routes.stop_radius_m)
-        return cache[goal.id]
-
     # ------------------------------------------------------------------ maps
     def map_objects(self, which: str, text: str) -> list[MapObject]:
         """Candidates of ``text`` on map ``which`` ('vlmap' | 'cfmap'), pose-independent (cached)."""

@@ -230,8 +230,3 @@ def route_into_region(planner, pose, region: np.ndarray, object_mask: np.ndarray
         if rank > best_rank:
             best, best_rank = route, rank
     return best
-
-
-def flat_cells(mask: np.ndarray) -> np.ndarray:
-    """``(C,)`` int64 flat (row-major) ids of a mask's True cells."""
-    return np.flatnonzero(np.asarray(mask, bool).reshape(-1)).astype(np.int64)
