@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import resource
 import socket
 import sys
 from pathlib import Path
@@ -26,13 +25,4 @@ def emit(**fields) -> None:
           flush=True)
 
 
-def peak_rss_mb() -> float:
-    """This process's peak RSS in MiB: ``VmHWM`` (per address space, so a forked child does not report its parent's
-    ``ru_maxrss``), else ``ru_maxrss`` where ``/proc`` is missing."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+from pipeline.runner import peak_rss_mb  # noqa: E402,F401  (the one implementation; manifests record it too)

@@ -54,7 +54,7 @@ def _imports_of(path: Path, module: str, root: Path) -> tuple[str, ...]:
 def _parsed_imports(path: Path, module: str, root: Path, stamp: tuple[int, int]) -> tuple[str, ...]:
     """:func:`_imports_of`, cached while the file's mtime and size stay the same."""
     try:
-        tree = ast.parse(path.read_bytes(), filename=str(path))
+        tree = ast.parse(_read(path, stamp), filename=str(path))
     except SyntaxError as err:
         raise ZiponError(f"{path}:{err.lineno}: cannot read the imports of {module}: {err.msg}") from None
     is_pkg = path.name == "__init__.py"
@@ -93,13 +93,25 @@ def import_closure(entry: str, root: Path = ROOT) -> list[Path]:
     return sorted({module_file(m, root) for m in seen})
 
 
+def _source(path: Path) -> bytes:
+    """The file's bytes, read once per process while its mtime and size stay the same (``zipon status`` digests
+    the same closure files for every scene and stage)."""
+    st = path.stat()
+    return _read(path, (st.st_mtime_ns, st.st_size))
+
+
+@lru_cache(maxsize=4096)
+def _read(path: Path, stamp: tuple[int, int]) -> bytes:
+    return path.read_bytes()
+
+
 def code_digest(entry: str, root: Path = ROOT) -> str:
     """Digest of the import closure of ``entry`` (file paths and bytes) plus zipon's version."""
     h = hashlib.blake2b(digest_size=16)
     h.update(__version__.encode())
     for path in import_closure(entry, root):
         h.update(f"\0{path.relative_to(root).as_posix()}\0".encode())
-        h.update(path.read_bytes())
+        h.update(_source(path))
     return f"blake2b:{h.hexdigest()}"
 
 
@@ -111,6 +123,6 @@ def changed_files(old: dict[str, str], new: dict[str, str]) -> list[str]:
 def file_digests(entry: str, root: Path = ROOT) -> dict[str, str]:
     """``{relative path: blake2b digest}`` of every file of the closure (recorded in manifests)."""
     return {
-        path.relative_to(root).as_posix(): "blake2b:" + hashlib.blake2b(path.read_bytes(), digest_size=8).hexdigest()
+        path.relative_to(root).as_posix(): "blake2b:" + hashlib.blake2b(_source(path), digest_size=8).hexdigest()
         for path in import_closure(entry, root)
     }

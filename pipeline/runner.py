@@ -237,11 +237,18 @@ def staleness(ws: Workspace, params: Params, stages: dict[str, StageSpec], spec:
 # ----------------------------------------------------------------------------- unit of work
 
 def peak_rss_mb() -> float:
-    """Peak resident memory of this (worker) process so far, MiB."""
+    """Peak resident memory of this (worker) process so far, MiB: ``VmHWM`` (per address space, so a worker forked
+    from a big parent does not report the parent's ``ru_maxrss``), else ``ru_maxrss`` where ``/proc`` is missing."""
     import resource
 
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux, bytes on macOS
-    return round(peak / (1 << 20 if platform.system() == "Darwin" else 1 << 10), 1)
+    return peak / (1 << 20 if platform.system() == "Darwin" else 1 << 10)
 
 
 def limit_native_threads(n: int) -> None:
@@ -306,8 +313,9 @@ def _run_stage(
             for name in spec.inputs
         }
         outputs = {name: tmp / ws.artifact(name, scene).name for name in spec.outputs}
-        ctx = StageContext.build(spec, params, scene, ws, inputs, outputs, show_progress=show_progress)
-        projection = project(params, spec.config_class().param_keys(params, scene))
+        config, projection = spec.build_config(params, scene)
+        ctx = StageContext(scene, stage, config, params.run, ws, inputs, outputs, digest_value(projection),
+                           show_progress)
         summary = spec.load()(ctx) or {}
         records = {}
         for name, path in outputs.items():
@@ -321,7 +329,7 @@ def _run_stage(
             params=projection, params_digest=ctx.params_digest, inputs=in_digests, outputs=records,
             summary=summary, layout=dict(ARTIFACTS),
             timing={"started": started, "seconds": round(seconds, 3),
-                    "cpu_seconds": round(time.process_time() - cpu0, 3), "peak_rss_mb": peak_rss_mb(),
+                    "cpu_seconds": round(time.process_time() - cpu0, 3), "peak_rss_mb": round(peak_rss_mb(), 1),
                     "host": socket.gethostname(), "python": platform.python_version()},
         )
         check_inputs_unchanged(ws, scene, stage, upstream_stages(stages, params, scene, stage),
