@@ -41,7 +41,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 from _common import ROOT, emit
 
 STAGES = ("ingest", "reconstruct", "vlmap", "cfmap", "goals", "routes")

@@ -18,7 +18,7 @@ from tests.fixtures.raw_datasets import make_recording, write_mcap
 
 def test_runner_ingests_a_recorded_log(tmp_path):
     rec = make_recording(10)
-    log = write_mcap(tmp_path / "robot.mcap", rec, transport="compressed", pose_kind="tf", pose_rate_factor=3)
+    write_mcap(tmp_path / "robot.mcap", rec, transport="compressed", pose_kind="tf", pose_rate_factor=3)
     params = parse_params({"scenes": {"lab": {"source": "robot.mcap"}}, "ingest": {"block_frames": 4}})
     ws = Workspace(root=tmp_path, data_dir=tmp_path / "data", manifests_dir=tmp_path / "manifests")
     outcome = run_stage(ws, params, STAGES, "lab", "ingest", show_progress=False)

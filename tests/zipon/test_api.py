@@ -1,6 +1,5 @@
 """``import zipon`` on the session's tiny built scene: open, stores, queries, xarray views, run_eval, README example."""
 
-import math
 import re
 from pathlib import Path
 

@@ -1,4 +1,3 @@
-import pytest
 
 from pipeline.cli import app, main
 

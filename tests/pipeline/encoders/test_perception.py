@@ -15,7 +15,7 @@ from pipeline.encoders.perception_text import SIM_CLASS_LVIS, load_text_space, r
 from pipeline.errors import ConfigError, InputDataError, MissingInputError
 from pipeline.scene_gt import GTScene
 from pipeline.sim.catalog import TEMPLATES
-from tests.pipeline.encoders.conftest import RUNTIME, gt_scene, toy_batch
+from tests.pipeline.encoders.conftest import RUNTIME, gt_scene
 
 H, W = 60, 80
 

@@ -1,4 +1,3 @@
-import numpy as np
 import pytest
 
 from pipeline.goals.build import GoalSettings, build_goals

@@ -1,6 +1,5 @@
 """North-up renders of a recon.zarr."""
 
-import numpy as np
 import pytest
 
 from pipeline.config import GridParams, ReconstructParams

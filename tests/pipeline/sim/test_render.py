@@ -1,7 +1,6 @@
 """Ray-cast rendering: analytic depth, instance ids against ground-truth boxes, determinism."""
 
 import numpy as np
-import pytest
 
 from pipeline.config import SimulateParams
 from pipeline.geometry import Intrinsics, backproject, camera_pose_from_base, transform_points

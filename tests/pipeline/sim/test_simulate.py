@@ -75,7 +75,7 @@ def test_simulate_scene_writes_deterministic_mcap(tmp_path):
 
     params = SimulateParams(**{**SMALL, "frames": 12})
     a = simulate_scene("demo", params, tmp_path / "a.mcap")
-    b = simulate_scene("demo", params, tmp_path / "b.mcap")
+    simulate_scene("demo", params, tmp_path / "b.mcap")
     assert (tmp_path / "a.mcap").read_bytes() == (tmp_path / "b.mcap").read_bytes()
     assert a["frames"] == 12 and a["classes"] >= 15 and a["rooms_visited"] == a["rooms"]
     with open(tmp_path / "a.mcap", "rb") as f:
