@@ -23,7 +23,7 @@ export PATH="$PWD/.venv/bin:$PATH"
 # scikit-fmm builds from source and does not declare its numpy build dependency.
 .venv/bin/python -m pip install -q "numpy>=1.26,<3" meson-python meson ninja
 .venv/bin/python -m pip install -q --no-build-isolation scikit-fmm
-.venv/bin/python -m pip install -q -e ".[test]"
+.venv/bin/python -m pip install -q -e ".[test,bench]"
 # DVC: never phone home.
 export DVC_NO_ANALYTICS=1
 echo "zipon installed in .venv — try: .venv/bin/zipon --help"

@@ -139,7 +139,7 @@ def sync_dvc_lock(ws: Workspace, params: Params, stages: dict[str, StageSpec], p
 
     try:
         repo = Repo(str(ws.root))
-    except Exception as err:  # not a usable DVC project (e.g. .dvc/ without git or core.no_scm): DVC cannot run here
+    except Exception as err:  # noqa: BLE001 - not a usable DVC project (e.g. .dvc/ without git or core.no_scm): DVC cannot run here
         first = str(err).splitlines()[0] if str(err) else ""
         return f"dvc.lock not updated: DVC cannot open {ws.root} ({type(err).__name__}: {first})"
     path = ws.root / "dvc.yaml"
@@ -152,7 +152,7 @@ def sync_dvc_lock(ws: Workspace, params: Params, stages: dict[str, StageSpec], p
         with chdir(ws.root), repo:  # DVC resolves stage paths from the working directory
             for scene, stage in pairs:
                 repo.commit(f"dvc.yaml:{stage}@{scene}", force=True)
-    except Exception as err:  # DVC's own errors have no common base worth naming
+    except Exception as err:  # noqa: BLE001 - DVC's own errors have no common base worth naming
         raise ZiponError(f"the artifacts are built, but recording them in {ws.root / 'dvc.lock'} failed "
                          f"({type(err).__name__}: {err}); run `dvc commit -f` there") from None
     notes.append(f"dvc.lock: recorded {len(pairs)} stage(s)")

@@ -353,7 +353,7 @@ def _task(ws, params, stages, scene, stage, force, show_progress, threads, *upst
         # an error without a path came from writing the outputs, which go to the scene's .tmp folder first
         where = f"{ws.tmp_dir(scene)}/ (writing the outputs)"
         return Outcome(scene, stage, "failed", error=os_error_message(err, where))
-    except Exception as err:  # a bug, not bad input: keep the traceback for the report
+    except Exception as err:  # noqa: BLE001 - a bug, not bad input: keep the traceback for the report
         return Outcome(scene, stage, "failed", error=f"{type(err).__name__}: {err}\n{traceback.format_exc()}")
 
 

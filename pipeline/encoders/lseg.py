@@ -50,9 +50,9 @@ def read_lseg_state_dict(path: Path, param: str = WEIGHTS_PARAM) -> dict[str, to
     try:
         try:
             ckpt = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
-        except Exception:  # lightning checkpoints may pickle hyper-parameters (argparse objects)
+        except Exception:  # noqa: BLE001 - lightning checkpoints may pickle hyper-parameters (argparse objects)
             ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as err:
+    except Exception as err:  # noqa: BLE001 - any load failure is reported as unusable weights
         raise weights_error(param, path, err) from None
     sd = ckpt.get("state_dict", ckpt) if isinstance(ckpt, dict) else None
     if not isinstance(sd, dict) or not sd:

@@ -46,7 +46,7 @@ def load_open_clip(arch: str, path: Path, param: str) -> nn.Module:
     model = open_clip.create_model(arch, pretrained=None)
     try:
         open_clip.load_checkpoint(model, str(path), strict=True)
-    except Exception as err:
+    except Exception as err:  # noqa: BLE001 - any load failure is reported as unusable weights
         raise weights_error(param, path, err) from None
     return model.eval()
 

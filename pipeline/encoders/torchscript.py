@@ -35,7 +35,7 @@ def _load_script(path: Path, param: str) -> torch.jit.ScriptModule:
         with warnings.catch_warnings():  # torch 2.14 deprecates TorchScript; user exports still load
             warnings.simplefilter("ignore", FutureWarning)
             return torch.jit.load(str(path), map_location="cpu").eval()
-    except Exception as err:
+    except Exception as err:  # noqa: BLE001 - any load failure means not a usable TorchScript module
         raise ConfigError(f"{param}: {path} is not a TorchScript module ({str(err).splitlines()[0][:200]})") from None
 
 

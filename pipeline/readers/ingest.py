@@ -98,7 +98,7 @@ class _BackgroundAppender:
             if self.error is None:
                 try:
                     self.writer.append(block)
-                except BaseException as err:  # handed to the reading thread
+                except BaseException as err:  # noqa: BLE001 - handed to the reading thread, re-raised there
                     self.error = err
 
     def append(self, block) -> None:

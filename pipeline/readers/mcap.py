@@ -34,7 +34,7 @@ class McapSource(MessageSource):
             self._stream = open(file, "rb")
             self._reader = make_reader(self._stream, validate_crcs=True)
             summary = self._reader.get_summary()
-        except Exception as err:  # mcap raises McapError, struct.error, EndOfFile, ValueError...
+        except Exception as err:  # noqa: BLE001 - mcap raises McapError, struct.error, EndOfFile, ValueError...
             raise _corrupt(file, err) from None
         if summary is None or not summary.chunk_indexes and summary.statistics and summary.statistics.message_count:
             raise InputDataError("log has no summary/chunk index", path=file,
@@ -56,7 +56,7 @@ class McapSource(MessageSource):
                 yield channel.topic, int(msg.log_time), msg
         except InputDataError:
             raise
-        except Exception as err:
+        except Exception as err:  # noqa: BLE001 - any failure of the mcap reader means a corrupt file
             raise _corrupt(self.file, err) from None
 
     def decode(self, topic: str, raw, index: int):
@@ -74,14 +74,14 @@ class McapSource(MessageSource):
     def ground_truth_json(self) -> bytes | None:
         try:
             atts = [a for a in self._reader.iter_attachments() if a.name == "ground_truth.json"]
-        except Exception as err:
+        except Exception as err:  # noqa: BLE001 - any failure of the mcap reader means a corrupt file
             raise _corrupt(self.file, err) from None
         return atts[0].data if atts else None
 
     def metadata(self) -> dict:
         try:
             meta = {m.name: dict(m.metadata) for m in self._reader.iter_metadata()}
-        except Exception as err:
+        except Exception as err:  # noqa: BLE001 - any failure of the mcap reader means a corrupt file
             raise _corrupt(self.file, err) from None
         s = self.summary.statistics
         return {"mcap_metadata": meta,

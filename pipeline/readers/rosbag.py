@@ -51,7 +51,7 @@ class RosbagsSource(MessageSource):
             # ROS 2 bags before Iron store no message definitions: the standard types are read with Humble's
             self._reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
             self._reader.open()
-        except Exception as err:  # rosbags raises ReaderError, AnyReaderError, sqlite/yaml errors...
+        except Exception as err:  # noqa: BLE001 - rosbags raises ReaderError, AnyReaderError, sqlite/yaml errors...
             raise _bad(path, err) from None
         self.types, self.counts = {}, defaultdict(int)
         self._conns: dict[str, list] = defaultdict(list)
@@ -70,7 +70,7 @@ class RosbagsSource(MessageSource):
                 yield c.topic, int(log_time), (c, data)
         except InputDataError:
             raise
-        except Exception as err:
+        except Exception as err:  # noqa: BLE001 - any failure of the rosbags reader means a corrupt bag
             raise _bad(self.file, err) from None
 
     def decode(self, topic: str, raw, index: int):

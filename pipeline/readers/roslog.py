@@ -214,7 +214,7 @@ class RosLogReader(Reader):
             return self.src.decode(topic, raw, index)
         except InputDataError:
             raise
-        except Exception as err:
+        except Exception as err:  # noqa: BLE001 - any decoder failure is this message's finding
             raise InputDataError(f"message could not be decoded as {type_name} ({err})", path=self.file,
                                  topic=topic, frame=index) from None
 
@@ -357,7 +357,7 @@ class RosLogReader(Reader):
             return None
         try:
             return GTScene.model_validate(json.loads(data)).model_dump(mode="json")
-        except Exception as err:
+        except ValueError as err:  # bad JSON, bad UTF-8 and pydantic's ValidationError are all ValueErrors
             raise InputDataError(f"ground_truth.json attachment is invalid: {err}", path=self.file,
                                  field="attachment ground_truth.json", expected="a GTScene JSON document") from None
 

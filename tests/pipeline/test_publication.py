@@ -120,7 +120,7 @@ def _changes_in(action) -> list[str]:
             setattr(publication, fn, counted)
         try:
             action()
-        except BaseException:
+        except BaseException:  # noqa: BLE001 - never let the child return into pytest
             os._exit(1)
         os.write(write, " ".join(seen).encode())
         os._exit(0)
@@ -162,7 +162,7 @@ def _killed_at(action, k: int, halfway: bool) -> bool:
             setattr(publication, fn, hooked)
         try:
             action()
-        except BaseException:  # never let the child return into pytest
+        except BaseException:  # noqa: BLE001 - never let the child return into pytest
             os._exit(1)
         os._exit(0)
     _, status = os.waitpid(pid, 0)
