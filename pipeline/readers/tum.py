@@ -26,7 +26,6 @@ from pipeline.readers.base import (DEPTH, POSE, RGB, PoseLink, Reader, Sample, S
 # (fx, fy, cx, cy) published for each Kinect of the benchmark, 640x480.
 TUM_INTRINSICS = {"fr1": (517.3, 516.5, 318.6, 255.3), "fr2": (520.9, 521.0, 325.1, 249.7),
                   "fr3": (535.4, 539.2, 320.1, 247.6)}
-TUM_DEPTH_PER_M = 5000.0
 
 
 def _table(path: Path, columns: int) -> list[tuple[int, int, list[str]]]:
