@@ -41,6 +41,12 @@ RECIPES: dict[str, list[tuple]] = {
                ("table lamp", 0, 1, "on", ("desk",)), ("shelf", 1, 2, "wall", None), ("plant", 1, 1, "wall", None),
                ("cabinet", 0, 1, "wall", None), ("lamp", 0, 1, "wall", None), ("picture", 0, 1, "high", None)],
 }
+# Classes every apartment holds at least this many instances of (each a different colour, so each its own
+# goal): personalized goals are only hard when several instances share a class, as in the paper's HM3D
+# scenes (3-6 chairs, several cabinets and pictures). After the recipes, :func:`furnish` tops a short
+# class up with the recipe entries of that class (in the rooms whose recipe has one), rooms in seeded order.
+MIN_INSTANCES: dict[str, int] = {"chair": 3, "cabinet": 3, "picture": 3}
+TOP_UP_ROUNDS = 4  # passes over the candidate rooms before a class is left short (a very small apartment)
 SIDES = ((0, 1), (0, -1), (1, 0), (-1, 0))  # inward normals of the south, north, west, east walls
 CELL_M = 0.05
 DOOR_ZONE_DEPTH_M = 1.0
@@ -228,17 +234,38 @@ class RoomFurnisher:
         return placed
 
 
+def _top_up(rng: np.random.Generator, plan: FloorPlan, furnishers: dict[int, RoomFurnisher]) -> None:
+    """Place extra instances of each :data:`MIN_INSTANCES` class that is short, with its rooms' recipe entries."""
+    for cls, wanted in MIN_INSTANCES.items():
+        have = sum(p.cls == cls for f in furnishers.values() for p in f.placed)
+        entries = [(room, key, mode, arg) for room in furnishers for key, _, _, mode, arg in RECIPES[plan.types[room]]
+                   if TEMPLATES[key].cls == cls]
+        for _ in range(TOP_UP_ROUNDS):
+            if have >= wanted or not entries:
+                break
+            for i in rng.permutation(len(entries)):
+                room, key, mode, arg = entries[int(i)]
+                if furnishers[room].place(key, mode, arg) is not None:
+                    have += 1
+                    if have >= wanted:
+                        break
+
+
 def furnish(rng: np.random.Generator, plan: FloorPlan, robot_radius_m: float) -> list[GTObject]:
-    """Objects for every room of ``plan``; ids 1.. in room order; distinct colours within a class."""
+    """Objects for every room of ``plan``: its recipe, then the :data:`MIN_INSTANCES` top-up; ids 1.. in room
+    order; distinct colours within a class."""
     used_colours: dict[str, set[str]] = {}
     objects: list[GTObject] = []
     order = sorted(range(len(plan.rooms)), key=lambda i: plan.ids[i])
+    furnishers = {}
     for room in order:
-        fur = RoomFurnisher(rng, plan, room, robot_radius_m)
+        fur = furnishers[room] = RoomFurnisher(rng, plan, room, robot_radius_m)
         for key, n_min, n_max, mode, arg in RECIPES[plan.types[room]]:
             for _ in range(int(rng.integers(n_min, n_max + 1))):
                 fur.place(key, mode, arg)
-        for p in fur.placed:
+    _top_up(rng, plan, furnishers)
+    for room in order:
+        for p in furnishers[room].placed:
             tpl = TEMPLATES[p.key]
             used = used_colours.setdefault(p.cls, set())
             choices = [c for c in tpl.colours if c not in used] or [c for c in COLOURS if c not in used] \

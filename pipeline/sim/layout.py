@@ -125,7 +125,8 @@ def _place_doors(rng: np.random.Generator, leaves: list[Rect], labels: list[str]
         if not candidates:
             raise RuntimeError("floor plan without a doorway candidate")  # cannot happen with MIN_ROOM_SIDE_M
         i, j, lo, hi = candidates[int(rng.integers(len(candidates)))]
-        width = round(float(rng.uniform(0.9, 1.05)), 2)
+        # a doorway keeps 0.25 m of wall either side: on a 1.4-1.55 m shared wall it narrows (not below 0.9 m)
+        width = min(round(float(rng.uniform(0.9, 1.05)), 2), round(hi - lo - 0.5, 2))
         start = round(float(rng.uniform(lo + 0.25, hi - 0.25 - width)), 2)
         doors.append(Door(axis, at, start, start + width, (i, j), k))
     return doors

@@ -101,7 +101,7 @@ def _string_pull(fs: FreeSpace, pts: np.ndarray) -> list[np.ndarray]:
     while i < len(pts) - 1:
         j = len(pts) - 1
         while j > i + 1:
-            seg = np.linspace(pts[i], pts[j], int(np.hypot(*(pts[j] - pts[i])) / 0.025) + 2)
+            seg = np.linspace(pts[i], pts[j], int(np.hypot(*(pts[j] - pts[i])) / 0.01) + 2)  # 1 cm: no clipped corner
             if fs.is_navigable(seg).all():
                 break
             j -= 1
@@ -117,6 +117,10 @@ class _Walker:
         self.fs, self.xy, self.k = fs, np.asarray(xy, float), yaw_steps
         self.states = [(self.xy[0], self.xy[1], self.k * TURN_RAD)]
 
+    def _clearance(self, xy: np.ndarray) -> float:
+        rc = np.clip(self.fs.grid.world_to_cell(xy), 0, [self.fs.grid.rows - 1, self.fs.grid.cols - 1])
+        return float(self.fs.clearance_m[rc[0], rc[1]])
+
     def _record(self):
         self.states.append((self.xy[0], self.xy[1], self.k * TURN_RAD))
 
@@ -125,7 +129,10 @@ class _Walker:
             self.k += 1
             self._record()
 
-    def go(self, target: np.ndarray):
+    def go(self, target: np.ndarray, start: np.ndarray | None = None):
+        """Turn and step to ``target`` along the planned (navigable) segment from ``start`` (default: here)."""
+        start = self.xy.copy() if start is None else np.asarray(start, float)
+        seg = target - start
         for _ in range(4000):
             delta = target - self.xy
             dist = float(np.hypot(*delta))
@@ -140,8 +147,23 @@ class _Walker:
                 continue
             yaw = self.k * TURN_RAD
             nxt = self.xy + min(STEP_M, dist) * np.array([np.cos(yaw), np.sin(yaw)])
-            if not self.fs.is_navigable(nxt):  # the quantised heading would graze an obstacle
-                nxt = self.xy + min(STEP_M, dist) * delta / dist
+            if not self.fs.is_navigable(nxt):
+                # the quantised heading would graze an obstacle. Quantised steps drift off the planned (navigable)
+                # segment, so a straight step from the drifted spot can cut a doorway's corner too: take the first
+                # navigable of a step straight to the target, toward the segment one step ahead, or back onto it
+                t = float(np.clip(np.dot(self.xy - start, seg) / max(float(np.dot(seg, seg)), 1e-12), 0.0, 1.0))
+                foot = start + t * seg
+                rest = target - foot
+                left = float(np.hypot(*rest))
+                aim = foot + (min(STEP_M, left) / left) * rest if left > 1e-9 else foot
+                options = []
+                for frac in (1.0, 0.5, 0.25):  # shorter steps back toward the segment when a whole one cuts in
+                    for way in (target, aim, foot):
+                        gap = float(np.hypot(*(way - self.xy)))
+                        if gap > 1e-9:
+                            options.append(self.xy + (min(STEP_M * frac, gap) / gap) * (way - self.xy))
+                ok = [o for o in options if self.fs.is_navigable(o)]
+                nxt = ok[0] if ok else max(options, key=self._clearance)
             self.xy = nxt
             self._record()
         raise StageError(f"trajectory: could not reach waypoint {target.round(2).tolist()}")
@@ -184,8 +206,9 @@ def plan_actions(gt: GTScene, radius_m: float, min_actions: int) -> tuple[np.nda
         cells = np.argwhere(node >= 0)[np.argsort(node[node >= 0])][path[::-1]]
         pts = fs.grid.cell_to_world(cells)
         pts[0] = walker.xy
-        for wp in _string_pull(fs, pts)[1:]:
-            walker.go(wp)
+        pulled = _string_pull(fs, pts)
+        for a, b in zip(pulled[:-1], pulled[1:]):
+            walker.go(b, a)
         walker.spin()
         visited.append(gt.rooms[k].id)
         if not queue and len(walker.states) - 1 < min_actions:

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from pipeline.config import GoalsParams, RoutesParams
+from pipeline.config import GoalsParams, TaskParams
 from pipeline.errors import ConfigError, InputDataError
 from pipeline.frames import FrameStore
 from pipeline.goals.build import (OBJECT_MARGIN_M, WALL_MIN_HEIGHT_M, build_scene_goals, load_objects, start_pose,
@@ -29,7 +29,7 @@ def house(tmp_path_factory):
 
 def _build(tmp, frames, recon, out, **goals):
     return build_scene_goals(frames, recon, tmp / out, artifact_attrs(ARTIFACT, FORMAT_VERSION, "goals", "test"),
-                             scene="house", goals=GoalsParams(**goals), routes=RoutesParams(), root=tmp,
+                             scene="house", goals=GoalsParams(**goals), task=TaskParams(), root=tmp,
                              log=lambda m: None)
 
 
@@ -75,3 +75,34 @@ def test_start_pose_is_the_first_camera_pose(house):
     _, frames, _, _ = house
     x, y, yaw = start_pose(frames)
     assert (x, y) == pytest.approx((2.5, 1.8)) and yaw == pytest.approx(0.4)
+
+
+def test_ambiguous_goals_are_picked_among_classes_with_three_or_more_instances():
+    from collections import Counter
+
+    from pipeline.config import SimulateParams
+    from pipeline.goals.build import AMBIGUOUS_MIN_GROUPS, select_groups
+    from pipeline.goals.naming import same_goal_groups
+    from pipeline.goals.objects import objects_from_gt
+    from pipeline.sim import generate_scene
+
+    for name in ("sim_00", "sim_03", "sim_07"):
+        objset = objects_from_gt(generate_scene(name, SimulateParams(seed=2)))
+        groups = same_goal_groups(sorted(objset.objects, key=lambda o: o.key), 2.0)
+        cls = {g: objset.by_key()[g[0]].cls for g in groups}
+        per_cls = Counter(cls.values())
+        picked = select_groups(objset, groups, GoalsParams(max_goals=12), np.random.default_rng(0))
+        ambiguous = [cls[g] for g, t in picked if t == "ambiguous"]
+        assert len(picked) == 12 and len(ambiguous) >= 4
+        assert all(per_cls[c] >= AMBIGUOUS_MIN_GROUPS for c in ambiguous), (name, ambiguous)
+        assert len(set(ambiguous)) >= 3  # spread over the classes, not four pictures
+
+
+def test_spread_ambiguous_takes_big_classes_first_one_group_per_class_in_turn():
+    from pipeline.goals.build import spread_ambiguous
+
+    pool = [("cup_0",), ("chair_0",), ("chair_1",), ("cup_1",), ("lamp_0",), ("chair_2",), ("lamp_1",), ("lamp_2",)]
+    cls_of = {g: g[0].split("_")[0] for g in pool}
+    out = spread_ambiguous(pool, cls_of, {"cup": 2, "chair": 3, "lamp": 3})
+    assert out == [("chair_0",), ("lamp_0",), ("chair_1",), ("lamp_1",), ("chair_2",), ("lamp_2",), ("cup_0",),
+                   ("cup_1",)]
