@@ -178,9 +178,8 @@ def bench_fusion(h: int, w: int, d: int, n_frames: int, naive_points: int, block
 def bench_query(observed_fraction: float, repeats: int):
     from pipeline.config import QueryParams
     from pipeline.encoders.oracle import OracleEncoder
-    from pipeline.maps.fusion import FusedCells
     from pipeline.maps.query import MapQuery
-    from pipeline.maps.store import SemanticMap, write_map
+    from pipeline.maps.store import MapCells, SemanticMap, write_map
     from pipeline.store import artifact_attrs
 
     lat = lattice()
@@ -199,8 +198,8 @@ def bench_query(observed_fraction: float, repeats: int):
         np.unique(patch, return_inverse=True)[1] % 100_000]
     feats = table[lab] + (0.3 / np.sqrt(512)) * rng.standard_normal((len(cell), 512)).astype(np.float32)
     feats /= np.linalg.norm(feats, axis=1, keepdims=True)
-    fused = FusedCells(cell=cell, features=torch.from_numpy(feats), weight=np.ones(len(cell), np.float32),
-                       count=np.ones(len(cell), np.int32), level=np.zeros(len(cell), np.int16))
+    fused = MapCells(cell=cell, features=feats, weight=np.ones(len(cell), np.float32),
+                     count=np.ones(len(cell), np.int32), level=np.zeros(len(cell), np.int16))
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "vlmap.zarr"
         write_map(path, artifact_attrs("vlmap", 1, "vlmap", "bench", encoder=enc.identity()), grid, lat, fused,
@@ -225,11 +224,13 @@ def bench_scores(repeats: int):
     from pipeline.maps.scoring import chunked_scores
 
     n, d = 600 * 600, 512
-    g = torch.Generator().manual_seed(0)
-    f32 = torch.nn.functional.normalize(torch.randn((n, d), generator=g), dim=1)
-    f16 = f32.half()
+    rng = np.random.default_rng(0)
+    f32 = rng.standard_normal((n, d), dtype=np.float32)
+    f32 /= np.linalg.norm(f32, axis=1, keepdims=True)
+    f16 = f32.astype(np.float16)
     for t in (1, 5):
-        text = torch.nn.functional.normalize(torch.randn((t, d), generator=g), dim=1)
+        text = rng.standard_normal((t, d), dtype=np.float32)
+        text /= np.linalg.norm(text, axis=1, keepdims=True)
         out = {}
         for name, fn in (("fp32", lambda: f32 @ text.T), ("fp16", lambda: chunked_scores(f16, text))):
             fn()
@@ -239,10 +240,10 @@ def bench_scores(repeats: int):
                 fn()
                 times.append(time.perf_counter() - t0)
             out[name] = 1e3 * float(np.median(times))
-        err = float((chunked_scores(f16, text) - f16.float() @ text.T).abs().max())
+        err = float(np.abs(chunked_scores(f16, text) - f16.astype(np.float32) @ text.T).max())
         emit(bench="scores", map="600x600x512", prompts=t, threads=torch.get_num_threads(),
              fp32_median_ms=round(out["fp32"], 2), fp16_median_ms=round(out["fp16"], 2),
-             fp32_features_mb=round(f32.numel() * 4 / 2**20, 1), fp16_features_mb=round(f16.numel() * 2 / 2**20, 1),
+             fp32_features_mb=round(f32.nbytes / 2**20, 1), fp16_features_mb=round(f16.nbytes / 2**20, 1),
              max_abs_err=err)
 
 

@@ -61,7 +61,7 @@ def segmentation_metrics(mq: MapQuery, gt: GTScene) -> dict:
         label[masks[c].ravel()] = i
     pred = np.full(grid.rows * grid.cols, -2, np.int64)
     text = mq.text_features(classes + list(BACKGROUND_VOCAB))
-    pred[mq.map.cell] = mq.map.dot(text).argmax(dim=1).numpy()
+    pred[mq.map.cell] = mq.map.dot(text).argmax(axis=1)
     # a ground-truth cell the map never observed takes the label of the nearest observed cell (the protocol
     # labels each ground-truth point by its nearest map point)
     seen = (pred >= 0).reshape(grid.rows, grid.cols)

@@ -112,10 +112,7 @@ class Artifacts:
     @cached_property
     def gt(self):
         """The scene's :class:`~pipeline.scene_gt.GTScene` (simulated scenes), else ``None``."""
-        from pipeline.scene_gt import GTScene
-
-        raw = self.frames.ground_truth
-        return GTScene.model_validate(raw) if raw else None
+        return self.frames.ground_truth
 
     @cached_property
     def recon(self):

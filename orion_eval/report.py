@@ -280,11 +280,10 @@ def scene_pictures(ws, params, scene: str, folder: Path) -> list[dict]:
         from pipeline.frames import FrameStore
 
         gt = FrameStore(art["frames"]).ground_truth
-        if gt:
-            from pipeline.scene_gt import GTScene
+        if gt is not None:
             from pipeline.sim.topdown import render_scene_png
 
-            add(render_scene_png(GTScene.model_validate(gt), folder / "plan.png"), "ground-truth floor plan")
+            add(render_scene_png(gt, folder / "plan.png"), "ground-truth floor plan")
     if not (art["recon"].exists() and art["goals"].exists()):
         return out
     from pipeline.goals.render import render_goals

@@ -516,6 +516,12 @@ class QueryParams(Section):
         "of their features, with exact rescoring of every cell that could win (exact wins and candidates); 0 = exact"
     )
     query_lowrank_min_cells: int = Field(50_000, gt=0, description="smaller maps are always scored exactly")
+    levels: Literal["top", "max"] = Field(
+        "top", description="top: a cell is scored by its top-down feature (its highest level: a table hides the "
+        "chair under it); max: a cfmap that stores voxels (maps.cfmap_voxels) scores each cell by its best height "
+        "level for the query (pipeline.maps.levels: finds the chair under the table, a picture on a wall); a vlmap "
+        "has one level per cell, so max scores it as top"
+    )
 
 
 class NavchatGrid(Section):

@@ -17,7 +17,9 @@ def render_all(ws: Workspace, params: Params, scenes: list[str]) -> list[Path]:
         art = {name: ws.artifact(name, scene) for name in ("frames", "recon", "vlmap", "cfmap", "goals", "routes")}
         if art["frames"].exists():
             written.append(frames_contact_sheet(art["frames"], out / "frames.png"))
-            gt = _ground_truth(art["frames"])
+            from pipeline.frames import FrameStore
+
+            gt = FrameStore(art["frames"]).ground_truth
             if gt is not None:
                 from pipeline.sim.topdown import render_scene_png
 
@@ -37,14 +39,6 @@ def render_all(ws: Workspace, params: Params, scenes: list[str]) -> list[Path]:
             if art[which].exists() and art["goals"].exists():
                 written.append(_query_picture(ws, params, scene, which, out))
     return written
-
-
-def _ground_truth(frames_path: Path):
-    from pipeline.frames import FrameStore
-    from pipeline.scene_gt import GTScene
-
-    gt = FrameStore(frames_path).ground_truth
-    return None if gt is None else GTScene.model_validate(gt)
 
 
 def _query_picture(ws: Workspace, params: Params, scene: str, which: str, out: Path) -> Path:

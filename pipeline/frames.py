@@ -20,13 +20,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
 
 from pipeline.errors import ArtifactError
 from pipeline.geometry import Intrinsics
-from pipeline.store import compressor, new_group, open_group
+from pipeline.scene_gt import GTScene
+from pipeline.store import ArtifactAttrs, compressor, new_group, open_group
 
 ARTIFACT = "frames"
 FORMAT_VERSION = 1
@@ -37,6 +38,22 @@ CONVENTIONS = {
     "stamp": "int64 nanoseconds",
     "depth": "uint16 millimetres, 0 = invalid",
 }
+
+
+class FramesAttrs(ArtifactAttrs):
+    """The attrs of ``frames.zarr`` (the tree above). ``n_frames`` and ``matching`` are recorded when the writer
+    closes; ``ground_truth`` is the simulator's scene (checked as a :class:`GTScene` when read)."""
+
+    intrinsics: Intrinsics  # fx, fy, cx, cy, width, height (Intrinsics.to_dict)
+    K: tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
+    conventions: dict[str, str]
+    depth_unit: str = "mm"
+    depth_range_m: tuple[float, float] | None = None
+    n_frames: int | None = None
+    provenance: dict[str, Any] = {}
+    matching: dict[str, Any] | None = None
+    world_up: dict[str, Any] | None = None
+    ground_truth: dict[str, Any] | None = None
 
 
 @dataclass
@@ -76,10 +93,9 @@ class FrameStoreWriter:
         self.block_frames = block_frames
         self.n = 0
         h, w = intrinsics.height, intrinsics.width
-        self.group = new_group(
-            self.path,
+        self.group = new_group(self.path, FramesAttrs.checked(
             {**attrs, "intrinsics": intrinsics.to_dict(), "K": intrinsics.K.tolist(), "conventions": CONVENTIONS},
-        )
+            self.path))
         b = block_frames
         # Blosc-zstd by default; 'lz4' trades size (~1.2x vs ~1.5x on camera colour) for ~10x faster writes.
         if codec not in ("zstd", "lz4"):
@@ -138,28 +154,36 @@ class FrameStoreWriter:
 
     def close(self, **final_attrs) -> int:
         """Record ``n_frames`` and any final attrs (e.g. the matching summary); returns the frame count."""
-        self.group.attrs.update({"n_frames": self.n, **final_attrs})
+        final = {"n_frames": self.n, **final_attrs}
+        FramesAttrs.checked({**self.group.attrs, **final}, self.path)
+        self.group.attrs.update(final)
         return self.n
 
 
 class FrameStore:
-    """Read-only view of a ``frames.zarr``."""
+    """Read-only view of a ``frames.zarr``: ``meta`` the typed :class:`FramesAttrs` (``attrs`` the same as a plain
+    dict), ``intrinsics``, ``n_frames``, :attr:`ground_truth`."""
 
     def __init__(self, path: Path):
         self.path = Path(path)
         self.group = open_group(self.path, artifact=ARTIFACT, format_version=FORMAT_VERSION)
         self.attrs = dict(self.group.attrs)
-        self.intrinsics = Intrinsics(**self.attrs["intrinsics"])
+        self.meta = FramesAttrs.read(self.attrs, self.path)
+        self.intrinsics = self.meta.intrinsics
         self.n_frames = int(self.group["stamp"].shape[0])
         self.has_instance = "instance" in self.group
+        self._gt: GTScene | None = None
 
     @property
     def block_frames(self) -> int:
         return int(self.group["rgb"].chunks[0])
 
     @property
-    def ground_truth(self) -> dict | None:
-        return self.attrs.get("ground_truth")
+    def ground_truth(self) -> GTScene | None:
+        """The scene's ground truth (simulated scenes), checked on first use; None for a real recording."""
+        if self._gt is None and self.meta.ground_truth is not None:
+            self._gt = GTScene.read(self.meta.ground_truth, f"{self.path}: attrs.ground_truth")
+        return self._gt
 
     def poses(self) -> np.ndarray:
         return self.group["pose"][:]

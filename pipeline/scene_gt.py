@@ -10,8 +10,9 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from pipeline.errors import ArtifactError
 from pipeline.geometry import GridSpec
 
 GT_FORMAT_VERSION = 1
@@ -68,6 +69,18 @@ class GTScene(_Model):
     rooms: list[GTRoom]
     walls: list[Box] = Field(description="wall segments (doorways are gaps between them)")
     objects: list[GTObject]
+
+    @classmethod
+    def read(cls, data: object, where: str) -> "GTScene":
+        """``data`` (a parsed JSON document) as a scene; an ArtifactError names ``where`` and the field that
+        does not fit."""
+        try:
+            return cls.model_validate(data)
+        except ValidationError as err:
+            first = err.errors()[0]
+            field = ".".join(str(p) for p in first["loc"]) or "(root)"
+            raise ArtifactError(f"{where}: {field}: {first['msg']} (expected a GTScene document, format version "
+                                f"{GT_FORMAT_VERSION})") from None
 
     def object(self, instance_id: int) -> GTObject:
         for obj in self.objects:

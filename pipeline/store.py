@@ -16,15 +16,17 @@ import shutil
 import socket
 import uuid
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping, TypeVar
 
 import numpy as np
 import zarr
+from pydantic import BaseModel, ConfigDict, ValidationError
 from zarr.codecs import BloscCodec
 
 from pipeline import __version__
 from pipeline.config import canonical_json
 from pipeline.errors import ArtifactError, MissingInputError
+from pipeline.geometry import GridSpec
 
 DIGEST_ALGO = "blake2b"
 
@@ -73,6 +75,65 @@ def artifact_attrs(artifact: str, format_version: int, stage: str, params_digest
         "code_version": __version__,
         **extra,
     }
+
+
+# ----------------------------------------------------------------------------- typed attrs
+
+_Attrs = TypeVar("_Attrs", bound="ArtifactAttrs")
+
+
+class AttrsModel(BaseModel):
+    """A typed part of an artifact's attrs. Keys the model does not name are kept as they are (summary
+    figures a stage adds), so reading and writing through the model leaves the stored JSON unchanged."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+
+
+class GridAttrs(AttrsModel):
+    """``attrs.grid``: :meth:`GridSpec.to_attrs` (rows, cols, cell size, north-west corner, orientation)."""
+
+    rows: int
+    cols: int
+    cell_size_m: float
+    origin_xy: tuple[float, float]
+    orientation: str = GridSpec.ORIENTATION
+
+    @property
+    def spec(self) -> GridSpec:
+        return GridSpec(self.rows, self.cols, self.cell_size_m, self.origin_xy)
+
+
+class ArtifactAttrs(AttrsModel):
+    """The self-description every artifact carries (STYLE rule 4); each store module subclasses it with the
+    attrs of its own artifact, and reads its attrs with :meth:`read`, never by string key."""
+
+    artifact: str
+    format_version: int
+    stage: str
+    params_digest: str
+    code_version: str
+
+    @classmethod
+    def read(cls: type[_Attrs], attrs: Mapping[str, Any], path: Path | str) -> _Attrs:
+        """The attrs of the artifact at ``path`` as this model; an ArtifactError names the field that does not fit."""
+        try:
+            return cls.model_validate(dict(attrs))
+        except ValidationError as err:
+            raise _attrs_error(err, path) from None
+
+    @classmethod
+    def checked(cls, attrs: Mapping[str, Any], path: Path | str) -> dict:
+        """``attrs`` unchanged (same keys, same order, so the same bytes) after checking they read back as this
+        model: a writer can never store attrs its reader refuses."""
+        cls.read(_plain(dict(attrs)), path)
+        return dict(attrs)
+
+
+def _attrs_error(err: ValidationError, path: Path | str) -> ArtifactError:
+    first = err.errors()[0]
+    where = ".".join(str(p) for p in first["loc"]) or "(root)"
+    return ArtifactError(f"{path}: attrs.{where}: {first['msg']} (got {str(first.get('input'))[:80]}); "
+                         f"rebuild it with: zipon run --force")
 
 
 def _plain(value: Any) -> Any:

@@ -262,7 +262,7 @@ def map_to_xarray(smap):
     index = smap.index
     ok = index >= 0
     rows = index[ok]
-    feats = smap.features16().numpy()
+    feats = smap.features16()
     dim = feats.shape[1]
     tile = smap.tile_cells
 
@@ -281,9 +281,7 @@ def map_to_xarray(smap):
         out[ok] = values[rows]
         return out
 
-    lat = smap.attrs.get("lattice", {})
-    top_z = (float(lat.get("floor_z", 0.0)) + float(lat.get("min_height_m", 0.0))
-             + smap.level.astype(np.float32) * float(lat.get("level_height_m", 0.0)))
+    top_z = smap.lattice.level_z(smap.level)
     enc = {k: v for k, v in smap.encoder.items() if isinstance(v, (str, int, float, bool))}
     coords = grid_coords(g)
     ds = xr.Dataset(

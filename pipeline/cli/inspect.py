@@ -47,13 +47,12 @@ def render(
         frames_contact_sheet(art("frames"), target)
     elif what == "plan":
         from pipeline.frames import FrameStore
-        from pipeline.scene_gt import GTScene
         from pipeline.sim.topdown import render_scene_png
 
         gt = FrameStore(art("frames")).ground_truth
         if gt is None:
             raise ConfigError(f"scene {scene}: --what plan needs ground truth (a simulated scene)")
-        render_scene_png(GTScene.model_validate(gt), target)
+        render_scene_png(gt, target)
     elif what in ("goals", "routes"):
         from pipeline.goals.render import render_goals
 
@@ -228,14 +227,20 @@ def query(
                                        "candidates from; yaw counter-clockwise from +x (east)"),
     as_json: bool = typer.Option(False, "--json", metavar="", help="print the result as JSON"),
     png: Optional[Path] = typer.Option(None, "--png", help="write the heatmap and candidates over the colour map"),
+    levels: Optional[str] = typer.Option(None, "--levels", help="top: score each cell by its top-down feature; "
+                                         "max: by its best height level (a cfmap's voxels: the chair under a "
+                                         "table); default: params query.levels"),
 ):
     """Query a semantic map with text: a similarity heatmap and object candidates (distance, angle in degrees,
     score, and the ground-truth object key such as `chair_0` when the scene has one).
 
     Examples: `zipon query sim_00 chair --pose 2,3,90` · `zipon query sim_00 "green plant" --map cfmap --png plant.png`
+    · `zipon query sim_00 chair --map cfmap --levels max`
     """
     import math
 
+    if levels is not None:  # checked like every params key (a ConfigError names query.levels and the choices)
+        G.overrides = (*G.overrides, f"query.levels={levels}")
     sc = _scene(scene)
     result = sc.map(map_name).query(text, _parse_pose_deg(pose) if pose else None)
     keys = _object_keys(sc)

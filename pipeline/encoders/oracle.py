@@ -25,40 +25,18 @@ adds without ever writing ``h*w x D`` features. Only ``noise_std > 0`` makes den
 from __future__ import annotations
 
 import hashlib
-import re
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
 
-from pipeline.encoders.base import DenseFeatures, Encoder, PaletteFeatures, l2_normalize, register
+from pipeline.encoders.base import DenseFeatures, Encoder, PaletteFeatures, register
+from pipeline.encoders.oracle_text import BACKGROUND, VERSION, OracleText, _words
 from pipeline.errors import ConfigError, InputDataError
 
 if TYPE_CHECKING:
     from pipeline.config import EncodersParams
     from pipeline.scene_gt import GTScene
-
-BACKGROUND = "background"
-BACKGROUND_WORDS = {"background", "floor", "floors", "wall", "walls", "other", "ceiling", "none", "nothing", "ground"}
-COLOR_WORDS = {
-    "red", "green", "blue", "yellow", "orange", "purple", "pink", "brown", "black", "white", "grey", "beige",
-    "dark", "light", "navy", "teal", "cream", "tan", "olive", "maroon", "gold", "silver", "violet", "cyan",
-}
-MATERIAL_WORDS = {"wood", "leather", "metal", "fabric", "glass", "plastic", "ceramic", "marble", "stone", "wool",
-                  "cotton", "steel", "velvet", "wicker", "rattan", "concrete", "paper"}
-SYNONYMS = {"gray": "grey", "wooden": "wood", "metallic": "metal", "tv": "television"}
-COMMON_CLASSES = {
-    "chair", "table", "sofa", "couch", "bed", "cabinet", "shelf", "bookshelf", "desk", "lamp", "plant", "toilet",
-    "sink", "tv", "television", "monitor", "computer", "laptop", "refrigerator", "fridge", "oven", "stove",
-    "microwave", "bathtub", "shower", "mirror", "picture", "painting", "door", "window", "pillow", "cushion",
-    "rug", "carpet", "clock", "vase", "book", "bottle", "cup", "mug", "bowl", "box", "basket", "stool", "bench",
-    "dresser", "wardrobe", "nightstand", "counter", "curtain", "towel", "trash can", "dining table",
-    "coffee table", "tv stand", "armchair", "fireplace", "piano", "printer", "keyboard",
-}
-
-
-def _words(text: str) -> list[str]:
-    return [SYNONYMS.get(w, w) for w in re.findall(r"[a-z]+", text.lower())]
 
 
 def _centre_pixels(n_pixels: int, n_cells: int) -> slice | np.ndarray:
@@ -71,11 +49,12 @@ def _centre_pixels(n_pixels: int, n_cells: int) -> slice | np.ndarray:
 
 
 @register
-class OracleEncoder(Encoder):
-    """Ground-truth features for simulated scenes (a diagnostic); see the module docstring."""
+class OracleEncoder(OracleText, Encoder):
+    """Ground-truth features for simulated scenes (a diagnostic); see the module docstring. The word space and
+    the text side are :class:`~pipeline.encoders.oracle_text.OracleText`'s (numpy)."""
 
     name = "oracle"
-    version = "1"
+    version = VERSION
     diagnostic = True
     reads_rgb = False
 
@@ -92,14 +71,10 @@ class OracleEncoder(Encoder):
         device: str = "cpu",
         batch_size: int = 4,
     ):
-        super().__init__(device="cpu", batch_size=batch_size)  # table look-ups: no accelerator needed
-        self._dim, self.seed = int(dim), int(seed)
-        self.color_weight, self.material_weight = float(color_weight), float(material_weight)
+        Encoder.__init__(self, device="cpu", batch_size=batch_size)  # table look-ups: no accelerator needed
+        OracleText.__init__(self, dim=dim, seed=seed, color_weight=color_weight, material_weight=material_weight)
         self.confusion, self.noise_std = float(confusion), float(noise_std)
         self.out_size = tuple(out_size)
-        self._cache: dict[str, np.ndarray] = {}
-        self._gt: GTScene | None = None
-        self._classes: list[str] = []
 
     @classmethod
     def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "OracleEncoder":
@@ -109,75 +84,20 @@ class OracleEncoder(Encoder):
                    batch_size=batch_size)
 
     # ------------------------------------------------------------------ space
-    @property
-    def dim(self) -> int:
-        return self._dim
-
     def config_identity(self) -> dict[str, Any]:
         return {"kind": "ground-truth oracle (DIAGNOSTIC of geometry and fusion, not a perception model)",
                 "seed": self.seed, "color_weight": self.color_weight, "material_weight": self.material_weight,
                 "confusion": self.confusion, "noise_std": self.noise_std, "out_size": list(self.out_size),
                 "scene": self._gt.name if self._gt is not None else None}
 
-    def word_vector(self, word: str) -> np.ndarray:
-        """Deterministic unit vector ``(D,)`` float64 of a word (background words share one)."""
-        word = BACKGROUND if word in BACKGROUND_WORDS else word
-        if word not in self._cache:
-            h = hashlib.blake2b(f"{self.seed}\0{word}".encode(), digest_size=8).digest()
-            v = np.random.default_rng(int.from_bytes(h, "little")).standard_normal(self._dim)
-            self._cache[word] = v / np.linalg.norm(v)
-        return self._cache[word]
-
-    def _compose(self, classes: list[str], colors: list[str], materials: list[str]) -> np.ndarray:
-        v = np.zeros(self._dim)
-        for c in classes:
-            v += self.word_vector(c)
-        if colors:
-            v += self.color_weight * np.mean([self.word_vector(c) for c in colors], axis=0)
-        for m in materials:
-            v += self.material_weight * self.word_vector(m)
-        return v
-
     def bind_scene(self, gt: "GTScene | None") -> None:
         """Use ``gt``'s objects (instance id -> class, colour, material) for the image side."""
-        self._gt = gt
-        self._classes = sorted({" ".join(_words(o.cls)) for o in gt.objects}) if gt is not None else []
+        OracleText.bind_scene(self, gt)
         if gt is not None:
             self._scene_table(gt)
 
-    def _class_vocab(self) -> set[str]:
-        return COMMON_CLASSES | set(self._classes)
-
     def encode_text(self, texts: list[str]) -> torch.Tensor:
-        vocab = self._class_vocab()
-        scene_colors = {w for o in (self._gt.objects if self._gt else []) for w in _words(o.color_name)}
-        scene_materials = {w for o in (self._gt.objects if self._gt else []) for w in _words(o.material)}
-        out = []
-        for text in texts:
-            words = _words(text)
-            classes, colors, materials = [], [], []
-            i = 0
-            while i < len(words):
-                for n in (3, 2, 1):  # longest class phrase first ('dining table' before 'table')
-                    phrase = " ".join(words[i : i + n])
-                    cand = [phrase] + ([phrase[:-1]] if phrase.endswith("s") else [])
-                    hit = next((c for c in cand if c in vocab or c in BACKGROUND_WORDS), None)
-                    if len(words[i : i + n]) == n and hit is not None:
-                        classes.append(hit)
-                        i += n
-                        break
-                else:
-                    w = words[i]
-                    if w in COLOR_WORDS or w in scene_colors:
-                        colors.append(w)
-                    elif w in MATERIAL_WORDS or w in scene_materials:
-                        materials.append(w)
-                    i += 1
-            v = self._compose(classes, colors, materials)
-            if not np.any(v):
-                v = self.word_vector("\0query\0" + text.strip().lower())  # unknown: a direction of its own
-            out.append(v)
-        return l2_normalize(torch.from_numpy(np.stack(out)).float())
+        return torch.from_numpy(OracleText.encode_text(self, texts))
 
     # ------------------------------------------------------------------ images
     def _scene_table(self, gt: "GTScene") -> None:

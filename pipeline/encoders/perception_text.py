@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.encoders.oracle import BACKGROUND_WORDS, COLOR_WORDS, MATERIAL_WORDS
+from pipeline.encoders.oracle_text import BACKGROUND_WORDS, COLOR_WORDS, MATERIAL_WORDS
 from pipeline.errors import MissingInputError
 from pipeline.sim.catalog import COLOURS, MATERIALS
 

@@ -214,13 +214,12 @@ def load_objects(scene: str, frames: FrameStore, grid: GridSpec, p: GoalsParams,
     gt = frames.ground_truth
     kind = p.objects
     if kind == "auto":
-        kind = "gt" if gt else "file" if scene in p.objects_files else "navchat" if scene in p.navchat_dirs else ""
+        kind = "gt" if gt is not None else "file" if scene in p.objects_files else "navchat" if scene in p.navchat_dirs else ""
     if kind == "gt":
-        if not gt:
+        if gt is None:
             raise InputDataError("no ground truth (attrs.ground_truth) to take objects from", path=frames.path,
                                  field="attrs.ground_truth", expected="a simulated scene, or goals.objects: file")
-        scene_gt = GTScene.model_validate(gt)
-        return objects_from_gt(scene_gt, scene), None, scene_gt
+        return objects_from_gt(gt, scene), None, gt
     if kind == "file":
         if scene not in p.objects_files:
             raise ConfigError(f"goals.objects_files.{scene}: no objects file given for scene {scene!r}")

@@ -34,7 +34,7 @@ def _example_object(recon_path: Path | None) -> dict:
     cx, cy = 0.0, 0.0
     if recon_path is not None and Path(recon_path).exists():
         from pipeline.recon import Recon
-        from pipeline.recon.grids import OCCUPIED
+        from pipeline.recon.store import OCCUPIED
 
         recon = Recon(recon_path)
         rc = np.argwhere(recon.occupancy == OCCUPIED)

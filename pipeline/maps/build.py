@@ -130,11 +130,9 @@ def build_map(
 
     from pipeline.encoders import build_encoder
     from pipeline.encoders.base import resolve_device
-    from pipeline.maps.fusion import (Lattice, TopDownAccumulator, VoxelAccumulator, fill_unseen, locate_block,
-                                      point_weights)
-    from pipeline.maps.store import write_map
+    from pipeline.maps.fusion import TopDownAccumulator, VoxelAccumulator, fill_unseen, locate_block, point_weights
+    from pipeline.maps.store import Lattice, write_map
     from pipeline.recon import Recon
-    from pipeline.scene_gt import GTScene
 
     kind, p, runtime = config.kind, config.maps, runtime or RunParams()
     fs = FrameStore(frames_path)
@@ -145,8 +143,7 @@ def build_map(
     poses = recon.poses
     usable = recon.fused & np.isfinite(poses).all(axis=(1, 2))
     encoder = build_encoder(config.encoders, config.encoder, runtime=runtime)
-    gt = fs.ground_truth
-    encoder.bind_scene(GTScene.model_validate(gt) if gt else None)
+    encoder.bind_scene(fs.ground_truth)
     lattice = Lattice(recon.grid, recon.floor_z, p.min_height_m, p.max_height_m, p.level_height_m)
     device = resolve_device(runtime.fusion_device)
     sigma = kind.weight_sigma_m(p)
@@ -192,7 +189,8 @@ def build_map(
                          "frames": {"n_frames": fs.n_frames, "fused": fused_frames},
                          "points_fused": int(acc.points_fused), "pixels_in_band": int(pixels),
                          "cells_observed": n_seen, "cells_filled": n_filled, "fill_radius_m": p.fill_radius_m},
-              recon.grid, lattice, cells, tile_cells=p.tile_cells, voxels=voxels)
+              recon.grid, lattice, cells.to_store(), tile_cells=p.tile_cells,
+              voxels=None if voxels is None else voxels.to_store(recon.grid))
     return {"frames_fused": fused_frames, "frames_skipped": fs.n_frames - fused_frames, "cells": int(len(cells.cell)), "cells_filled": n_filled,
             "voxels": 0 if voxels is None else int(len(voxels.cell)), "points_fused": int(acc.points_fused),
             "encoder": identity["name"], "diagnostic_encoder": bool(identity.get("diagnostic", False)),

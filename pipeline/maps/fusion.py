@@ -43,35 +43,7 @@ import torch
 
 from pipeline.encoders.base import DenseFeatures, PaletteFeatures
 from pipeline.geometry import GridSpec, Intrinsics, backproject
-
-
-@dataclass(frozen=True)
-class Lattice:
-    """Grid cells x height levels above the floor (the height rule's voxels)."""
-
-    grid: GridSpec
-    floor_z: float
-    min_height_m: float
-    max_height_m: float
-    level_height_m: float
-
-    @property
-    def levels(self) -> int:
-        return int(np.ceil((self.max_height_m - self.min_height_m) / self.level_height_m - 1e-9))
-
-    @property
-    def cells(self) -> int:
-        return self.grid.rows * self.grid.cols
-
-    def to_attrs(self) -> dict:
-        return {
-            "floor_z": float(self.floor_z),
-            "min_height_m": float(self.min_height_m),
-            "max_height_m": float(self.max_height_m),
-            "level_height_m": float(self.level_height_m),
-            "levels": self.levels,
-            "rule": "top-down feature = weighted mean of the points in the highest observed level of the cell",
-        }
+from pipeline.maps.store import Lattice, MapCells, MapVoxels
 
 
 @dataclass
@@ -385,6 +357,11 @@ class FusedCells:
         return cls(np.asarray(cell, np.int64), feats.cpu(), weight.cpu().numpy().astype(np.float32),
                    count.cpu().numpy().astype(np.int32), level.cpu().numpy().astype(np.int16))
 
+    def to_store(self) -> MapCells:
+        """As the map store writes it (:class:`~pipeline.maps.store.MapCells`, numpy)."""
+        return MapCells(cell=self.cell, features=self.features.numpy(), weight=self.weight, count=self.count,
+                        level=self.level)
+
 
 @dataclass
 class FusedVoxels:
@@ -398,6 +375,14 @@ class FusedVoxels:
 
     def features(self) -> torch.Tensor:
         return _unit_means(self.sum, self.weight).cpu()
+
+    def to_store(self, grid: GridSpec) -> MapVoxels:
+        """As the map store writes it (:class:`~pipeline.maps.store.MapVoxels`: (row, col, level) keys, fp16)."""
+        row, col = np.divmod(self.cell, grid.cols)
+        return MapVoxels(key=np.stack([row, col, self.level], axis=1).astype(np.int16),
+                         features=self.features().numpy().astype(np.float16),
+                         weight=self.weight.cpu().numpy().astype(np.float32),
+                         count=self.count.cpu().numpy().astype(np.int32))
 
     def top_down(self) -> FusedCells:
         """Project with the height rule: each cell takes its highest voxel."""

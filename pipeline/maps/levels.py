@@ -15,18 +15,17 @@ heatmap is ``max over levels`` of the query probability). Cells without voxels (
 ``maps.fill_radius_m``) keep their top-down values. Voxel features stay float16 in memory and
 are upcast per chunk of ``chunk_rows``; background scores are cached per background set.
 
-Hook (query.py): build ``LevelScorer(smap)`` once when ``smap.has_voxels`` and
-``params.query_levels == "max"``; in ``MapQuery.query`` after the top-down ``s, bg_max, bg_lse`` are
-known: ``s, bg_max, bg_lse = scorer.cell_scores(q, bg_feats_kept, T, s, bg_max, bg_lse)``.
+Used by :class:`~pipeline.maps.query.MapQuery` when ``query.levels`` is ``max`` and the map stores
+voxels (``top``, the default, scores the top-down features only). Everything is numpy: a query on a
+map needs no torch.
 """
 
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from pipeline.errors import ArtifactError
-from pipeline.maps.scoring import chunked_scores
+from pipeline.maps.scoring import chunked_scores, logsumexp
 from pipeline.maps.store import SemanticMap
 
 
@@ -36,50 +35,47 @@ class LevelScorer:
     def __init__(self, smap: SemanticMap, *, chunk_rows: int = 65536):
         vx = smap.voxels()
         if vx is None:
-            raise ArtifactError(f"{smap.path}: no voxels/ group; level-aware queries need a cfmap built with "
-                                f"maps.cfmap_voxels: true (rebuild: zipon run --force --stage cfmap)")
-        key = vx["key"].astype(np.int64)
+            raise ArtifactError(f"{smap.path}: no voxels/ group; level-aware queries (query.levels: max) need a "
+                                f"cfmap built with maps.cfmap_voxels: true (rebuild: zipon run --force --stage cfmap)")
+        key = vx.key.astype(np.int64)
         row = smap.index[key[:, 0], key[:, 1]].astype(np.int64)  # compact row of the voxel's cell
         ok = row >= 0
         self.n_cells = smap.n_cells
-        self.row = torch.from_numpy(row[ok])
-        self.feats = torch.from_numpy(np.ascontiguousarray(vx["features"][ok]))  # (M,D) float16
+        self.row = row[ok]
+        self.feats = np.ascontiguousarray(vx.features[ok])  # (M,D) float16
         self.chunk_rows = chunk_rows
-        self._bg: dict[bytes, tuple[torch.Tensor, torch.Tensor, float]] = {}
+        self._bg: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 
     @property
     def n_voxels(self) -> int:
         return int(self.row.shape[0])
 
-    def _background(self, bg: torch.Tensor | None, temperature: float) -> tuple[torch.Tensor, torch.Tensor]:
+    def _background(self, bg: np.ndarray | None, temperature: float) -> tuple[np.ndarray, np.ndarray]:
         """Per-voxel background max and logsumexp(/T), ``(M,)`` each; -inf without background prompts."""
         if bg is None or bg.shape[0] == 0:
-            inf = torch.full((self.n_voxels,), -torch.inf)
+            inf = np.full(self.n_voxels, -np.inf, np.float32)
             return inf, inf
-        k = bg.to(torch.float32).numpy().tobytes() + np.float64(temperature).tobytes()
-        if k not in self._bg:
+        k = np.asarray(bg, np.float32).tobytes() + np.float64(temperature).tobytes()
+        if k not in self._bg:  # one background set at a time (a query leaves out prompts equal to itself)
             s = chunked_scores(self.feats, bg, self.chunk_rows)
-            self._bg = {k: (s.max(dim=1).values, torch.logsumexp(s / temperature, dim=1), temperature)}
-        bmax, blse, _ = self._bg[k]
-        return bmax, blse
+            self._bg = {k: (s.max(axis=1), logsumexp(s / np.float32(temperature), axis=1).astype(np.float32))}
+        return self._bg[k]
 
-    def cell_scores(self, q: torch.Tensor, bg: torch.Tensor | None, temperature: float, top_s: np.ndarray,
+    def cell_scores(self, q: np.ndarray, bg: np.ndarray | None, temperature: float, top_s: np.ndarray,
                     top_bg_max: np.ndarray, top_bg_lse: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(s, bg_max, bg_lse)`` ``(N,)`` float32 per compact cell row, from each cell's best voxel.
 
         ``q`` ``(D,)`` unit text feature, ``bg`` ``(Tb,D)`` the background prompts in play (the query's
         own left out), ``top_*`` the top-down values, kept for cells without voxels.
         """
-        s_v = chunked_scores(self.feats, q[None], self.chunk_rows)[:, 0]
+        s_v = chunked_scores(self.feats, np.asarray(q, np.float32)[None], self.chunk_rows)[:, 0]
         bmax_v, blse_v = self._background(bg, temperature)
-        logit = s_v / temperature - blse_v if bg is not None and bg.shape[0] else s_v
-        best = torch.full((self.n_cells,), -torch.inf).scatter_reduce_(0, self.row, logit, "amax")
-        hit = logit == best[self.row]
-        vid = torch.arange(self.n_voxels)
-        pick = torch.full((self.n_cells,), self.n_voxels, dtype=torch.int64).scatter_reduce_(
-            0, self.row[hit], vid[hit], "amin")
-        has = pick < self.n_voxels
+        logit = s_v / np.float32(temperature) - blse_v if bg is not None and bg.shape[0] else s_v
+        # per cell the voxel of the highest logit, the lowest voxel (the lowest level) on ties
+        order = np.lexsort((np.arange(self.n_voxels), -logit, self.row))
+        first = np.r_[True, self.row[order][1:] != self.row[order][:-1]] if self.n_voxels else np.zeros(0, bool)
+        pick = order[first]
+        rows = self.row[pick]
         s, bm, bl = (np.array(a, dtype=np.float32, copy=True) for a in (top_s, top_bg_max, top_bg_lse))
-        rows, v = torch.nonzero(has).squeeze(1).numpy(), pick[has]
-        s[rows], bm[rows], bl[rows] = s_v[v].numpy(), bmax_v[v].numpy(), blse_v[v].numpy()
+        s[rows], bm[rows], bl[rows] = s_v[pick], bmax_v[pick], blse_v[pick]
         return s, bm, bl

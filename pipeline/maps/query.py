@@ -24,9 +24,15 @@ text feature is the query's own, cosine > 0.99, is left out):
   heatmap probability). With a pose, candidates are sorted by distance (retrieve_map's order);
   without one, by mass = score x area, largest first.
 
+Levels (``query.levels``): ``top`` scores each cell by its top-down feature (its highest height
+level); ``max`` scores each cell of a cfmap that stores voxels by its best level for the query
+(:class:`~pipeline.maps.levels.LevelScorer`), so a chair under a table top or a picture on a wall
+wins cells the top-down view gives to the table or the wall. A vlmap has one level per cell.
+
 Map features and the background scores are computed once per :class:`MapQuery` (cached), text
 features are cached per prompt, so a repeated query costs one ``(N,D) @ (D,)`` product plus the
-connected components.
+connected components. Scoring is numpy: with an encoder whose text side needs no torch (the oracle,
+:func:`pipeline.encoders.text.text_encoder`) a query never imports torch.
 """
 
 from __future__ import annotations
@@ -38,11 +44,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import torch
 
-from pipeline.encoders.base import cached_text_features
 from pipeline.errors import ArtifactError, LineageError
 from pipeline.geometry import GridSpec
+from pipeline.maps.scoring import logsumexp
 from pipeline.maps.store import SemanticMap
 
 DEFAULT_TEMPERATURE = 0.1
@@ -82,6 +87,7 @@ class QueryResult:
     background: list[str]
     temperature: float
     seconds: float
+    levels: str = "top"  # how cells were scored: top-down features, or each cell's best height level
     labels: np.ndarray | None = field(default=None, repr=False)  # (rows, cols) int32 component labels
     color: np.ndarray | None = field(default=None, repr=False)  # (rows, cols, 3) uint8 recon colour, if known
 
@@ -94,6 +100,7 @@ class QueryResult:
             "pose": None if self.pose is None else list(self.pose),
             "background": self.background,
             "temperature": self.temperature,
+            "levels": self.levels,
             "cells_observed": int(observed.sum()),
             "cells_winning": int(self.wins.sum()),
             "seconds": round(self.seconds, 5),
@@ -104,8 +111,11 @@ class QueryResult:
 class MapQuery:
     """Queries on one map with one encoder (text side). Cheap to query repeatedly; see the module docstring.
 
-    ``navigable`` ``(rows, cols)`` bool (recon) gives approach points; ``gt`` (a GTScene) labels
-    candidates with the ground-truth instance under them.
+    ``encoder``: anything with ``name``, ``dim``, ``identity()`` and ``encode_text(texts)`` giving ``(T,D)`` unit
+    rows (an :class:`~pipeline.encoders.base.Encoder`, or a torch-free
+    :class:`~pipeline.encoders.text.TextEncoder`). ``params``: the ``query`` section. ``navigable``
+    ``(rows, cols)`` bool (recon) gives approach points; ``gt`` (a GTScene) labels candidates with the
+    ground-truth instance under them.
     """
 
     def __init__(self, smap: SemanticMap, encoder, params, *, navigable: np.ndarray | None = None, gt=None,
@@ -124,12 +134,14 @@ class MapQuery:
         self.grid = smap.grid
         self.temperature = float(params.temperature or ident.get("temperature") or DEFAULT_TEMPERATURE)
         self.background = list(params.background)
-        self._text: dict[str, torch.Tensor] = {}
+        self.levels = params.levels if smap.has_voxels else "top"  # a map without voxels has one level per cell
+        self._levels = None  # the LevelScorer, built on the first query that needs it
+        self._text: dict[str, np.ndarray] = {}
         self._feats = smap.features()
         self._bg_feats = self.text_features(self.background) if self.background else None
         self._bg_scores = (self._feats @ self._bg_feats.T) if self.background else None  # (N,Tb)
         self._bg_cache: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
-        self._lowrank: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
+        self._lowrank: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._row, self._col = np.divmod(smap.cell, self.grid.cols)
         self._nearest_nav = None
         if navigable is not None:
@@ -144,41 +156,44 @@ class MapQuery:
         self._footprints = gt.instance_footprints(self.grid) if gt is not None else None
 
     # ------------------------------------------------------------------ text
-    def text_features(self, texts: list[str]) -> torch.Tensor:
-        """``(T,D)`` float32 unit text features (cached per prompt)."""
-        return cached_text_features(self.encoder, self._text, texts)
+    def text_features(self, texts: list[str]) -> np.ndarray:
+        """``(T,D)`` float32 unit text features (cached per prompt; prompts not seen yet are encoded in one call)."""
+        missing = [t for t in dict.fromkeys(texts) if t not in self._text]
+        if missing:
+            for t, f in zip(missing, np.asarray(self.encoder.encode_text(missing), dtype=np.float32)):
+                self._text[t] = f
+        return np.stack([self._text[t] for t in texts])
 
-    def _background_for(self, q: torch.Tensor) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    def _background_for(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[int]]:
         """Per-cell max and logsumexp(/T) of the background scores, leaving out prompts equal to ``q``."""
         if self._bg_feats is None:
             n = len(self.map.cell)
             return np.full(n, -np.inf, np.float32), np.full(n, -np.inf, np.float32), []
-        keep = tuple(int(i) for i in np.flatnonzero((self._bg_feats @ q).numpy() <= 0.99))
+        keep = tuple(int(i) for i in np.flatnonzero(self._bg_feats @ q <= 0.99))
         if keep not in self._bg_cache:
             if not keep:
                 n = len(self.map.cell)
                 self._bg_cache[keep] = (np.full(n, -np.inf, np.float32), np.full(n, -np.inf, np.float32))
             else:
                 s = self._bg_scores[:, list(keep)]
-                self._bg_cache[keep] = (s.max(dim=1).values.numpy(),
-                                        torch.logsumexp(s / self.temperature, dim=1).numpy())
+                self._bg_cache[keep] = (s.max(axis=1), logsumexp(s / np.float32(self.temperature), axis=1))
         bg_max, bg_lse = self._bg_cache[keep]
         return bg_max, bg_lse, list(keep)
 
     # ------------------------------------------------------------------ scores
-    def _basis(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Rank-k basis V ``(D,k)`` of the map features, projections ``(N,k)`` and residual norms ``(N,)``."""
         if self._lowrank is None:
             F = self._feats
-            sample = F[torch.linspace(0, len(F) - 1, min(len(F), 20_000)).long()]
-            _, _, vh = torch.linalg.svd(sample, full_matrices=False)
-            V = vh[: self.params.query_rank].T.contiguous()
+            sample = F[np.linspace(0, len(F) - 1, min(len(F), 20_000)).astype(np.int64)]
+            _, _, vh = np.linalg.svd(sample, full_matrices=False)
+            V = np.ascontiguousarray(vh[: self.params.query_rank].T)
             P = F @ V
-            resid = (1.0 - (P * P).sum(dim=1)).clamp_min(0).sqrt()  # rows of F are unit: |F - P V^T|^2 = 1 - |P|^2
+            resid = np.sqrt(np.clip(1.0 - (P * P).sum(axis=1), 0, None))  # rows of F are unit: |F - P V^T|^2 = 1 - |P|^2
             self._lowrank = (V, P, resid)
         return self._lowrank
 
-    def _scores(self, q: torch.Tensor, bg_max: np.ndarray, bg_lse: np.ndarray) -> np.ndarray:
+    def _scores(self, q: np.ndarray, bg_max: np.ndarray, bg_lse: np.ndarray) -> np.ndarray:
         """``(N,)`` query scores: exact, or (large maps) low-rank with exact refinement where it matters.
 
         Low rank: ``s~ = (F V)(V^T q)`` with ``|s - s~| <= r_i |q_perp|`` (``r_i`` the residual norm of
@@ -190,24 +205,23 @@ class MapQuery:
         n = len(self._feats)
         if self.params.query_rank == 0 or n < self.params.query_lowrank_min_cells or \
                 self.params.query_rank >= self._feats.shape[1]:
-            return (self._feats @ q).numpy()
+            return self._feats @ q
         V, P, resid = self._basis()
         ql = V.T @ q
         q_perp = float((1.0 - float(ql @ ql)) if float(ql @ ql) < 1.0 else 0.0) ** 0.5
-        s = (P @ ql).numpy()
-        upper = s + resid.numpy() * q_perp
+        s = P @ ql
+        upper = s + resid * q_perp
         p_upper = 1.0 / (1.0 + np.exp(np.clip(bg_lse - upper / self.temperature, -80, 80)))
         idx = np.flatnonzero((upper > bg_max) & (p_upper >= self.params.min_probability))
         if len(idx):
-            t = torch.from_numpy(idx)
-            s[idx] = (self._feats[t] @ q).numpy()
+            s[idx] = self._feats[idx] @ q
         return s
 
     # ------------------------------------------------------------------ query
     def scores(self, text: str) -> np.ndarray:
         """``(N,)`` float32 dot products of the observed cells with ``text``."""
         q = self.text_features([text])[0]
-        return (self._feats @ q).numpy()
+        return self._feats @ q
 
     def query(self, text: str, pose: tuple[float, float, float] | None = None) -> QueryResult:
         """Heatmap and candidates for ``text``; ``pose`` = (x, y, yaw) world metres / radians."""
@@ -216,6 +230,9 @@ class MapQuery:
         q = self.text_features([text])[0]
         bg_max, bg_lse, keep = self._background_for(q)
         s = self._scores(q, bg_max, bg_lse)
+        if self.levels == "max":
+            s, bg_max, bg_lse = self._level_scorer().cell_scores(
+                q, self._bg_feats[keep] if keep else None, self.temperature, s, bg_max, bg_lse)
         prob = 1.0 / (1.0 + np.exp(np.clip(bg_lse - s / self.temperature, -80, 80)))
         heat = np.full(g.rows * g.cols, np.nan, np.float32)
         heat[self.map.cell] = prob
@@ -226,7 +243,15 @@ class MapQuery:
         return QueryResult(text=text, artifact=self.map.artifact, grid=g, heatmap=heat, wins=wins.astype(bool),
                            candidates=cands, pose=None if pose is None else tuple(float(v) for v in pose),
                            background=[self.background[i] for i in keep], temperature=self.temperature,
-                           seconds=time.perf_counter() - t0, labels=labels, color=self.color)
+                           seconds=time.perf_counter() - t0, levels=self.levels, labels=labels, color=self.color)
+
+    def _level_scorer(self):
+        """The map's :class:`~pipeline.maps.levels.LevelScorer` (voxel features read on first use)."""
+        if self._levels is None:
+            from pipeline.maps.levels import LevelScorer
+
+            self._levels = LevelScorer(self.map)
+        return self._levels
 
     def _observed_box(self) -> tuple[int, int, int, int]:
         """``(r0, r1, c0, c1)`` bounding box (end exclusive) of the map's observed cells (cached)."""
@@ -334,13 +359,13 @@ def open_query(map_path: str | Path, params, *, recon_path: str | Path | None = 
     """A cached :class:`MapQuery` for a map store (``params`` = the whole :class:`~pipeline.config.Params`).
 
     The text encoder is built from ``params.encoders`` by the NAME recorded in the map (so it always
-    matches the map's feature space; a different version or weights file is an ArtifactError).
-    ``frames_path`` gives the scene's ground truth (needed by the oracle encoder, and labels
+    matches the map's feature space; a different version or weights file is an ArtifactError): its
+    torch-free text side when it has one (:func:`pipeline.encoders.text.text_encoder`), else the whole
+    encoder. ``frames_path`` gives the scene's ground truth (needed by the oracle encoder, and labels
     candidates with GT instances); ``recon_path`` gives navigable approach points and checks lineage.
     """
-    from pipeline.encoders import build_encoder
+    from pipeline.encoders.text import text_encoder
     from pipeline.frames import FrameStore
-    from pipeline.scene_gt import GTScene
 
     key = (str(map_path), str(recon_path), str(frames_path), id(params))
     if key in _CACHE:
@@ -356,9 +381,12 @@ def open_query(map_path: str | Path, params, *, recon_path: str | Path | None = 
         navigable, color = recon.navigable, recon.color
     gt = None
     if frames_path is not None and Path(frames_path).exists():
-        raw = FrameStore(frames_path).ground_truth
-        gt = GTScene.model_validate(raw) if raw else None
-    encoder = build_encoder(params.encoders, smap.encoder["name"], runtime=params.run)
+        gt = FrameStore(frames_path).ground_truth
+    encoder = text_encoder(params.encoders, smap.encoder["name"])
+    if encoder is None:
+        from pipeline.encoders import build_encoder
+
+        encoder = build_encoder(params.encoders, smap.encoder["name"], runtime=params.run)
     encoder.bind_scene(gt)
     mq = MapQuery(smap, encoder, params.query, navigable=navigable, gt=gt, color=color)
     _CACHE[key] = mq

@@ -87,7 +87,7 @@ def render_map_pca(map_path: str | Path, out_png: str | Path, *, crop: bool = Tr
     g = smap.grid
     img = np.full((g.rows * g.cols, 3), 255, np.uint8)
     if smap.n_cells >= 3:
-        f = smap.features().numpy().astype(np.float64)
+        f = smap.features().astype(np.float64)
         f = f - f.mean(axis=0)
         _, _, vt = np.linalg.svd(f[:: max(1, len(f) // 20000)], full_matrices=False)
         p = f @ vt[:3].T

@@ -1,22 +1,29 @@
-"""Scores of stored float16 map features against text features, shared by :class:`~pipeline.maps.store.SemanticMap`
-and :class:`~pipeline.maps.levels.LevelScorer` (a leaf: it imports nothing of the project)."""
+"""Scores of stored float16 map features against text features, shared by :class:`~pipeline.maps.store.SemanticMap`,
+:class:`~pipeline.maps.query.MapQuery` and :class:`~pipeline.maps.levels.LevelScorer` (a leaf: numpy only, it
+imports nothing of the project, so scoring a map needs no torch)."""
 
 from __future__ import annotations
 
-import torch
+import numpy as np
 
 
-def chunked_scores(feats16: torch.Tensor, text: torch.Tensor, chunk_rows: int = 65536) -> torch.Tensor:
+def chunked_scores(feats16: np.ndarray, text: np.ndarray, chunk_rows: int = 65536) -> np.ndarray:
     """``(N,T)`` float32 ``feats16 @ text.T`` for float16 ``feats16`` ``(N,D)`` and ``text`` ``(T,D)``.
 
-    The product runs in half precision on the stored fp16 features chunk by chunk (no fp32 copy of
-    the map): on CPU an fp16 x fp16 product of a 360k x 512 map takes about 1.4x the fp32 time for
-    one prompt and less than fp32 for four, while upcasting each chunk to fp32 first takes about 6x
-    (benchmarks/bench_maps.py ``scores``). Error against fp32 scores of the same fp16 features:
-    the fp16 rounding of the result (at most 2.5e-4 for scores in [-1, 1]).
+    Each chunk of ``chunk_rows`` rows is upcast to float32 and multiplied with BLAS (numpy has no fast
+    float16 product), so memory beyond the stored map is one fp32 chunk (128 MB at D = 512), never an fp32
+    copy of the map. The scores are exact float32 products of the stored fp16 features.
     """
-    t = text.to(feats16.dtype)
-    out = torch.empty((feats16.shape[0], text.shape[0]), dtype=torch.float32)
+    t = np.ascontiguousarray(np.asarray(text, np.float32))
+    out = np.empty((feats16.shape[0], t.shape[0]), dtype=np.float32)
     for s in range(0, feats16.shape[0], chunk_rows):
-        out[s : s + chunk_rows] = feats16[s : s + chunk_rows] @ t.T
+        np.matmul(feats16[s : s + chunk_rows].astype(np.float32), t.T, out=out[s : s + chunk_rows])
     return out
+
+
+def logsumexp(x: np.ndarray, axis: int = -1) -> np.ndarray:
+    """``log(sum(exp(x)))`` along ``axis`` without overflow (``-inf`` where every entry is ``-inf``)."""
+    m = np.max(x, axis=axis, keepdims=True)
+    m = np.where(np.isfinite(m), m, 0.0)
+    with np.errstate(divide="ignore"):
+        return (np.log(np.sum(np.exp(x - m), axis=axis, keepdims=True)) + m).squeeze(axis)

@@ -32,23 +32,136 @@ reader of one region reads only the chunks of its tiles; a query reads ``top/fea
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 import zarr
 
 from pipeline.errors import ArtifactError, MissingInputError
 from pipeline.geometry import GridSpec
-from pipeline.store import compressor, new_group
-
-if TYPE_CHECKING:  # torch is imported where features are read: the stage configs and `zipon status` need none
-    import torch
-
-    from pipeline.maps.fusion import FusedCells, FusedVoxels, Lattice
+from pipeline.maps.scoring import chunked_scores
+from pipeline.store import ArtifactAttrs, AttrsModel, GridAttrs, compressor, new_group
 
 FORMAT_VERSION = 1
 ARTIFACTS = ("vlmap", "cfmap")
+HEIGHT_RULE = "top-down feature = weighted mean of the points in the highest observed level of the cell"
+
+
+# ----------------------------------------------------------------------------- the store's types
+
+
+@dataclass(frozen=True)
+class Lattice:
+    """Grid cells x height levels above the floor (the height rule's voxels; ``attrs.lattice``)."""
+
+    grid: GridSpec
+    floor_z: float
+    min_height_m: float
+    max_height_m: float
+    level_height_m: float
+
+    @property
+    def levels(self) -> int:
+        return int(np.ceil((self.max_height_m - self.min_height_m) / self.level_height_m - 1e-9))
+
+    @property
+    def cells(self) -> int:
+        return self.grid.rows * self.grid.cols
+
+    def level_z(self, level: np.ndarray) -> np.ndarray:
+        """World z (metres) of the bottom of height ``level``."""
+        return self.floor_z + self.min_height_m + np.asarray(level, np.float32) * self.level_height_m
+
+    def to_attrs(self) -> dict:
+        return {
+            "floor_z": float(self.floor_z),
+            "min_height_m": float(self.min_height_m),
+            "max_height_m": float(self.max_height_m),
+            "level_height_m": float(self.level_height_m),
+            "levels": self.levels,
+            "rule": HEIGHT_RULE,
+        }
+
+
+@dataclass
+class MapCells:
+    """The top-down map as stored in ``top/`` (any row order; :func:`write_map` sorts tile-major)."""
+
+    cell: np.ndarray  # (N,) int64 flat row * cols + col
+    features: np.ndarray  # (N,D) float16/float32, L2-normalised weighted means
+    weight: np.ndarray  # (N,) float32 sum of point weights
+    count: np.ndarray  # (N,) int32 points fused (0 = filled from a neighbour)
+    level: np.ndarray  # (N,) int16 top level
+
+
+@dataclass
+class MapVoxels:
+    """The cfmap's sparse voxel map as stored in ``voxels/``: rows ascending by ``key``."""
+
+    key: np.ndarray  # (M,3) int16 (row, col, level)
+    features: np.ndarray  # (M,D) float16 L2-normalised weighted means
+    weight: np.ndarray  # (M,) float32
+    count: np.ndarray  # (M,) int32
+
+    def __len__(self) -> int:
+        return int(self.key.shape[0])
+
+
+class LatticeAttrs(AttrsModel):
+    floor_z: float
+    min_height_m: float
+    max_height_m: float
+    level_height_m: float
+    levels: int
+    rule: str = HEIGHT_RULE
+
+    def lattice(self, grid: GridSpec) -> Lattice:
+        return Lattice(grid, self.floor_z, self.min_height_m, self.max_height_m, self.level_height_m)
+
+
+class EncoderAttrs(AttrsModel):
+    """``attrs.encoder``: the encoder's ``identity()`` (its own settings and weights digest are extra keys)."""
+
+    name: str
+    dim: int
+    version: str | None = None
+    normalization: str | None = None
+    temperature: float | None = None
+    diagnostic: bool = False
+
+    def as_dict(self) -> dict[str, Any]:
+        return self.model_dump(mode="json")
+
+
+class FrameCounts(AttrsModel):
+    n_frames: int
+    fused: int
+
+
+class Weighting(AttrsModel):
+    sigma_m: float | None = None
+
+
+class MapAttrs(ArtifactAttrs):
+    """The attrs of ``vlmap.zarr`` / ``cfmap.zarr`` (the tree above). Figures of the build are optional, so a
+    map written by a test or a benchmark without a stage reads the same way."""
+
+    grid: GridAttrs
+    lattice: LatticeAttrs
+    encoder: EncoderAttrs
+    tile_cells: int
+    n_cells: int
+    n_voxels: int = 0
+    weighting: Weighting | None = None
+    frames: FrameCounts | None = None
+    points_fused: int | None = None
+    pixels_in_band: int | None = None
+    cells_observed: int | None = None
+    cells_filled: int | None = None
+    fill_radius_m: float | None = None
+    units: dict[str, str] = {}
 
 
 # group -> array -> (zarr dimension_names, attrs giving units and meaning), so `xarray.open_zarr(path, group="top")`
@@ -90,19 +203,21 @@ def write_map(
     attrs: dict,
     grid: GridSpec,
     lattice: Lattice,
-    cells: FusedCells,
+    cells: MapCells,
     *,
     tile_cells: int,
-    voxels: FusedVoxels | None = None,
+    voxels: MapVoxels | None = None,
 ) -> zarr.Group:
-    """Write a map store at ``path`` (must not exist). ``attrs`` = ``artifact_attrs(...)`` + extras."""
-    dim = int(cells.features.shape[1]) if cells.features.ndim == 2 else 0
+    """Write a map store at ``path`` (must not exist). ``attrs`` = ``artifact_attrs(...)`` + extras, checked
+    against :class:`MapAttrs` before anything is written."""
+    features = np.asarray(cells.features)
+    dim = int(features.shape[1]) if features.ndim == 2 else 0
     order, start = tile_order(cells.cell, grid, tile_cells)
     n = len(order)
-    g = new_group(path, {**attrs, "grid": grid.to_attrs(), "lattice": lattice.to_attrs(), "tile_cells": tile_cells,
-                         "n_cells": n, "n_voxels": 0 if voxels is None else len(voxels.cell),
-                         "units": {"features": "unit L2 norm", "weight": "sum of point weights",
-                                   "distance": "metres"}})
+    g = new_group(path, MapAttrs.checked(
+        {**attrs, "grid": grid.to_attrs(), "lattice": lattice.to_attrs(), "tile_cells": tile_cells, "n_cells": n,
+         "n_voxels": 0 if voxels is None else len(voxels),
+         "units": {"features": "unit L2 norm", "weight": "sum of point weights", "distance": "metres"}}, path))
     chunk = max(tile_cells * tile_cells, 1)
     c_f = compressor(3, shuffle="shuffle")
     top = g.create_group("top")
@@ -119,7 +234,7 @@ def write_map(
         return a
 
     arr(top, "cell", cells.cell[order].astype(np.int32), (chunk,))
-    arr(top, "features", cells.features[order].numpy().astype(np.float16), (chunk, max(dim, 1)))
+    arr(top, "features", features[order].astype(np.float16), (chunk, max(dim, 1)))
     arr(top, "weight", cells.weight[order].astype(np.float32), (chunk,))
     arr(top, "count", cells.count[order].astype(np.int32), (chunk,))
     arr(top, "level", cells.level[order].astype(np.int16), (chunk,))
@@ -127,22 +242,23 @@ def write_map(
     arr(top, "index", idx.reshape(grid.rows, grid.cols), (tile_cells, tile_cells))
     if voxels is not None:
         vx = g.create_group("voxels")
-        row, col = np.divmod(voxels.cell, grid.cols)
-        key = np.stack([row, col, voxels.level], axis=1).astype(np.int16)
+        key = np.asarray(voxels.key).astype(np.int16)
         o = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
         arr(vx, "key", key[o], (chunk, 3))
-        arr(vx, "features", voxels.features()[o].numpy().astype(np.float16), (chunk, max(dim, 1)))
-        arr(vx, "weight", voxels.weight.cpu().numpy()[o].astype(np.float32), (chunk,))
-        arr(vx, "count", voxels.count.cpu().numpy()[o].astype(np.int32), (chunk,))
+        arr(vx, "features", np.asarray(voxels.features)[o].astype(np.float16), (chunk, max(dim, 1)))
+        arr(vx, "weight", np.asarray(voxels.weight)[o].astype(np.float32), (chunk,))
+        arr(vx, "count", np.asarray(voxels.count)[o].astype(np.int32), (chunk,))
     return g
 
 
 class SemanticMap:
-    """Read-only view of a ``vlmap.zarr`` / ``cfmap.zarr``; features are loaded once and cached.
+    """Read-only view of a ``vlmap.zarr`` / ``cfmap.zarr``; features are loaded once and cached (numpy: reading
+    or scoring a map imports no torch).
 
     ``cell`` ``(N,)`` int64 flat cell ids, ``index`` ``(rows, cols)`` int32, :meth:`features16`
     ``(N,D)`` float16 (cached, as stored), :meth:`features` its float32 upcast, :meth:`dot` chunked
-    float32 scores, ``grid`` :class:`GridSpec`, ``encoder`` identity dict.
+    float32 scores, ``grid`` :class:`GridSpec`, ``lattice`` :class:`Lattice`, ``meta`` the typed
+    :class:`MapAttrs` (``attrs`` the same as a plain dict), ``encoder`` its identity dict.
     """
 
     def __init__(self, path: str | Path):
@@ -151,22 +267,25 @@ class SemanticMap:
             raise MissingInputError(f"{self.path}: semantic map not found (build it with: zipon run --stage vlmap)")
         self.group = zarr.open_group(zarr.storage.LocalStore(str(self.path), read_only=True), mode="r")
         self.attrs = dict(self.group.attrs)
-        self.artifact = self.attrs.get("artifact")
-        if self.artifact not in ARTIFACTS:
-            raise ArtifactError(f"{self.path}: attrs.artifact is {self.artifact!r}, expected one of {ARTIFACTS}")
-        if self.attrs.get("format_version") != FORMAT_VERSION:
-            raise ArtifactError(f"{self.path}: format_version {self.attrs.get('format_version')!r}, this zipon reads "
-                                f"{FORMAT_VERSION}; rebuild it with: zipon run --force --stage {self.artifact}")
-        self.grid = GridSpec.from_attrs(self.attrs["grid"])
-        self.encoder = dict(self.attrs["encoder"])
-        self.tile_cells = int(self.attrs["tile_cells"])
+        artifact, version = self.attrs.get("artifact"), self.attrs.get("format_version")
+        if artifact not in ARTIFACTS:
+            raise ArtifactError(f"{self.path}: attrs.artifact is {artifact!r}, expected one of {ARTIFACTS}")
+        if version != FORMAT_VERSION:
+            raise ArtifactError(f"{self.path}: format_version {version!r}, this zipon reads "
+                                f"{FORMAT_VERSION}; rebuild it with: zipon run --force --stage {artifact}")
+        self.meta = MapAttrs.read(self.attrs, self.path)
+        self.artifact = self.meta.artifact
+        self.grid = self.meta.grid.spec
+        self.lattice = self.meta.lattice.lattice(self.grid)
+        self.encoder = self.meta.encoder.as_dict()
+        self.tile_cells = self.meta.tile_cells
         top = self.group["top"]
         self.cell = top["cell"][...].astype(np.int64)
         self.weight = top["weight"][...]
         self.count = top["count"][...]
         self.level = top["level"][...]
         self.tile_start = top["tile_start"][...]
-        self._features: torch.Tensor | None = None
+        self._features: np.ndarray | None = None
         self._index: np.ndarray | None = None
 
     @property
@@ -188,36 +307,28 @@ class SemanticMap:
         """``(rows, cols)`` bool: cells with a feature."""
         return self.index >= 0
 
-    def features(self) -> torch.Tensor:
+    def features(self) -> np.ndarray:
         """``(N,D)`` float32 unit-norm features of the observed cells (a fresh upcast of :meth:`features16`).
 
         Not cached: a full fp32 copy is 737 MB for a 600x600x512 map. Callers that score many
         queries should keep :meth:`features16` and use :meth:`dot` (upcast per chunk).
         """
-        import torch
+        return self.features16().astype(np.float32)
 
-        return self.features16().to(torch.float32)
-
-    def features16(self) -> torch.Tensor:
+    def features16(self) -> np.ndarray:
         """``(N,D)`` float16 unit-norm features as stored (cached; half the memory of fp32)."""
-        import torch
-
         if self._features is None:
-            self._features = torch.from_numpy(np.ascontiguousarray(self.group["top"]["features"][...]))
+            self._features = np.ascontiguousarray(self.group["top"]["features"][...])
         return self._features
 
-    def dot(self, text: torch.Tensor, rows: np.ndarray | torch.Tensor | None = None,
-            chunk_rows: int = 65536) -> torch.Tensor:
+    def dot(self, text: np.ndarray, rows: np.ndarray | None = None, chunk_rows: int = 65536) -> np.ndarray:
         """``(N,T)`` (or ``(len(rows),T)``) float32 scores ``features @ text.T`` for ``text`` ``(T,D)`` or ``(D,)``,
-        upcasting ``chunk_rows`` rows of the fp16 features at a time (as fast as an fp32 product, half the memory)."""
-        import torch
-
-        from pipeline.maps.scoring import chunked_scores
-
+        upcasting ``chunk_rows`` rows of the fp16 features at a time (:func:`~pipeline.maps.scoring.chunked_scores`)."""
+        text = np.asarray(text, np.float32)
         t = text[None] if text.ndim == 1 else text
         f = self.features16()
         if rows is not None:
-            f = f[torch.as_tensor(rows, dtype=torch.int64)]
+            f = f[np.asarray(rows, np.int64)]
         out = chunked_scores(f, t, chunk_rows)
         return out[:, 0] if text.ndim == 1 else out
 
@@ -235,20 +346,18 @@ class SemanticMap:
 
     def features_at(self, rc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Features ``(K,D)`` float32 at ``(K,2)`` (row, col) cells and a ``(K,)`` observed mask (zeros elsewhere)."""
-        import torch
-
         rc = np.asarray(rc, np.int64).reshape(-1, 2)
         inside = self.grid.inside(rc)
         rows = np.full(len(rc), -1, np.int64)
         rows[inside] = self.index[rc[inside, 0], rc[inside, 1]]
         ok = rows >= 0
         out = np.zeros((len(rc), self.dim), np.float32)
-        out[ok] = self.features16()[torch.from_numpy(rows[ok])].to(torch.float32).numpy()
+        out[ok] = self.features16()[rows[ok]]
         return out, ok
 
-    def voxels(self) -> dict[str, np.ndarray] | None:
-        """The cfmap's sparse voxel map: ``key`` (M,3) int16 (row, col, level), ``features`` (M,D) fp16, ..."""
+    def voxels(self) -> MapVoxels | None:
+        """The cfmap's sparse voxel map (:class:`MapVoxels`), or None when the map stores none."""
         if "voxels" not in self.group:
             return None
         vx = self.group["voxels"]
-        return {name: vx[name][...] for name in ("key", "features", "weight", "count")}
+        return MapVoxels(**{name: vx[name][...] for name in ("key", "features", "weight", "count")})

@@ -9,7 +9,6 @@ occupancy, navigable, colour, height), :mod:`~pipeline.recon.refine` (optional p
 :mod:`~pipeline.recon.render` (north-up PNGs).
 """
 
-from pipeline.recon.grids import FREE, OCCUPANCY_CODES, OCCUPIED, UNKNOWN, navigable_mask
-from pipeline.recon.store import ARTIFACT, FORMAT_VERSION, Recon
+from pipeline.recon.store import ARTIFACT, FORMAT_VERSION, FREE, OCCUPANCY_CODES, OCCUPIED, UNKNOWN, Grids, Recon
 
-__all__ = ["ARTIFACT", "FORMAT_VERSION", "FREE", "OCCUPANCY_CODES", "OCCUPIED", "Recon", "UNKNOWN", "navigable_mask"]
+__all__ = ["ARTIFACT", "FORMAT_VERSION", "FREE", "Grids", "OCCUPANCY_CODES", "OCCUPIED", "Recon", "UNKNOWN"]

@@ -33,7 +33,8 @@ def grid_accuracy(recon, gt, p: ReconstructParams) -> dict:
     IoU inside the area the walk saw (:func:`pipeline.recon.grids.building_mask` of the
     reconstruction, with ``building_closing_m``), which separates accuracy from coverage.
     """
-    from pipeline.recon.grids import FREE, OCCUPIED, building_mask, navigable_mask
+    from pipeline.recon.grids import building_mask, navigable_mask
+    from pipeline.recon.store import FREE, OCCUPIED
 
     g = recon.grid
     g_occ = gt.occupancy(g, p.obstacle_min_height_m, p.obstacle_max_height_m)
@@ -63,14 +64,13 @@ def evaluate_grids(frames_path: str | Path, recon_path: str | Path, params: Reco
     Raises :class:`InputDataError` when the frames carry none (real logs: use the held-out depth error).
     """
     from pipeline.recon import Recon
-    from pipeline.scene_gt import GTScene
 
-    raw = FrameStore(Path(frames_path)).ground_truth
-    if not raw:
+    gt = FrameStore(Path(frames_path)).ground_truth
+    if gt is None:
         raise InputDataError("these frames carry no ground truth to score grids against (a real log?)",
                              path=frames_path, field="attrs.ground_truth",
                              expected="frames ingested from a simulated log; for real logs use the held-out depth error")
-    return {"recon": str(recon_path), **grid_accuracy(Recon(Path(recon_path)), GTScene.model_validate(raw),
+    return {"recon": str(recon_path), **grid_accuracy(Recon(Path(recon_path)), gt,
                                                       params or ReconstructParams())}
 
 

@@ -43,7 +43,7 @@ upward-facing surface points below the cameras, refined by their median.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Iterable
 
 import numpy as np
@@ -53,9 +53,7 @@ from scipy.spatial import cKDTree
 from pipeline.config import GridParams, ReconstructParams
 from pipeline.errors import ConfigError, InputDataError, StageError
 from pipeline.geometry import GridSpec
-
-UNKNOWN, FREE, OCCUPIED = 0, 1, 2
-OCCUPANCY_CODES = {UNKNOWN: "unknown", FREE: "free", OCCUPIED: "occupied"}
+from pipeline.recon.store import FREE, OCCUPIED, UNKNOWN, Grids
 
 _UP_COS = 0.9  # normals within ~25 deg of +z count as horizontal, upward-facing surfaces
 _FLOOR_BIN_M = 0.01
@@ -72,19 +70,6 @@ _SLAB_MIN_AREA_M2 = 0.25  # ... where such cells form a patch at least this big
 # a top or underside over it.
 _FACE_NZ, _FACE_RADIUS_CELLS, _FACE_MIN_POINTS, _FLAT_NZ, _FLAT_RADIUS_M = 0.3, 0.4, 5, 0.7, 0.005
 _FACE_BLOCK_ENTRIES = 1 << 19  # candidate cells x neighbours per block (~50 MB of neighbour arrays)
-
-
-@dataclass
-class Grids:
-    """The top-down products of one reconstruction (arrays ``(rows, cols[, 3])``)."""
-
-    grid: GridSpec
-    floor_z: float
-    occupancy: np.ndarray  # uint8 codes
-    navigable: np.ndarray  # bool
-    color: np.ndarray  # uint8 RGB of the highest surface
-    height: np.ndarray  # float32 metres above the floor, NaN unknown
-    stats: dict = field(default_factory=dict)
 
 
 # ----------------------------------------------------------------------------- floor

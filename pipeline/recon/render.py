@@ -9,7 +9,7 @@ from typing import Literal
 import numpy as np
 
 from pipeline.errors import ConfigError
-from pipeline.recon.grids import FREE, OCCUPIED
+from pipeline.recon.store import FREE, OCCUPIED
 from pipeline.recon.store import Recon
 
 What = Literal["obstacles", "navigable", "color", "height"]

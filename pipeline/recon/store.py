@@ -29,19 +29,17 @@ in a canonical (sorted) order so the same inputs give the same bytes.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from pipeline.errors import ArtifactError, MissingInputError
 from pipeline.geometry import GridSpec
-from pipeline.recon.grids import OCCUPANCY_CODES, Grids
-from pipeline.store import compressor, new_group, open_group
+from pipeline.store import ArtifactAttrs, AttrsModel, GridAttrs, compressor, new_group, open_group
 
-if TYPE_CHECKING:  # open3d is imported where meshes and points are written: reading a recon needs none of it
+if TYPE_CHECKING:  # open3d is imported where meshes and points are written or read: reading the grids needs none
     import open3d as o3d
 
 ARTIFACT = "recon"
@@ -50,6 +48,60 @@ TILE = 128
 MESH_SUFFIX = "_mesh.ply"
 POINTS_SUFFIX = "_points.ply"
 UNITS = {"height": "m above floor_z", "floor_z": "m (world z)", "grid": "m", "color": "8-bit RGB"}
+UNKNOWN, FREE, OCCUPIED = 0, 1, 2
+OCCUPANCY_CODES = {UNKNOWN: "unknown", FREE: "free", OCCUPIED: "occupied"}
+
+
+# ----------------------------------------------------------------------------- the store's types
+
+
+@dataclass
+class Grids:
+    """The top-down products of one reconstruction (arrays ``(rows, cols[, 3])``), as :func:`write_recon` stores them."""
+
+    grid: GridSpec
+    floor_z: float
+    occupancy: np.ndarray  # uint8 codes
+    navigable: np.ndarray  # bool
+    color: np.ndarray  # uint8 RGB of the highest surface
+    height: np.ndarray  # float32 metres above the floor, NaN unknown
+    stats: dict = field(default_factory=dict)
+
+
+class MeshAttrs(AttrsModel):
+    """``attrs.mesh``: the PLY beside the store (:func:`write_mesh`)."""
+
+    file: str
+    vertices: int
+    triangles: int
+    bounds_min: tuple[float, float, float]
+    bounds_max: tuple[float, float, float]
+
+
+class PointsAttrs(AttrsModel):
+    """``attrs.points``: the surface points PLY beside the store (:func:`write_points`)."""
+
+    file: str
+    count: int
+
+
+class ReconAttrs(ArtifactAttrs):
+    """The attrs of ``recon.zarr`` (the tree above); the reconstruct stage's figures are optional."""
+
+    grid: GridAttrs
+    floor_z: float
+    robot_radius_m: float
+    height_band_m: tuple[float, float]
+    occupancy_codes: dict[str, str]
+    floor_estimated: bool | None = None
+    tsdf: dict[str, Any] | None = None
+    mesh: MeshAttrs | None = None
+    points: PointsAttrs | None = None
+    frames: dict[str, Any] | None = None
+    refinement: dict[str, Any] | None = None
+    stats: dict[str, Any] = {}
+    units: dict[str, str] = {}
+    conventions: dict[str, str] | None = None
 
 # array -> (zarr dimension_names, units and meaning) so `xarray.open_zarr(recon.zarr)` names every axis
 ARRAY_DIMS: dict[str, tuple[tuple[str, ...], dict]] = {
@@ -65,14 +117,14 @@ ARRAY_DIMS: dict[str, tuple[tuple[str, ...], dict]] = {
 def write_recon(path: Path, grids: Grids, poses: np.ndarray, fused: np.ndarray, attrs: dict) -> None:
     """Write a new ``recon.zarr`` at ``path`` (``attrs`` from :func:`pipeline.store.artifact_attrs` + figures)."""
     g = grids.grid
-    group = new_group(Path(path), {
+    group = new_group(Path(path), ReconAttrs.checked({
         **attrs,
         "grid": g.to_attrs(),
         "floor_z": float(grids.floor_z),
         "occupancy_codes": {str(k): v for k, v in OCCUPANCY_CODES.items()},
         "units": UNITS,
         "stats": grids.stats,
-    })
+    }, path))
     tile = (min(TILE, g.rows), min(TILE, g.cols))
     c = compressor(shuffle="noshuffle")
     arrays = {
@@ -159,7 +211,8 @@ def write_points(path: Path, xyz: np.ndarray, normals: np.ndarray, colors: np.nd
 class Recon:
     """Read-only view of a ``recon.zarr`` for the maps, routes and evaluator stages.
 
-    ``Recon(path)`` checks the artifact and format version; arrays are read on access.
+    ``Recon(path)`` checks the artifact, format version and attrs (``meta``: :class:`ReconAttrs`; ``attrs`` the
+    same as a plain dict); arrays are read on access. Reading the grids imports no open3d (only :meth:`mesh`).
     """
 
     path: Path
@@ -168,10 +221,11 @@ class Recon:
         self.path = Path(self.path)
         self.group = open_group(self.path, artifact=ARTIFACT, format_version=FORMAT_VERSION)
         self.attrs = dict(self.group.attrs)
-        self.grid = GridSpec.from_attrs(self.attrs["grid"])
-        self.floor_z = float(self.attrs["floor_z"])
-        self.robot_radius_m = float(self.attrs["robot_radius_m"])
-        self.height_band_m = tuple(self.attrs["height_band_m"])
+        self.meta = ReconAttrs.read(self.attrs, self.path)
+        self.grid = self.meta.grid.spec
+        self.floor_z = self.meta.floor_z
+        self.robot_radius_m = self.meta.robot_radius_m
+        self.height_band_m = self.meta.height_band_m
 
     @property
     def occupancy(self) -> np.ndarray:
@@ -202,8 +256,8 @@ class Recon:
     def fused(self) -> np.ndarray:
         return self.group["fused"][...]
 
-    def _beside(self, key: str, suffix: str) -> Path:
-        name = self.attrs.get(key, {}).get("file") or self.path.name.removesuffix(".zarr") + suffix
+    def _beside(self, key: str, described: MeshAttrs | PointsAttrs | None, suffix: str) -> Path:
+        name = described.file if described is not None else self.path.name.removesuffix(".zarr") + suffix
         path = self.path.parent / name
         if not path.is_file():
             raise MissingInputError(f"{path}: {key} file of {self.path} not found (rerun: zipon run --force)")
@@ -211,11 +265,11 @@ class Recon:
 
     @property
     def mesh_path(self) -> Path:
-        return self._beside("mesh", MESH_SUFFIX)
+        return self._beside("mesh", self.meta.mesh, MESH_SUFFIX)
 
     @property
     def points_path(self) -> Path:
-        return self._beside("points", POINTS_SUFFIX)
+        return self._beside("points", self.meta.points, POINTS_SUFFIX)
 
     def mesh(self) -> o3d.geometry.TriangleMesh:
         import open3d as o3d

@@ -87,7 +87,7 @@ def test_to_xarray_is_the_dense_grid_in_metres(ds):
     r, c = divmod(int(smap.cell[k]), g.cols)
     xy = g.cell_to_world(np.array([r, c]))
     vec = grid.features.sel(x=xy[0], y=xy[1], method="nearest").values
-    assert np.array_equal(vec, smap.features16()[k].numpy())
+    assert np.array_equal(vec, smap.features16()[k])
     rr, cc = np.argwhere(~grid.observed.values)[0]
     assert np.isnan(grid.features[rr, cc].values).all()
     # features_at takes world metres and agrees with the grid

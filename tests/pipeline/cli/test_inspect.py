@@ -60,6 +60,29 @@ def test_query_bad_inputs_exit_1_with_clear_messages(built_scene, capsys):
     assert "unknown scene 'nope'" in capsys.readouterr().err
 
 
+def test_query_levels_top_or_max(built_scene, capsys):
+    """``--levels max`` scores each cfmap cell by its best height level: never below its top level's probability."""
+    from pipeline.maps.query import open_query
+
+    ws, params = built_scene
+    cls, _ = _goal_class(ws)
+    docs = {}
+    for levels in ("top", "max"):
+        capsys.readouterr()
+        assert cli(ws, "query", "tiny", cls, "--map", "cfmap", "--levels", levels, "--json") == 0
+        docs[levels] = json.loads(capsys.readouterr().out)
+        assert docs[levels]["levels"] == levels and docs[levels]["candidates"]
+    heat = {}
+    for levels in ("top", "max"):
+        p = params.model_copy(update={"query": params.query.model_copy(update={"levels": levels})})
+        heat[levels] = open_query(ws.artifact("cfmap", "tiny"), p).query(cls).heatmap
+    seen = np.isfinite(heat["top"])
+    assert (heat["max"][seen] >= heat["top"][seen] - 1e-6).all() and (heat["max"][seen] > heat["top"][seen]).any()
+    assert cli(ws, "query", "tiny", cls, "--levels", "middle") == 1
+    err = capsys.readouterr().err
+    assert "query.levels" in err and "'top'" in err and "'max'" in err
+
+
 def test_query_without_candidates_says_why(built_scene, capsys):
     ws, _ = built_scene
     capsys.readouterr()

@@ -6,16 +6,14 @@ import math
 import cv2
 import numpy as np
 import pytest
-import torch
 
 from pipeline.config import QueryParams
 from pipeline.encoders.oracle import OracleEncoder
 from pipeline.errors import ArtifactError, InputDataError, LineageError
 from pipeline.geometry import GridSpec
-from pipeline.maps.fusion import FusedCells, Lattice
 from pipeline.maps.query import MapQuery, parse_pose
 from pipeline.maps.render import render_map_pca, render_query
-from pipeline.maps.store import FORMAT_VERSION, SemanticMap, write_map
+from pipeline.maps.store import FORMAT_VERSION, Lattice, MapCells, MapVoxels, SemanticMap, write_map
 from pipeline.store import artifact_attrs
 
 GRID = GridSpec(rows=40, cols=40, cell_size_m=0.1, origin_xy=(0.0, 4.0))
@@ -32,8 +30,8 @@ def map_path(tmp_path_factory):
     label[20:25, 5:15] = "table"
     label[35, 2] = "chair"
     feats = np.stack([ENC.word_vector(w) for w in label.ravel()]).astype(np.float32)
-    cells = FusedCells(cell=np.arange(1600), features=torch.from_numpy(feats), weight=np.ones(1600, np.float32),
-                       count=np.ones(1600, np.int32), level=np.zeros(1600, np.int16))
+    cells = MapCells(cell=np.arange(1600), features=feats, weight=np.ones(1600, np.float32),
+                     count=np.ones(1600, np.int32), level=np.zeros(1600, np.int16))
     path = tmp_path_factory.mktemp("q") / "vlmap.zarr"
     write_map(path, artifact_attrs("vlmap", FORMAT_VERSION, "vlmap", "x", encoder=ENC.identity()), GRID,
               Lattice(GRID, 0.0, 0.0, 2.0, 0.1), cells, tile_cells=16)
@@ -127,8 +125,8 @@ def test_low_rank_scoring_gives_the_exact_wins_and_candidates(tmp_path):
     label[:400] = 3
     feats = table[label] + 0.05 * rng.standard_normal((1600, 64)).astype(np.float32)
     feats /= np.linalg.norm(feats, axis=1, keepdims=True)
-    cells = FusedCells(cell=np.arange(1600), features=torch.from_numpy(feats), weight=np.ones(1600, np.float32),
-                       count=np.ones(1600, np.int32), level=np.zeros(1600, np.int16))
+    cells = MapCells(cell=np.arange(1600), features=feats, weight=np.ones(1600, np.float32),
+                     count=np.ones(1600, np.int32), level=np.zeros(1600, np.int16))
     path = tmp_path / "vlmap.zarr"
     write_map(path, artifact_attrs("vlmap", FORMAT_VERSION, "vlmap", "x", encoder=ENC.identity()), GRID,
               Lattice(GRID, 0.0, 0.0, 2.0, 0.1), cells, tile_cells=16)
@@ -142,3 +140,49 @@ def test_low_rank_scoring_gives_the_exact_wins_and_candidates(tmp_path):
         np.testing.assert_allclose(b.heatmap[can_win], a.heatmap[can_win], rtol=1e-5)
         assert np.nanmax(b.heatmap[~can_win]) < 0.5
     assert low._lowrank is not None and exact._lowrank is None
+
+
+def _table_over_chair(path):
+    """A 2 x 2 m room of floor with a table (top at level 7 of 0.1 m) over cells 5:15 x 5:15 and a chair (level 3)
+    under its middle, 8:12 x 8:12: the top-down map shows the table there, the voxels keep the chair below it."""
+    grid = GridSpec(rows=20, cols=20, cell_size_m=0.1, origin_xy=(0.0, 2.0))
+    lat = Lattice(grid, 0.0, 0.0, 1.0, 0.1)
+    rows, cols = np.divmod(np.arange(400), 20)
+    under = (rows >= 5) & (rows < 15) & (cols >= 5) & (cols < 15)
+    chair = (rows >= 8) & (rows < 12) & (cols >= 8) & (cols < 12)
+    vox = [(c, 0, "floor") for c in np.flatnonzero(~chair)]  # floor seen everywhere but under the chair
+    vox += [(c, 3, "chair") for c in np.flatnonzero(chair)] + [(c, 7, "table") for c in np.flatnonzero(under)]
+    vox.sort(key=lambda v: (v[0], v[1]))
+    cell = np.array([v[0] for v in vox])
+    level = np.array([v[1] for v in vox])
+    feats = np.stack([ENC.word_vector(v[2]) for v in vox]).astype(np.float16)
+    top = np.r_[cell[1:] != cell[:-1], True]  # each cell's last (highest) voxel
+    cells = MapCells(cell=cell[top], features=feats[top], weight=np.ones(400, np.float32),
+                     count=np.ones(400, np.int32), level=level[top].astype(np.int16))
+    voxels = MapVoxels(key=np.stack([cell // 20, cell % 20, level], axis=1).astype(np.int16), features=feats,
+                       weight=np.ones(len(vox), np.float32), count=np.ones(len(vox), np.int32))
+    write_map(path, artifact_attrs("cfmap", FORMAT_VERSION, "cfmap", "x", encoder=ENC.identity()), grid, lat, cells,
+              tile_cells=8, voxels=voxels)
+    return chair.reshape(20, 20)
+
+
+def test_levels_max_finds_the_chair_under_the_table_that_top_misses(tmp_path):
+    chair = _table_over_chair(tmp_path / "cfmap.zarr")
+    smap = SemanticMap(tmp_path / "cfmap.zarr")
+    top = MapQuery(smap, ENC, QueryParams(levels="top")).query("chair")
+    best = MapQuery(smap, ENC, QueryParams(levels="max")).query("chair")
+    assert top.levels == "top" and not top.wins.any() and top.candidates == []  # the table hides it
+    assert best.levels == "max" and (best.wins == chair).all() and len(best.candidates) == 1
+    c = best.candidates[0]
+    assert chair[c.center_rc] and c.area_m2 == pytest.approx(16 * 0.01)
+    assert best.to_json()["levels"] == "max"
+    # the table is found by both (its top level is its best level); heatmaps agree wherever the top level is best
+    t_top, t_max = (MapQuery(smap, ENC, QueryParams(levels=lv)).query("table") for lv in ("top", "max"))
+    assert (t_top.wins == t_max.wins).all() and t_top.wins.sum() == 100
+    np.testing.assert_allclose(t_max.heatmap[~chair], t_top.heatmap[~chair], rtol=1e-5)
+
+
+def test_levels_max_on_a_map_without_voxels_scores_its_single_level(map_path):
+    q = _query(map_path, levels="max")
+    assert q.levels == "top"  # a vlmap keeps one level per cell
+    assert (q.query("chair").wins == _query(map_path).query("chair").wins).all()

@@ -9,8 +9,8 @@ import zarr
 
 from pipeline.errors import ArtifactError, MissingInputError
 from pipeline.geometry import GridSpec
-from pipeline.maps.fusion import Lattice, TopDownAccumulator, VoxelAccumulator, BlockPoints
-from pipeline.maps.store import FORMAT_VERSION, SemanticMap, tile_order, write_map
+from pipeline.maps.fusion import BlockPoints, TopDownAccumulator, VoxelAccumulator
+from pipeline.maps.store import FORMAT_VERSION, Lattice, MapAttrs, MapVoxels, SemanticMap, tile_order, write_map
 from pipeline.store import artifact_attrs
 
 GRID = GridSpec(rows=10, cols=12, cell_size_m=0.5, origin_xy=(0.0, 5.0))
@@ -32,7 +32,8 @@ def _write(path, artifact="cfmap", **kw):
     cells, vox = _fused(**kw)
     attrs = artifact_attrs(artifact, FORMAT_VERSION, artifact, "blake2b:test",
                            encoder={"name": "oracle", "dim": cells.features.shape[1], "temperature": None})
-    write_map(path, attrs, GRID, LAT, cells, tile_cells=4, voxels=vox if artifact == "cfmap" else None)
+    write_map(path, attrs, GRID, LAT, cells.to_store(), tile_cells=4,
+              voxels=vox.to_store(GRID) if artifact == "cfmap" else None)
     return cells, vox
 
 
@@ -42,15 +43,17 @@ def test_round_trip(tmp_path):
     assert m.artifact == "cfmap" and m.grid == GRID and m.dim == 8 and m.n_cells == len(cells.cell)
     order = np.argsort(m.cell)
     assert m.cell[order].tolist() == cells.cell.tolist()
-    np.testing.assert_allclose(m.features().numpy()[order], cells.features.numpy(), atol=1e-3)  # fp16
+    np.testing.assert_allclose(m.features()[order], cells.features.numpy(), atol=1e-3)  # fp16
     assert m.level[order].tolist() == cells.level.tolist() and m.count[order].tolist() == cells.count.tolist()
     # the index points every observed cell at its row
     rows, cols = np.divmod(m.cell, GRID.cols)
     assert (m.index[rows, cols] == np.arange(m.n_cells)).all()
     assert (m.index >= 0).sum() == m.n_cells
     v = m.voxels()
-    assert v["key"].shape == (len(vox.cell), 3) and v["features"].dtype == np.float16
-    assert m.attrs["lattice"]["levels"] == 4 and m.attrs["encoder"]["name"] == "oracle"
+    assert isinstance(v, MapVoxels) and v.key.shape == (len(vox.cell), 3) and v.features.dtype == np.float16
+    assert (np.diff(v.key.astype(np.int64) @ [10**6, 10**3, 1]) > 0).all()  # keys ascending (row, col, level)
+    assert isinstance(m.meta, MapAttrs) and m.meta.lattice.levels == 4 and m.meta.encoder.name == "oracle"
+    assert m.lattice == LAT and m.meta.n_voxels == len(v)
 
 
 def test_tiles_are_contiguous_and_hold_only_their_cells(tmp_path):
@@ -90,3 +93,16 @@ def test_reader_errors(tmp_path):
     meta.write_text(json.dumps(doc))
     with pytest.raises(ArtifactError, match="attrs.artifact is 'recon', expected one of"):
         SemanticMap(tmp_path / "m.zarr")
+    doc["attributes"].update(artifact="cfmap", format_version=FORMAT_VERSION)
+    doc["attributes"]["grid"]["rows"] = "many"
+    meta.write_text(json.dumps(doc))
+    with pytest.raises(ArtifactError, match=r"m.zarr: attrs.grid.rows: .*rebuild it with: zipon run --force"):
+        SemanticMap(tmp_path / "m.zarr")
+
+
+def test_attrs_a_reader_would_refuse_are_never_written(tmp_path):
+    cells, _ = _fused()
+    attrs = artifact_attrs("vlmap", FORMAT_VERSION, "vlmap", "blake2b:test")  # no encoder identity
+    with pytest.raises(ArtifactError, match="attrs.encoder: Field required"):
+        write_map(tmp_path / "v.zarr", attrs, GRID, LAT, cells.to_store(), tile_cells=4)
+    assert not (tmp_path / "v.zarr").exists()
