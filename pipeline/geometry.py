@@ -16,7 +16,6 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 from pipeline.errors import InputDataError
 
@@ -32,6 +31,8 @@ def pose_from_tq(t_xyz: np.ndarray, q_xyzw: np.ndarray) -> np.ndarray:
     """Pose(s) from translations ``(...,3)`` and quaternions ``(...,4)`` (x, y, z, w) -> ``(...,4,4)``."""
     t_xyz = np.asarray(t_xyz, dtype=np.float64)
     q_xyzw = np.asarray(q_xyzw, dtype=np.float64)
+    from scipy.spatial.transform import Rotation  # imported here: scipy.spatial costs ~0.5 s of every CLI start
+
     batch = t_xyz.shape[:-1]
     T = np.zeros(batch + (4, 4))
     T[..., :3, :3] = Rotation.from_quat(q_xyzw.reshape(-1, 4)).as_matrix().reshape(batch + (3, 3))
@@ -42,6 +43,8 @@ def pose_from_tq(t_xyz: np.ndarray, q_xyzw: np.ndarray) -> np.ndarray:
 
 def pose_to_tq(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Inverse of :func:`pose_from_tq`: ``(...,4,4)`` -> translation ``(...,3)``, quaternion xyzw ``(...,4)``."""
+    from scipy.spatial.transform import Rotation
+
     T = np.asarray(T, dtype=np.float64)
     batch = T.shape[:-2]
     q = Rotation.from_matrix(T[..., :3, :3].reshape(-1, 3, 3)).as_quat().reshape(batch + (4,))
@@ -109,6 +112,8 @@ def interpolate_poses(stamps_ns: np.ndarray, poses: np.ndarray, query_ns: np.nda
     ``stamps_ns`` ``(M,)`` sorted int64, ``poses`` ``(M,4,4)``; queries must lie in
     ``[stamps_ns[0], stamps_ns[-1]]``. Returns ``(Q,4,4)``.
     """
+    from scipy.spatial.transform import Rotation, Slerp
+
     stamps = np.asarray(stamps_ns, dtype=np.int64)
     query = np.asarray(query_ns, dtype=np.int64)
     if len(stamps) == 1:

@@ -71,3 +71,50 @@ def test_sweep_removes_only_dead_local_owners(tmp_path):
     assert sweep_tmp(tmp_path) == [gone_other_label]
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([mine.name, remote.name, foreign.name])
     assert (remote / "x").read_text() == "x"
+
+
+READ_EVERY_ARTIFACT = """
+import json, sys
+import numpy as np
+from pipeline.config import load_params
+from pipeline.frames import FrameStore
+from pipeline.goals.store import Goals
+from pipeline.maps.query import open_query
+from pipeline.maps.store import SemanticMap
+from pipeline.recon import Recon
+from pipeline.routes.store import Routes
+
+params_path, art = sys.argv[1], sys.argv[2]
+fs = FrameStore(f"{art}/frames.zarr")
+block = next(fs.iter_blocks())
+assert fs.ground_truth is not None and len(block) and fs.meta.n_frames == fs.n_frames
+recon = Recon(f"{art}/recon.zarr")
+assert recon.navigable.any() and recon.occupancy.shape == recon.color.shape[:2] and len(recon.poses) == fs.n_frames
+for name in ("vlmap", "cfmap"):
+    m = SemanticMap(f"{art}/{name}.zarr")
+    assert m.dot(m.features()[:2]).shape == (m.n_cells, 2)
+assert len(SemanticMap(f"{art}/cfmap.zarr").voxels()) > 0
+goals = Goals(f"{art}/goals.zarr")
+assert goals.goals and goals.object_index().any()
+routes = Routes(f"{art}/routes.zarr")
+assert routes.episodes and routes.step_m > 0
+params = load_params(params_path)
+for name in ("vlmap", "cfmap"):  # a query on an oracle map: numpy scoring, the oracle's numpy text side
+    result = open_query(f"{art}/{name}.zarr", params, recon_path=f"{art}/recon.zarr",
+                        frames_path=f"{art}/frames.zarr").query(goals.objects[goals.object_keys[0]].cls)
+    assert result.candidates
+print(json.dumps(sorted(m for m in sys.modules if m.split(".")[0] in ("torch", "open3d", "open_clip", "dask"))))
+"""
+
+
+def test_reading_every_artifact_imports_no_torch_or_open3d(built_scene):
+    """Readers of frames, recon (grids), maps, goals and routes, and a query on an oracle map, run without torch,
+    open3d or dask: a fresh interpreter reads every artifact of the tiny scene and lists what it imported."""
+    import json
+
+    ws, _ = built_scene
+    out = subprocess.run([sys.executable, "-c", READ_EVERY_ARTIFACT, str(ws.params_path),
+                          str(ws.data_dir / "artifacts" / "tiny")], capture_output=True, text=True,
+                         env={**os.environ, "HF_HUB_OFFLINE": "1"}, timeout=120)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert json.loads(out.stdout.splitlines()[-1]) == []
