@@ -7,6 +7,18 @@ from __future__ import annotations
 import numpy as np
 
 
+_F16_TO_F32: np.ndarray | None = None
+
+
+def upcast(feats16: np.ndarray) -> np.ndarray:
+    """``feats16`` float16 as float32, exactly (one look-up per value in a 65,536-entry table: about twice as fast
+    as ``astype`` on CPUs where numpy converts half floats one by one)."""
+    global _F16_TO_F32
+    if _F16_TO_F32 is None:
+        _F16_TO_F32 = np.arange(1 << 16, dtype=np.uint16).view(np.float16).astype(np.float32)
+    return np.take(_F16_TO_F32, np.ascontiguousarray(feats16, dtype=np.float16).view(np.uint16))
+
+
 def chunked_scores(feats16: np.ndarray, text: np.ndarray, chunk_rows: int = 65536) -> np.ndarray:
     """``(N,T)`` float32 ``feats16 @ text.T`` for float16 ``feats16`` ``(N,D)`` and ``text`` ``(T,D)``.
 
@@ -17,7 +29,7 @@ def chunked_scores(feats16: np.ndarray, text: np.ndarray, chunk_rows: int = 6553
     t = np.ascontiguousarray(np.asarray(text, np.float32))
     out = np.empty((feats16.shape[0], t.shape[0]), dtype=np.float32)
     for s in range(0, feats16.shape[0], chunk_rows):
-        np.matmul(feats16[s : s + chunk_rows].astype(np.float32), t.T, out=out[s : s + chunk_rows])
+        np.matmul(upcast(feats16[s : s + chunk_rows]), t.T, out=out[s : s + chunk_rows])
     return out
 
 

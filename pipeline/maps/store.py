@@ -41,7 +41,7 @@ import zarr
 
 from pipeline.errors import ArtifactError, MissingInputError
 from pipeline.geometry import GridSpec
-from pipeline.maps.scoring import chunked_scores
+from pipeline.maps.scoring import chunked_scores, upcast
 from pipeline.store import ArtifactAttrs, AttrsModel, GridAttrs, compressor, new_group
 
 FORMAT_VERSION = 1
@@ -313,7 +313,7 @@ class SemanticMap:
         Not cached: a full fp32 copy is 737 MB for a 600x600x512 map. Callers that score many
         queries should keep :meth:`features16` and use :meth:`dot` (upcast per chunk).
         """
-        return self.features16().astype(np.float32)
+        return upcast(self.features16())
 
     def features16(self) -> np.ndarray:
         """``(N,D)`` float16 unit-norm features as stored (cached; half the memory of fp32)."""
