@@ -13,14 +13,19 @@ Layout under the data root (``--data-dir`` / ``ZIPON_DATA``, default ``<workspac
         .tmp/                          stage outputs being written (removed on success)
         .<stage>.lock                  held while a run builds that stage (pipeline.locks)
         .<stage>.publish.json          publication journal, present only while one is in flight
+        .<stage>.fold/                 vlmap/cfmap: fold of the complete frame chunks (a cache; pipeline.maps.incremental)
     manifests/<scene>/<stage>.json     committed provenance (``--manifests-dir``)
 
-The same templates are saved into every manifest so a dataset documents its own layout.
+The same templates are saved into every manifest so a dataset documents its own layout. A data root given as a
+URL (``s3://bucket/prefix``) is an object store: the layout above is then a local cache of it (:func:`cache_dir`)
+and the store holds published versions (``<path>@<digest>``) and the manifests (:mod:`pipeline.fsroot`).
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,11 +45,28 @@ RENDERS = "artifacts/{scene}/renders"
 TMP = "artifacts/{scene}/.tmp"
 LOCK = "artifacts/{scene}/.{stage}.lock"
 JOURNAL = "artifacts/{scene}/.{stage}.publish.json"
+FOLD = "artifacts/{scene}/.{stage}.fold"
 MANIFEST = "{scene}/{stage}.json"
 
 ENV_DATA = "ZIPON_DATA"
 ENV_MANIFESTS = "ZIPON_MANIFESTS"
+ENV_CACHE = "ZIPON_CACHE"
 PARAMS_FILE = "params.yaml"
+
+URL = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]+://")
+
+
+def is_url(value: str | Path) -> bool:
+    """Whether a data root names an fsspec filesystem (``s3://bucket/prefix``, ``memory://x``) rather than a folder."""
+    return bool(URL.match(str(value)))
+
+
+def cache_dir(url: str, workspace_root: Path) -> Path:
+    """The local mirror of the data root ``url`` (:mod:`pipeline.fsroot`): ``$ZIPON_CACHE/<url>`` or
+    ``<workspace>/.zipon-cache/<url>``, the URL made a folder name plus a short hash so two URLs never share one."""
+    base = Path(os.environ.get(ENV_CACHE) or Path(workspace_root) / ".zipon-cache")
+    name = re.sub(r"[^A-Za-z0-9._-]+", "_", url.rstrip("/")).strip("_")
+    return (base / f"{name}-{hashlib.blake2b(url.rstrip('/').encode(), digest_size=4).hexdigest()}").resolve()
 
 
 @dataclass(frozen=True)
@@ -55,6 +77,9 @@ class Workspace:
     data_dir: Path
     manifests_dir: Path
     params_file: Path | None = None  # the params file itself (any name); None = root / params.yaml
+    # the data root when it is an object-store URL (s3://bucket/prefix); data_dir is then its local cache
+    # (pipeline.fsroot) and manifests_dir defaults to the cache's manifests/
+    remote: str | None = None
 
     @classmethod
     def resolve(
@@ -63,13 +88,21 @@ class Workspace:
         data_dir: str | Path | None = None,
         manifests_dir: str | Path | None = None,
     ) -> "Workspace":
-        """Explicit arguments win over ``ZIPON_DATA`` / ``ZIPON_MANIFESTS``, which win over defaults."""
+        """Explicit arguments win over ``ZIPON_DATA`` / ``ZIPON_MANIFESTS``, which win over defaults.
+
+        A data root given as a URL (``s3://bucket/prefix``; see :func:`is_url`) is an object store: ``data_dir`` is
+        then its local cache (:func:`cache_dir`) and ``remote`` the URL.
+        """
         params = (Path(params_path) if params_path else Path.cwd() / PARAMS_FILE).resolve()
         root = params.parent
         data = data_dir or os.environ.get(ENV_DATA) or root / "data"
-        manifests = manifests_dir or os.environ.get(ENV_MANIFESTS) or root / "manifests"
+        remote = None
+        if is_url(data):
+            remote, data = str(data).rstrip("/"), cache_dir(str(data), root)
+        manifests = manifests_dir or os.environ.get(ENV_MANIFESTS) or (
+            Path(data) / "manifests" if remote else root / "manifests")
         return cls(root=root, data_dir=Path(data).resolve(), manifests_dir=Path(manifests).resolve(),
-                   params_file=params)
+                   params_file=params, remote=remote)
 
     @property
     def params_path(self) -> Path:
@@ -97,6 +130,10 @@ class Workspace:
 
     def journal(self, scene: str, stage: str) -> Path:
         return self.data_dir / JOURNAL.format(scene=scene, stage=stage)
+
+    def fold(self, scene: str, stage: str) -> Path:
+        """A map stage's fold cache (:mod:`pipeline.maps.incremental`)."""
+        return self.data_dir / FOLD.format(scene=scene, stage=stage)
 
     def relative(self, path: Path) -> str:
         """A path as recorded in manifests: relative to the data root when inside it."""

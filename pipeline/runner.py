@@ -20,7 +20,7 @@ import platform
 import socket
 import time
 import traceback
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable
@@ -275,7 +275,19 @@ def limit_native_threads(n: int) -> None:
 def run_stage(ws: Workspace, params: Params, stages: dict[str, StageSpec], scene: str, stage: str, **kw) -> Outcome:
     """:func:`_run_stage` holding the (scene, stage) lock (:mod:`pipeline.locks`; fails fast with
     :class:`~pipeline.errors.LockedError`), after finishing or undoing a publication a killed run
-    left and sweeping its temporary folders (:mod:`pipeline.publication`)."""
+    left and sweeping its temporary folders (:mod:`pipeline.publication`).
+
+    On an object-store data root (``ws.remote``, :mod:`pipeline.fsroot`) this runs in the local cache, holding the
+    object store's lock of (scene, stage), between a pull of the stage and its inputs and their publication."""
+    if ws.remote is not None:
+        from pipeline.fsroot import remote_stage
+
+        ups = upstream_stages(stages, params, scene, stage)
+        with remote_stage(ws, scene, stage, {s: stages[s].outputs for s in (stage, *ups)}, ups) as publish_remote:
+            outcome = run_stage(replace(ws, remote=None), params, stages, scene, stage, **kw)
+            if outcome.status == "ran":
+                publish_remote()
+            return outcome
     outputs = [ws.artifact(name, scene) for name in stages[stage].outputs]
     with output_lock(ws.lock(scene, stage), f"scene {scene} stage {stage}"):
         recover(ws.journal(scene, stage), outputs, ws.manifest(scene, stage))

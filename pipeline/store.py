@@ -155,7 +155,11 @@ def _json_default(obj: Any) -> Any:
 
 def _hash_zarr(path: Path, h: "hashlib._Hash") -> None:
     """Hash decoded content (not compressed bytes) so the digest is codec-version independent."""
-    root = zarr.open_group(zarr.storage.LocalStore(str(path), read_only=True), mode="r")
+    hash_zarr_group(zarr.open_group(zarr.storage.LocalStore(str(path), read_only=True), mode="r"), h)
+
+
+def hash_zarr_group(root: zarr.Group, h: "hashlib._Hash") -> None:
+    """:func:`content_digest`'s hashing of an open zarr store, on any store (an object store's too)."""
     nodes = [("", root)] + sorted(root.members(max_depth=None), key=lambda kv: kv[0])
     for name, node in nodes:
         h.update(f"\0node:{name}\0".encode())
@@ -172,8 +176,18 @@ def _hash_zarr(path: Path, h: "hashlib._Hash") -> None:
 
 def _hash_file(path: Path, h: "hashlib._Hash") -> None:
     with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 22), b""):
-            h.update(chunk)
+        hash_stream(f, h)
+
+
+def hash_stream(f, h: "hashlib._Hash") -> None:
+    """:func:`content_digest`'s hashing of one file's bytes, from any binary file object (an object store's too)."""
+    for chunk in iter(lambda: f.read(1 << 22), b""):
+        h.update(chunk)
+
+
+def new_digest() -> "hashlib._Hash":
+    """The hash :func:`content_digest` fills; its result reads ``f"{DIGEST_ALGO}:{h.hexdigest()}"``."""
+    return hashlib.blake2b(digest_size=16)
 
 
 def content_digest(path: Path) -> str:
@@ -181,7 +195,7 @@ def content_digest(path: Path) -> str:
     path = Path(path)
     if not path.exists():
         raise MissingInputError(f"{path}: cannot digest a missing artifact")
-    h = hashlib.blake2b(digest_size=16)
+    h = new_digest()
     if (path / "zarr.json").is_file():
         _hash_zarr(path, h)
     elif path.is_dir():

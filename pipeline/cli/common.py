@@ -29,7 +29,7 @@ out = Console()
 @dataclass
 class Globals:
     params: Optional[Path] = None
-    data_dir: Optional[Path] = None
+    data_dir: Optional[str] = None  # a folder or an object-store URL (s3://bucket/prefix): kept a string
     manifests_dir: Optional[Path] = None
     overrides: tuple[str, ...] = ()
     quiet: bool = False
@@ -43,7 +43,10 @@ class Globals:
         from pipeline.config import load_params
 
         ws = self.workspace()
-        return ws, load_params(ws.params_path, self.overrides)
+        params = load_params(ws.params_path, self.overrides)
+        if ws.remote is not None:
+            remote_root_ready(ws, params)
+        return ws, params
 
 
 G = Globals()
@@ -52,8 +55,9 @@ G = Globals()
 @app.callback()
 def _globals(
     params: Optional[Path] = typer.Option(None, "--params", "-p", help="params file (default ./params.yaml)"),
-    data_dir: Optional[Path] = typer.Option(
-        None, "--data-dir", envvar="ZIPON_DATA", help="data root (default: data/ beside params.yaml)"
+    data_dir: Optional[str] = typer.Option(
+        None, "--data-dir", envvar="ZIPON_DATA",
+        help="data root: a folder (default: data/ beside params.yaml) or an object store, s3://bucket/prefix"
     ),
     manifests_dir: Optional[Path] = typer.Option(
         None, "--manifests-dir", envvar="ZIPON_MANIFESTS", help="manifests root (default: manifests/ beside params.yaml)"
@@ -67,6 +71,29 @@ def _globals(
 
 
 # ----------------------------------------------------------------------------- helpers
+
+REMOTE_COMMANDS = ("run", "stage", "status", "verify")  # the commands that work on an object-store data root
+
+
+def remote_root_ready(ws, params) -> None:
+    """On an object-store data root (:mod:`pipeline.fsroot`): refuse the commands that read artifacts in place, and
+    for ``status`` / ``verify`` mirror every published stage into the local cache first (digests checked)."""
+    from typer._click.globals import get_current_context
+
+    from pipeline.errors import ConfigError
+    from pipeline.fsroot import pull_all
+    from pipeline.runner import plan
+    from stages import STAGES
+
+    context = get_current_context(silent=True)
+    command = context.info_name if context is not None else "(no command)"
+    if command not in REMOTE_COMMANDS:
+        raise ConfigError(f"--data-dir {ws.remote}: zipon {command} reads artifacts from a local data root; on an "
+                          f"object store only zipon {', '.join(REMOTE_COMMANDS)} work. After one of them the local "
+                          f"mirror is {ws.data_dir}: pass it as --data-dir (and --manifests-dir {ws.manifests_dir})")
+    if command in ("status", "verify"):
+        pull_all(ws, plan(STAGES, params, list(params.scenes)), {name: s.outputs for name, s in STAGES.items()},
+                 verify=command == "verify")
 
 def print_outcomes(outcomes) -> bool:
     table = Table(title="zipon run", show_lines=False)
