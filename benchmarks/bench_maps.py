@@ -11,6 +11,14 @@ the time covers back-projection, cell/level assignment and the scatter into the 
   timed on WHOLE frames of the same data; ``speedup_vs_vlmaps_loop`` is the ratio of frames/s. The
   loop's voxels are compared with a VoxelAccumulator fed the same points and VLMaps' weights
   (``voxels_equal``, ``max_abs_diff``). A lean loop (``lean_loop_us_per_point``) is shown for context.
+  ``speedup_vs_vlmaps_loop`` compares with OUR re-implementation; with ``--vlmaps-src`` (a checkout of
+  github.com/vlmaps/vlmaps) VLMaps' REAL ``create_mobile_base_map`` runs on the same frames too
+  (:mod:`benchmarks.vlmaps_real`, encoder stubbed), alternating with our loop, and the line adds both per-point CPU
+  costs, ``vlmaps_loop_over_real`` (the calibration of our loop) and ``cpu_speedup_vs_vlmaps_real`` (zipon's fusion
+  with its ``result()`` against the real loop, per point, CPU time).
+- ``fusion_default_sampling`` (with ``--vlmaps-src``): per FRAME at each method's default sampling on 640x480
+  frames: VLMaps' real loop over every 100th valid depth pixel (its ``depth_sample_rate``) vs zipon's fusion of every
+  120x160 feature cell.
 - ``scores``: one query's ``features @ text`` on a 600x600x512 map: fp32 (the old in-memory copy)
   vs the fp16 features kept by :class:`SemanticMap` (``SemanticMap.dot``), and their memory.
 - ``query``: latency of :meth:`MapQuery.query` (median of repeats, warm caches) on a 600x600 map
@@ -18,7 +26,8 @@ the time covers back-projection, cell/level assignment and the scatter into the 
 - ``memory``: peak RSS of a child process fusing 140 vs 1,400 frames (the 140 frames cycled), and its
   growth during fusion (after the inputs and the 16-frame block of synthetic features exist).
 
-Run: ``.venv/bin/python benchmarks/bench_maps.py [--quick]``; threads: ``--threads 2``.
+Run: ``.venv/bin/python benchmarks/bench_maps.py [--quick] [--vlmaps-src /tmp/vlmaps]``; threads: ``--threads 2``
+(``--threads 1`` for per-point comparisons with the single-threaded loops).
 """
 
 from __future__ import annotations
@@ -45,12 +54,15 @@ from pipeline.maps.fusion import (
 )
 
 
+CAMERA_HEIGHT_M, CAMERA_PITCH = 0.88, 0.35  # tests.fixtures.recon_scenes.box_room_poses' defaults
+
+
 def scene_frames(n: int, width: int, height: int):
     from tests.fixtures.recon_scenes import box_room_gt, box_room_poses, render_frames
 
     gt = box_room_gt()
     intr = Intrinsics.from_hfov(width, height, 90.0)
-    poses = box_room_poses(n)
+    poses = box_room_poses(n, CAMERA_HEIGHT_M)
     _, depth_mm, _ = render_frames(gt, poses, intr)
     return depth_mm.astype(np.float32) * 1e-3, poses, intr
 
@@ -126,9 +138,12 @@ def fuse_voxels(lat, depth, poses, intr, feats, block: int, sigma_m: float | Non
     return acc, time.perf_counter() - t0
 
 
-def bench_fusion(h: int, w: int, d: int, n_frames: int, naive_points: int, block: int):
+def bench_fusion(h: int, w: int, d: int, n_frames: int, naive_points: int, block: int,
+                 vlmaps_src: Path | None = None) -> dict:
     """Vectorized top-down (vlmap) and voxel (cfmap) fusion vs our VLMaps-faithful per-point loop
-    (:mod:`benchmarks.vlmaps_loop`) timed on whole frames of the same data, and a lean loop for context."""
+    (:mod:`benchmarks.vlmaps_loop`) timed on whole frames of the same data, and a lean loop for context. With
+    ``vlmaps_src`` (a VLMaps checkout), VLMaps' real loop (:mod:`benchmarks.vlmaps_real`) runs on the same frames,
+    alternating with our loop (best of 2 each: the machine may be shared). Returns the emitted fields."""
     from benchmarks.vlmaps_loop import SIGMA_SQ, time_loop
 
     depth_img, poses, intr_img = scene_frames(n_frames, 2 * w if w < 640 else w, 2 * h if h < 480 else h)
@@ -145,22 +160,52 @@ def bench_fusion(h: int, w: int, d: int, n_frames: int, naive_points: int, block
     cpu: list[float] = []
     acc, secs = fuse_vectorized(lat, depth, poses, intr, feats, block, cpu)
     fps = n_frames / secs
+    t0, c0 = time.perf_counter(), time.process_time()
+    acc.result()  # the fused cells, once per map: counted in the "with result" per-point cost
+    result_secs, result_cpu = time.perf_counter() - t0, time.process_time() - c0
+    zipon_cpu_us = 1e6 * (cpu[0] + result_cpu) / (n_frames * h * w)  # CPU time, all threads, result() included
     _, vsecs = fuse_voxels(lat, depth, poses, intr, feats, block, None)
     vfps = n_frames / vsecs
-    c0 = time.process_time()
-    loop, nsecs, npts, nframes = time_loop(lat, depth, poses, intr, rgb, intr_img, feats.numpy(), depth_min_m=0.1,
-                                           depth_max_m=5.0, min_points=naive_points)
+    loop, nsecs, npts, nframes, ncpu = time_loop(lat, depth, poses, intr, rgb, intr_img, feats.numpy(),
+                                                 depth_min_m=0.1, depth_max_m=5.0, min_points=naive_points)
     naive_fps = nframes / nsecs
-    naive_cpu_per_frame = (time.process_time() - c0) / nframes  # includes the untimed layout copies: conservative
+    naive_cpu_per_frame = ncpu / nframes
+    real = {}
+    if vlmaps_src is not None:
+        from benchmarks.vlmaps_real import run_real_loop
+
+        # VLMaps projects depth and colour with one matrix: colour at the depth's size; features (B,D,h,w)
+        rgb_small = np.ascontiguousarray(rgb[:, rows[:, None], cols[None, :]])
+        feats_bdhw = np.ascontiguousarray(feats.numpy().transpose(0, 3, 1, 2))
+        runs, loop_cpu_us = [], [ncpu / npts * 1e6]
+        for rep in range(2):  # alternating with our loop; CPU time: robust to other load on a shared machine
+            runs.append(run_real_loop(vlmaps_src, depth[:nframes], poses[:nframes], intr, rgb_small, feats_bdhw,
+                                      camera_height_m=CAMERA_HEIGHT_M, pitch=CAMERA_PITCH, sample_rate=1))
+            if rep == 0:
+                *_, p2, _, c2 = time_loop(lat, depth, poses, intr, rgb, intr_img, feats.numpy(), depth_min_m=0.1,
+                                          depth_max_m=5.0, min_points=naive_points)
+                loop_cpu_us.append(c2 / p2 * 1e6)
+        best = min(runs, key=lambda r: r.cpu_us_per_point)
+        real = dict(vlmaps_real_points=best.points, vlmaps_real_in_range=round(best.in_range / best.points, 3),
+                    vlmaps_real_cpu_us_per_point=round(best.cpu_us_per_point, 2),
+                    vlmaps_real_cpu_us_per_point_runs=[round(r.cpu_us_per_point, 2) for r in runs],
+                    vlmaps_real_wall_us_per_point_runs=[round(r.us_per_point, 2) for r in runs],
+                    vlmaps_loop_cpu_us_per_point_runs=[round(u, 2) for u in loop_cpu_us],
+                    vlmaps_loop_over_real=round(min(loop_cpu_us) / best.cpu_us_per_point, 2),
+                    zipon_cpu_us_per_point_with_result=round(zipon_cpu_us, 4),
+                    cpu_speedup_vs_vlmaps_real=round(best.cpu_us_per_point / zipon_cpu_us, 1))
     lean_secs, lean_pts = fuse_lean(lat, depth, poses, intr, feats, 40_000)
     # correctness: our voxel accumulator with VLMaps' weights on exactly the frames the loop fused
     ref, _ = fuse_voxels(lat, depth[:nframes], poses[:nframes], intr, feats, len(feats), float(np.sqrt(SIGMA_SQ)))
     got = ref.result()
     cell, level, want = loop.voxels()
     same = np.array_equal(got.cell, cell) and np.array_equal(got.level, level)
-    emit(bench="fusion", size=f"{h}x{w}x{d}", frames=n_frames, block_frames=block, threads=torch.get_num_threads(),
+    fields = dict(
+         bench="fusion", size=f"{h}x{w}x{d}", frames=n_frames, block_frames=block, threads=torch.get_num_threads(),
          vectorized_frames_per_s=round(fps, 2), vectorized_ms_per_frame=round(1e3 / fps, 2),
          vectorized_us_per_point=round(1e6 / (fps * h * w), 4),
+         vectorized_with_result_us_per_point=round(1e6 * (secs + result_secs) / (n_frames * h * w), 4),
+         vectorized_cpu_us_per_point_with_result=round(zipon_cpu_us, 4),
          voxel_frames_per_s=round(vfps, 2),
          vlmaps_loop_frames=nframes, vlmaps_loop_points=npts, vlmaps_loop_us_per_point=round(nsecs / npts * 1e6, 2),
          vlmaps_loop_frames_per_s=round(naive_fps, 4), speedup_vs_vlmaps_loop=round(fps / naive_fps, 1),
@@ -172,7 +217,34 @@ def bench_fusion(h: int, w: int, d: int, n_frames: int, naive_points: int, block
          speedup_vs_lean_loop=round(fps / (1.0 / (lean_secs / lean_pts * h * w)), 1),
          voxels_equal=bool(same), voxels=int(len(cell)),
          max_abs_diff=float(np.abs(got.features().numpy() - want).max()) if same else None,
-         features="synthetic unit vectors (encoder excluded)")
+         **real, features="synthetic unit vectors (encoder excluded)")
+    emit(**fields)
+    return fields
+
+
+def bench_default_sampling(vlmaps_src: Path, zipon_fusion: dict, n_frames: int = 4) -> None:
+    """Per FRAME at each method's default sampling, 640x480 frames: VLMaps' real loop over every 100th valid depth
+    pixel (its ``depth_sample_rate``) vs zipon's vectorized fusion of every 120x160 feature cell (``zipon_fusion``,
+    the 120x160x512 :func:`bench_fusion` result of this run)."""
+    from benchmarks.vlmaps_real import VLMAPS_SAMPLE_RATE, run_real_loop
+
+    depth, poses, intr = scene_frames(n_frames, 640, 480)
+    feats = np.ascontiguousarray(synthetic_features(n_frames, 120, 160, 512).numpy().transpose(0, 3, 1, 2))
+    rgb = np.random.default_rng(0).integers(0, 256, (n_frames, 480, 640, 3), dtype=np.uint8)
+    r = run_real_loop(vlmaps_src, depth, poses, intr, rgb, feats, camera_height_m=CAMERA_HEIGHT_M,
+                      pitch=CAMERA_PITCH, sample_rate=VLMAPS_SAMPLE_RATE)
+    zipon_points = 120 * 160
+    zipon_us = zipon_fusion["vectorized_cpu_us_per_point_with_result"]
+    zipon_ms = zipon_us * zipon_points * 1e-3
+    emit(bench="fusion_default_sampling", frames=n_frames, image="480x640", threads=torch.get_num_threads(),
+         vlmaps_points_per_frame=round(r.points / r.frames), vlmaps_depth_sample_rate=VLMAPS_SAMPLE_RATE,
+         vlmaps_cpu_us_per_point=round(r.cpu_us_per_point, 2),
+         vlmaps_loop_cpu_ms_per_frame=round(r.loop_cpu_ms_per_frame, 2),
+         vlmaps_call_wall_ms_per_frame=round(r.call_seconds / r.frames * 1e3, 1),
+         zipon_points_per_frame=zipon_points, zipon_cpu_us_per_point=zipon_us, zipon_cpu_ms_per_frame=round(zipon_ms, 2),
+         per_frame_ratio_vlmaps_over_zipon=round(r.loop_cpu_ms_per_frame / zipon_ms, 2),
+         note="CPU time; vlmaps_call_wall_ms_per_frame adds its file reads, back-projection and map save (encoder "
+              "stubbed)")
 
 
 def bench_query(observed_fraction: float, repeats: int):
@@ -285,13 +357,18 @@ def main():
     ap.add_argument("--quick", action="store_true", help="fewer frames and repeats")
     ap.add_argument("--memory-child", type=int, default=None)
     ap.add_argument("--only", choices=["fusion", "query", "scores", "memory"], default=None)
+    ap.add_argument("--vlmaps-src", type=Path, default=None,
+                    help="a checkout of github.com/vlmaps/vlmaps: also time its real loop (benchmarks/vlmaps_real.py)")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     if a.memory_child is not None:
         memory_child(a.memory_child)
         return
     if a.only in (None, "fusion"):
-        bench_fusion(120, 160, 512, 32 if a.quick else 96, naive_points=2 * 120 * 160, block=16)
+        small = bench_fusion(120, 160, 512, 32 if a.quick else 96, naive_points=2 * 120 * 160, block=16,
+                             vlmaps_src=a.vlmaps_src)
+        if a.vlmaps_src is not None:
+            bench_default_sampling(a.vlmaps_src, small)
         bench_fusion(480, 640, 512, 2 if a.quick else 4, naive_points=1, block=1)
     if a.only in (None, "query"):
         for frac in (1.0, 0.4):

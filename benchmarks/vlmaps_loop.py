@@ -16,6 +16,10 @@ This module does the same work per point, written from that description in plain
 with zipon's grid/level convention (:class:`~pipeline.maps.fusion.Lattice`) so its voxels can be
 compared one to one with :class:`~pipeline.maps.fusion.VoxelAccumulator` fed the same points and
 weights (``sigma^2 = 0.6``, i.e. ``sigma_m = sqrt(0.6)``).
+
+It is a re-implementation, not VLMaps' code: ``bench_maps.py --vlmaps-src`` runs VLMaps' real builder on the same
+frames (:mod:`benchmarks.vlmaps_real`) and prints both per-point costs and their ratio (``vlmaps_loop_over_real``);
+quote the real figure.
 """
 
 from __future__ import annotations
@@ -124,21 +128,23 @@ class VLMapsLoop:
 
 def time_loop(lattice: Lattice, depth: np.ndarray, poses: np.ndarray, feat_intr: Intrinsics, rgb: np.ndarray,
               rgb_intr: Intrinsics, feats_bhwd: np.ndarray, *, depth_min_m: float, depth_max_m: float,
-              min_points: int) -> tuple[VLMapsLoop, float, int, int]:
-    """Loop over WHOLE frames until at least ``min_points`` points; returns (loop, seconds, points, frames).
+              min_points: int) -> tuple[VLMapsLoop, float, int, int, float]:
+    """Loop over WHOLE frames until at least ``min_points`` points; returns (loop, seconds, points, frames,
+    cpu_seconds): wall and CPU time of this process in :meth:`VLMapsLoop.add_frame` alone.
 
     ``feats_bhwd`` ``(B,h,w,D)`` is cycled over the frames like the vectorized benchmark does; the
     conversion to LSeg's ``(1,D,h,w)`` layout is not timed.
     """
     loop = VLMapsLoop(lattice, feats_bhwd.shape[-1])
-    seconds, points, frames = 0.0, 0, 0
+    seconds, cpu_seconds, points, frames = 0.0, 0.0, 0, 0
     for b in range(len(depth)):
         if points >= min_points:
             break
         pix = np.ascontiguousarray(feats_bhwd[b % len(feats_bhwd)].transpose(2, 0, 1))[None]
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         points += loop.add_frame(depth[b], poses[b], feat_intr, rgb[b % len(rgb)], rgb_intr, pix,
                                  depth_min_m=depth_min_m, depth_max_m=depth_max_m)
         seconds += time.perf_counter() - t0
+        cpu_seconds += time.process_time() - c0
         frames += 1
-    return loop, seconds, points, frames
+    return loop, seconds, points, frames, cpu_seconds
