@@ -8,13 +8,12 @@ manifest (vlmap, cfmap, goals, routes) and the goals digest recorded by routes; 
 :class:`~pipeline.errors.LineageError` naming both manifests.
 
 The action space (``step_m``, ``turn_deg``) and the success radius are facts of ``routes.zarr``: the
-episodes' reference paths, goal regions and replays were made with them, so the evaluator reads them
-from the artifact (:meth:`Artifacts.action_space`), never from the params. :meth:`Artifacts.check_action_space`
-(run with the lineage check) refuses params that disagree with the artifact: ``routes.step_m``,
-``routes.turn_deg`` or ``routes.success_m`` differing from what routes.zarr was built with (rebuild the
-routes), or ``eval.success_distance_m`` differing from the routes' ``success_m`` (the paper rule's
-radius is the one the goal regions were cut with; the eval key must repeat it) — so one evaluation
-never mixes two action spaces or two success radii.
+episodes' reference paths and replays were made with them (and the goal regions of goals.zarr cut with
+that radius), so the evaluator reads them from the artifact (:meth:`Artifacts.action_space`), never from
+the params. :meth:`Artifacts.check_action_space` (run with the lineage check) refuses a ``task`` section
+that disagrees with the artifact: ``task.step_m``, ``task.turn_deg``, ``task.success_m`` or
+``task.hfov_deg`` differing from what routes.zarr was built with (rebuild: ``zipon run``) — so one
+evaluation never mixes two action spaces, two success radii or two fields of view.
 """
 
 from __future__ import annotations
@@ -84,17 +83,13 @@ class Artifacts:
         """Raise :class:`LineageError` when the params in force disagree with routes.zarr's action space or
         success radius (see the module docstring)."""
         step_m, turn_deg, success_m = self.action_space()
-        rp, src = self.params.routes, self.ws.params_path
-        for key, ours, built in (("routes.step_m", rp.step_m, step_m), ("routes.turn_deg", rp.turn_deg, turn_deg),
-                                 ("routes.success_m", rp.success_m, success_m)):
+        task, src = self.params.task, self.ws.params_path
+        for key, built in (("step_m", step_m), ("turn_deg", turn_deg), ("success_m", success_m),
+                           ("hfov_deg", self.routes.hfov_deg)):
+            ours = getattr(task, key)
             if not math.isclose(ours, built, rel_tol=0.0, abs_tol=1e-9):
-                raise LineageError(f"{key} {ours:g} in {src} but routes.zarr of {self.scene} was built with "
+                raise LineageError(f"task.{key} {ours:g} in {src} but routes.zarr of {self.scene} was built with "
                                    f"{built:g}: rebuild with zipon run -s {self.scene}")
-        ours = self.params.eval.success_distance_m
-        if not math.isclose(ours, success_m, rel_tol=0.0, abs_tol=1e-9):
-            raise LineageError(f"eval.success_distance_m {ours:g} in {src} but routes.zarr of {self.scene} was built "
-                               f"with success_m {success_m:g}: the goal regions are cut with the routes' radius; set "
-                               f"eval.success_distance_m to routes.success_m")
 
     # ------------------------------------------------------------------ artifacts
     def path(self, name: str) -> Path:

@@ -103,16 +103,19 @@ def _resolve(params: Params, scenes, methods, feedback, seeds, agent_classes=Non
         raise ConfigError(f"-s/--scene: unknown scene(s) {unknown}; params.yaml has {sorted(params.scenes)}")
     from orion_eval.agents import AGENTS
 
-    methods = list(methods or ep.methods)
+    # names are checked against their registries here (params spell none of them); None = every one
+    source = "--methods" if methods else "eval.methods"
+    methods = list(methods or ep.methods or AGENTS)
     llm_agent = bool(ep.llm.base_url) and ep.llm.roles in ("agent", "both")
     bad = [m for m in methods if m not in AGENTS and m not in (agent_classes or {}) and not (m == "llm" and llm_agent)]
     if bad:
-        raise ConfigError(f"--methods: unknown method(s) {bad}; choose from {sorted(AGENTS)} "
+        raise ConfigError(f"{source}: unknown method(s) {bad}; choose from {list(AGENTS)} "
                           f"(and 'llm' when eval.llm.base_url is set with roles agent/both)")
-    feedback = list(feedback or ep.feedback)
+    source = "--feedback" if feedback else "eval.feedback"
+    feedback = list(feedback or ep.feedback or FEEDBACK_SETTINGS)
     bad = [f for f in feedback if f not in FEEDBACK_SETTINGS]
     if bad:
-        raise ConfigError(f"--feedback: unknown setting(s) {bad}; choose from {list(FEEDBACK_SETTINGS)}")
+        raise ConfigError(f"{source}: unknown setting(s) {bad}; choose from {list(FEEDBACK_SETTINGS)}")
     seeds = [int(s) for s in (seeds if seeds is not None else ep.seeds)]
     return scenes, methods, feedback, seeds
 

@@ -2,7 +2,7 @@
 
 :class:`SceneContext` holds the artifacts, the planner, the world, the success rule, the ego-view
 renderer and the detection encoder (both built on first use), route targets (the routes module's goal
-region: stored for ground-truth goals, computed with the same function for found objects), and
+region: stored in goals.zarr for ground-truth goals, computed with the same function for found objects), and
 pose-independent caches: map
 query results per (map, text), ego views per pose, detections per (pose, text). Agents are
 deterministic, so episodes that share a prefix (the same start in several feedback settings)
@@ -53,23 +53,24 @@ class SceneContext:
 
     def __init__(self, arts: Artifacts):
         self.arts, self.params = arts, arts.params
-        ep, rp = self.params.eval, self.params.routes
+        ep, task = self.params.eval, self.params.task
         self.grid = arts.grid
         self.navigable = arts.navigable
         # the action space and success radius routes.zarr was built with (Artifacts checks the params agree)
         self.step_m, self.turn_deg, self.success_m = arts.action_space()
         self.world = World(self.navigable, self.grid, step_m=self.step_m, turn_deg=self.turn_deg)
         space = {"step_m": self.step_m, "turn_deg": self.turn_deg}
+        # the agents' goto_object stops within their own radius of a found object
         self.planner = NavPlanner(self.navigable, self.grid, RouteSettings.from_config(
-            rp, **space, clearance_m=ep.clearance_m, stop_radius_m=ep.stop_radius_m))
-        # the user's procedural feedback uses the routes stage's own settings, to the stored goal region
+            task, **space, stop_radius_m=ep.goto_stop_radius_m))
+        # the user's procedural feedback is planned as the routes stage plans, into the stored goal region
         self.user_planner = NavPlanner(self.navigable, self.grid,
-                                       RouteSettings.from_config(rp, **space, stop_radius_m=0.0))
+                                       RouteSettings.from_config(task, **space, stop_radius_m=0.0))
         self.success = SuccessRule(self.grid, arts.height, arts.camera_height_m, rule=ep.success_rule,
-                                   distance_m=self.success_m, hfov_deg=ep.hfov_deg, sight=self.sight)
+                                   distance_m=self.success_m, hfov_deg=task.hfov_deg, sight=self.sight)
         # route targets (pipeline.routes.region) are explicit cells: a zero stop radius keeps them as they are
         self.view_planner = NavPlanner(self.navigable, self.grid, RouteSettings.from_config(
-            rp, **space, clearance_m=ep.clearance_m, stop_radius_m=0.0))
+            task, **space, stop_radius_m=0.0))
         self._map_cache: dict[tuple[str, str], list[MapObject]] = {}
         self._view_cache: dict[tuple, object] = {}
         self._det_cache: dict[tuple, list[Detection]] = {}
@@ -104,7 +105,7 @@ class SceneContext:
         """Full-grid ``(region, target)`` for an object the agent found (map candidate, detection): the
         routes module's :func:`~pipeline.routes.region.goal_region` (routes.zarr's ``success_m``, the same
         line of sight as the success rule) and its :func:`~pipeline.routes.region.route_target`
-        (``eval.stop_radius_m``), which a walk aims for and the region it finishes in. Cached per ``key``."""
+        (``eval.goto_stop_radius_m``), which a walk aims for and the region it finishes in. Cached per ``key``."""
         cache = self.__dict__.setdefault("_goal_targets", {})
         if key not in cache:
             from pipeline.routes.region import goal_region, route_target
@@ -112,7 +113,7 @@ class SceneContext:
             ep = self.params.eval
             region = goal_region(self.navigable, object_mask, self.grid, center_xy, z_levels, self.sight,
                                  success_m=self.success_m)
-            cache[key] = (region, route_target(region, object_mask, self.grid, stop_radius_m=ep.stop_radius_m))
+            cache[key] = (region, route_target(region, object_mask, self.grid, stop_radius_m=ep.goto_stop_radius_m))
         return cache[key]
 
     def route_to_goal(self, planner, pose, goal, *, key, face_xy):
@@ -126,7 +127,7 @@ class SceneContext:
         aims = self.__dict__.setdefault("_stored_aims", {})
         if goal.id not in aims:
             aims[goal.id] = route_aims(region, self.footprint_mask(goal.object_keys), self.grid,
-                                       stop_radius_m=self.params.routes.stop_radius_m)
+                                       stop_radius_m=self.params.task.stop_radius_m)
         inner = self.__dict__.setdefault("_stored_inner", {})
         if goal.id not in inner:  # cells 2 steps inside the region: the exact pose is well inside it
             inner[goal.id] = ndimage.binary_erosion(region, iterations=2)
@@ -155,10 +156,10 @@ class SceneContext:
         return bool(self.grid.inside(rc) and mask[rc[0], rc[1]])
 
     def stored_goal_region(self, goal) -> np.ndarray:
-        """Full-grid goal region of a GROUND-TRUTH goal as stored by the routes stage (cached per goal)."""
+        """Full-grid goal region of a GROUND-TRUTH goal as stored in goals.zarr (cached per goal)."""
         cache = self.__dict__.setdefault("_stored_regions", {})
         if goal.id not in cache:
-            cache[goal.id] = self.arts.routes.goal_region(goal.id)
+            cache[goal.id] = self.arts.goals.goal_region(goal.id)
         return cache[goal.id]
 
     # ------------------------------------------------------------------ maps
@@ -189,7 +190,7 @@ class SceneContext:
         ep = self.params.eval
         return EgoRenderer(self.arts.recon.mesh_path, floor_z=self.arts.recon.floor_z,
                            camera_height_m=self.arts.camera_height_m, size=tuple(ep.detect_size),
-                           hfov_deg=ep.hfov_deg, gt=self.arts.gt)
+                           hfov_deg=self.params.task.hfov_deg, gt=self.arts.gt)
 
     @cached_property
     def encoder(self):

@@ -1,6 +1,7 @@
 """The simulated user: deterministic per seed, template-based, given the goal's FB and the agent's state.
 
-Settings (``eval.feedback``), each one entry of :data:`FEEDBACK_SETTINGS`:
+Settings (``eval.feedback``), each one entry of :data:`FEEDBACK_SETTINGS` (no interaction, yes/no, one per
+feedback kind of :data:`pipeline.goals.feedback.FEEDBACK_KINDS`, mixed):
 
 - ``none``: no interaction — the first Talk ends the episode (success is judged there);
 - ``yesno``: "Yes, this is X." / "No.";
@@ -21,9 +22,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.goals.feedback import FEEDBACK_KINDS
 from pipeline.routes.actions import procedural_allowed
 
-FEEDBACK_SETTINGS = ("none", "yesno", "corrective", "descriptive", "landmark", "procedural", "mixed")
+FEEDBACK_KIND_NAMES = tuple(sorted(FEEDBACK_KINDS))  # the goals' feedback kinds (their registry's names)
+FEEDBACK_SETTINGS = ("none", "yesno", *FEEDBACK_KIND_NAMES, "mixed")
 LOOK_RANGE_M = 2.5
 
 
@@ -47,7 +50,7 @@ class SimulatedUser:
         best, best_d = None, np.inf
         for key in sorted(self.goal.feedback.get("corrective") or {}):
             r = self.ctx.success.evaluate(pose, goal_geometry(self.ctx, (key,)))
-            if r["visible"] and abs(r["bearing_deg"]) <= self.ctx.params.eval.hfov_deg / 2 and \
+            if r["visible"] and abs(r["bearing_deg"]) <= self.ctx.params.task.hfov_deg / 2 and \
                     r["distance_m"] <= LOOK_RANGE_M and r["distance_m"] < best_d:
                 best, best_d = key, r["distance_m"]
         return best
@@ -91,7 +94,7 @@ class SimulatedUser:
         if self.setting == "yesno":
             return False, "No.", "no"
         if self.setting == "mixed":
-            kinds = [k for k in ("corrective", "descriptive", "landmark", "procedural")]
+            kinds = FEEDBACK_KIND_NAMES
             texts = {k: self.feedback(k, pose) for k in kinds}
             avail = [k for k in kinds if texts[k]]
             if not avail:

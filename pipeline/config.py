@@ -74,7 +74,23 @@ class SceneSource(Section):
 
 # ----------------------------------------------------------------------------- stages
 
-class SimulateParams(Section):
+class DepthRange(Section):
+    """Base of the sections that read depth images (simulate, ingest, reconstruct, maps): the valid depth band
+    ``[depth_min_m, depth_max_m]``, metres, checked once here. Each section keeps its own keys (and may change
+    their defaults and descriptions); what falls outside the band is that stage's business (stored as 0,
+    ignored, not fused)."""
+
+    depth_min_m: float = Field(0.1, ge=0, description="nearest valid depth, metres")
+    depth_max_m: float = Field(10.0, gt=0, description="farthest valid depth, metres")
+
+    @model_validator(mode="after")
+    def _depth_range(self) -> "DepthRange":
+        if self.depth_min_m >= self.depth_max_m:
+            raise ValueError(f"depth_min_m ({self.depth_min_m:g}) must be below depth_max_m ({self.depth_max_m:g})")
+        return self
+
+
+class SimulateParams(DepthRange):
     """Procedural indoor scenes rendered to ROS 2 MCAP logs (the embedded default data)."""
 
     seed: int = Field(0, description="base seed; each scene's seed is derived from it and the scene name")
@@ -83,8 +99,6 @@ class SimulateParams(Section):
     height: int = Field(480, gt=0, description="image height, pixels")
     hfov_deg: float = Field(90.0, gt=0, lt=180, description="horizontal field of view, degrees")
     camera_height_m: float = Field(0.88, gt=0, description="camera height above the floor, metres")
-    depth_min_m: float = Field(0.1, ge=0, description="nearest valid depth, metres")
-    depth_max_m: float = Field(10.0, gt=0, description="farthest valid depth, metres")
     fps: float = Field(10.0, gt=0, description="frame rate of the recorded camera streams, Hz")
     min_actions_per_frame: float = Field(
         2.0, gt=0, description="the walk takes at least this many actions (15 deg turns, 0.25 m steps) per recorded "
@@ -141,7 +155,7 @@ class CameraOverride(Section):
     cy: float = Field(description="principal point y, pixels")
 
 
-class IngestParams(Section):
+class IngestParams(DepthRange):
     """Raw logs / dataset folders -> ``frames.zarr``."""
 
     block_frames: int = Field(16, gt=0, description="frames per zarr chunk and per processing block")
@@ -202,7 +216,7 @@ class GridParams(Section):
     cell_size_m: float = Field(0.05, gt=0, description="cell edge, metres")
 
 
-class ReconstructParams(Section):
+class ReconstructParams(DepthRange):
     """Frames -> fused geometry (TSDF) and the top-down grids (``recon.zarr``)."""
 
     voxel_size_m: float = Field(
@@ -283,8 +297,6 @@ class ReconstructParams(Section):
 
     @model_validator(mode="after")
     def _ranges(self) -> "ReconstructParams":
-        if self.depth_min_m >= self.depth_max_m:
-            raise ValueError("depth_min_m must be below depth_max_m")
         if self.obstacle_min_height_m >= self.obstacle_max_height_m:
             raise ValueError("obstacle_min_height_m must be below obstacle_max_height_m")
         if self.sdf_trunc_m < self.voxel_size_m:
@@ -444,7 +456,7 @@ class EncodersParams(Section):
         return name
 
 
-class MapsParams(Section):
+class MapsParams(DepthRange):
     """Semantic map fusion (stages ``vlmap`` / ``cfmap``); query settings are in ``query``.
 
     Height rule (both maps): space above the grid is cut into levels of ``level_height_m``
@@ -479,8 +491,6 @@ class MapsParams(Section):
     tile_cells: int = Field(64, gt=0, description="spatial tile edge (cells) of the stored map's chunks")
     @model_validator(mode="after")
     def _ranges(self) -> "MapsParams":
-        if self.depth_min_m >= self.depth_max_m:
-            raise ValueError("depth_min_m must be below depth_max_m")
         if self.min_height_m >= self.max_height_m:
             raise ValueError("min_height_m must be below max_height_m")
         if (self.max_height_m - self.min_height_m) / self.level_height_m > 1000:
@@ -587,35 +597,51 @@ class GoalsParams(Section):
         return v
 
 
-class RoutesParams(Section):
-    """Goals + navigable grid -> episodes, geodesic routes and procedural text (``routes.zarr``)."""
+class TaskParams(Section):
+    """The ZIPON task's facts, one home: the action space, the success rule, and how a walk to a goal is planned.
 
-    seed: int = Field(0, description="seed of the start poses")
-    episodes_per_goal: int = Field(3, gt=0, description="episodes (start poses) per goal")
-    min_geodesic_m: float = Field(2.0, ge=0, description="start poses are at least this geodesic distance away")
-    step_m: float = Field(0.25, gt=0, description="forward action, metres")
-    turn_deg: float = Field(15.0, gt=0, le=180, description="turn action, degrees")
-    clearance_m: float = Field(
-        0.1, ge=0, description="planned paths keep this far from non-navigable cells (beyond recon's robot radius)"
+    Read by the goals stage (goal regions, procedural feedback), the routes stage (episodes, replay) and the
+    evaluator (``orion_eval``), which takes the action space and success radius from ``routes.zarr`` and refuses
+    params that disagree with it. Not here: ``simulate.hfov_deg`` is the field of view of the camera that
+    RECORDS a simulated scene (a real log brings its own intrinsics); ``hfov_deg`` here is the agent's ego view,
+    a fact of the task that holds for real and simulated scenes alike. ``eval.goto_stop_radius_m`` is how close
+    the evaluator's agents approach an object they found, a choice of the agents, not of the task.
+    """
+
+    step_m: float = Field(0.25, gt=0, description="forward action, metres (paper: 0.25)")
+    turn_deg: float = Field(15.0, gt=0, le=180, description="turn action (left / right), degrees (paper: 15)")
+    success_m: float = Field(
+        1.5, gt=0, description="success radius: an episode succeeds within this distance of the goal's footprint "
+        "(paper: 1.5); a goal's region is the navigable cells this close that see its mass centre, metres"
     )
-    stop_radius_m: float = Field(1.0, gt=0, description="routes aim for goal-region cells within this distance of the "
-                                 "goal's footprint when the region has some (pipeline.routes.region.route_target)")
-    success_m: float = Field(1.5, gt=0, description="replay succeeds within this distance of the goal (paper: 1.5); "
-                             "the goal region is the navigable cells this close that see the goal's mass centre")
-    hfov_deg: float = Field(90.0, gt=0, le=360, description="replay succeeds only with a goal mass centre inside "
-                                                          "this horizontal field of view (paper: 90)")
+    hfov_deg: float = Field(
+        90.0, gt=0, lt=180, description="horizontal field of view of the agent's ego view: success needs the goal's "
+        "mass centre inside it (paper: 90); the reference routes are replayed with it, degrees"
+    )
+    stop_radius_m: float = Field(
+        1.0, gt=0, description="a walk to a goal (the reference routes, the procedural feedback of goals.zarr and of "
+        "the simulated user) aims for goal-region cells within this distance of the footprint "
+        "(pipeline.routes.region.route_target), metres"
+    )
+    clearance_m: float = Field(
+        0.1, ge=0, description="planned paths keep this far from non-navigable cells, beyond recon's robot radius: "
+        "the same for the reference routes and the agents, so SPL compares paths planned alike, metres"
+    )
 
     @model_validator(mode="after")
-    def _radii(self) -> "RoutesParams":
+    def _radii(self) -> "TaskParams":
         if self.stop_radius_m + self.step_m / 2 > self.success_m:
             raise ValueError("stop_radius_m + step_m / 2 must not exceed success_m (routes must end in success)")
         return self
 
 
-EvalMethod = Literal["human", "cow", "vlmap", "cf", "orion"]
-FeedbackSetting = Literal["none", "yesno", "corrective", "descriptive", "landmark", "procedural", "mixed"]
-EVAL_METHODS: tuple[str, ...] = ("human", "cow", "vlmap", "cf", "orion")
-FEEDBACK_SETTINGS: tuple[str, ...] = ("none", "yesno", "corrective", "descriptive", "landmark", "procedural", "mixed")
+class RoutesParams(Section):
+    """Goals + navigable grid -> episodes, geodesic routes and procedural text (``routes.zarr``); the action
+    space, success rule and planning margins are the task's (``task``)."""
+
+    seed: int = Field(0, description="seed of the start poses")
+    episodes_per_goal: int = Field(3, gt=0, description="episodes (start poses) per goal")
+    min_geodesic_m: float = Field(2.0, ge=0, description="start poses are at least this geodesic distance away")
 
 
 class LLMParams(Section):
@@ -637,26 +663,30 @@ class LLMParams(Section):
 class EvalParams(Section):
     """The light online evaluator (``zipon eval``, package ``orion_eval``): agents, simulated user, metrics.
 
-    Actions: TurnLeft / TurnRight ``routes.turn_deg`` (15 deg), MoveForward ``routes.step_m`` (0.25 m), Talk.
-    An episode ends on success or after ``max_talk_turns`` Talk turns (or ``max_steps`` actions).
+    Actions: TurnLeft / TurnRight ``task.turn_deg`` (15 deg), MoveForward ``task.step_m`` (0.25 m), Talk, as
+    ``routes.zarr`` records them. An episode ends on success or after ``max_talk_turns`` Talk turns (or
+    ``max_steps`` actions). Method and feedback names are checked against their registries when the evaluator
+    runs (:data:`orion_eval.agents.AGENTS`, :data:`orion_eval.user.FEEDBACK_SETTINGS`, which are derived from
+    :data:`pipeline.goals.feedback.FEEDBACK_KINDS`), so a name is spelled once, in its registry.
     """
 
     scenes: tuple[str, ...] | None = Field(None, description="scenes to evaluate; None = every scene in 'scenes'")
-    methods: tuple[EvalMethod, ...] = Field(
-        EVAL_METHODS, description="agents: human (geodesic upper bound), cow (exploration + detection), vlmap / cf "
-        "(map retrieval), orion (map + exploration + detection + memory)"
+    methods: tuple[str, ...] | None = Field(
+        None, description="agents by name: the built-in ones (orion_eval.agents.AGENTS), plugins (zipon.agents "
+        "entry points), llm (with eval.llm); None = every built-in agent, in the registry's order"
     )
-    feedback: tuple[FeedbackSetting, ...] = Field(FEEDBACK_SETTINGS, description="simulated user's settings")
+    feedback: tuple[str, ...] | None = Field(
+        None, description="simulated user's settings (orion_eval.user.FEEDBACK_SETTINGS: no interaction, yes/no, "
+        "one per feedback kind of the goals, mixed); None = all of them"
+    )
     seeds: tuple[int, ...] = Field((0, 1, 2, 3, 4), description="seeds (start pose choice, user draws); "
                                    "results are means over seeds")
     max_talk_turns: int = Field(5, gt=0, description="I_max: Talk turns per episode at most (paper: 5)")
     max_steps: int = Field(600, gt=0, description="movement actions per episode at most")
     success_rule: Literal["paper", "navchat"] = Field(
-        "paper", description="'paper': within success_distance_m of the goal, its mass centre in the ego view's "
-        "field of view and in line of sight; 'navchat': navchat's tighter distance/angle bands"
+        "paper", description="'paper': within task.success_m of the goal, its mass centre in the ego view's "
+        "field of view (task.hfov_deg) and in line of sight; 'navchat': navchat's tighter distance/angle bands"
     )
-    success_distance_m: float = Field(1.5, gt=0, description="paper rule: distance to the goal's footprint, metres")
-    hfov_deg: float = Field(90.0, gt=0, lt=180, description="ego view horizontal field of view, degrees")
     camera_height_m: float | None = Field(
         None, gt=0, description="ego camera height above the floor; None = median height of the recording's poses"
     )
@@ -671,10 +701,10 @@ class EvalParams(Section):
     explore_radius_m: float = Field(2.5, gt=0, description="a spin marks cells this close (in sight) as explored")
     explore_max_targets: int = Field(12, gt=0, description="frontier targets visited per search at most")
     reject_radius_m: float = Field(0.75, ge=0, description="candidates this close to a rejected place are skipped")
-    stop_radius_m: float = Field(
-        1.25, gt=0, description="goto_object stops at the nearest place this close to an object's cells from which "
-        "its centre is in sight, metres")
-    clearance_m: float = Field(0.1, ge=0, description="planned paths keep this far from non-navigable cells")
+    goto_stop_radius_m: float = Field(
+        1.25, gt=0, description="the agents' goto_object stops at the nearest place this close to a found object's "
+        "cells from which its centre is in sight (an agent's choice; walks to a ground-truth goal use "
+        "task.stop_radius_m), metres")
     workers: int = Field(2, gt=0, description="processes evaluating scenes in parallel (1 = serial)")
     detector: DetectorParams = Field(
         DetectorParams(), description="simulated open-vocabulary detector of the cow and orion agents (simulated scenes)"
@@ -684,6 +714,8 @@ class EvalParams(Section):
     @field_validator("methods", "feedback", "seeds")
     @classmethod
     def _nonempty(cls, v):
+        if v is None:
+            return v
         if not v:
             raise ValueError("at least one value is needed")
         if len(set(v)) != len(v):
@@ -731,6 +763,7 @@ class Params(Section):
     encoders: EncodersParams = EncodersParams()
     maps: MapsParams = MapsParams()
     query: QueryParams = QueryParams()
+    task: TaskParams = TaskParams()
     goals: GoalsParams = GoalsParams()
     routes: RoutesParams = RoutesParams()
     eval: EvalParams = EvalParams()
@@ -742,14 +775,6 @@ class Params(Section):
             if not name or any(ch in name for ch in "/\\ .") or name.startswith("-"):
                 raise ValueError(f"scene name {name!r} must be a plain identifier (letters, digits, _ -)")
         return scenes
-
-    @model_validator(mode="after")
-    def _depth_ranges(self) -> "Params":
-        for key in ("simulate", "ingest"):
-            sec = getattr(self, key)
-            if sec.depth_min_m >= sec.depth_max_m:
-                raise ValueError(f"{key}.depth_min_m must be below {key}.depth_max_m")
-        return self
 
 
 # ----------------------------------------------------------------------------- load
@@ -775,13 +800,24 @@ def _format_errors(err: ValidationError, origin: str) -> str:
     return "\n".join(lines)
 
 
-# Keys that moved out of the hashed sections (they never change an artifact): old -> new.
+# Keys that moved: old -> new. Why, per new section (_MOVED_WHY).
 MOVED_KEYS: dict[str, str] = {
     "maps.device": "run.fusion_device",
     "encoders.device": "run.device",
     "encoders.batch_size": "run.encoder_batch_size",
     "encoders.threads": "run.torch_threads",
     **{f"maps.{name}": f"query.{name}" for name in QueryParams.model_fields},
+    **{f"routes.{name}": f"task.{name}" for name in TaskParams.model_fields},
+    "eval.success_distance_m": "task.success_m",
+    "eval.hfov_deg": "task.hfov_deg",
+    "eval.clearance_m": "task.clearance_m",
+    "eval.stop_radius_m": "eval.goto_stop_radius_m",
+}
+_MOVED_WHY = {
+    "run": "settings that cannot change an artifact live outside the hashed sections",
+    "query": "settings that cannot change an artifact live outside the hashed sections",
+    "task": "the task's facts have one home, read by the goals and routes stages and the evaluator",
+    "eval": "the agents' own stop radius; task.stop_radius_m is where walks to a ground-truth goal aim",
 }
 
 
@@ -789,8 +825,8 @@ def _moved_keys(raw: dict, origin: str) -> None:
     found = [(old, new) for old, new in MOVED_KEYS.items()
              if isinstance(raw.get(old.split(".")[0]), dict) and old.split(".")[1] in raw[old.split(".")[0]]]
     if found:
-        raise ConfigError("\n".join(f"{origin}: {old}: moved to {new} (settings that cannot change an artifact "
-                                     f"live outside the hashed sections)" for old, new in found))
+        raise ConfigError("\n".join(f"{origin}: {old}: moved to {new} ({_MOVED_WHY[new.split('.')[0]]})"
+                                     for old, new in found))
 
 
 def parse_params(raw: dict, *, origin: str = "params", overrides: list[str] | tuple[str, ...] = ()) -> Params:

@@ -1,12 +1,12 @@
 """Stage ``goals``: objects (GT in frames.zarr, a user file, or navchat annotations) -> ``goals.zarr``.
 
-The work (objects, walls, procedural feedback planned as the routes stage plans, user edits) is
+The work (objects, walls, goal regions, procedural feedback planned as the routes stage plans, user edits) is
 :func:`pipeline.goals.build.build_scene_goals`; this module holds the stage's config and entry point.
 """
 
 from __future__ import annotations
 
-from pipeline.config import GoalsParams, Params, RoutesParams, StageConfig, section_keys
+from pipeline.config import GoalsParams, Params, StageConfig, TaskParams, section_keys
 from pipeline.frames import FrameStore
 from pipeline.goals.build import build_scene_goals
 from pipeline.goals.store import ARTIFACT, FORMAT_VERSION
@@ -17,29 +17,28 @@ from pipeline.store import artifact_attrs
 
 # goals.* entries keyed by scene: a scene's config holds only its own entry
 PER_SCENE = ("objects_files", "navchat_dirs", "edits")
-# routes.* settings the goals stage plans procedural feedback with (the routes stage's planner and region)
-ROUTE_KEYS = ("step_m", "turn_deg", "clearance_m", "stop_radius_m", "success_m")
+# task.* facts the goals stage reads: the success radius cuts the goal regions, the rest plans procedural
+# feedback as the routes stage plans its episodes (task.hfov_deg is not read: it stays at its default here)
+TASK_KEYS = ("step_m", "turn_deg", "clearance_m", "stop_radius_m", "success_m")
 
 
 class Config(StageConfig):
-    """The ``goals`` section (of the scene-keyed entries, only this scene's) and the ``routes`` settings that plan
-    procedural feedback, so importing goal edits for one scene leaves every other scene up to date."""
+    """The ``goals`` section (of the scene-keyed entries, only this scene's) and the ``task`` facts of
+    :data:`TASK_KEYS`, so importing goal edits for one scene leaves every other scene up to date."""
 
     goals: GoalsParams
-    routes: RoutesParams
+    task: TaskParams
 
     @classmethod
     def param_keys(cls, params: Params, scene: str) -> list[str]:
         own = [f"goals.{k}.{scene}" for k in PER_SCENE if scene in getattr(params.goals, k)]
-        return section_keys("goals", GoalsParams, exclude=PER_SCENE) + own + [f"routes.{k}" for k in ROUTE_KEYS]
+        return section_keys("goals", GoalsParams, exclude=PER_SCENE) + own + [f"task.{k}" for k in TASK_KEYS]
 
     @classmethod
     def from_params(cls, params: Params, scene: str) -> "Config":
         g = params.goals
         goals = g.model_copy(update={k: {s: v for s, v in getattr(g, k).items() if s == scene} for k in PER_SCENE})
-        defaults = RoutesParams()
-        routes = defaults.model_copy(update={k: getattr(params.routes, k) for k in ROUTE_KEYS})
-        return cls(goals=goals, routes=routes)
+        return cls(goals=goals, task=TaskParams(**{k: getattr(params.task, k) for k in TASK_KEYS}))
 
     @classmethod
     def extra_inputs(cls, params: Params, scene: str) -> dict[str, str]:
@@ -52,4 +51,4 @@ def run(ctx: StageContext) -> dict:
     """Write ``ctx.outputs['goals']`` from the scene's frames and recon; returns the summary."""
     return build_scene_goals(FrameStore(ctx.inputs["frames"]), Recon(ctx.inputs["recon"]), ctx.outputs["goals"],
                              artifact_attrs(ARTIFACT, FORMAT_VERSION, "goals", ctx.params_digest), scene=ctx.scene,
-                             goals=ctx.config.goals, routes=ctx.config.routes, root=ctx.workspace.root, log=ctx.log)
+                             goals=ctx.config.goals, task=ctx.config.task, root=ctx.workspace.root, log=ctx.log)

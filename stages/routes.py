@@ -1,12 +1,12 @@
 """Stage ``routes``: goals + recon's navigable grid -> episodes with verified geodesic routes (``routes.zarr``).
 
-The work (goal regions, seeded starts, FMM routes, actions, text, replay verification) is
+The work (seeded starts, FMM routes into the goals' stored regions, actions, text, replay verification) is
 :func:`pipeline.routes.build.build_routes`; this module holds the stage's config and entry point.
 """
 
 from __future__ import annotations
 
-from pipeline.config import RoutesParams, StageConfig
+from pipeline.config import RoutesParams, StageConfig, TaskParams
 from pipeline.goals.store import Goals
 from pipeline.recon import Recon
 from pipeline.routes.build import build_routes
@@ -16,14 +16,15 @@ from pipeline.store import artifact_attrs
 
 
 class Config(StageConfig):
-    """The ``routes`` section."""
+    """The ``routes`` section and the ``task`` (action space, success radius and view, stop radius, clearance)."""
 
     routes: RoutesParams
+    task: TaskParams
 
 
 def run(ctx: StageContext) -> dict:
     """Write ``ctx.outputs['routes']`` from the scene's goals and recon; returns the summary."""
     attrs = artifact_attrs(ARTIFACT, FORMAT_VERSION, "routes", ctx.params_digest, scene=ctx.scene)
     return build_routes(Goals(ctx.inputs["goals"]), Recon(ctx.inputs["recon"]), ctx.outputs["routes"], attrs,
-                        ctx.config.routes, log=ctx.log,
+                        ctx.config.routes, ctx.config.task, log=ctx.log,
                         progress=lambda it, n, d: ctx.progress(it, total=n, description=d))

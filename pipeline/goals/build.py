@@ -4,10 +4,11 @@
 user file, or navchat annotations; :func:`load_objects`) -> ``goals.zarr``. Landmark line of sight
 uses the GT walls when the scene is simulated, else recon's occupied cells outside object footprints
 (:func:`wall_grid`); procedural text starts from the recording's first camera pose (:func:`start_pose`)
-and ends in the goal region the routes stage uses (:func:`region_function`:
-:func:`pipeline.routes.region.group_region`, line of sight on ``recon_mesh.ply``), planned as the
-routes stage plans its episodes. A user edit (``goals.edits[scene]``, written by ``zipon goals import``)
-replaces the generated document after it is checked against the scene's objects. Format:
+and ends in the goal's region (:class:`GoalRegions`: :func:`pipeline.routes.region.group_region`, line
+of sight on ``recon_mesh.ply``), planned as the routes stage plans its episodes. The regions are
+computed here, once, and stored with the goals; the routes stage and the evaluator read them. A user
+edit (``goals.edits[scene]``, written by ``zipon goals import``) replaces the generated document after
+it is checked against the scene's objects. Format:
 :mod:`pipeline.goals.store`.
 
 Its core is one pure function, :func:`build_goals`, from plain inputs (objects, grid, wall/navigable
@@ -25,7 +26,7 @@ from typing import Callable
 import numpy as np
 from scipy import ndimage
 
-from pipeline.config import GoalsParams, RoutesParams
+from pipeline.config import GoalsParams, TaskParams
 from pipeline.errors import ConfigError, InputDataError, StageError
 from pipeline.frames import FrameStore
 from pipeline.geometry import GridSpec, camera_yaw
@@ -39,25 +40,12 @@ from pipeline.goals.schema import (Feedback, GoalEntry, GoalsDocument, ObjectEnt
 from pipeline.goals.store import write_goals
 from pipeline.recon import OCCUPIED, UNKNOWN, Recon
 from pipeline.routes.actions import RoutePlanner, RouteSettings
-from pipeline.routes.region import MeshSight, group_region, recorded_camera_height
+from pipeline.routes.region import (OWN_DILATION_CELLS, SIGHT_LEVELS, SIGHT_METHOD, MeshSight, group_region,
+                                    recorded_camera_height)
 from pipeline.scene_gt import GTScene
 
 GOAL_TYPES = ("big", "small", "ambiguous")
 AMBIGUOUS_MIN_GROUPS = 3  # ambiguous goals come first from classes with this many distinguishable instances
-
-
-@dataclass(frozen=True)
-class GoalSettings:
-    """The parts of GoalsParams the algorithm reads (plain values, see pipeline.config.GoalsParams)."""
-
-    seed: int = 0
-    max_goals: int = 12
-    mix: tuple[float, float, float] = (1 / 3, 1 / 3, 1 / 3)  # big, small, ambiguous
-    same_goal_radius_m: float = 2.0
-    landmark_radius_m: float = 1.0
-    max_landmarks: int = 3
-    landmark_min_area_m2: float = 0.1
-    exclude_classes: tuple[str, ...] = ()
 
 
 @dataclass
@@ -88,7 +76,7 @@ def spread_ambiguous(pool: list[tuple[str, ...]], cls_of: dict, per_cls: dict[st
     return [g for _, g in sorted(ranked, key=lambda t: t[0])]
 
 
-def select_groups(objset: ObjectSet, groups: list[tuple[str, ...]], s: GoalSettings, rng: np.random.Generator
+def select_groups(objset: ObjectSet, groups: list[tuple[str, ...]], s: GoalsParams, rng: np.random.Generator
                   ) -> list[tuple[tuple[str, ...], str]]:
     """Goal groups with their type, the paper's mix of big, small and ambiguous, seeded."""
     by_key = objset.by_key()
@@ -119,7 +107,7 @@ def select_groups(objset: ObjectSet, groups: list[tuple[str, ...]], s: GoalSetti
 
 
 def build_goals(objset: ObjectSet, grid: GridSpec, walls: np.ndarray, *, planner=None,
-                start_pose: tuple[float, float, float] | None = None, settings: GoalSettings = GoalSettings(),
+                start_pose: tuple[float, float, float] | None = None, settings: GoalsParams = GoalsParams(),
                 edits: GoalsDocument | None = None, edits_path=None, goal_region=None) -> GoalsResult:
     """Personalized goals of one scene; with ``edits`` the user's document replaces the generated one
     after it is checked against the scene's objects. ``goal_region(members, object_index, keys)`` ->
@@ -149,9 +137,7 @@ def build_goals(objset: ObjectSet, grid: GridSpec, walls: np.ndarray, *, planner
                           planner=planner, start_pose=start_pose,
                           goal_region=None if goal_region is None else
                           (lambda members: goal_region(members, object_index, keys)),
-                          settings={"landmark_radius_m": settings.landmark_radius_m,
-                                    "max_landmarks": settings.max_landmarks,
-                                    "landmark_min_area_m2": settings.landmark_min_area_m2})
+                          settings=settings)
     goals = []
     landmarks = {}
     for d in drafts:
@@ -245,22 +231,46 @@ def wall_grid(objset: ObjectSet, recon: Recon, gt: GTScene | None, object_index:
     return (recon.occupancy == OCCUPIED) & ~near_obj
 
 
-def region_function(recon: Recon, objset: ObjectSet, success_m: float):
-    """``(members, object_index, keys) -> (rows, cols)`` bool goal region, exactly as the routes stage
-    computes it (:func:`pipeline.routes.region.group_region`; line of sight by ray casting
-    ``recon_mesh.ply`` from the recording's median camera height). The mesh is read on first use."""
-    objects = {o.key: o for o in objset.objects}
-    state: dict = {}
+class GoalRegions:
+    """The goal regions of one scene, each computed once: ``regions(members, object_index, keys)`` -> ``(rows, cols)``
+    bool region of a same_goal group (:func:`pipeline.routes.region.group_region`: navigable cells within
+    ``success_m`` of a member's footprint that see its mass centre, line of sight by ray casting
+    ``recon_mesh.ply`` from the recording's median camera height; the mesh is read on first use).
 
-    def region(members, object_index, keys):
-        if "sight" not in state:
-            cam_h = recorded_camera_height(recon.poses, recon.floor_z)
-            state["sight"] = MeshSight.from_mesh(recon.mesh_path, floor_z=recon.floor_z, camera_height_m=cam_h,
-                                                 grid=recon.grid)
-        return group_region(recon.navigable, object_index, list(keys), members, objects, recon.grid,
-                            state["sight"], success_m=success_m)
+    The goals stage plans procedural feedback into these regions and stores them in ``goals.zarr``; the routes
+    stage and the evaluator read them from there, so a region is never computed twice."""
 
-    return region
+    def __init__(self, recon: Recon, objset: ObjectSet, success_m: float):
+        self.recon, self.success_m = recon, success_m
+        self.objects = {o.key: o for o in objset.objects}
+        self._regions: dict[tuple[str, ...], np.ndarray] = {}
+        self._sight: MeshSight | None = None
+        self._camera_height_m = 0.0
+
+    @property
+    def sight(self) -> MeshSight:
+        if self._sight is None:
+            r = self.recon
+            self._camera_height_m = recorded_camera_height(r.poses, r.floor_z)
+            self._sight = MeshSight.from_mesh(r.mesh_path, floor_z=r.floor_z, camera_height_m=self._camera_height_m,
+                                              grid=r.grid)
+        return self._sight
+
+    def __call__(self, members, object_index: np.ndarray, keys) -> np.ndarray:
+        members = tuple(members)
+        if members not in self._regions:
+            self._regions[members] = group_region(self.recon.navigable, object_index, list(keys), members,
+                                                  self.objects, self.recon.grid, self.sight, success_m=self.success_m)
+        return self._regions[members]
+
+    def attrs(self) -> tuple[dict, dict]:
+        """``(goal_region, sight)`` attrs of ``goals.zarr``: the definition and radius, and the line-of-sight test."""
+        sight = self.sight
+        return ({"definition": "navigable cells within success_m of a member's footprint that see its mass centre "
+                               "(pipeline.routes.region.group_region)", "success_m": self.success_m},
+                {"method": SIGHT_METHOD, "camera_height_m": round(self._camera_height_m, 4),
+                 "levels": list(SIGHT_LEVELS), "tolerance_m": sight.tolerance,
+                 "own_dilation_cells": OWN_DILATION_CELLS})
 
 
 def start_pose(frames: FrameStore) -> tuple[float, float, float] | None:
@@ -274,12 +284,13 @@ def start_pose(frames: FrameStore) -> tuple[float, float, float] | None:
 
 
 def build_scene_goals(frames: FrameStore, recon: Recon, out_path: Path, attrs: dict, *, scene: str, goals: GoalsParams,
-                      routes: RoutesParams, root: Path, log: Callable[[str], None] = print) -> dict:
-    """The goals of ``scene`` written to a new ``goals.zarr`` at ``out_path`` (``attrs``: its artifact attrs);
-    ``routes`` plans the procedural feedback as the routes stage plans its episodes. Paths in ``goals`` are
+                      task: TaskParams, root: Path, log: Callable[[str], None] = print) -> dict:
+    """The goals of ``scene`` and their goal regions written to a new ``goals.zarr`` at ``out_path`` (``attrs``: its
+    artifact attrs); the ``task``'s success radius cuts the regions, and its action space, stop radius and
+    clearance plan the procedural feedback as the routes stage plans its episodes. Paths in ``goals`` are
     relative to ``root``. Returns the summary figures (the stage's manifest summary)."""
     t0 = time.perf_counter()
-    p, rp = goals, routes
+    p = goals
     grid = recon.grid
     objset, navchat_doc, gt = load_objects(scene, frames, grid, p, root, log=log)
     if objset.source == "navchat":
@@ -299,18 +310,19 @@ def build_scene_goals(frames: FrameStore, recon: Recon, out_path: Path, attrs: d
         edits, dropped = prune_document(edits, {o.key for o in objset.objects})
         for d in dropped:
             log(f"edited goal {d} dropped: its objects no longer exist")
-    planner = RoutePlanner(recon.navigable, grid, RouteSettings.from_config(rp))
-    settings = GoalSettings(seed=p.seed, max_goals=p.max_goals, mix=tuple(p.mix),
-                            same_goal_radius_m=p.same_goal_radius_m, landmark_radius_m=p.landmark_radius_m,
-                            max_landmarks=p.max_landmarks, landmark_min_area_m2=p.landmark_min_area_m2,
-                            exclude_classes=tuple(p.exclude_classes))
+    planner = RoutePlanner(recon.navigable, grid, RouteSettings.from_config(task))
     object_index = rasterize_polygons([np.asarray(o.footprint) for o in objset.objects], grid)
     walls = wall_grid(objset, recon, gt, object_index)
     pose0 = start_pose(frames)
-    res = build_goals(objset, grid, walls, planner=planner, start_pose=pose0, settings=settings, edits=edits,
-                      edits_path=edits_path, goal_region=region_function(recon, objset, rp.success_m))
+    regions = GoalRegions(recon, objset, task.success_m)
+    res = build_goals(objset, grid, walls, planner=planner, start_pose=pose0, settings=p, edits=edits,
+                      edits_path=edits_path, goal_region=regions)
+    keys = [o.key for o in objset.objects]
+    region_attrs, sight_attrs = regions.attrs()
     write_goals(out_path, document=res.document, objset=objset, landmarks=res.landmarks,
-                object_index=res.object_index, grid=grid, attrs=attrs, start_pose=pose0, edits=edits_info)
+                object_index=res.object_index, grid=grid, attrs=attrs, start_pose=pose0, edits=edits_info,
+                regions={g.id: regions(g.objects, res.object_index, keys) for g in res.document.goals},
+                region_attrs=region_attrs, sight=sight_attrs)
     built = res.document.goals
     types = {t: sum(g.type == t for g in built) for t in GOAL_TYPES}
     log(f"{len(built)} goals ({types['big']} big, {types['small']} small, {types['ambiguous']} ambiguous) "

@@ -1,8 +1,8 @@
 """``goals.zarr``: personalized goals with feedback, and the reader the evaluator uses.
 
-Format (version 1)::
+Format (version 2; version 2 added the goal regions, which the routes stage and the evaluator read)::
 
-    goals.zarr/            attrs: artifact="goals", format_version=1, stage, params_digest, code_version,
+    goals.zarr/            attrs: artifact="goals", format_version=2, stage, params_digest, code_version,
     │                             scene, units="metres", frame="world, z up", grid {rows, cols, cell_size_m,
     │                             origin_xy, orientation}, source ("gt" | "file" | "navchat"),
     │                             edits {path, digest} | null, start_pose [x, y, yaw] | null,
@@ -13,11 +13,21 @@ Format (version 1)::
     │                             objects    [{key, cls, instance_id, room, footprint [[x, y], ...],
     │                                        mass_center [x, y], z_range [z0, z1], size, color_name,
     │                                        material, description}] (world metres, heights above floor),
-    │                             landmarks  {goal id: [{object, relation, distance_m}]}
-    └── object_index  (rows, cols) int32   1 + index into attrs.objects (footprints on the grid), 0 = none
+    │                             landmarks  {goal id: [{object, relation, distance_m}]},
+    │                             region_goals [goal ids, in document order: region g belongs to region_goals[g]],
+    │                             goal_region {definition, success_m},
+    │                             sight {method, camera_height_m, levels (fractions of object height),
+    │                                    tolerance_m, own_dilation_cells}
+    ├── object_index   (rows, cols) int32  1 + index into attrs.objects (footprints on the grid), 0 = none
+    ├── region_cells   (C,) int64          every goal's region (pipeline.routes.region.group_region) as flat
+    │                                      row-major cell ids on ``grid``, concatenated
+    └── region_offset  (G+1,) int64        goal g's region = region_cells[region_offset[g]:region_offset[g+1]]
 
 Variable-length records live in attrs as JSON (a few hundred objects at most); the raster is
-chunked in 256x256 tiles.
+chunked in 256x256 tiles. A goal's region (where an episode to it can succeed: navigable cells within
+``task.success_m`` of a member's footprint that see its mass centre on the reconstructed mesh) is
+computed once, here, by the goals stage, whose procedural feedback is planned into it; the routes
+stage and the evaluator read it (:meth:`Goals.goal_region`).
 """
 
 from __future__ import annotations
@@ -33,24 +43,33 @@ from pipeline.goals.schema import GoalsDocument
 from pipeline.store import compressor, new_group, open_group
 
 ARTIFACT = "goals"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 
 
 def write_goals(path: Path, *, document: GoalsDocument, objset: ObjectSet, landmarks: dict, object_index: np.ndarray,
-                grid: GridSpec, attrs: dict, start_pose=None, edits: dict | None = None) -> None:
-    """Write a new goals store at ``path``; ``attrs`` carries artifact_attrs (stage, params digest...)."""
+                grid: GridSpec, attrs: dict, start_pose=None, edits: dict | None = None,
+                regions: dict[str, np.ndarray], region_attrs: dict, sight: dict) -> None:
+    """Write a new goals store at ``path``; ``attrs`` carries artifact_attrs (stage, params digest...);
+    ``regions`` maps every goal id -> its ``(rows, cols)`` bool goal region."""
     group = new_group(Path(path), {
         **attrs, "scene": objset.scene, "units": "metres", "frame": "world, z up", "grid": grid.to_attrs(),
         "source": objset.source, "edits": edits, "start_pose": list(start_pose) if start_pose is not None else None,
         "document": document.model_dump(mode="json", by_alias=True),
         "objects": [o.model_dump(mode="json") for o in objset.objects],
-        "landmarks": landmarks,
+        "landmarks": landmarks, "region_goals": list(regions), "goal_region": dict(region_attrs),
+        "sight": dict(sight),
     })
     tile = (min(256, grid.rows), min(256, grid.cols))
     arr = group.create_array("object_index", shape=object_index.shape, chunks=tile, dtype="int32",
                              compressors=compressor(3))
     arr[:] = object_index.astype(np.int32)
     arr.attrs.update({"meaning": "1 + index into attrs.objects; 0 = no object"})
+    cells = [np.flatnonzero(np.asarray(m, bool).reshape(-1)).astype(np.int64) for m in regions.values()]
+    for name, a in (("region_cells", np.concatenate(cells) if cells else np.zeros(0, np.int64)),
+                    ("region_offset", np.concatenate([[0], np.cumsum([len(c) for c in cells])]).astype(np.int64))):
+        z = group.create_array(name, shape=a.shape, chunks=(max(len(a), 1),), dtype=a.dtype, compressors=compressor(3))
+        if a.size:
+            z[:] = a
 
 
 @dataclass(frozen=True)
@@ -88,6 +107,21 @@ class Goals:
         self.object_keys = [o["key"] for o in self.attrs["objects"]]
         self.scene = self.attrs["scene"]
         self.goals = [self._view(g) for g in self.document.goals]
+        self.region_goals = list(self.attrs["region_goals"])
+
+    @property
+    def success_m(self) -> float:
+        """The success radius the goal regions were cut with, metres (``goal_region.success_m``)."""
+        return float(self.attrs["goal_region"]["success_m"])
+
+    def goal_region(self, goal_id: str) -> np.ndarray:
+        """``(rows, cols)`` bool goal region of ``goal_id`` (all False when it has none)."""
+        out = np.zeros(self.grid.rows * self.grid.cols, bool)
+        if goal_id in self.region_goals:
+            g = self.region_goals.index(goal_id)
+            off = self.group["region_offset"][g: g + 2]
+            out[self.group["region_cells"][int(off[0]): int(off[1])]] = True
+        return out.reshape(self.grid.rows, self.grid.cols)
 
     def _view(self, g) -> GoalView:
         objs = [self.objects[k] for k in g.objects]

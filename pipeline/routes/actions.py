@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from pipeline.config import RoutesParams
+from pipeline.config import TaskParams
 from pipeline.geometry import GridSpec
 from pipeline.routes.fmm import (GeodesicPath, geodesic_field, planning_mask, segment_free, shortest_path,
                                  target_region)
@@ -251,8 +251,9 @@ def procedural_allowed(parts: list[RoutePart], agent_room: str | None, goal_room
 
 @dataclass(frozen=True)
 class RouteSettings:
-    """How a :class:`RoutePlanner` plans and discretizes routes. Build it with :meth:`from_config` (no
-    defaults here: the ``routes`` params own them)."""
+    """How a :class:`RoutePlanner` plans and discretizes routes: the task's action space and planning margins
+    (``task`` params), with the stop radius a planner may replace. Build it with :meth:`from_config` (no
+    defaults here: the ``task`` params own them)."""
 
     step_m: float  # forward action, metres
     turn_deg: float  # turn action, degrees
@@ -260,12 +261,12 @@ class RouteSettings:
     stop_radius_m: float  # without a region, aim for cells this close to the footprint
 
     @classmethod
-    def from_config(cls, routes: RoutesParams | None = None, *, step_m: float | None = None,
+    def from_config(cls, task: TaskParams | None = None, *, step_m: float | None = None,
                     turn_deg: float | None = None, clearance_m: float | None = None,
                     stop_radius_m: float | None = None) -> RouteSettings:
-        """The routes stage's settings from its ``routes`` section (default: the params' defaults); a keyword
-        replaces one field (the evaluator: routes.zarr's action space, its own clearance and stop radius)."""
-        p = RoutesParams() if routes is None else routes
+        """The settings of the ``task`` section (default: the params' defaults); a keyword replaces one field
+        (the evaluator: routes.zarr's action space, its agents' stop radius, 0 to aim at explicit cells)."""
+        p = TaskParams() if task is None else task
         given = {"step_m": step_m, "turn_deg": turn_deg, "clearance_m": clearance_m, "stop_radius_m": stop_radius_m}
         return cls(**{name: float(getattr(p, name) if value is None else value) for name, value in given.items()})
 
@@ -286,7 +287,7 @@ class RoutePlanner:
 
     ``navigable``: ``(rows, cols)`` bool. Goals are given as a footprint mask ``(rows, cols)`` bool
     or as a world point ``goal_xy`` (its cell stands for the object). ``settings`` default: the
-    ``routes`` params' defaults (:meth:`RouteSettings.from_config`).
+    ``task`` params' defaults (:meth:`RouteSettings.from_config`).
     """
 
     def __init__(self, navigable: np.ndarray, grid: GridSpec, settings: RouteSettings | None = None):
@@ -360,7 +361,8 @@ class RoutePlanner:
             try:
                 actions = follow_polyline(path.polyline_xy, yaw, step_m=s.step_m, turn_deg=s.turn_deg,
                                           face_xy=face_xy, free=self.step_free,
-                                          goal=lambda p: 3 if self._in(deep, p) else 2 if self._in(aim, p) else
+                                          goal=lambda p, deep=deep, aim=aim: 3 if self._in(deep, p) else
+                                          2 if self._in(aim, p) else
                                           int(end_mask is not None and self._in(end_mask, p)))
             except ValueError as err:  # boxed in on this mask: try the next one
                 failure = err

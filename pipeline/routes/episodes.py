@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pipeline.config import TaskParams
 from pipeline.geometry import GridSpec
 from pipeline.routes.actions import RoutePlanner, RouteSettings, route_text
 from pipeline.routes.region import route_aims
@@ -78,14 +79,17 @@ def sample_starts(fld: np.ndarray, plan_mask: np.ndarray, grid: GridSpec, n: int
 
 
 def make_episodes(navigable: np.ndarray, grid: GridSpec, goals: list[GoalTarget], *, episodes_per_goal: int,
-                  min_geodesic_m: float, seed: int, settings: RouteSettings | None = None,
-                  success_m: float = 1.5, hfov_deg: float = 90.0, progress=lambda it, **kw: it) -> EpisodeSet:
-    """Episodes for every goal (the per-goal seed is ``(seed, goal index)``).
+                  min_geodesic_m: float, seed: int, task: TaskParams | None = None,
+                  progress=lambda it, **kw: it) -> EpisodeSet:
+    """Episodes for every goal (the per-goal seed is ``(seed, goal index)``), planned and replayed with the
+    ``task``'s action space, stop radius, clearance, success radius and field of view (default: the params'
+    defaults).
 
-    A goal without ``region`` falls back to the cells within ``settings.stop_radius_m`` of its footprint
-    (no line-of-sight test; kept for callers without a reconstruction mesh). ``settings`` default: the
-    ``routes`` params' defaults (:meth:`RouteSettings.from_config`)."""
-    planner = RoutePlanner(navigable, grid, settings)
+    A goal without ``region`` falls back to the cells within ``task.stop_radius_m`` of its footprint
+    (no line-of-sight test; kept for callers without a reconstruction mesh)."""
+    task = TaskParams() if task is None else task
+    success_m = task.success_m
+    planner = RoutePlanner(navigable, grid, RouteSettings.from_config(task))
     settings = planner.settings
     planner.raise_failures = True  # an undrivable route is reported as rejected, with its reason
     out = EpisodeSet()
@@ -134,7 +138,7 @@ def make_episodes(navigable: np.ndarray, grid: GridSpec, goals: list[GoalTarget]
                     continue
                 res = replay(route.actions, start, navigable, grid, goal.footprints, step_m=settings.step_m,
                              turn_deg=settings.turn_deg, success_m=success_m, region=goal.region,
-                             face_xy=goal.face_xy if as_region else None, hfov_deg=hfov_deg)
+                             face_xy=goal.face_xy if as_region else None, hfov_deg=task.hfov_deg)
                 ep = Episode(eid, goal.id, start, reference_m, route.path.polyline_xy, route.path.length_m,
                              route.actions, route_text(route.parts), len(route.parts), res.distance_to_goal_m,
                              res.success, res.collisions)

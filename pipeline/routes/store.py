@@ -1,8 +1,9 @@
 """``routes.zarr``: verified episodes with geodesic paths and actions, and the evaluator's reader.
 
-Format (version 2; version 2 added the goal regions and ``sight``)::
+Format (version 3; version 2 added the goal regions and ``sight``, version 3 moved them to goals.zarr,
+where the goals stage computes them once)::
 
-    routes.zarr/        attrs: artifact="routes", format_version=1, stage, params_digest, code_version, scene,
+    routes.zarr/        attrs: artifact="routes", format_version=3, stage, params_digest, code_version, scene,
     │                          units="metres, radians", frame="world, z up", grid {...},
     │                          action_space {codes {0: stop, 1: forward, 2: left, 3: right}, step_m, turn_deg},
     │                          success_m, goals_digest (content digest of the goals.zarr used),
@@ -10,13 +11,7 @@ Format (version 2; version 2 added the goal regions and ``sight``)::
     │                                      path_length_m, n_actions, instruction, n_parts, final_distance_m}]
     │                          verification {generated, verified, share, rejected [{episode, reason}]},
     │                          unreachable_goals [{goal, reason}],
-    │                          region_goals [goal ids, in goals.zarr order: region g belongs to region_goals[g]],
-    │                          goal_region {definition, success_m, stop_radius_m, margin_cells, hfov_deg},
-    │                          sight {method, camera_height_m, levels (fractions of object height), tolerance_m,
-    │                                 own_dilation_cells}
-    ├── region_cells   (C,) int64     every goal's region (pipeline.routes.region.goal_region) as flat
-    │                                 row-major cell ids on ``grid``, concatenated
-    ├── region_offset  (G+1,) int64   goal g's region = region_cells[region_offset[g]:region_offset[g+1]]
+    │                          goal_region {source: the goals.zarr regions, stop_radius_m, margin_cells, hfov_deg}
     ├── path_xy        (P,2) float64  every episode's polyline, concatenated (world metres)
     ├── path_offset    (E+1,) int64   episode e's polyline = path_xy[path_offset[e]:path_offset[e+1]]
     ├── actions        (A,) uint8     every episode's actions, concatenated (ending with 0 = stop)
@@ -36,13 +31,12 @@ from pipeline.routes.episodes import EpisodeSet
 from pipeline.store import compressor, new_group, open_group
 
 ARTIFACT = "routes"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 
 
 def write_routes(path: Path, eps: EpisodeSet, *, grid: GridSpec, attrs: dict, step_m: float, turn_deg: float,
-                 success_m: float, regions: dict[str, np.ndarray] | None = None, region_attrs: dict | None = None,
-                 sight: dict | None = None) -> None:
-    """Write ``routes.zarr`` (format above); ``regions`` maps goal id -> ``(rows, cols)`` bool goal region."""
+                 success_m: float, region_attrs: dict | None = None) -> None:
+    """Write ``routes.zarr`` (format above)."""
     records = [{
         "id": e.id, "goal_id": e.goal_id, "start": [round(v, 6) for v in e.start], "geodesic_m": round(e.geodesic_m, 4),
         "path_length_m": round(e.path_length_m, 4), "n_actions": int(len(e.actions)), "instruction": e.instruction,
@@ -56,17 +50,13 @@ def write_routes(path: Path, eps: EpisodeSet, *, grid: GridSpec, attrs: dict, st
         "success_m": success_m, "episodes": records,
         "verification": {"generated": n, "verified": len(eps.episodes),
                          "share": (len(eps.episodes) / n) if n else None, "rejected": eps.rejected},
-        "unreachable_goals": eps.unreachable, "region_goals": list(regions or {}),
-        "goal_region": dict(region_attrs or {}), "sight": dict(sight or {}),
+        "unreachable_goals": eps.unreachable, "goal_region": dict(region_attrs or {}),
     })
     paths = [e.path_xy for e in eps.episodes]
     acts = [e.actions for e in eps.episodes]
     path_off = np.concatenate([[0], np.cumsum([len(p) for p in paths])]).astype(np.int64)
     act_off = np.concatenate([[0], np.cumsum([len(a) for a in acts])]).astype(np.int64)
-    cells = [np.flatnonzero(np.asarray(m, bool).reshape(-1)).astype(np.int64) for m in (regions or {}).values()]
     arrays = {
-        "region_cells": np.concatenate(cells) if cells else np.zeros(0, np.int64),
-        "region_offset": np.concatenate([[0], np.cumsum([len(c) for c in cells])]).astype(np.int64),
         "path_xy": np.concatenate(paths).astype(np.float64) if paths else np.zeros((0, 2)),
         "path_offset": path_off,
         "actions": np.concatenate(acts).astype(np.uint8) if acts else np.zeros(0, np.uint8),
@@ -104,17 +94,6 @@ class Routes:
         self._actions = self.group["actions"][:]
         self._act_off = self.group["action_offset"][:]
         self.episodes = [self._view(i) for i in range(len(self.records))]
-        self.region_goals = list(self.attrs.get("region_goals", []))
-        self._region_cells = self.group["region_cells"][:]
-        self._region_off = self.group["region_offset"][:]
-
-    def goal_region(self, goal_id: str) -> np.ndarray:
-        """``(rows, cols)`` bool goal region of ``goal_id`` (all False for a goal without one)."""
-        out = np.zeros(self.grid.rows * self.grid.cols, bool)
-        if goal_id in self.region_goals:
-            g = self.region_goals.index(goal_id)
-            out[self._region_cells[self._region_off[g]: self._region_off[g + 1]]] = True
-        return out.reshape(self.grid.rows, self.grid.cols)
 
     def _view(self, i: int) -> EpisodeView:
         r = self.records[i]
@@ -134,8 +113,13 @@ class Routes:
 
     @property
     def success_m(self) -> float:
-        """Success radius the goal regions and replays were built with, metres."""
+        """Success radius the replays were checked with (= goals.zarr's regions'), metres."""
         return float(self.attrs["success_m"])
+
+    @property
+    def hfov_deg(self) -> float:
+        """Ego-view field of view the replays were checked with, degrees (``goal_region.hfov_deg``)."""
+        return float(self.attrs["goal_region"]["hfov_deg"])
 
     def for_goal(self, goal_id: str) -> list[EpisodeView]:
         return [e for e in self.episodes if e.goal_id == goal_id]

@@ -46,32 +46,41 @@ def test_action_space_comes_from_routes_zarr(tiny_scene):
 
 def test_params_disagreeing_with_routes_are_a_lineage_error(tiny_scene):
     ws, params = tiny_scene
-    step = params.model_copy(update={"routes": params.routes.model_copy(update={"step_m": 0.3})})
-    with pytest.raises(LineageError, match=r"routes\.step_m 0\.3 in .*params\.yaml but routes\.zarr of tiny was "
+
+    def task(**change):
+        return params.model_copy(update={"task": params.task.model_copy(update=change)})
+
+    with pytest.raises(LineageError, match=r"task\.step_m 0\.3 in .*params\.yaml but routes\.zarr of tiny was "
                                            r"built with 0\.25: rebuild with zipon run -s tiny"):
-        Artifacts(ws, step, "tiny")
-    turn = params.model_copy(update={"routes": params.routes.model_copy(update={"turn_deg": 30.0})})
-    with pytest.raises(LineageError, match=r"routes\.turn_deg 30 in .* built with 15:"):
-        Artifacts(ws, turn, "tiny")
-    radius = params.model_copy(update={"eval": params.eval.model_copy(update={"success_distance_m": 1.0})})
-    with pytest.raises(LineageError, match=r"eval\.success_distance_m 1 in .* built with success_m 1\.5: .*set "
-                                           r"eval\.success_distance_m to routes\.success_m"):
-        Artifacts(ws, radius, "tiny")
-    Artifacts(ws, radius, "tiny", check=False)  # reading alone is not refused
+        Artifacts(ws, task(step_m=0.3), "tiny")
+    with pytest.raises(LineageError, match=r"task\.turn_deg 30 in .* built with 15:"):
+        Artifacts(ws, task(turn_deg=30.0), "tiny")
+    with pytest.raises(LineageError, match=r"task\.success_m 1 in .* built with 1\.5:"):
+        Artifacts(ws, task(success_m=1.0), "tiny")
+    with pytest.raises(LineageError, match=r"task\.hfov_deg 60 in .* built with 90:"):
+        Artifacts(ws, task(hfov_deg=60.0), "tiny")
+    Artifacts(ws, task(success_m=1.0), "tiny", check=False)  # reading alone is not refused
+    Artifacts(ws, task(clearance_m=0.2), "tiny")  # planning margins are not recorded facts of the routes
+
+
+def test_goal_regions_are_read_from_goals_zarr(tiny_scene):
+    ws, params = tiny_scene
+    arts = Artifacts(ws, params, "tiny")
+    assert arts.goals.success_m == arts.routes.success_m == params.task.success_m
+    assert any(arts.goals.goal_region(g.id).any() for g in arts.goals.goals)
+    assert "region_cells" not in arts.routes.group and arts.routes.attrs["goal_region"]["hfov_deg"] == 90.0
 
 
 def test_zipon_eval_refuses_another_step_size(tiny_scene, tmp_path, capsys):
     from pipeline.cli import main
 
     ws, _ = tiny_scene
-    text = ws.params_path.read_text().replace("routes: {episodes_per_goal: 2}",
-                                              "routes: {episodes_per_goal: 2, step_m: 0.3}")
-    assert "step_m: 0.3" in text
+    text = ws.params_path.read_text() + "task: {step_m: 0.3}\n"
     (tmp_path / "params.yaml").write_text(text)
     out = tmp_path / "out"
     code = main(["-q", "-p", str(tmp_path / "params.yaml"), "--data-dir", str(ws.data_dir),
                  "--manifests-dir", str(ws.manifests_dir), "eval", "-o", str(out), "-m", "cow"])
     assert code == 1
     err = " ".join((capsys.readouterr().err).split())
-    assert "routes.step_m 0.3 in" in err and "routes.zarr of tiny was built with 0.25: rebuild with zipon run -s tiny" in err
+    assert "task.step_m 0.3 in" in err and "routes.zarr of tiny was built with 0.25: rebuild with zipon run -s tiny" in err
     assert not (out / "results.json").exists()

@@ -23,7 +23,13 @@ def evaluated(tiny_scene, tmp_path_factory):
 
 def test_results_document_and_logs(evaluated):
     ws, params, out, res = evaluated
-    assert res["run"]["methods"] == list(params.eval.methods) and res["run"]["feedback"] == list(params.eval.feedback)
+    from orion_eval.agents import AGENTS
+    from orion_eval.user import FEEDBACK_SETTINGS
+
+    # eval.methods / eval.feedback unset: every registered agent (the paper's table order), every setting
+    assert params.eval.methods is None and params.eval.feedback is None
+    assert res["run"]["methods"] == list(AGENTS) == ["human", "cow", "vlmap", "cf", "orion"]
+    assert res["run"]["feedback"] == list(FEEDBACK_SETTINGS)
     on_disk = json.loads((out / "results.json").read_text())
     assert on_disk["overall"] == res["overall"]
     for method, row in res["overall"].items():
@@ -82,6 +88,12 @@ def test_unknown_names_are_config_errors(tiny_scene, tmp_path):
         run_eval(ws, params, tmp_path, feedback=["shouting"], progress=False)
     with pytest.raises(ConfigError, match="--scene: unknown scene"):
         run_eval(ws, params, tmp_path, scenes=["nope"], progress=False)
+    named = params.model_copy(update={"eval": params.eval.model_copy(update={"methods": ("cow", "gpt"),
+                                                                            "feedback": ("shouting",)})})
+    with pytest.raises(ConfigError, match=r"eval\.methods: unknown method\(s\) \['gpt'\]; choose from \['human', "):
+        run_eval(ws, named, tmp_path, progress=False)
+    with pytest.raises(ConfigError, match=r"eval\.feedback: unknown setting\(s\) \['shouting'\]"):
+        run_eval(ws, named, tmp_path, methods=["cow"], progress=False)
 
 
 def test_report_renders_in_headless_chromium(evaluated, tmp_path):
@@ -102,3 +114,18 @@ def test_report_renders_in_headless_chromium(evaluated, tmp_path):
     img = np.asarray(Image.open(png).convert("RGB"))
     assert img.shape[:2] == (1600, 1200)
     assert (img < 200).mean() > 0.01  # text, tables and the figures are drawn, not a blank page
+
+
+def test_zipon_eval_refuses_a_method_no_registry_has(tiny_scene, tmp_path, capsys):
+    from pipeline.cli import main
+
+    ws, _ = tiny_scene
+    text = ws.params_path.read_text().replace("eval: {workers: 1,", "eval: {methods: [cow, gpt], workers: 1,")
+    assert "methods: [cow, gpt]" in text
+    (tmp_path / "params.yaml").write_text(text)
+    code = main(["-q", "-p", str(tmp_path / "params.yaml"), "--data-dir", str(ws.data_dir),
+                 "--manifests-dir", str(ws.manifests_dir), "eval", "-o", str(tmp_path / "out")])
+    assert code == 1
+    err = " ".join(capsys.readouterr().err.split())
+    assert "eval.methods: unknown method(s) ['gpt']; choose from ['human', 'cow', 'vlmap', 'cf', 'orion']" in err
+    assert not (tmp_path / "out" / "results.json").exists()

@@ -129,3 +129,62 @@ def test_a_minimal_params_file_builds_simulated_scenes_with_the_oracle():
     params = parse_params({"scenes": {"a": {"source": "simulate"}}})
     config = STAGES["vlmap"].config_class().from_params(params, "a")
     assert config.encoder == "oracle"
+
+
+def test_the_task_facts_have_one_home_read_by_goals_and_routes():
+    from pipeline.config import TaskParams
+
+    base = _params()
+    task_keys = [f"task.{k}" for k in TaskParams.model_fields]
+    routes = STAGES["routes"].config_class().param_keys(base, "s0")
+    goals = STAGES["goals"].config_class().param_keys(base, "s0")
+    assert set(routes) == {"routes", "task"}  # every task fact: action space, success radius and view, margins
+    assert set(goals) >= {"task.success_m", "task.step_m", "task.turn_deg", "task.stop_radius_m", "task.clearance_m"}
+    assert "task.hfov_deg" not in goals and not [k for k in goals if k.startswith("routes")]
+    # no other section repeats a task fact
+    for section in ("routes", "eval"):
+        model = type(getattr(base, section))
+        assert not set(model.model_fields) & {k.split(".")[1] for k in task_keys}, section
+    wide = _params(task={"hfov_deg": 70.0})
+    digest = lambda p, st: digest_value(project(p, STAGES[st].config_class().param_keys(p, "s0")))  # noqa: E731
+    assert digest(wide, "routes") != digest(base, "routes") and digest(wide, "goals") == digest(base, "goals")
+
+
+@pytest.mark.parametrize("old, new", [
+    ("routes: {step_m: 0.3}", "routes.step_m: moved to task.step_m (the task's facts have one home"),
+    ("routes: {turn_deg: 30}", "routes.turn_deg: moved to task.turn_deg"),
+    ("routes: {success_m: 1.2}", "routes.success_m: moved to task.success_m"),
+    ("routes: {hfov_deg: 79}", "routes.hfov_deg: moved to task.hfov_deg"),
+    ("routes: {stop_radius_m: 0.8}", "routes.stop_radius_m: moved to task.stop_radius_m"),
+    ("routes: {clearance_m: 0.2}", "routes.clearance_m: moved to task.clearance_m"),
+    ("eval: {success_distance_m: 1.5}", "eval.success_distance_m: moved to task.success_m"),
+    ("eval: {hfov_deg: 90}", "eval.hfov_deg: moved to task.hfov_deg"),
+    ("eval: {clearance_m: 0.1}", "eval.clearance_m: moved to task.clearance_m"),
+    ("eval: {stop_radius_m: 1.25}", "eval.stop_radius_m: moved to eval.goto_stop_radius_m (the agents' own stop "
+                                    "radius; task.stop_radius_m is where walks to a ground-truth goal aim)"),
+])
+def test_a_moved_task_key_is_an_error_naming_its_new_home(old, new, tmp_path, capsys):
+    from pipeline.cli import main
+
+    p = tmp_path / "params.yaml"
+    p.write_text("scenes:\n  a: {source: simulate}\n" + old + "\n")
+    assert main(["-p", str(p), "status"]) == 1
+    err = capsys.readouterr().err.replace("\n", " ")
+    assert f"{p}: {new}" in " ".join(err.split())
+
+
+@pytest.mark.parametrize("section", ["simulate", "ingest", "reconstruct", "maps"])
+def test_every_depth_range_is_checked_once_the_same_way(section, tmp_path, capsys):
+    from pipeline.cli import main
+    from pipeline.config import DepthRange
+
+    base = _params()
+    sec = getattr(base, section)
+    assert isinstance(sec, DepthRange)
+    # the keys stay plain fields of the section: what the stages' params digests cover is unchanged
+    assert {"depth_min_m", "depth_max_m"} <= set(sec.model_dump())
+    p = tmp_path / "params.yaml"
+    p.write_text(f"scenes:\n  a: {{source: simulate}}\n{section}: {{depth_min_m: 3.0, depth_max_m: 2.0}}\n")
+    assert main(["-p", str(p), "status"]) == 1
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"{p}: {section}: depth_min_m (3) must be below depth_max_m (2)" in err

@@ -70,22 +70,22 @@ def test_every_stored_route_replays_to_its_goal(built):
         assert e.instruction == routes.records[routes.episodes.index(e)]["instruction"]
 
 
-def test_procedural_feedback_ends_in_the_routes_goal_region(built):
+def test_procedural_feedback_ends_in_the_stored_goal_region(built):
     from pipeline.recon import Recon
     from pipeline.routes.actions import RoutePlanner, RouteSettings
     from pipeline.routes.region import route_into_region
     from pipeline.routes.verify import replay
 
     tmp, _, _, recon_path, *_ = built
-    routes, goals, recon = Routes(tmp / "routes.zarr"), Goals(tmp / "goals.zarr"), Recon(recon_path)
-    rp = parse_params({"scenes": {"house": {"source": "simulate"}}}).routes
-    planner = RoutePlanner(recon.navigable, recon.grid, RouteSettings.from_config(rp))
+    goals, recon = Goals(tmp / "goals.zarr"), Recon(recon_path)
+    task = parse_params({"scenes": {"house": {"source": "simulate"}}}).task
+    planner = RoutePlanner(recon.navigable, recon.grid, RouteSettings.from_config(task))
     start = tuple(goals.attrs["start_pose"])
     said = 0
     for g in goals.goals:
-        region = routes.goal_region(g.id)
+        region = goals.goal_region(g.id)
         route = route_into_region(planner, start, region, goals.footprint_mask(g.object_keys), key=g.id,
-                                  face_xy=g.mass_centers, stop_radius_m=rp.stop_radius_m)
+                                  face_xy=g.mass_centers, stop_radius_m=task.stop_radius_m)
         text = route.text if route is not None and route.parts else None
         assert g.feedback["procedural"] == text  # the goals stage plans into the same stored region
         if text:

@@ -17,9 +17,11 @@ from typing import Any, Callable, ClassVar
 
 import numpy as np
 
+from pipeline.config import GoalsParams
 from pipeline.geometry import GridSpec
 from pipeline.goals.naming import Identity, RoomInfo
 from pipeline.goals.objects import ObjectRecord
+from pipeline.goals.schema import Feedback
 
 
 @dataclass
@@ -49,10 +51,10 @@ class FeedbackContext:
     object_keys: list[str]
     planner: Any = None  # pipeline.routes.actions.RoutePlanner, or None (no navigable grid)
     start_pose: tuple[float, float, float] | None = None  # x, y, yaw of the recording's start
-    # members -> (rows, cols) bool goal region (pipeline.routes.region.group_region, as the routes stage
-    # stores it); None = no reconstruction mesh: routes end within the planner's stop radius instead
+    # members -> (rows, cols) bool goal region (pipeline.goals.build.GoalRegions, stored in goals.zarr and
+    # read by the routes stage); None = no reconstruction mesh: routes end within the planner's stop radius
     goal_region: Callable[[tuple[str, ...]], np.ndarray] | None = None
-    settings: dict = field(default_factory=dict)  # the goals params (landmark radius, ...)
+    settings: GoalsParams = field(default_factory=GoalsParams)  # the goals params (landmark radius, ...)
 
     def footprint_mask(self, keys: tuple[str, ...]) -> np.ndarray:
         idx = [self.object_keys.index(k) + 1 for k in keys]
@@ -69,10 +71,16 @@ class FeedbackKind(ABC):
         """The value stored under ``feedback[name]`` (JSON-able)."""
 
 
+#: kind name -> implementation: the one list of feedback kinds (the evaluator's feedback settings derive from it)
 FEEDBACK_KINDS: dict[str, type[FeedbackKind]] = {}
 
 
 def register(cls: type[FeedbackKind]) -> type[FeedbackKind]:
+    """Add ``cls`` under its ``name``, which must be a field of the goals document's
+    :class:`~pipeline.goals.schema.Feedback` (where its values are stored and edited)."""
+    if cls.name not in Feedback.model_fields:
+        raise TypeError(f"feedback kind {cls.name!r} ({cls.__qualname__}) has no field in "
+                        f"pipeline.goals.schema.Feedback {sorted(Feedback.model_fields)}")
     FEEDBACK_KINDS[cls.name] = cls
     return cls
 

@@ -42,9 +42,9 @@ def line_of_sight(walls: np.ndarray, grid, a_xy: np.ndarray, b_xy: np.ndarray) -
 
 def find_landmarks(goal: GoalDraft, ctx: FeedbackContext) -> list[dict]:
     """Landmark records ``{object, relation, distance_m}``, nearest first, at most ``max_landmarks``."""
-    radius = ctx.settings.get("landmark_radius_m", 1.0)
-    limit = ctx.settings.get("max_landmarks", 3)
-    min_area = ctx.settings.get("landmark_min_area_m2", 0.1)
+    radius = ctx.settings.landmark_radius_m
+    limit = ctx.settings.max_landmarks
+    min_area = ctx.settings.landmark_min_area_m2
     found: dict[str, dict] = {}
     for mk in goal.members:
         g = ctx.objects[mk]

@@ -1,8 +1,8 @@
 """Procedural feedback: the route in words from the recording's start pose (see pipeline.routes).
 
-With the scene's goal regions (:func:`pipeline.routes.region.group_region`: navigable cells within the
-success distance that see the goal's mass centre, on the reconstructed mesh) the route is planned
-exactly as the routes stage plans its episodes (:func:`pipeline.routes.region.route_into_region`:
+With the scene's goal regions (:class:`pipeline.goals.build.GoalRegions`: navigable cells within the
+success distance that see the goal's mass centre, on the reconstructed mesh; stored in goals.zarr, where
+the routes stage reads them) the route is planned exactly as the routes stage plans its episodes (:func:`pipeline.routes.region.route_into_region`:
 into the region's route target, else the region; facing the nearest member's mass centre), so the
 text here and in ``routes.zarr`` / the evaluator's user describe the same goal. Without regions
 (no reconstruction mesh) it ends within the planner's stop radius of the footprint.

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from pipeline.config import GoalsParams, RoutesParams
+from pipeline.config import GoalsParams, TaskParams
 from pipeline.errors import ConfigError, InputDataError
 from pipeline.frames import FrameStore
 from pipeline.goals.build import (OBJECT_MARGIN_M, WALL_MIN_HEIGHT_M, build_scene_goals, load_objects, start_pose,
@@ -29,7 +29,7 @@ def house(tmp_path_factory):
 
 def _build(tmp, frames, recon, out, **goals):
     return build_scene_goals(frames, recon, tmp / out, artifact_attrs(ARTIFACT, FORMAT_VERSION, "goals", "test"),
-                             scene="house", goals=GoalsParams(**goals), routes=RoutesParams(), root=tmp,
+                             scene="house", goals=GoalsParams(**goals), task=TaskParams(), root=tmp,
                              log=lambda m: None)
 
 

@@ -1,6 +1,7 @@
 import pytest
 
-from pipeline.goals.build import GoalSettings, build_goals
+from pipeline.config import GoalsParams
+from pipeline.goals.build import build_goals
 from pipeline.goals.feedback import FEEDBACK_KINDS, FeedbackKind
 from pipeline.goals.objects import objects_from_gt
 from pipeline.routes.actions import RoutePlanner
@@ -13,7 +14,7 @@ def house_goals():
     walls = gt.occupancy(grid, 0.05, 2.5, objects=False)
     planner = RoutePlanner(gt_navigable(gt, grid), grid)
     return build_goals(objects_from_gt(gt), grid, walls, planner=planner, start_pose=(2.5, 1.8, 0.0),
-                       settings=GoalSettings(max_goals=20))
+                       settings=GoalsParams(max_goals=20))
 
 
 @pytest.mark.parametrize("kind", sorted(FEEDBACK_KINDS))
@@ -33,7 +34,27 @@ class TestFeedbackKind:
 
 
 def test_all_four_kinds():
-    assert sorted(FEEDBACK_KINDS) == ["corrective", "descriptive", "landmark", "procedural"]
+    from pipeline.goals.schema import Feedback
+    from orion_eval.user import FEEDBACK_SETTINGS
+
+    assert sorted(FEEDBACK_KINDS) == ["corrective", "descriptive", "landmark", "procedural"] == sorted(Feedback.model_fields)
+    # the evaluator's settings are derived from the registry: no interaction, yes/no, each kind, mixed
+    assert FEEDBACK_SETTINGS == ("none", "yesno", *sorted(FEEDBACK_KINDS), "mixed")
+
+
+def test_a_kind_without_a_document_field_is_refused():
+    from pipeline.goals.feedback.base import register
+
+    class Gesture(FeedbackKind):
+        name = "gesture"
+
+        def generate(self, goal, ctx):
+            return None
+
+    with pytest.raises(TypeError, match=r"feedback kind 'gesture' \(.*Gesture\) has no field in pipeline\.goals\."
+                                        r"schema\.Feedback"):
+        register(Gesture)
+    assert "gesture" not in FEEDBACK_KINDS
 
 
 def _goal(res, gid):

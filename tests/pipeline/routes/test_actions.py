@@ -59,13 +59,13 @@ def test_a_walk_that_stops_short_of_its_target_finishes_inside_it():
     assert res.in_region and res.collisions == 0 and res.final_xyyaw[0] == pytest.approx(3.2)  # one more step: 2+ cells inside
 
 
-def test_route_settings_come_from_the_routes_params():
-    from pipeline.config import RoutesParams
+def test_route_settings_come_from_the_task_params():
+    from pipeline.config import TaskParams
     from pipeline.geometry import GridSpec
 
-    p = RoutesParams(step_m=0.3, turn_deg=30.0, clearance_m=0.2, stop_radius_m=0.8)
+    p = TaskParams(step_m=0.3, turn_deg=30.0, clearance_m=0.2, stop_radius_m=0.8)
     assert RouteSettings.from_config(p) == RouteSettings(0.3, 30.0, 0.2, 0.8)
     assert RouteSettings.from_config(p, step_m=0.25, stop_radius_m=0.0) == RouteSettings(0.25, 30.0, 0.2, 0.0)
-    d = RoutesParams()  # the default planner is the params' default (clearance 0.1, not a second default)
+    d = TaskParams()  # the default planner is the params' default (clearance 0.1, not a second default)
     assert RoutePlanner(np.ones((4, 4), bool), GridSpec(4, 4, 0.05, (0.0, 0.2))).settings == RouteSettings(
         d.step_m, d.turn_deg, d.clearance_m, d.stop_radius_m) == RouteSettings.from_config()

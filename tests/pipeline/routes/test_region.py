@@ -3,7 +3,7 @@
 import numpy as np
 
 from pipeline.geometry import GridSpec
-from pipeline.routes.actions import RouteSettings
+from pipeline.config import TaskParams
 from pipeline.routes.episodes import GoalTarget, make_episodes
 from pipeline.routes.fmm import geodesic_field
 from pipeline.routes.region import MeshSight, goal_region, route_target
@@ -62,7 +62,7 @@ def test_episodes_end_in_region_and_reject_behind_wall():
     fp = [GRID.cell_to_world(np.array([[50, 42], [50, 45], [53, 45], [53, 42]]))]
     goal = GoalTarget("g", obj, fp, centre, None, region)
     eps = make_episodes(nav, GRID, [goal], episodes_per_goal=3, min_geodesic_m=1.0, seed=0,
-                        settings=RouteSettings.from_config(clearance_m=0.05), success_m=1.5)
+                        task=TaskParams(clearance_m=0.05))
     assert eps.episodes and not eps.unreachable
     for e in eps.episodes:
         end = GRID.world_to_cell(e.path_xy[-1])
