@@ -16,17 +16,19 @@ import shutil
 import socket
 import uuid
 from pathlib import Path
-from typing import Any, Mapping, TypeVar
+from typing import TYPE_CHECKING, Any, Mapping, TypeVar
 
 import numpy as np
-import zarr
 from pydantic import BaseModel, ConfigDict, ValidationError
-from zarr.codecs import BloscCodec
 
 from pipeline import __version__
 from pipeline.config import canonical_json
 from pipeline.errors import ArtifactError, MissingInputError
 from pipeline.geometry import GridSpec
+
+if TYPE_CHECKING:  # zarr is imported where a store is opened or written: `zipon status` reads none (~0.4 s)
+    import zarr
+    from zarr.codecs import BloscCodec
 
 DIGEST_ALGO = "blake2b"
 
@@ -35,11 +37,15 @@ DIGEST_ALGO = "blake2b"
 
 def compressor(level: int = 3, *, shuffle: str = "shuffle") -> BloscCodec:
     """Blosc-zstd; ``shuffle`` ('shuffle', 'bitshuffle', 'noshuffle') suits the dtype."""
+    from zarr.codecs import BloscCodec
+
     return BloscCodec(cname="zstd", clevel=level, shuffle=shuffle)
 
 
 def new_group(path: Path, attrs: dict[str, Any]) -> zarr.Group:
     """Create an empty zarr v3 group at ``path`` (which must not exist) with ``attrs``."""
+    import zarr
+
     path = Path(path)
     if path.exists():
         raise FileExistsError(f"{path}: refusing to overwrite; stages write to fresh temporary paths")
@@ -50,6 +56,8 @@ def new_group(path: Path, attrs: dict[str, Any]) -> zarr.Group:
 
 def open_group(path: Path, *, artifact: str, format_version: int | None = None) -> zarr.Group:
     """Open an artifact read-only, checking it is the named artifact and a readable format version."""
+    import zarr
+
     path = Path(path)
     if not (path / "zarr.json").is_file():
         raise MissingInputError(f"{path}: artifact {artifact!r} not found (run its stage first: zipon run)")
@@ -155,11 +163,15 @@ def _json_default(obj: Any) -> Any:
 
 def _hash_zarr(path: Path, h: "hashlib._Hash") -> None:
     """Hash decoded content (not compressed bytes) so the digest is codec-version independent."""
+    import zarr
+
     hash_zarr_group(zarr.open_group(zarr.storage.LocalStore(str(path), read_only=True), mode="r"), h)
 
 
 def hash_zarr_group(root: zarr.Group, h: "hashlib._Hash") -> None:
     """:func:`content_digest`'s hashing of an open zarr store, on any store (an object store's too)."""
+    import zarr
+
     nodes = [("", root)] + sorted(root.members(max_depth=None), key=lambda kv: kv[0])
     for name, node in nodes:
         h.update(f"\0node:{name}\0".encode())

@@ -7,7 +7,6 @@ The work (reader, time matching, depth range, z-up world, the matching report) i
 from __future__ import annotations
 
 from pipeline.config import IngestParams, Params, SceneFormat, StageConfig
-from pipeline.readers.ingest import ingest
 from pipeline.runner import StageContext
 
 
@@ -29,6 +28,8 @@ class Config(StageConfig):
 
 def run(ctx: StageContext) -> dict:
     """Read ``ctx.inputs['source']`` into ``ctx.outputs['frames']``; returns the matching summary."""
+    from pipeline.readers.ingest import ingest  # here: the readers' imports (ROS, scipy) cost every `zipon status`
+
     source = ctx.inputs["source"]
     return ingest(source, ctx.outputs["frames"], ctx.config.ingest, ctx.config.format,
                   params_digest=ctx.params_digest, source_label=ctx.workspace.relative(source), log=ctx.log,

@@ -7,7 +7,6 @@ this module holds the stage's config and entry point.
 from __future__ import annotations
 
 from pipeline.config import GridParams, ReconstructParams, StageConfig
-from pipeline.recon.build import reconstruct
 from pipeline.runner import StageContext
 
 
@@ -19,6 +18,8 @@ class Config(StageConfig):
 
 
 def run(ctx: StageContext) -> dict:
+    from pipeline.recon.build import reconstruct  # here: TSDF and grid imports cost every `zipon status`
+
     p, grid = ctx.config.reconstruct, ctx.config.grid
     ctx.log(f"fusing {ctx.inputs['frames'].name}: voxel {p.voxel_size_m} m, trunc {p.sdf_trunc_m} m, "
             f"grid {grid.rows}x{grid.cols} at {grid.cell_size_m} m")

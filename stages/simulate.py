@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pipeline.config import SimulateParams, StageConfig
 from pipeline.runner import StageContext
-from pipeline.sim import simulate_scene
 
 
 class Config(StageConfig):
@@ -15,6 +14,8 @@ class Config(StageConfig):
 
 def run(ctx: StageContext) -> dict:
     """Write ``ctx.outputs['raw_log']`` for scene ``ctx.scene`` with ``ctx.config.simulate``; returns the summary."""
+    from pipeline.sim import simulate_scene  # here: the renderer's imports cost every `zipon status` ~1 s
+
     summary = simulate_scene(ctx.scene, ctx.config.simulate, ctx.outputs["raw_log"],
                              progress=lambda it, total: ctx.progress(it, total=total, description="render"))
     ctx.log(f"{summary['frames']} frames, {summary['rooms']} rooms, {summary['objects']} objects "

@@ -34,15 +34,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import zarr
 
 from pipeline.errors import ArtifactError, MissingInputError
 from pipeline.geometry import GridSpec
 from pipeline.maps.scoring import chunked_scores, upcast
 from pipeline.store import ArtifactAttrs, AttrsModel, GridAttrs, compressor, new_group
+
+if TYPE_CHECKING:  # zarr is imported where a map is read or written: building a stage config needs none
+    import zarr
 
 FORMAT_VERSION = 1
 ARTIFACTS = ("vlmap", "cfmap")
@@ -262,6 +264,8 @@ class SemanticMap:
     """
 
     def __init__(self, path: str | Path):
+        import zarr
+
         self.path = Path(path)
         if not (self.path / "zarr.json").is_file():
             raise MissingInputError(f"{self.path}: semantic map not found (build it with: zipon run --stage vlmap)")

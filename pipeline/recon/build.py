@@ -18,8 +18,6 @@ from pipeline.config import GridParams, ReconstructParams, digest_value
 from pipeline.errors import StageError
 from pipeline.frames import FrameStore
 from pipeline.recon import grids as grids_mod
-from pipeline.recon import tsdf
-from pipeline.recon.refine import PoseRefiner
 from pipeline.recon.store import ARTIFACT, FORMAT_VERSION, write_mesh, write_points, write_recon
 from pipeline.store import artifact_attrs
 
@@ -31,6 +29,9 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
 
     Returns the summary figures (the stage's manifest summary).
     """
+    from pipeline.recon import tsdf  # open3d: imported by the work, not by the stage's config (zipon status)
+    from pipeline.recon.refine import PoseRefiner
+
     store = FrameStore(frames_path)
     grids_mod.lattice_ratio(grid, p)  # fail on a bad voxel/cell pairing before the long part
     t0 = time.perf_counter()

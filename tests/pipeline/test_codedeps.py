@@ -66,3 +66,48 @@ def test_a_syntax_error_is_a_clear_error(checkout):
         codedeps.import_closure("stages.routes", checkout)
     with pytest.raises(ZiponError, match="code module 'stages.nope' not found"):
         codedeps.import_closure("stages.nope", checkout)
+
+
+NESTED = '''
+import a
+def f():
+    import b
+    class C:
+        def g(self):
+            from c import d
+    try:
+        import e
+    except ImportError:
+        import h
+    else:
+        import i
+    finally:
+        import j
+    with k:
+        for x in y:
+            while z:
+                if w:
+                    import l
+                else:
+                    import m
+    match v:
+        case 1:
+            import n
+x = lambda: __import__("o")
+'''
+
+
+def test_statement_walk_finds_every_import_ast_walk_finds():
+    """The import scan visits statements only; on a made-up module with imports in every kind of block and on
+    every project file it finds exactly the imports of a full ``ast.walk``."""
+    import ast
+
+    def names(nodes):
+        return sorted(ast.dump(n) for n in nodes if isinstance(n, (ast.Import, ast.ImportFrom)))
+
+    tree = ast.parse(NESTED)
+    found = names(codedeps._statements(tree.body))
+    assert found == names(ast.walk(tree)) and len(found) == 10
+    for path in sorted(p for pkg in ("pipeline", "stages", "orion_eval", "zipon") for p in (codedeps.ROOT / pkg).rglob("*.py")):
+        tree = ast.parse(path.read_bytes())
+        assert names(codedeps._statements(tree.body)) == names(ast.walk(tree)), path
