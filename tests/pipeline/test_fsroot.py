@@ -153,3 +153,10 @@ def test_cli_run_status_verify_on_s3_and_other_commands_refuse(tmp_path, s3_env,
     assert main([*base, "verify"]) == 1
     err = capsys.readouterr().err
     assert "1 published artifact(s)" in err and "frames.zarr@" in err and "unreadable" in err
+
+
+def test_a_data_root_url_fsspec_cannot_open_is_a_clear_error(tmp_path, capsys):
+    (tmp_path / "params.yaml").write_text(PARAMS)
+    code = main(["-q", "-p", str(tmp_path / "params.yaml"), "--data-dir", "nosuchfs://bucket/x", "status"])
+    err = capsys.readouterr().err
+    assert code == 1 and "data root nosuchfs://bucket/x: cannot open it with fsspec" in err
