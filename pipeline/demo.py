@@ -50,7 +50,7 @@ def _query_picture(ws: Workspace, params: Params, scene: str, which: str, out: P
     goals = Goals(ws.artifact("goals", scene))
     first = goals.document.goals[0]
     cls = goals.objects[first.objects[0]].cls
-    start = goals.attrs.get("start_pose")
+    start = goals.meta.start_pose
     result = query_map(ws.artifact(which, scene), ws.artifact("recon", scene), cls,
                        tuple(start) if start else None, params=params, frames_path=ws.artifact("frames", scene))
     return render_query(result, out / f"query_{which}_{cls}.png")

@@ -223,3 +223,21 @@ def test_a_stage_is_its_config_and_a_short_run_over_the_library(path):
     own = [n for n, _ in imports(path, f"stages.{path.stem}", modules, module_level=False)]
     assert [n for n in own if n.split(".")[0] == "stages"] == []
     assert any(n.split(".")[0] == "pipeline" for n in own)
+
+
+# A store module owns its data types and attrs model; it may import only leaves (config, errors, geometry, the
+# store helpers, the ground-truth schema, the numpy scoring kernel) and the record schemas it stores, never the
+# algorithms that fill it (any scope, ``if TYPE_CHECKING:`` included).
+STORE_MODULES = ("pipeline.store", "pipeline.frames", "pipeline.maps.store", "pipeline.recon.store",
+                 "pipeline.routes.store", "pipeline.goals.store")
+STORE_MAY_IMPORT = {"pipeline", "pipeline.config", "pipeline.errors", "pipeline.geometry", "pipeline.store",
+                    "pipeline.scene_gt", "pipeline.maps.scoring",
+                    # the goal document and object record schemas (pydantic) the goals store holds
+                    "pipeline.goals.objects", "pipeline.goals.schema"}
+
+
+def test_stores_import_no_algorithm_that_fills_them():
+    modules = project_modules(ROOT)
+    found = {m: sorted({n for n, _ in imports(modules[m], m, modules, module_level=False)} - STORE_MAY_IMPORT)
+             for m in STORE_MODULES}
+    assert {m: names for m, names in found.items() if names} == {}

@@ -419,7 +419,7 @@ def export_scene(goals, settings, frames, scene: str, root: Path) -> tuple[dict,
     the frame ``settings.navchat_grid`` states (``frames`` its FrameStore or None), merged losslessly with the
     navchat folder the scene's goals were imported from (``settings.navchat_dirs[scene]`` under ``root``)."""
     source = None
-    if goals.attrs.get("source") == "navchat" and scene in settings.navchat_dirs:
+    if goals.meta.source == "navchat" and scene in settings.navchat_dirs:
         source = Path(root) / settings.navchat_dirs[scene]
     frame = navchat_frame(settings.navchat_grid, frames, goals.grid)
-    return export_navchat(goals.object_set(), goals.document, frame, goals.attrs.get("landmarks"), source=source)
+    return export_navchat(goals.object_set(), goals.document, frame, goals.meta.landmarks, source=source)

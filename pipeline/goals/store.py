@@ -34,16 +34,41 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from pipeline.errors import ArtifactError
 from pipeline.geometry import GridSpec
 from pipeline.goals.objects import ObjectRecord, ObjectSet
 from pipeline.goals.schema import GoalsDocument
-from pipeline.store import compressor, new_group, open_group
+from pipeline.store import ArtifactAttrs, AttrsModel, GridAttrs, compressor, new_group, open_group
 
 ARTIFACT = "goals"
 FORMAT_VERSION = 2
+
+
+class GoalRegionAttrs(AttrsModel):
+    """``attrs.goal_region``: how the goal regions were cut."""
+
+    success_m: float
+    definition: str | None = None
+
+
+class GoalsAttrs(ArtifactAttrs):
+    """The attrs of ``goals.zarr`` (the tree above): the document and object records as their own models."""
+
+    scene: str
+    grid: GridAttrs
+    source: str = "file"
+    edits: dict[str, Any] | None = None
+    start_pose: tuple[float, float, float] | None = None
+    document: GoalsDocument
+    objects: list[ObjectRecord]
+    landmarks: dict[str, list[dict[str, Any]]] = {}
+    region_goals: list[str] = []
+    goal_region: GoalRegionAttrs | None = None
+    sight: dict[str, Any] = {}
 
 
 def write_goals(path: Path, *, document: GoalsDocument, objset: ObjectSet, landmarks: dict, object_index: np.ndarray,
@@ -51,14 +76,14 @@ def write_goals(path: Path, *, document: GoalsDocument, objset: ObjectSet, landm
                 regions: dict[str, np.ndarray], region_attrs: dict, sight: dict) -> None:
     """Write a new goals store at ``path``; ``attrs`` carries artifact_attrs (stage, params digest...);
     ``regions`` maps every goal id -> its ``(rows, cols)`` bool goal region."""
-    group = new_group(Path(path), {
+    group = new_group(Path(path), GoalsAttrs.checked({
         **attrs, "scene": objset.scene, "units": "metres", "frame": "world, z up", "grid": grid.to_attrs(),
         "source": objset.source, "edits": edits, "start_pose": list(start_pose) if start_pose is not None else None,
         "document": document.model_dump(mode="json", by_alias=True),
         "objects": [o.model_dump(mode="json") for o in objset.objects],
         "landmarks": landmarks, "region_goals": list(regions), "goal_region": dict(region_attrs),
         "sight": dict(sight),
-    })
+    }, path))
     tile = (min(256, grid.rows), min(256, grid.cols))
     arr = group.create_array("object_index", shape=object_index.shape, chunks=tile, dtype="int32",
                              compressors=compressor(3))
@@ -101,18 +126,21 @@ class Goals:
         self.path = Path(path)
         self.group = open_group(self.path, artifact=ARTIFACT, format_version=FORMAT_VERSION)
         self.attrs = dict(self.group.attrs)
-        self.grid = GridSpec.from_attrs(self.attrs["grid"])
-        self.document = GoalsDocument.model_validate(self.attrs["document"])
-        self.objects = {o["key"]: ObjectRecord.model_validate(o) for o in self.attrs["objects"]}
-        self.object_keys = [o["key"] for o in self.attrs["objects"]]
-        self.scene = self.attrs["scene"]
+        self.meta = GoalsAttrs.read(self.attrs, self.path)
+        self.grid = self.meta.grid.spec
+        self.document = self.meta.document
+        self.objects = {o.key: o for o in self.meta.objects}
+        self.object_keys = [o.key for o in self.meta.objects]
+        self.scene = self.meta.scene
         self.goals = [self._view(g) for g in self.document.goals]
-        self.region_goals = list(self.attrs["region_goals"])
+        self.region_goals = list(self.meta.region_goals)
 
     @property
     def success_m(self) -> float:
         """The success radius the goal regions were cut with, metres (``goal_region.success_m``)."""
-        return float(self.attrs["goal_region"]["success_m"])
+        if self.meta.goal_region is None:
+            raise ArtifactError(f"{self.path}: attrs.goal_region missing (rebuild it with: zipon run --force)")
+        return self.meta.goal_region.success_m
 
     def goal_region(self, goal_id: str) -> np.ndarray:
         """``(rows, cols)`` bool goal region of ``goal_id`` (all False when it has none)."""
@@ -131,7 +159,7 @@ class Goals:
             footprints=tuple(np.asarray(o.footprint, dtype=np.float64) for o in objs),
             mass_centers=np.asarray([o.mass_center for o in objs], dtype=np.float64),
             feedback=g.feedback.model_dump(mode="json"),
-            landmarks=tuple(self.attrs.get("landmarks", {}).get(g.id) or ()),
+            landmarks=tuple(self.meta.landmarks.get(g.id) or ()),
         )
 
     def goal(self, goal_id: str) -> GoalView:
@@ -149,5 +177,5 @@ class Goals:
         return np.isin(self.object_index(), idx)
 
     def object_set(self) -> ObjectSet:
-        return ObjectSet(scene=self.scene, source=self.attrs.get("source", "file"),
+        return ObjectSet(scene=self.scene, source=self.meta.source,
                          objects=list(self.objects.values()))

@@ -56,7 +56,7 @@ def objects_template(scene: str, *, goals_path: Path | None = None, recon_path: 
         goals = Goals(goals_path)
         objects = [o.model_dump(mode="json") for o in goals.objects.values()]
         rooms = [RoomRecord(id=rid, type=r.type).model_dump(mode="json") for rid, r in goals.document.rooms.items()]
-        origin = f"the {len(objects)} objects of the built goals.zarr ({goals.attrs.get('source')})"
+        origin = f"the {len(objects)} objects of the built goals.zarr ({goals.meta.source})"
     else:
         objects, rooms = [_example_object(recon_path)], []
         origin = "one example object; replace it with yours"

@@ -21,12 +21,11 @@ from scipy import ndimage
 
 from pipeline.config import TaskParams
 from pipeline.geometry import GridSpec
+from pipeline.routes.store import FORWARD, LEFT, RIGHT, STOP
 from pipeline.routes.fmm import (GeodesicPath, geodesic_field, planning_mask, segment_free, shortest_path,
                                  target_region)
 
-STOP, FORWARD, LEFT, RIGHT = 0, 1, 2, 3
 DEEP_CELLS = 2  # a walk finishes this many cells inside its aim when a few more steps get it there
-ACTION_NAMES = {STOP: "stop", FORWARD: "forward", LEFT: "left", RIGHT: "right"}
 _LETTER = {FORWARD: "f", LEFT: "l", RIGHT: "r"}
 
 

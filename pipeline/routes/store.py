@@ -22,19 +22,99 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Protocol, Sequence
 
 import numpy as np
 
+from pipeline.errors import ArtifactError
 from pipeline.geometry import GridSpec
-from pipeline.routes.actions import ACTION_NAMES
-from pipeline.routes.episodes import EpisodeSet
-from pipeline.store import compressor, new_group, open_group
+from pipeline.store import ArtifactAttrs, AttrsModel, GridAttrs, compressor, new_group, open_group
 
 ARTIFACT = "routes"
 FORMAT_VERSION = 3
 
+# ----------------------------------------------------------------------------- the store's types
 
-def write_routes(path: Path, eps: EpisodeSet, *, grid: GridSpec, attrs: dict, step_m: float, turn_deg: float,
+#: the task's discrete actions, as stored in ``actions`` (pipeline.routes.actions plans with them)
+STOP, FORWARD, LEFT, RIGHT = 0, 1, 2, 3
+ACTION_NAMES = {STOP: "stop", FORWARD: "forward", LEFT: "left", RIGHT: "right"}
+
+
+class EpisodeSource(Protocol):
+    """What :func:`write_routes` stores of an episode (:class:`pipeline.routes.episodes.Episode` is one)."""
+
+    id: str
+    goal_id: str
+    start: tuple[float, float, float]
+    geodesic_m: float
+    path_xy: np.ndarray
+    path_length_m: float
+    actions: np.ndarray
+    instruction: str
+    n_parts: int
+    final_distance_m: float
+
+
+class EpisodeSetSource(Protocol):
+    """The verified episodes, rejected replays and unreachable goals (:class:`pipeline.routes.episodes.EpisodeSet`)."""
+
+    episodes: Sequence[EpisodeSource]
+    rejected: list[dict]
+    unreachable: list[dict]
+
+    @property
+    def generated(self) -> int: ...
+
+
+class ActionSpace(AttrsModel):
+    codes: dict[str, str]
+    step_m: float
+    turn_deg: float
+
+
+class EpisodeRecord(AttrsModel):
+    """One entry of ``attrs.episodes`` (its polyline and actions are rows of the arrays)."""
+
+    id: str
+    goal_id: str
+    start: tuple[float, float, float]  # x, y, yaw
+    geodesic_m: float
+    path_length_m: float
+    n_actions: int
+    instruction: str
+    n_parts: int
+    final_distance_m: float
+
+
+class Verification(AttrsModel):
+    generated: int
+    verified: int
+    share: float | None
+    rejected: list[dict[str, Any]]
+
+
+class GoalRegionAttrs(AttrsModel):
+    """``attrs.goal_region``: how episodes were aimed and replayed into the goal regions."""
+
+    hfov_deg: float | None = None
+    stop_radius_m: float | None = None
+    margin_cells: int | None = None
+
+
+class RoutesAttrs(ArtifactAttrs):
+    """The attrs of ``routes.zarr`` (the tree above)."""
+
+    scene: str | None = None
+    grid: GridAttrs
+    action_space: ActionSpace
+    success_m: float
+    episodes: list[EpisodeRecord]
+    verification: Verification
+    unreachable_goals: list[dict[str, Any]]
+    goal_region: GoalRegionAttrs = GoalRegionAttrs()
+
+
+def write_routes(path: Path, eps: EpisodeSetSource, *, grid: GridSpec, attrs: dict, step_m: float, turn_deg: float,
                  success_m: float, region_attrs: dict | None = None) -> None:
     """Write ``routes.zarr`` (format above)."""
     records = [{
@@ -43,7 +123,7 @@ def write_routes(path: Path, eps: EpisodeSet, *, grid: GridSpec, attrs: dict, st
         "n_parts": e.n_parts, "final_distance_m": round(e.final_distance_m, 4),
     } for e in eps.episodes]
     n = eps.generated
-    group = new_group(Path(path), {
+    group = new_group(Path(path), RoutesAttrs.checked({
         **attrs, "units": "metres, radians", "frame": "world, z up", "grid": grid.to_attrs(),
         "action_space": {"codes": {str(k): v for k, v in ACTION_NAMES.items()}, "step_m": step_m,
                          "turn_deg": turn_deg},
@@ -51,7 +131,7 @@ def write_routes(path: Path, eps: EpisodeSet, *, grid: GridSpec, attrs: dict, st
         "verification": {"generated": n, "verified": len(eps.episodes),
                          "share": (len(eps.episodes) / n) if n else None, "rejected": eps.rejected},
         "unreachable_goals": eps.unreachable, "goal_region": dict(region_attrs or {}),
-    })
+    }, path))
     paths = [e.path_xy for e in eps.episodes]
     acts = [e.actions for e in eps.episodes]
     path_off = np.concatenate([[0], np.cumsum([len(p) for p in paths])]).astype(np.int64)
@@ -87,8 +167,9 @@ class Routes:
         self.path = Path(path)
         self.group = open_group(self.path, artifact=ARTIFACT, format_version=FORMAT_VERSION)
         self.attrs = dict(self.group.attrs)
-        self.grid = GridSpec.from_attrs(self.attrs["grid"])
-        self.records = list(self.attrs["episodes"])
+        self.meta = RoutesAttrs.read(self.attrs, self.path)
+        self.grid = self.meta.grid.spec
+        self.records = self.meta.episodes
         self._path_xy = self.group["path_xy"][:]
         self._path_off = self.group["path_offset"][:]
         self._actions = self.group["actions"][:]
@@ -97,37 +178,39 @@ class Routes:
 
     def _view(self, i: int) -> EpisodeView:
         r = self.records[i]
-        return EpisodeView(r["id"], r["goal_id"], tuple(r["start"]), float(r["geodesic_m"]),
+        return EpisodeView(r.id, r.goal_id, r.start, r.geodesic_m,
                            self._path_xy[self._path_off[i]: self._path_off[i + 1]],
-                           self._actions[self._act_off[i]: self._act_off[i + 1]], r["instruction"])
+                           self._actions[self._act_off[i]: self._act_off[i + 1]], r.instruction)
 
     @property
     def step_m(self) -> float:
         """Forward action the routes were built with, metres (``action_space.step_m``)."""
-        return float(self.attrs["action_space"]["step_m"])
+        return self.meta.action_space.step_m
 
     @property
     def turn_deg(self) -> float:
         """Turn action the routes were built with, degrees (``action_space.turn_deg``)."""
-        return float(self.attrs["action_space"]["turn_deg"])
+        return self.meta.action_space.turn_deg
 
     @property
     def success_m(self) -> float:
         """Success radius the replays were checked with (= goals.zarr's regions'), metres."""
-        return float(self.attrs["success_m"])
+        return self.meta.success_m
 
     @property
     def hfov_deg(self) -> float:
         """Ego-view field of view the replays were checked with, degrees (``goal_region.hfov_deg``)."""
-        return float(self.attrs["goal_region"]["hfov_deg"])
+        if self.meta.goal_region.hfov_deg is None:
+            raise ArtifactError(f"{self.path}: attrs.goal_region.hfov_deg missing (rebuild it with: zipon run --force)")
+        return self.meta.goal_region.hfov_deg
 
     def for_goal(self, goal_id: str) -> list[EpisodeView]:
         return [e for e in self.episodes if e.goal_id == goal_id]
 
     @property
     def verification(self) -> dict:
-        return dict(self.attrs["verification"])
+        return self.meta.verification.model_dump(mode="json")
 
     @property
     def unreachable_goals(self) -> list[dict]:
-        return list(self.attrs["unreachable_goals"])
+        return list(self.meta.unreachable_goals)
