@@ -16,7 +16,12 @@ def upcast(feats16: np.ndarray) -> np.ndarray:
     global _F16_TO_F32
     if _F16_TO_F32 is None:
         _F16_TO_F32 = np.arange(1 << 16, dtype=np.uint16).view(np.float16).astype(np.float32)
-    return np.take(_F16_TO_F32, np.ascontiguousarray(feats16, dtype=np.float16).view(np.uint16))
+    bits = np.ascontiguousarray(feats16, dtype=np.float16).view(np.uint16)
+    out = np.empty(bits.shape, np.float32)
+    flat_bits, flat_out = bits.reshape(-1), out.reshape(-1)
+    for s in range(0, flat_bits.size, 1 << 21):  # 2M values a time: the int64 index temporaries stay at 16 MB
+        np.take(_F16_TO_F32, flat_bits[s : s + (1 << 21)], out=flat_out[s : s + (1 << 21)])
+    return out
 
 
 def chunked_scores(feats16: np.ndarray, text: np.ndarray, chunk_rows: int = 65536) -> np.ndarray:

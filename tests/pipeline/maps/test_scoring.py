@@ -11,6 +11,8 @@ def test_upcast_is_exact_for_every_half_float():
     assert got.dtype == np.float32 and got.shape == (256, 256)
     assert np.array_equal(got.ravel(), every.astype(np.float32), equal_nan=True)
     assert np.signbit(upcast(np.array([-0.0], np.float16)))[0]
+    big = np.random.default_rng(0).standard_normal((4100, 512)).astype(np.float16)  # more than one 2M block
+    assert np.array_equal(upcast(big), big.astype(np.float32)) and upcast(big[:, ::2]).shape == (4100, 256)
 
 
 def test_chunked_scores_equal_one_product_of_the_upcast_features():
