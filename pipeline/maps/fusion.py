@@ -31,6 +31,13 @@ reach 1e-15 at 5 m). Features whose cells take rows of a small table
 (:class:`~pipeline.encoders.base.PaletteFeatures`: the oracle) are added in factored form: point
 weights summed per (slot, table row), then one weighted table row per pair, so a block costs
 ``O(points + pairs x D)`` instead of ``O(points x D)``.
+
+Chunks and folds: :meth:`_Accumulator.state` gives an accumulator's content as a :class:`FusionState`
+(the partial of one chunk of frames) and :meth:`_Accumulator.merge` folds such a state into another
+accumulator by the same rules (voxels: sums add; top-down: the higher top level wins, equal tops add).
+Folding chunk states in a fixed order gives the same floats whatever ran the chunks (and the same as
+folding a stored fold of a prefix of them, :mod:`pipeline.maps.incremental`): every key's rows are
+added elementwise, in chunk order, starting from zero.
 """
 
 from __future__ import annotations
@@ -291,6 +298,69 @@ class _Accumulator:
         """Store slots of the in-grid points (0 = not fused); counts them in ``points_fused``."""
         raise NotImplementedError
 
+    def state(self) -> "FusionState":
+        """A copy of the content (keys ascending), e.g. one chunk's partial to fold elsewhere."""
+        keys, slots = self.store.observed()
+        s = torch.from_numpy(slots).to(self.device)
+        top = self._top()
+        return FusionState(keys=keys, sum=self.store.sum[s].cpu(), weight=self.store.weight[s].cpu(),
+                           count=self.store.count[s].cpu(), top=None if top is None else top[s].cpu())
+
+    def merge(self, part: "FusionState") -> None:
+        """Fold ``part`` (another accumulator's :meth:`state` on the same lattice) into this one."""
+        if (part.top is None) != (self._top() is None) or part.sum.shape[1:] != (self.dim,):
+            raise ValueError(f"cannot fold a {part.sum.shape[1:]}-feature state with top={part.top is not None} "
+                             f"into a {type(self).__name__} of {self.dim} features")
+        if not len(part.keys):
+            return
+        dev = self.device
+        slot = self.store.slots(torch.from_numpy(part.keys).to(dev))  # distinct keys: distinct slots
+        rows = torch.arange(len(slot), device=dev)
+        if part.top is not None:
+            top = self._grown_top()
+            ptop = part.top.to(dev)
+            restart = ptop > top[slot]
+            r = slot[restart]
+            self.store.sum[r] = 0
+            self.store.weight[r] = 0
+            self.store.count[r] = 0
+            top[r] = ptop[restart]
+            rows = torch.nonzero(ptop == top[slot]).squeeze(1)
+            slot = slot[rows]
+        self.store.sum.index_add_(0, slot, part.sum.to(dev)[rows])
+        self.store.weight.index_add_(0, slot, part.weight.to(dev)[rows])
+        self.store.count.index_add_(0, slot, part.count.to(dev)[rows])
+
+    def _top(self) -> torch.Tensor | None:
+        """Per-slot top level (top-down accumulators), else None."""
+        return None
+
+
+@dataclass
+class FusionState:
+    """What an accumulator holds, on the CPU: the partial of one chunk of frames, or a fold of several.
+
+    ``keys`` ``(N,)`` int64 ascending (flat cells of a top-down accumulator; ``level * cells + cell`` of a voxel
+    one), ``sum`` ``(N,D)`` float32 weighted feature sums, ``weight`` ``(N,)`` float64, ``count`` ``(N,)`` int64
+    points, ``top`` ``(N,)`` int64 top level (top-down only, else None).
+    """
+
+    keys: np.ndarray
+    sum: torch.Tensor
+    weight: torch.Tensor
+    count: torch.Tensor
+    top: torch.Tensor | None = None
+
+    @property
+    def points(self) -> int:
+        """Points in the sums (for a top-down state: in the top levels only)."""
+        return int(self.count.sum())
+
+    @property
+    def nbytes(self) -> int:
+        parts = [self.sum, self.weight, self.count] + ([] if self.top is None else [self.top])
+        return int(self.keys.nbytes) + sum(t.numel() * t.element_size() for t in parts)
+
 
 class TopDownAccumulator(_Accumulator):
     """Streaming top-down fusion with the top-level rule (see the module docstring)."""
@@ -299,13 +369,21 @@ class TopDownAccumulator(_Accumulator):
         super().__init__(lattice, dim, lattice.cells, device)
         self.top = torch.full((self.store.sum.shape[0],), -1, dtype=torch.int64, device=self.device)
 
+    def _top(self) -> torch.Tensor:
+        return self.top
+
+    def _grown_top(self) -> torch.Tensor:
+        """``top`` grown to the store's capacity (new slots -1: no level yet)."""
+        if self.top.shape[0] < self.store.sum.shape[0]:
+            grown = torch.full((self.store.sum.shape[0],), -1, dtype=torch.int64, device=self.device)
+            grown[: self.top.shape[0]] = self.top
+            self.top = grown
+        return self.top
+
     def _slots(self, cell: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
         dev = self.device
         slot = self.store.slots(cell)
-        if self.top.shape[0] < self.store.sum.shape[0]:
-            grown = torch.full((self.store.sum.shape[0],), -1, dtype=torch.int64, device=dev)
-            grown[: self.top.shape[0]] = self.top
-            self.top = grown
+        self._grown_top()
         n = self.store.used
         block_top = torch.full((n,), -1, dtype=torch.int64, device=dev).scatter_reduce_(0, slot, level, "amax")
         restart = torch.nonzero(block_top > self.top[:n]).squeeze(1)
@@ -318,9 +396,7 @@ class TopDownAccumulator(_Accumulator):
         return torch.where(on_top, slot, torch.zeros_like(slot))
 
     def result(self) -> "FusedCells":
-        keys, slots = self.store.observed()
-        s = torch.from_numpy(slots).to(self.device)
-        return FusedCells.from_sums(keys, self.store.sum[s], self.store.weight[s], self.store.count[s], self.top[s])
+        return FusedCells.from_state(self.state())
 
 
 class VoxelAccumulator(_Accumulator):
@@ -334,11 +410,7 @@ class VoxelAccumulator(_Accumulator):
         return self.store.slots(level * self.lattice.cells + cell)
 
     def result(self) -> "FusedVoxels":
-        keys, slots = self.store.observed()
-        s = torch.from_numpy(slots).to(self.device)
-        level, cell = np.divmod(keys, self.lattice.cells)
-        return FusedVoxels(cell=cell, level=level, sum=self.store.sum[s], weight=self.store.weight[s],
-                           count=self.store.count[s])
+        return FusedVoxels.from_state(self.state(), self.lattice)
 
 
 @dataclass
@@ -357,6 +429,11 @@ class FusedCells:
         return cls(np.asarray(cell, np.int64), feats.cpu(), weight.cpu().numpy().astype(np.float32),
                    count.cpu().numpy().astype(np.int32), level.cpu().numpy().astype(np.int16))
 
+    @classmethod
+    def from_state(cls, state: FusionState) -> "FusedCells":
+        """The map of a top-down accumulator's state."""
+        return cls.from_sums(state.keys, state.sum, state.weight, state.count, state.top)
+
     def to_store(self) -> MapCells:
         """As the map store writes it (:class:`~pipeline.maps.store.MapCells`, numpy)."""
         return MapCells(cell=self.cell, features=self.features.numpy(), weight=self.weight, count=self.count,
@@ -372,6 +449,12 @@ class FusedVoxels:
     sum: torch.Tensor  # (M,D) float32 weighted sums
     weight: torch.Tensor  # (M,) float64
     count: torch.Tensor  # (M,) int64
+
+    @classmethod
+    def from_state(cls, state: FusionState, lattice: Lattice) -> "FusedVoxels":
+        """The voxel map of a voxel accumulator's state."""
+        level, cell = np.divmod(state.keys, lattice.cells)
+        return cls(cell=cell, level=level, sum=state.sum, weight=state.weight, count=state.count)
 
     def features(self) -> torch.Tensor:
         return _unit_means(self.sum, self.weight).cpu()

@@ -225,3 +225,78 @@ def test_palette_batches_concatenate_by_sharing_or_stacking_their_tables():
     stacked = PaletteFeatures.concat([PaletteFeatures(p, idx, ones, (4, 4)), PaletteFeatures(q, idx, ones, (4, 4))])
     assert stacked.palette.shape == (6, 3)
     assert torch.equal(stacked.features, torch.cat([p[idx], q[idx]]))
+
+
+# ----------------------------------------------------------------------------- chunk states and folds
+
+def _random_blocks(n_blocks: int, seed: int = 7):
+    rng = np.random.default_rng(seed)
+    return [(_block(rng.integers(-1, 400, 300), rng.integers(0, 4, 300)),
+             torch.from_numpy(rng.standard_normal((300, 6)).astype(np.float32)), rng.random(300).astype(np.float32))
+            for _ in range(n_blocks)]
+
+
+def _fold(acc_cls, lat, states):
+    acc = acc_cls(lat, 6)
+    for s in states:
+        acc.merge(s)
+    return acc.state()
+
+
+@pytest.mark.parametrize("acc_cls", [TopDownAccumulator, VoxelAccumulator])
+def test_chunk_states_fold_by_the_rules_of_one_stream(acc_cls):
+    # the hand-computed case of _feed split into two chunks, one block each, folded in either order
+    parts = []
+    for i in (0, 1):
+        acc = acc_cls(LAT, 3)
+        _feed(acc, order=(i,))
+        parts.append(acc.state())
+    one = acc_cls(LAT, 3)
+    _feed(one)
+    for order in ((0, 1), (1, 0)):
+        acc = acc_cls(LAT, 3)
+        for i in order:
+            acc.merge(parts[i])
+        a, b = acc.result(), one.result()
+        if acc_cls is VoxelAccumulator:
+            assert a.cell.tolist() == b.cell.tolist() and a.level.tolist() == b.level.tolist()
+            assert torch.equal(a.count, b.count) and torch.equal(a.weight, b.weight)
+            a, b = a.top_down(), b.top_down()
+        assert a.cell.tolist() == [5, 6] and a.level.tolist() == [2, 0] and a.count.tolist() == [1, 2]
+        np.testing.assert_allclose(a.weight, [1.0, 4.0])
+        torch.testing.assert_close(a.features, b.features)
+    assert acc.state().points == (3 if acc_cls is TopDownAccumulator else 6)  # d, e, f; or all six
+
+
+@pytest.mark.parametrize("acc_cls", [TopDownAccumulator, VoxelAccumulator])
+def test_a_stored_fold_continued_gives_the_same_floats_as_folding_from_scratch(acc_cls):
+    grid = GridSpec(rows=20, cols=20, cell_size_m=1.0, origin_xy=(0.0, 20.0))
+    lat = Lattice(grid, 0.0, 0.0, 4.0, 1.0)
+    chunks = []
+    for c in range(4):  # 4 chunks of 3 random blocks: float sums whose value depends on the order of additions
+        acc = acc_cls(lat, 6)
+        for block in _random_blocks(3, seed=c):
+            acc.add(*block)
+        chunks.append(acc.state())
+    scratch = _fold(acc_cls, lat, chunks)
+    stored = _fold(acc_cls, lat, chunks[:2])
+    resumed = _fold(acc_cls, lat, [stored] + chunks[2:])
+    assert np.array_equal(resumed.keys, scratch.keys) and len(scratch.keys) > 100
+    for name in ("sum", "weight", "count", "top"):
+        a, b = getattr(resumed, name), getattr(scratch, name)
+        assert (a is None and b is None) or torch.equal(a, b), name
+    # and the fold is the stream's result up to float32 rounding
+    one = acc_cls(lat, 6)
+    for c in range(4):
+        for block in _random_blocks(3, seed=c):
+            one.add(*block)
+    ref = one.state()
+    assert np.array_equal(ref.keys, scratch.keys) and torch.equal(ref.count, scratch.count)
+    torch.testing.assert_close(ref.sum, scratch.sum, atol=1e-4, rtol=1e-5)
+
+
+def test_merge_refuses_a_state_of_the_other_kind():
+    top, vox = TopDownAccumulator(LAT, 3), VoxelAccumulator(LAT, 3)
+    _feed(top)
+    with pytest.raises(ValueError, match="cannot fold"):
+        vox.merge(top.state())
