@@ -23,7 +23,7 @@ import traceback
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 from pipeline import __version__
 from pipeline import codedeps
@@ -109,6 +109,73 @@ class StageContext:
 
         return track(iterable, total=total, description=f"{self.scene}/{self.stage} {description}".strip(),
                      console=_stderr_console(), transient=True)
+
+    def map_ordered(self, fn: Callable[[Any], Any], items: list) -> Iterator[Any]:
+        """``fn(item)`` for each item, yielded in item order, as tasks on the workers that run the stages
+        (:func:`ordered_tasks`): within-stage parallelism, e.g. one long scene's map chunks."""
+        return ordered_tasks(fn, items, name=f"{self.stage}-{self.scene}", threads=self.runtime.threads_per_worker)
+
+
+def ordered_tasks(fn: Callable[[Any], Any], items: list, *, name: str, threads: int = 1) -> Iterator[Any]:
+    """Yield ``fn(item)`` for every item, in item order, running the calls on every dask worker when there is one.
+
+    Inside a ``dask.distributed`` worker (``run.scheduler`` ``processes``, which starts a local cluster, or a
+    ``tcp://`` scheduler) the calls become tasks of the same cluster, submitted from the running stage task with
+    ``worker_client()``: that task secedes from its worker's thread pool while it waits, so every worker, its own
+    included, runs them, and the caller consumes (folds) the results in order as they come. At most one call
+    per worker thread plus one is in flight, so results waiting to be consumed stay bounded. A static dask graph
+    cannot do this: the number of calls (e.g. chunks of a scene's frames) is known only once the upstream stage
+    has run. Anywhere else (``sync``, ``threads``, or no dask at all) the calls run here, one after the other:
+    the same function on the same items, so the same results.
+
+    ``fn`` and ``items`` must pickle (module-level functions, ``functools.partial`` of them). An exception of a
+    call is raised here, with its type, when its turn comes.
+    """
+    client_context = _worker_client()
+    if client_context is None:
+        for item in items:
+            yield fn(item)
+        return
+    import uuid
+    from collections import deque
+
+    with client_context as client:
+        window = sum(client.nthreads().values()) + 1
+        token = uuid.uuid4().hex[:8]
+        todo = iter(enumerate(items))
+        pending: deque = deque()
+
+        def submit() -> None:
+            for i, item in todo:
+                pending.append(client.submit(_ordered_call, fn, threads, item, key=f"{name}-{i}-{token}", pure=False))
+                return
+
+        for _ in range(window):
+            submit()
+        while pending:
+            result = pending.popleft().result()
+            submit()
+            yield result
+
+
+def _worker_client():
+    """``distributed.worker_client()`` when this code runs in a dask.distributed worker, else None."""
+    import sys
+
+    if "distributed" not in sys.modules:  # never imported: certainly not a worker
+        return None
+    from distributed import get_worker, worker_client
+
+    try:
+        get_worker()
+    except ValueError:
+        return None
+    return worker_client()
+
+
+def _ordered_call(fn: Callable[[Any], Any], threads: int, item: Any) -> Any:
+    limit_native_threads(threads)
+    return fn(item)
 
 
 def _stderr_console():
@@ -437,11 +504,22 @@ def run_many(
     values = list(tasks.values())
     if scheduler == "sync":
         results = dask.compute(*values, scheduler="sync")
-    elif scheduler in ("threads", "processes"):
+    elif scheduler == "threads":
         results = dask.compute(*values, scheduler=scheduler, num_workers=params.run.workers)
     else:
-        from distributed import Client
+        import logging
 
-        with Client(scheduler) as client:
-            results = dask.compute(*values, scheduler=client)
+        from distributed import Client, LocalCluster
+
+        # 'processes': a local dask.distributed cluster of single-threaded worker processes (not dask's
+        # multiprocessing scheduler), so a stage can spread its own tasks over every worker (ordered_tasks)
+        cluster = (LocalCluster(n_workers=params.run.workers, threads_per_worker=1, processes=True, memory_limit=0,
+                                dashboard_address=":0", silence_logs=logging.ERROR)
+                   if scheduler == "processes" else None)
+        try:
+            with Client(cluster or scheduler) as client:
+                results = dask.compute(*values, scheduler=client)
+        finally:
+            if cluster is not None:
+                cluster.close()
     return list(results)

@@ -170,3 +170,33 @@ def test_config_errors_name_the_key(workspace):
         load_params(workspace.params_path, ["simulate.framez=3"])
     with pytest.raises(ConfigError, match="expected KEY=VALUE"):
         load_params(workspace.params_path, ["simulate.frames"])
+
+
+def _square_and_worker(x):
+    from distributed import get_worker
+
+    if x == 99:
+        raise ValueError("item 99 is bad")
+    time.sleep(0.05)
+    return x * x, get_worker().address
+
+
+def _ordered_in_a_worker(items):
+    from pipeline.runner import ordered_tasks
+
+    return list(ordered_tasks(_square_and_worker, items, name="square"))
+
+
+def test_ordered_tasks_run_on_every_worker_and_yield_in_item_order():
+    from distributed import Client, LocalCluster
+
+    from pipeline.runner import ordered_tasks
+
+    assert list(ordered_tasks(lambda x: x * x, range(5), name="square")) == [0, 1, 4, 9, 16]  # no cluster: here
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster, \
+            Client(cluster) as client:
+        out = client.submit(_ordered_in_a_worker, list(range(12))).result()  # a stage task spreading its items
+        assert [v for v, _ in out] == [x * x for x in range(12)]
+        assert len({w for _, w in out}) == 2
+        with pytest.raises(ValueError, match="item 99 is bad"):
+            client.submit(_ordered_in_a_worker, [1, 99, 2]).result()
