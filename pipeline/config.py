@@ -466,6 +466,11 @@ class MapsParams(DepthRange):
     """
 
     block_frames: int = Field(16, gt=0, description="frames read, encoded and fused per block")
+    chunk_frames: int = Field(
+        256, gt=0, description="frames of one chunk: chunks (fixed by frame index) are fused as separate tasks on every "
+        "worker and folded in order, so the map does not depend on the workers; a rerun after frames were appended "
+        "reuses the fold of the unchanged complete chunks (best a multiple of block_frames)"
+    )
     depth_min_m: float = Field(0.1, ge=0, description="depth below this is not fused, metres")
     depth_max_m: float = Field(5.0, gt=0, description="depth beyond this is not fused (noise grows), metres")
     max_depth_jump: float = Field(
@@ -741,6 +746,10 @@ class RunParams(Section):
     fusion_device: Literal["cpu", "cuda", "auto"] = Field("cpu", description="torch device of the map fusion")
     encoder_batch_size: int = Field(4, gt=0, description="images per encoder forward pass")
     torch_threads: int = Field(0, ge=0, description="torch CPU threads of the encoders (0 = leave torch's default)")
+    map_fold_cache: bool = Field(
+        True, description="keep each map's fold of its complete frame chunks beside it (data/artifacts/<scene>/"
+        ".<stage>.fold, as big as the map's fp32 sums) so a rerun after frames were appended fuses only the new ones"
+    )
 
     @field_validator("scheduler")
     @classmethod

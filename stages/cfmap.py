@@ -7,6 +7,7 @@ top-down projection by the same height rule as the vlmap; format in :mod:`pipeli
 
 from __future__ import annotations
 
+from pipeline.codedeps import code_digest
 from pipeline.maps.build import CfmapConfig, build_map
 from pipeline.maps.store import FORMAT_VERSION
 from pipeline.runner import StageContext
@@ -21,5 +22,7 @@ def run(ctx: StageContext) -> dict:
     ctx.log(f"fusing {ctx.inputs['frames'].name} into a sparse voxel map on {ctx.inputs['recon'].name}'s grid "
             f"(encoder {cfg.encoder})")
     attrs = artifact_attrs("cfmap", FORMAT_VERSION, "cfmap", ctx.params_digest)
+    fold = ctx.workspace.fold(ctx.scene, ctx.stage) if ctx.runtime.map_fold_cache else None
     return build_map(cfg, ctx.inputs["frames"], ctx.inputs["recon"], ctx.outputs["cfmap"], attrs, runtime=ctx.runtime,
-                     progress=lambda it, n, d: ctx.progress(it, total=n, description=d))
+                     progress=lambda it, n, d: ctx.progress(it, total=n, description=d), map_ordered=ctx.map_ordered,
+                     fold_path=fold, fold_key={"params": ctx.params_digest, "code": code_digest(__name__)})

@@ -7,6 +7,7 @@ format and rule in :mod:`pipeline.maps.store` / :mod:`pipeline.maps.fusion`.
 
 from __future__ import annotations
 
+from pipeline.codedeps import code_digest
 from pipeline.maps.build import VlmapConfig, build_map
 from pipeline.maps.store import FORMAT_VERSION
 from pipeline.runner import StageContext
@@ -20,5 +21,7 @@ def run(ctx: StageContext) -> dict:
     cfg = ctx.config
     ctx.log(f"fusing {ctx.inputs['frames'].name} into {ctx.inputs['recon'].name}'s grid (encoder {cfg.encoder})")
     attrs = artifact_attrs("vlmap", FORMAT_VERSION, "vlmap", ctx.params_digest)
+    fold = ctx.workspace.fold(ctx.scene, ctx.stage) if ctx.runtime.map_fold_cache else None
     return build_map(cfg, ctx.inputs["frames"], ctx.inputs["recon"], ctx.outputs["vlmap"], attrs, runtime=ctx.runtime,
-                     progress=lambda it, n, d: ctx.progress(it, total=n, description=d))
+                     progress=lambda it, n, d: ctx.progress(it, total=n, description=d), map_ordered=ctx.map_ordered,
+                     fold_path=fold, fold_key={"params": ctx.params_digest, "code": code_digest(__name__)})

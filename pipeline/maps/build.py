@@ -1,23 +1,40 @@
-"""Build one semantic map from ``frames.zarr`` + ``recon.zarr``: the unit of work of the vlmap/cfmap stages.
+"""Build one semantic map from ``frames.zarr`` + ``recon.zarr``: the work of the vlmap/cfmap stages.
 
-Frames stream in blocks of ``maps.block_frames``; each block is encoded in batches of
-``run.encoder_batch_size`` and fused with one vectorized scatter (:mod:`pipeline.maps.fusion`), so
-memory is bounded by the map (observed cells / voxels), never by the number of frames. Poses
-come from ``recon.zarr`` (the poses the geometry was fused with); frames recon did not fuse are
-skipped and counted.
+The frames are cut into fixed chunks of ``maps.chunk_frames`` by frame index. The unit of work,
+:func:`fuse_chunk`, streams one chunk in blocks of ``maps.block_frames``, encodes each block in batches
+of ``run.encoder_batch_size`` and fuses it with one vectorized scatter (:mod:`pipeline.maps.fusion`)
+into the chunk's own accumulator; :func:`build_map` folds the chunks' states in chunk order. The chunks
+run as dask tasks on every worker (the runner's ``StageContext.map_ordered``) or one after the other
+(``sync``): the same partials folded in the same order, so the map's digest does not depend on the
+scheduler or the number of workers. Memory is bounded by the map (observed cells / voxels), never by
+the number of frames. Poses come from ``recon.zarr`` (the poses the geometry was fused with); frames
+recon did not fuse are skipped and counted.
+
+Why chunk tasks submitted from inside the stage rather than chunk nodes in the runner's graph: the
+number of chunks is known only once ingest has run, after the graph of a ``zipon run`` is built; a
+stage task that secedes and submits its chunks to its own cluster works on a local cluster
+(``processes``) and a remote one (``tcp://``) alike, and the serial schedulers call the same
+function. The fold of the complete chunks is kept beside the map (:mod:`pipeline.maps.incremental`)
+so that frames appended to a scene are the only ones fused on the next run.
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
+from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
-from typing import Callable, ClassVar, Iterable
+from typing import TYPE_CHECKING, Callable, ClassVar, Iterable
 
 import numpy as np
 
-from pipeline.config import EncodersParams, MapsParams, Params, RunParams, StageConfig, section_keys
+from pipeline.config import EncodersParams, MapsParams, Params, RunParams, StageConfig, digest_value, section_keys
 from pipeline.errors import StageError
 from pipeline.frames import FrameStore
+
+if TYPE_CHECKING:
+    from pipeline.maps.fusion import FusionState
 
 
 class MapKind(str, Enum):
@@ -115,6 +132,99 @@ class CfmapConfig(MapConfig):
 MAP_CONFIGS: dict[str, type[MapConfig]] = {cfg.kind.value: cfg for cfg in (VlmapConfig, CfmapConfig)}
 
 
+FOLD_FORMAT = 1  # bump when the chunk digests or the fold's content change meaning
+
+
+@dataclass(frozen=True)
+class MapJob:
+    """What every chunk of one map build reads (picklable: chunk tasks run on dask workers)."""
+
+    config: MapConfig
+    frames_path: Path
+    recon_path: Path
+    runtime: RunParams
+    reads_rgb: bool  # the encoder reads the colour images (else they are neither decoded nor digested)
+
+
+@dataclass
+class ChunkResult:
+    """One chunk of frames: the digest of what it read and, unless it was only digested, its partial state."""
+
+    index: int
+    digest: str
+    state: "FusionState | None" = None
+    frames_fused: int = 0
+    pixels: int = 0
+
+
+def chunk_ranges(n_frames: int, chunk_frames: int) -> list[tuple[int, int, int]]:
+    """``(index, start, stop)`` of the fixed frame chunks ``[i * chunk_frames, (i + 1) * chunk_frames)``."""
+    return [(i, s, min(s + chunk_frames, n_frames)) for i, s in enumerate(range(0, n_frames, chunk_frames))]
+
+
+def _open_inputs(frames_path: Path, recon_path: Path, p: MapsParams):
+    """(frame store, recon, poses ``(N,4,4)``, usable ``(N,)`` bool, lattice) of one build."""
+    from pipeline.maps.store import Lattice
+    from pipeline.recon import Recon
+
+    fs = FrameStore(frames_path)
+    recon = Recon(recon_path)
+    if fs.n_frames != len(recon.fused):
+        raise StageError(f"{recon_path}: holds {len(recon.fused)} poses but {frames_path} has {fs.n_frames} frames "
+                         f"(recon from another frame store? rerun: zipon run --force --stage reconstruct)")
+    poses = recon.poses
+    usable = recon.fused & np.isfinite(poses).all(axis=(1, 2))
+    lattice = Lattice(recon.grid, recon.floor_z, p.min_height_m, p.max_height_m, p.level_height_m)
+    return fs, recon, poses, usable, lattice
+
+
+def fuse_chunk(job: MapJob, chunk: tuple[int, int, int], *, fuse: bool = True) -> ChunkResult:
+    """The unit of work of a map stage: frames ``[start, stop)`` of ``chunk = (index, start, stop)`` streamed in
+    blocks of ``maps.block_frames``, encoded and fused into a fresh accumulator; returns its state and the digest
+    of what the chunk read (colour if the encoder reads it, depth, instance masks, recon's poses and fused flags).
+    ``fuse=False`` only reads and digests (checking a stored fold, :mod:`pipeline.maps.incremental`)."""
+    import torch
+
+    from pipeline.encoders import build_encoder
+    from pipeline.encoders.base import resolve_device
+    from pipeline.maps.fusion import TopDownAccumulator, VoxelAccumulator, locate_block, point_weights
+
+    index, start, stop = chunk
+    kind, p = job.config.kind, job.config.maps
+    fs, _, poses, usable, lattice = _open_inputs(job.frames_path, job.recon_path, p)
+    digest = hashlib.blake2b(digest_size=16)
+    digest.update(np.ascontiguousarray(poses[start:stop]).tobytes() + usable[start:stop].tobytes())
+    encoder = acc = None
+    if fuse and usable[start:stop].any():
+        encoder = build_encoder(job.config.encoders, job.config.encoder, runtime=job.runtime)
+        encoder.bind_scene(fs.ground_truth)
+        device = resolve_device(job.runtime.fusion_device)
+        acc = (VoxelAccumulator if kind.fuses_voxels else TopDownAccumulator)(lattice, encoder.dim, device=device)
+    sigma = kind.weight_sigma_m(p)
+    fused_frames = pixels = 0
+    with torch.inference_mode():
+        for block in fs.iter_blocks(p.block_frames, start=start, stop=stop, rgb=job.reads_rgb,
+                                    instance=fs.has_instance):
+            for array in (block.rgb if job.reads_rgb else None, block.depth_mm, block.instance):
+                if array is not None:
+                    digest.update(np.ascontiguousarray(array))
+            ok = usable[block.start : block.start + len(block)]
+            if encoder is None or not ok.any():
+                continue
+            sel = slice(None) if ok.all() else ok  # no copies of whole blocks
+            depth = block.depth_m()[sel]
+            dense = encoder.encode_images(block.rgb[sel], depth_m=depth,
+                                          instance=None if block.instance is None else block.instance[sel])
+            pts = locate_block(lattice, dense.resample_depth(depth), dense.valid.numpy(),
+                               poses[block.start : block.start + len(block)][ok], dense.intrinsics(fs.intrinsics),
+                               depth_min_m=p.depth_min_m, depth_max_m=p.depth_max_m, max_depth_jump=p.max_depth_jump)
+            acc.add(pts, dense, point_weights(pts.dist_m, sigma))
+            fused_frames += int(ok.sum())
+            pixels += pts.n_fused
+    state = None if not fuse else acc.state() if acc is not None else None
+    return ChunkResult(index, "blake2b:" + digest.hexdigest(), state, fused_frames, pixels)
+
+
 def build_map(
     config: MapConfig,
     frames_path: Path,
@@ -124,74 +234,99 @@ def build_map(
     *,
     runtime: RunParams | None = None,
     progress: Callable[[Iterable, int, str], Iterable] | None = None,
+    map_ordered: Callable[[Callable, list], Iterable] | None = None,
+    fold_path: Path | None = None,
+    fold_key: dict | None = None,
 ) -> dict:
-    """Fuse every frame into a new map store at ``out_path``; returns the summary figures."""
+    """Fuse every frame into a new map store at ``out_path``; returns the summary figures.
+
+    The frames are cut into fixed chunks of ``maps.chunk_frames`` (by frame index, whatever runs them); each
+    chunk is fused by :func:`fuse_chunk` into its own accumulator and the chunks' states are folded in chunk
+    order, so the map is the same float for float however many workers ran the chunks. ``map_ordered(fn, items)``
+    must yield ``fn(item)`` in item order; the stages pass the runner's ``StageContext.map_ordered`` (tasks on
+    every dask worker); default: one chunk after the other, here. Memory: the fold plus the few chunk states in
+    flight, each bounded by the map (observed cells / voxels), never by the number of frames.
+
+    With ``fold_path``, the fold after the last complete chunk is kept there (:mod:`pipeline.maps.incremental`),
+    keyed by ``fold_key`` (what else the map depends on: the stage's params and code digests) with the lattice,
+    the encoder's identity and the devices. When the frames grow, the stored chunks are re-read and digested and,
+    if each matches, only the frames after them are fused.
+    """
     import torch
 
     from pipeline.encoders import build_encoder
     from pipeline.encoders.base import resolve_device
-    from pipeline.maps.fusion import TopDownAccumulator, VoxelAccumulator, fill_unseen, locate_block, point_weights
-    from pipeline.maps.store import Lattice, write_map
-    from pipeline.recon import Recon
+    from pipeline.maps.fusion import (FusedCells, FusedVoxels, TopDownAccumulator, VoxelAccumulator, fill_unseen)
+    from pipeline.maps.incremental import Fold, load_fold, save_fold
+    from pipeline.maps.store import write_map
+    from pipeline.recon import FREE
 
     kind, p, runtime = config.kind, config.maps, runtime or RunParams()
-    fs = FrameStore(frames_path)
-    recon = Recon(recon_path)
-    if fs.n_frames != len(recon.fused):
-        raise StageError(f"{recon_path}: holds {len(recon.fused)} poses but {frames_path} has {fs.n_frames} frames "
-                         f"(recon from another frame store? rerun: zipon run --force --stage reconstruct)")
-    poses = recon.poses
-    usable = recon.fused & np.isfinite(poses).all(axis=(1, 2))
+    fs, recon, _, _, lattice = _open_inputs(frames_path, recon_path, p)
     encoder = build_encoder(config.encoders, config.encoder, runtime=runtime)
-    encoder.bind_scene(fs.ground_truth)
-    lattice = Lattice(recon.grid, recon.floor_z, p.min_height_m, p.max_height_m, p.level_height_m)
+    identity, reads_rgb, encoder_device = encoder.identity(), encoder.reads_rgb, str(encoder.device)
+    del encoder  # each chunk task builds its own
+    job = MapJob(config, Path(frames_path), Path(recon_path), runtime, reads_rgb)
+    run = map_ordered or (lambda fn, items: map(fn, items))
+    chunks = chunk_ranges(fs.n_frames, p.chunk_frames)
+    complete = fs.n_frames // p.chunk_frames
     device = resolve_device(runtime.fusion_device)
-    sigma = kind.weight_sigma_m(p)
-    acc = (VoxelAccumulator if kind.fuses_voxels else TopDownAccumulator)(lattice, encoder.dim, device=device)
-    blocks = fs.iter_blocks(p.block_frames, rgb=encoder.reads_rgb, instance=fs.has_instance)
-    n_blocks = -(-fs.n_frames // p.block_frames)
+    fold = (VoxelAccumulator if kind.fuses_voxels else TopDownAccumulator)(lattice, identity["dim"], device=device)
+    key = digest_value({"format": FOLD_FORMAT, **(fold_key or {}), "encoder": identity, "lattice": lattice.to_attrs(),
+                        "grid": [recon.grid.rows, recon.grid.cols, recon.grid.cell_size_m, list(recon.grid.origin_xy)],
+                        "intrinsics": fs.attrs["intrinsics"], "ground_truth": digest_value(fs.attrs.get("ground_truth")),
+                        "devices": [encoder_device, device], "encoder_batch": runtime.encoder_batch_size,
+                        "torch": torch.__version__})
+    digests: list[str] = []
+    fused_frames = pixels = reused = 0
+    stored = load_fold(fold_path, key, p.chunk_frames) if fold_path is not None else None
+    if stored is not None and 0 < len(stored.chunks) <= complete:
+        checks = run(functools.partial(fuse_chunk, job, fuse=False), chunks[: len(stored.chunks)])
+        try:
+            same = all(c.digest == d for c, d in zip(checks, stored.chunks))  # stops at the first mismatch
+        finally:
+            getattr(checks, "close", lambda: None)()
+        if same:
+            fold.merge(stored.state)
+            digests, fused_frames, pixels, reused = list(stored.chunks), stored.frames_fused, stored.pixels, len(stored.chunks)
+        del stored
+    results = run(functools.partial(fuse_chunk, job), chunks[reused:])
     if progress is not None:
-        blocks = progress(blocks, n_blocks, "fusing")
-    fused_frames = pixels = 0
-    with torch.inference_mode():
-        for block in blocks:
-            ok = usable[block.start : block.start + len(block)]
-            if not ok.any():
-                continue
-            sel = slice(None) if ok.all() else ok  # no copies of whole blocks
-            depth = block.depth_m()[sel]
-            dense = encoder.encode_images(block.rgb[sel], depth_m=depth,
-                                          instance=None if block.instance is None else block.instance[sel])
-            depth_f = dense.resample_depth(depth)
-            pts = locate_block(lattice, depth_f, dense.valid.numpy(), poses[block.start : block.start + len(block)][ok],
-                               dense.intrinsics(fs.intrinsics), depth_min_m=p.depth_min_m, depth_max_m=p.depth_max_m,
-                               max_depth_jump=p.max_depth_jump)
-            acc.add(pts, dense, point_weights(pts.dist_m, sigma))
-            fused_frames += int(ok.sum())
-            pixels += pts.n_fused
+        results = progress(results, len(chunks) - reused, "fusing")
+    for chunk in results:
+        if chunk.state is not None:
+            fold.merge(chunk.state)
+        fused_frames, pixels = fused_frames + chunk.frames_fused, pixels + chunk.pixels
+        digests.append(chunk.digest)
+        if fold_path is not None and chunk.index == complete - 1:  # the last complete chunk: keep the fold
+            save_fold(fold_path, Fold(key, p.chunk_frames, digests, fold.state(), fused_frames, pixels))
+        del chunk
+    state = fold.state()
+    del fold
     voxels = None
     if kind.fuses_voxels:
-        voxels = acc.result()
+        voxels = FusedVoxels.from_state(state, lattice)
         cells = voxels.top_down()
         if not p.cfmap_voxels:
             voxels = None
     else:
-        cells = acc.result()
+        cells = FusedCells.from_state(state)
     n_seen = len(cells.cell)
-    from pipeline.recon import FREE
-
     cells, n_filled = fill_unseen(cells, recon.grid, recon.occupancy != FREE, p.fill_radius_m)
     if len(cells.cell) == 0:
         raise StageError(f"{frames_path}: no pixel fell inside the grid and height band; nothing to map "
                          f"(check maps.depth_* / maps.*_height_m and the recon grid)")
-    identity = encoder.identity()
+    sigma = kind.weight_sigma_m(p)
     write_map(out_path, {**attrs, "encoder": identity, "weighting": {"sigma_m": sigma},
                          "frames": {"n_frames": fs.n_frames, "fused": fused_frames},
-                         "points_fused": int(acc.points_fused), "pixels_in_band": int(pixels),
+                         "points_fused": state.points, "pixels_in_band": int(pixels),
                          "cells_observed": n_seen, "cells_filled": n_filled, "fill_radius_m": p.fill_radius_m},
               recon.grid, lattice, cells.to_store(), tile_cells=p.tile_cells,
               voxels=None if voxels is None else voxels.to_store(recon.grid))
-    return {"frames_fused": fused_frames, "frames_skipped": fs.n_frames - fused_frames, "cells": int(len(cells.cell)), "cells_filled": n_filled,
-            "voxels": 0 if voxels is None else int(len(voxels.cell)), "points_fused": int(acc.points_fused),
+    frames_reused = min(reused * p.chunk_frames, fs.n_frames)
+    return {"frames_fused": fused_frames, "frames_skipped": fs.n_frames - fused_frames, "cells": int(len(cells.cell)),
+            "cells_filled": n_filled, "voxels": 0 if voxels is None else int(len(voxels.cell)),
+            "points_fused": state.points, "chunks": len(chunks), "chunks_reused": reused,
+            "frames_reused": frames_reused, "frames_processed": fs.n_frames - frames_reused,
             "encoder": identity["name"], "diagnostic_encoder": bool(identity.get("diagnostic", False)),
             "observed_area_m2": round(len(cells.cell) * recon.grid.cell_size_m**2, 3)}

@@ -1,7 +1,8 @@
 """Byte-identical reruns: the same raw inputs give the same digest for every artifact, whatever the scheduler.
 
 Two tiny simulated apartments are built from scratch twice, in two data roots: once in one process
-('sync'), once by two dask worker processes ('processes', the two scenes at once); then the
+('sync'), once by two dask worker processes ('processes', the two scenes at once, each map's three chunks
+of 8 frames spread over both workers); then the
 reconstruction of the first root is forced again in threads (both scenes fused at once in one process,
 open3d's hash map filled by racing threads). Every artifact of every stage must keep its digest
 (open3d hands its voxels and points out in a different order each run; see pipeline.recon.tsdf).
@@ -28,6 +29,7 @@ encoders: {simulated: oracle, oracle: {out_size: [30, 40]}}
 goals: {max_goals: 4}
 routes: {episodes_per_goal: 1}
 reconstruct: {voxel_size_m: 0.05}
+maps: {chunk_frames: 8}
 """
 
 

@@ -141,3 +141,105 @@ def test_level_aware_scores_find_a_picture_on_a_wall(picture_room):
         qc = mq.text_features([cls])[0]
         s, bmax, blse = LevelScorer(m).cell_scores(qc, bg, T, m.dot(qc), top_max, top_lse)
         assert wins(s, bmax, blse).sum() >= 0.5 * class_masks(gt, m.grid)[cls].sum()
+
+
+# ----------------------------------------------------------------------------- chunks, workers, appended frames
+
+@pytest.fixture(scope="module")
+def growing_room(tmp_path_factory):
+    """The box room recorded as 48 frames, then as the same 48 plus a second, shorter tour (72 frames); maps in
+    chunks of 16. The 72 frames are reconstructed; the 48-frame recon is that recon cut to its first 48 poses:
+    the map stage reuses a fold only when recon keeps its grid and floor (recon places the grid from the surface
+    it saw, so more frames may move it a voxel; then the fold is rejected and the map rebuilt)."""
+    import shutil
+
+    import zarr
+
+    from pipeline.geometry import Intrinsics
+    from tests.fixtures.recon_scenes import box_room_gt, box_room_poses, render_frames, write_frames
+
+    tmp = tmp_path_factory.mktemp("growing")
+    params = parse_params({"scenes": {"box": {"source": "simulate"}}, "grid": {"rows": 100, "cols": 160},
+                           "reconstruct": {"floor_z_m": 0.0, "voxel_size_m": 0.05}, "maps": {"chunk_frames": 16},
+                           "encoders": {"simulated": "oracle", "oracle": {"out_size": [30, 40]}}})
+    gt, intr = box_room_gt(), Intrinsics.from_hfov(96, 72, 90.0)
+    poses = np.concatenate([box_room_poses(48), box_room_poses(24)])
+    rgb, depth, inst = render_frames(gt, poses, intr)
+    scenes = {n: (write_frames(tmp / f"frames{n}.zarr", gt, rgb[:n], depth[:n], poses[:n], intr, instance=inst[:n]),
+                  tmp / f"recon{n}.zarr") for n in (48, 72)}
+    reconstruct(scenes[72][0], scenes[72][1], tmp / "mesh.ply", tmp / "points.ply", params.reconstruct, params.grid)
+    shutil.copytree(scenes[72][1], scenes[48][1])
+    group = zarr.open_group(scenes[48][1], mode="r+")
+    group["pose"].resize((48, 4, 4))
+    group["fused"].resize((48,))
+    depth[5, 10:20, 10:20] += 100  # a third recording: the second one with one early frame changed
+    scenes["changed"] = (write_frames(tmp / "frames_changed.zarr", gt, rgb, depth, poses, intr, instance=inst),
+                         scenes[72][1])
+    assert np.array_equal(Recon(scenes[48][1]).poses, Recon(scenes[72][1]).poses[:48])
+    return tmp, params, scenes
+
+
+def _scratch_digest(params, stage, frames, recon, out):
+    from pipeline.store import artifact_attrs, content_digest
+
+    build_map(MAP_CONFIGS[stage].from_params(params, "box"), frames, recon, out, artifact_attrs(stage, 1, stage, "t"))
+    return content_digest(out)
+
+
+def _stage_run(params, stage, ws, frames, recon, out):
+    """The stage's run() in a workspace (its fold cache at ``ws.fold``); (summary, content digest of the map)."""
+    from pipeline.store import content_digest
+
+    ctx = StageContext.build(STAGES[stage], params, "box", ws, {"frames": frames, "recon": recon}, {stage: out},
+                             show_progress=False)
+    return {"vlmap": run_vlmap, "cfmap": run_cfmap}[stage](ctx), content_digest(out)
+
+
+def test_chunks_on_two_dask_workers_give_the_maps_one_process_gives(growing_room):
+    import functools
+
+    from distributed import Client, LocalCluster, get_task_stream
+
+    from pipeline.runner import ordered_tasks
+    from pipeline.store import artifact_attrs, content_digest
+
+    tmp, params, scenes = growing_room
+    frames, recon = scenes[72]
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster, \
+            Client(cluster) as client:
+        for stage in ("vlmap", "cfmap"):
+            serial = _scratch_digest(params, stage, frames, recon, tmp / f"serial-{stage}.zarr")
+            config = MAP_CONFIGS[stage].from_params(params, "box")
+            with get_task_stream(client) as tasks:  # build_map runs in a worker; its chunks become tasks
+                summary = client.submit(build_map, config, frames, recon, tmp / f"two-{stage}.zarr",
+                                        artifact_attrs(stage, 1, stage, "t"),
+                                        map_ordered=functools.partial(ordered_tasks, name=f"chunk-{stage}")).result()
+            assert summary["chunks"] == 5 and summary["frames_fused"] == 72
+            assert len({t["worker"] for t in tasks.data if t["key"].startswith(f"chunk-{stage}-")}) == 2  # both ran chunks
+            assert content_digest(tmp / f"two-{stage}.zarr") == serial
+
+
+@pytest.mark.parametrize("stage", ["vlmap", "cfmap"])
+def test_appended_frames_fuse_only_the_new_chunks_and_give_the_map_built_from_scratch(growing_room, stage):
+    tmp, params, scenes = growing_room
+    ws = Workspace(root=tmp, data_dir=tmp / f"data-{stage}", manifests_dir=tmp / "manifests")
+    no_fold = params.model_copy(update={"run": params.run.model_copy(update={"map_fold_cache": False})})
+    scratch_ws = Workspace(root=tmp, data_dir=tmp / f"scratch-{stage}", manifests_dir=tmp / "manifests")
+    runs = iter(range(100))
+
+    def run(scene, p=params, w=ws):
+        return _stage_run(p, stage, w, *scenes[scene], w.data_dir / f"run{next(runs)}" / f"{stage}.zarr")
+
+    first, _ = run(48)
+    assert (first["chunks"], first["chunks_reused"], first["frames_reused"]) == (3, 0, 0)
+    assert ws.fold("box", stage).is_dir()
+    grown, digest = run(72)  # 48 frames + 24 appended
+    assert (grown["chunks"], grown["chunks_reused"], grown["frames_reused"], grown["frames_processed"]) == (5, 3, 48, 24)
+    scratch, scratch_digest = run(72, no_fold, scratch_ws)
+    assert scratch["chunks_reused"] == 0 and not scratch_ws.fold("box", stage).exists()
+    assert digest == scratch_digest
+    again, digest = run(72)  # the fold now holds 4 complete chunks; the last 8 frames are recomputed
+    assert (again["chunks_reused"], again["frames_processed"]) == (4, 8) and digest == scratch_digest
+    # an early frame changed: its chunk's digest differs, so nothing is reused
+    changed, digest = run("changed")
+    assert changed["chunks_reused"] == 0 and changed["frames_processed"] == 72 and digest != scratch_digest
