@@ -24,4 +24,4 @@ def run(ctx: StageContext) -> dict:
     fold = ctx.workspace.fold(ctx.scene, ctx.stage) if ctx.runtime.map_fold_cache else None
     return build_map(cfg, ctx.inputs["frames"], ctx.inputs["recon"], ctx.outputs["vlmap"], attrs, runtime=ctx.runtime,
                      progress=lambda it, n, d: ctx.progress(it, total=n, description=d), map_ordered=ctx.map_ordered,
-                     fold_path=fold, fold_key={"params": ctx.params_digest, "code": code_digest(__name__)})
+                     fold_path=fold, fold_key={"params": ctx.params_digest, "code": code_digest(__name__)}, log=ctx.log)

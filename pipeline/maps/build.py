@@ -237,6 +237,7 @@ def build_map(
     map_ordered: Callable[[Callable, list], Iterable] | None = None,
     fold_path: Path | None = None,
     fold_key: dict | None = None,
+    log: Callable[[str], None] = lambda message: None,
 ) -> dict:
     """Fuse every frame into a new map store at ``out_path``; returns the summary figures.
 
@@ -283,12 +284,16 @@ def build_map(
     if stored is not None and 0 < len(stored.chunks) <= complete:
         checks = run(functools.partial(fuse_chunk, job, fuse=False), chunks[: len(stored.chunks)])
         try:
-            same = all(c.digest == d for c, d in zip(checks, stored.chunks))  # stops at the first mismatch
+            changed = next((c for c, d in zip(checks, stored.chunks) if c.digest != d), None)  # the first mismatch
         finally:
             getattr(checks, "close", lambda: None)()
-        if same:
+        if changed is None:
             fold.merge(stored.state)
             digests, fused_frames, pixels, reused = list(stored.chunks), stored.frames_fused, stored.pixels, len(stored.chunks)
+            log(f"reusing the fold of frames 0-{stored.frames - 1} ({fold_path.name}); fusing {fs.n_frames - stored.frames}")
+        else:
+            log(f"frames or poses of chunk {changed.index} (frames {chunks[changed.index][1]}-"
+                f"{chunks[changed.index][2] - 1}) changed since {fold_path.name} was kept: fusing every frame")
         del stored
     results = run(functools.partial(fuse_chunk, job), chunks[reused:])
     if progress is not None:

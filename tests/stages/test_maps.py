@@ -187,12 +187,13 @@ def _scratch_digest(params, stage, frames, recon, out):
 
 
 def _stage_run(params, stage, ws, frames, recon, out):
-    """The stage's run() in a workspace (its fold cache at ``ws.fold``); (summary, content digest of the map)."""
+    """The stage's run() in a workspace (its fold cache at ``ws.fold``); (summary, content digest of the map,
+    the stage's log)."""
     from pipeline.store import content_digest
 
     ctx = StageContext.build(STAGES[stage], params, "box", ws, {"frames": frames, "recon": recon}, {stage: out},
                              show_progress=False)
-    return {"vlmap": run_vlmap, "cfmap": run_cfmap}[stage](ctx), content_digest(out)
+    return {"vlmap": run_vlmap, "cfmap": run_cfmap}[stage](ctx), content_digest(out), ctx.messages
 
 
 def test_chunks_on_two_dask_workers_give_the_maps_one_process_gives(growing_room):
@@ -230,16 +231,18 @@ def test_appended_frames_fuse_only_the_new_chunks_and_give_the_map_built_from_sc
     def run(scene, p=params, w=ws):
         return _stage_run(p, stage, w, *scenes[scene], w.data_dir / f"run{next(runs)}" / f"{stage}.zarr")
 
-    first, _ = run(48)
+    first, _, _ = run(48)
     assert (first["chunks"], first["chunks_reused"], first["frames_reused"]) == (3, 0, 0)
     assert ws.fold("box", stage).is_dir()
-    grown, digest = run(72)  # 48 frames + 24 appended
+    grown, digest, log = run(72)  # 48 frames + 24 appended
     assert (grown["chunks"], grown["chunks_reused"], grown["frames_reused"], grown["frames_processed"]) == (5, 3, 48, 24)
-    scratch, scratch_digest = run(72, no_fold, scratch_ws)
+    assert f"reusing the fold of frames 0-47 (.{stage}.fold); fusing 24" in log
+    scratch, scratch_digest, _ = run(72, no_fold, scratch_ws)
     assert scratch["chunks_reused"] == 0 and not scratch_ws.fold("box", stage).exists()
     assert digest == scratch_digest
-    again, digest = run(72)  # the fold now holds 4 complete chunks; the last 8 frames are recomputed
+    again, digest, _ = run(72)  # the fold now holds 4 complete chunks; the last 8 frames are recomputed
     assert (again["chunks_reused"], again["frames_processed"]) == (4, 8) and digest == scratch_digest
     # an early frame changed: its chunk's digest differs, so nothing is reused
-    changed, digest = run("changed")
+    changed, digest, log = run("changed")
     assert changed["chunks_reused"] == 0 and changed["frames_processed"] == 72 and digest != scratch_digest
+    assert any("chunk 0 (frames 0-15) changed" in line for line in log)
