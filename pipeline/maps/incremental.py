@@ -75,9 +75,11 @@ def load_fold(path: Path, key: str, chunk_frames: int) -> Fold | None:
 
 def save_fold(path: Path, fold: Fold) -> None:
     """Write ``fold`` at ``path``, replacing what is there; written beside and renamed, so a crash leaves the
-    old fold or none (never a half-written one that loads)."""
+    old fold or none (never a half-written one that loads). The caller holds the stage's lock, so temporary
+    folds left by a crashed run are removed here."""
+    for stale in path.parent.glob(f"{path.name}.tmp-*"):
+        shutil.rmtree(stale, ignore_errors=True)
     tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
-    shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     s = fold.state
     arrays = {"keys": s.keys, "sum": s.sum, "weight": s.weight, "count": s.count, "top": s.top}
