@@ -84,7 +84,7 @@ def segmentation_metrics(mq: MapQuery, gt: GTScene) -> dict:
 
 
 def evaluate(frames, recon, map_path, params, n_poses) -> dict:
-    gt = GTScene.model_validate(FrameStore(frames).ground_truth)
+    gt = FrameStore(frames).ground_truth
     mq = open_query(map_path, params, recon_path=recon, frames_path=frames)
     poses = sample_poses(Recon(recon).navigable, mq.grid, n_poses, seed=1)
     out = segmentation_metrics(mq, gt)

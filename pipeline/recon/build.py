@@ -100,7 +100,7 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
         frames={"n_frames": store.n_frames, "fused": len(fusion.frames_fused), "empty": fusion.empty_frames[:100]},
         refinement=refinement,
         conventions={"world": "right-handed, z up, metres (as frames.zarr)", "grid": grids.grid.ORIENTATION},
-        source_frames_attrs={k: store.attrs[k] for k in ("conventions", "provenance") if k in store.attrs},
+        source_frames_attrs=store.meta.model_dump(include={"conventions", "provenance"}, exclude_unset=True),
     )
     write_recon(recon_path, grids, poses, fused, attrs)
     return figures

@@ -10,7 +10,6 @@ import pytest
 from pipeline.frames import FrameStore
 from pipeline.maps.build import MAP_CONFIGS, build_map
 from pipeline.maps.query import open_query
-from pipeline.scene_gt import GTScene
 from pipeline.store import artifact_attrs
 
 REPO = Path(__file__).resolve().parents[2]
@@ -27,7 +26,7 @@ def quality():
 def test_oracle_map_scores_high_and_simulated_perception_lower(built_scene, quality, tmp_path):
     ws, params = built_scene
     frames, recon = ws.artifact("frames", "tiny"), ws.artifact("recon", "tiny")
-    gt = GTScene.model_validate(FrameStore(frames).ground_truth)
+    gt = FrameStore(frames).ground_truth
     oracle = quality.segmentation_metrics(open_query(ws.artifact("vlmap", "tiny"), params, recon_path=recon,
                                                      frames_path=frames), gt)
     assert oracle["mAcc"] > 50 and oracle["F-mIoU"] > 50, oracle

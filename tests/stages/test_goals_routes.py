@@ -67,7 +67,7 @@ def test_every_stored_route_replays_to_its_goal(built):
         res = replay(e.actions, e.start, recon.navigable, recon.grid, list(g.footprints))
         assert res.success and res.collisions == 0
         assert e.geodesic_m >= 2.0 and np.allclose(e.path_xy[0], e.start[:2])
-        assert e.instruction == routes.records[routes.episodes.index(e)]["instruction"]
+        assert e.instruction == routes.records[routes.episodes.index(e)].instruction
 
 
 def test_procedural_feedback_ends_in_the_stored_goal_region(built):

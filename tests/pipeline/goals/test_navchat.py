@@ -160,11 +160,10 @@ def _house_navchat(tmp_path: Path, frames_path: Path) -> Path:
     """The house's GT objects written as navchat files in navchat's own frame (anchored at the first pose)."""
     from pipeline.frames import FrameStore
     from pipeline.goals.objects import objects_from_gt
-    from pipeline.scene_gt import GTScene
 
     fs = FrameStore(frames_path)
     frame = NavchatFrame.from_first_pose(fs.poses()[0])
-    objset = objects_from_gt(GTScene.model_validate(fs.ground_truth), "house")
+    objset = objects_from_gt(fs.ground_truth, "house")
     objects, final = {}, {"room_info": {"bedroom": "Alice|Bob", "living room": "shared"}}
     for o in objset.objects:
         cells = frame.to_cells(o.footprint)
@@ -202,7 +201,6 @@ def test_goals_stage_reads_navchat_files_in_navchats_frame(tmp_path):
     from pipeline.frames import FrameStore
     from pipeline.goals.objects import objects_from_gt
     from pipeline.goals.store import Goals
-    from pipeline.scene_gt import GTScene
     from tests.fixtures.goal_scenes import write_house_artifacts
 
     frames, recon = write_house_artifacts(tmp_path, start_xy=(2.5, 1.8), start_yaw=0.4)
@@ -212,7 +210,7 @@ def test_goals_stage_reads_navchat_files_in_navchats_frame(tmp_path):
     assert summary["objects_source"] == "navchat" and summary["goals"] == 2
     goals = Goals(tmp_path / "goals.zarr")
     bed = np.asarray(goals.objects["bed_0"].footprint)
-    gt_bed = objects_from_gt(GTScene.model_validate(FrameStore(frames).ground_truth), "house").by_key()["bed_0"]
+    gt_bed = objects_from_gt(FrameStore(frames).ground_truth, "house").by_key()["bed_0"]
     assert np.abs(bed.mean(axis=0) - np.asarray(gt_bed.footprint).mean(axis=0)).max() < 0.08  # within ~1 cell
     # export-navchat from the built goals.zarr: the files come back as they were imported
     from pipeline.config import parse_params

@@ -9,7 +9,7 @@ from pipeline.errors import InputDataError
 from pipeline.recon.evaluate import evaluate_grids, evaluate_holdout, holdout_indices
 from tests.fixtures.recon_scenes import write_tum_frames
 
-TUM = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real" / "tum_fr1_rpy_head30"
+TUM = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real" / "tum_fr1_rpy_head30"
 
 
 def test_holdout_indices():

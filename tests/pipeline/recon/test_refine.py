@@ -12,7 +12,7 @@ from pipeline.recon import tsdf
 from pipeline.recon.refine import PoseRefiner
 from tests.fixtures.recon_scenes import write_tum_frames
 
-TUM = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real" / "tum_fr1_rpy_head30"
+TUM = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real" / "tum_fr1_rpy_head30"
 
 
 def _err(T, T_ref):
