@@ -154,6 +154,7 @@ def encoder_share(params_path: Path, root: Path, scene: str, kind: str) -> dict:
     from pipeline.maps.build import MAP_CONFIGS, build_map
     from pipeline.recon import Recon  # noqa: F401
     from pipeline.scene_gt import GTScene  # noqa: F401
+    from pipeline.store import artifact_attrs
 
     spent = [0.0]
     encode = Encoder.encode_images
@@ -172,7 +173,7 @@ def encoder_share(params_path: Path, root: Path, scene: str, kind: str) -> dict:
     Encoder.encode_images = timed
     try:
         t0 = time.process_time()
-        build_map(config, art / "frames.zarr", art / "recon.zarr", out, {"artifact": kind, "format_version": 1})
+        build_map(config, art / "frames.zarr", art / "recon.zarr", out, artifact_attrs(kind, 1, kind, "bench"))
         stage = time.process_time() - t0
     finally:
         Encoder.encode_images = encode
