@@ -206,8 +206,11 @@ def no_candidates_reason(result, qp) -> str:
     if not np.isfinite(heat).any():
         return f"{what}: the map has no observed cells"
     if not result.wins.any():
+        best = float(np.nanmax(heat))
+        why = (f"best {best:.4f} < {qp.min_probability:g}" if best < qp.min_probability else
+               f"best {best:.4f}, but in no such cell does the query outscore every background prompt")
         return (f"{what}: no cell beats the background prompts {list(result.background)} with probability "
-                f">= {qp.min_probability:g} (best {float(np.nanmax(heat)):.2f})")
+                f">= {qp.min_probability:g} ({why})")
     n, lab = cv2.connectedComponents(result.wins.astype(np.uint8), connectivity=8)
     cells = np.bincount(lab.ravel(), minlength=n)[1:]
     score = np.bincount(lab.ravel(), weights=np.nan_to_num(heat).ravel(), minlength=n)[1:] / np.maximum(cells, 1)

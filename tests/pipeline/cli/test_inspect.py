@@ -108,7 +108,11 @@ def test_no_candidates_reason_names_the_threshold_that_failed():
     assert no_candidates_reason(result(heat, np.zeros((8, 8), bool)), qp).endswith("the map has no observed cells")
     heat[:4, :4] = 0.31
     msg = no_candidates_reason(result(heat, np.zeros((8, 8), bool)), qp)
-    assert "no cell beats the background prompts ['other'] with probability >= 0.5 (best 0.31)" in msg
+    assert "no cell beats the background prompts ['other'] with probability >= 0.5 (best 0.3100 < 0.5)" in msg
+    heat[0, 0] = 0.8  # probable enough, yet no win: the query does not outscore every background prompt there
+    msg = no_candidates_reason(result(heat, np.zeros((8, 8), bool)), qp)
+    assert "(best 0.8000, but in no such cell does the query outscore every background prompt)" in msg
+    heat[0, 0] = 0.31
     wins = np.zeros((8, 8), bool)
     wins[:3, :3] = True  # 0.09 m2, mean 0.31
     assert no_candidates_reason(result(heat, wins), qp) == "no candidates for 'sofa' (best score 0.31 < min 0.7)"
