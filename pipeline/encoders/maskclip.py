@@ -1,11 +1,14 @@
 """``maskclip``: dense CLIP-space features from any open_clip ViT, MaskCLIP-style (Zhou et al., ECCV 2022).
 
 The image runs through the ViT at ``input_size`` (position embeddings resized bicubically to the
-patch grid); the last block is replaced by its value path: ``v = W_v ln_1(x) + b_v`` then
-``out_proj``, ``ln_post`` and ``proj`` per patch token, skipping the query-key attention (and the
-block's residual and MLP). Each patch token becomes one feature cell: the grid is
+patch grid); in the last block the query-key attention is dropped and each token keeps only its own
+value path, exactly as MaskCLIP's code does (chongzhou/MaskCLIP, mmseg ``VisionTransformer`` with
+``return_qkv``): ``v = x + out_proj(W_v ln_1(x) + b_v)``, then the block's MLP with its residual,
+``v = v + mlp(ln_2(v))``, then ``ln_post`` and ``proj`` per patch token. That is the last block run
+with every token attending only to itself. Each patch token becomes one feature cell: the grid is
 ``input_size / patch`` (ViT-B-32 at 480x640: 15x20), optionally resampled to ``out_size``.
 Text features are the model's own ``encode_text``: the same joint space (512-d for ViT-B-32).
+``benchmarks/check_reference.py --maskclip`` compares these features with MaskCLIP's own code.
 """
 
 from __future__ import annotations
@@ -90,10 +93,12 @@ def maskclip_patch_features(visual: nn.Module, x: torch.Tensor) -> torch.Tensor:
     gh, gw = x.shape[2] // visual.conv1.kernel_size[0], x.shape[3] // visual.conv1.kernel_size[1]
     last = visual.transformer.resblocks[-1]
     tokens = vit_tokens(visual, x, len(visual.transformer.resblocks) - 1)
+    tokens = tokens[:, 1:]  # every step below is per token: the class token is not needed
     C = tokens.shape[-1]
     attn: nn.MultiheadAttention = last.attn
-    v = F.linear(last.ln_1(tokens[:, 1:]), attn.in_proj_weight[2 * C :], attn.in_proj_bias[2 * C :])
-    v = visual.ln_post(attn.out_proj(v))
+    v = F.linear(last.ln_1(tokens), attn.in_proj_weight[2 * C :], attn.in_proj_bias[2 * C :])
+    v = tokens + last.ls_1(attn.out_proj(v))  # the value path with the block's residual (MaskCLIP: v += x)
+    v = visual.ln_post(v + last.ls_2(last.mlp(last.ln_2(v))))  # and its MLP with residual, as MaskCLIP keeps
     if visual.proj is not None:
         v = v @ visual.proj
     return v.transpose(1, 2).reshape(x.shape[0], -1, gh, gw)
@@ -104,7 +109,7 @@ class MaskClipEncoder(OpenClipText, Encoder):
     """MaskCLIP dense features of an open_clip ViT; see the module docstring."""
 
     name = "maskclip"
-    version = "1"
+    version = "2"  # 2: the last block keeps its residual and MLP, as MaskCLIP's code does
 
     def __init__(
         self,

@@ -1,4 +1,4 @@
-"""MaskCLIP: the token path is open_clip's, the last block is its value path only."""
+"""MaskCLIP: the token path is open_clip's; in the last block each token attends only to itself."""
 
 from __future__ import annotations
 
@@ -27,20 +27,26 @@ def test_token_path_is_open_clips(encoder):
         assert torch.allclose(pooled, encoder.model.encode_image(x), atol=1e-5)
 
 
-def test_last_block_is_value_path_without_query_key_attention(encoder):
+def test_last_block_is_the_block_with_each_token_attending_only_to_itself(encoder):
     visual = encoder.model.visual
     x = torch.randn(2, 3, 64, 64)
     last = visual.transformer.resblocks[-1]
     with torch.inference_mode():
-        before = vit_tokens(visual, x, len(visual.transformer.resblocks) - 1)[:, 1:]
-        y = last.ln_1(before)
-        # attention restricted to each token itself returns out_proj(v): the MaskCLIP value path
-        n = y.shape[1]
+        before = vit_tokens(visual, x, len(visual.transformer.resblocks) - 1)
+        # MaskCLIP's rule (its mmseg ViT, return_qkv): x + out_proj(v), then the block's MLP with residual =
+        # open_clip's own block run with attention restricted to each token itself
+        n = before.shape[1]
         self_only = torch.full((n, n), float("-inf")).fill_diagonal_(0.0)
-        v = last.attn(y, y, y, attn_mask=self_only, need_weights=False)[0]
-        expected = (visual.ln_post(v) @ visual.proj).transpose(1, 2).reshape(2, -1, 4, 4)
+        out = last(before, attn_mask=self_only)[:, 1:]
+        expected = (visual.ln_post(out) @ visual.proj).transpose(1, 2).reshape(2, -1, 4, 4)
         got = maskclip_patch_features(visual, x)
+        # not the bare value path (no residual, no MLP): that one differs
+        C = before.shape[-1]
+        bare = last.attn.out_proj(torch.nn.functional.linear(
+            last.ln_1(before[:, 1:]), last.attn.in_proj_weight[2 * C :], last.attn.in_proj_bias[2 * C :]))
+        bare = (visual.ln_post(bare) @ visual.proj).transpose(1, 2).reshape(2, -1, 4, 4)
     assert torch.allclose(got, expected, atol=1e-5)
+    assert not torch.allclose(got, bare, atol=1e-2)
 
 
 def test_patch_grid_follows_input_size(encoder):
