@@ -1,12 +1,18 @@
 """``conceptfusion``: the ConceptFusion pixel features (Jatavallabhula et al., RSS 2023).
 
-Per frame: the global CLIP feature ``g`` of the whole image and the local CLIP feature ``l_i``
-of each region's bounding-box crop (both squashed to the model's input size; the crops of all
-regions of all frames of a batch are cut together by :func:`cut_crops` and encoded in batches of
-``CROPS_PER_PASS``, never one call per region);
-``w_i = softmax_i(cos(g, l_i) / T)`` over the frame's regions; ``f_i = normalise(w_i g + (1 - w_i) l_i)``
-is added to the region's cells and each cell renormalised. Cells in no region are marked
-invalid (``valid`` False, feature 0), never filled with a made-up feature.
+As the reference code does (concept-fusion ``examples/extract_conceptfusion_features.py``), per frame:
+the global CLIP feature ``g`` of the whole image and the local CLIP feature ``l_i`` of each region's
+bounding-box crop, every image going through the model's own open_clip eval transform (shorter side
+resized bicubically to the input size, centre crop, CLIP normalisation: :func:`eval_transform`); the
+crops of all regions of all frames of a batch are encoded ``CROPS_PER_PASS`` at a time, never one call
+per region. ``w_i = softmax_i(cos(g, l_i) / T)`` over the frame's regions;
+``f_i = normalise(w_i g + (1 - w_i) l_i)``; region by region, in order, ``f_i`` is added to the
+region's cells and those cells renormalised (so where SAM's masks overlap, later regions weigh more,
+as in the reference). Cells in no region are marked invalid (``valid`` False, feature 0), never filled
+with a made-up feature. Differences from the reference, by design: features stay float32 (it stores
+fp16), and a cell of the ``out_size`` grid reads the region masks at its centre (its final 'nearest'
+resize reads each cell's top-left pixel). ``benchmarks/check_reference.py --conceptfusion`` runs the
+reference's own code against this one.
 """
 
 from __future__ import annotations
@@ -17,22 +23,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 import torch.nn as nn
-import torch.nn.functional as F
-from torchvision.ops import roi_align
+from open_clip.model import get_model_preprocess_cfg
+from open_clip.transform import PreprocessCfg, image_transform_v2
+from PIL import Image
 
 from pipeline.config import RegionParams
-from pipeline.encoders.base import (
-    CLIP_MEAN,
-    CLIP_STD,
-    DenseFeatures,
-    Encoder,
-    OpenClipText,
-    l2_normalize,
-    normalize,
-    register,
-    require_file,
-    to_tensor01,
-)
+from pipeline.encoders.base import DenseFeatures, Encoder, OpenClipText, l2_normalize, register, require_file
 from pipeline.encoders.maskclip import clip_tokens, load_open_clip
 from pipeline.encoders.regions import RegionGenerator, Regions, build_region_generator
 
@@ -62,22 +58,35 @@ def fuse_region_features(
     return l2_normalize(w * gi + (1.0 - w) * local)
 
 
-def cut_crops(x: torch.Tensor, boxes: list[torch.Tensor], size: tuple[int, int]) -> torch.Tensor:
-    """Crop-and-resize every box of every frame: ``(B,3,H,W)`` + per-frame ``(R_b,4)`` pixel boxes -> ``(sum R_b,3,*size)``.
+def eval_transform(model: nn.Module):
+    """The model's own open_clip eval transform (PIL image -> normalised tensor), as ``create_model_and_transforms``
+    builds it: shorter side resized (bicubic, antialiased) to the input size, centre crop, CLIP mean/std."""
+    return image_transform_v2(PreprocessCfg(**get_model_preprocess_cfg(model)), is_train=False)
 
-    One bilinear sample per output pixel (``roi_align``, batched over all boxes); boxes more than
-    twice the output size are cut from a half-resolution antialiased copy so nothing aliases.
-    """
-    flat = torch.cat([torch.cat([torch.full((len(bx), 1), float(b)), bx], dim=1) for b, bx in enumerate(boxes)])
-    flat = flat.to(x.device)
-    big = ((flat[:, 3] - flat[:, 1]) > 2 * size[1]) | ((flat[:, 4] - flat[:, 2]) > 2 * size[0])
-    out = torch.empty(len(flat), 3, *size, device=x.device)
-    if (~big).any():
-        out[~big] = roi_align(x, flat[~big], output_size=size, spatial_scale=1.0, sampling_ratio=1, aligned=True)
-    if big.any():
-        half = F.interpolate(x, scale_factor=0.5, mode="bilinear", antialias=True, recompute_scale_factor=False)
-        out[big] = roi_align(half, flat[big], output_size=size, spatial_scale=0.5, sampling_ratio=1, aligned=True)
-    return out
+
+def pixel_boxes(regions: Regions) -> np.ndarray:
+    """``(R,4)`` int ``x0, y0, x1, y1`` (end exclusive) pixel boxes covering each region's mask cells."""
+    H, W = regions.image_size
+    b = regions.boxes_px()
+    lo, hi = np.floor(b[:, :2] + 1e-4), np.ceil(b[:, 2:] - 1e-4)
+    return np.concatenate([lo, np.minimum(hi, [W, H])], axis=1).astype(np.int64)
+
+
+def paint_regions(fused: torch.Tensor, masks: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Region features onto cells as ConceptFusion does: ``(R,D)`` unit features, ``(R,N)`` bool masks ->
+    ``(N,D)`` features, ``(N,)`` valid. Region by region, in order, the feature is added to the region's cells and
+    those cells renormalised; cells in no region stay 0."""
+    out = fused.new_zeros(masks.shape[1], fused.shape[1])
+    valid = masks.any(dim=0)
+    if masks.shape[0] == 0:
+        return out, valid
+    if int(masks.sum(dim=0).max()) <= 1:  # disjoint regions: each covered cell takes its region's feature
+        out[valid] = fused[masks.float().argmax(dim=0)[valid]]
+        return out, valid
+    for i in range(masks.shape[0]):  # overlapping regions (SAM): order matters, as in the reference
+        cells = masks[i].nonzero().squeeze(1)
+        out[cells] = l2_normalize(out[cells] + fused[i])
+    return out, valid
 
 
 @register
@@ -85,7 +94,7 @@ class ConceptFusionEncoder(OpenClipText, Encoder):
     """ConceptFusion global+local CLIP features on regions; see the module docstring."""
 
     name = "conceptfusion"
-    version = "1"
+    version = "2"  # 2: the reference's crop transform (resize + centre crop) and its in-order renormalisation
 
     def __init__(
         self,
@@ -105,6 +114,7 @@ class ConceptFusionEncoder(OpenClipText, Encoder):
         self.arch, self.weights = arch, weights
         size = model.visual.image_size  # crops go in at the model's own input size (224 for ViT-B-32)
         self.crop_size = tuple(size) if isinstance(size, (tuple, list)) else (int(size), int(size))
+        self._transform = eval_transform(model)
         self.softmax_temperature = float(softmax_temperature)
         self.out_size = tuple(out_size)
         self._tokenize = clip_tokens(arch)
@@ -128,8 +138,8 @@ class ConceptFusionEncoder(OpenClipText, Encoder):
                 "out_size": list(self.out_size), "regions": rp.model_dump(mode="json")}
 
     def _clip(self, crops: torch.Tensor) -> torch.Tensor:
-        """``(N,3,S,S)`` [0,1] crops -> ``(N,D)`` image features, ``CROPS_PER_PASS`` at a time."""
-        out = [self.model.encode_image(normalize(crops[i : i + CROPS_PER_PASS], CLIP_MEAN, CLIP_STD)).float()
+        """``(N,3,S,S)`` normalised crops -> ``(N,D)`` image features, ``CROPS_PER_PASS`` at a time."""
+        out = [self.model.encode_image(crops[i : i + CROPS_PER_PASS].to(self.device)).float()
                for i in range(0, crops.shape[0], CROPS_PER_PASS)]
         return torch.cat(out) if out else crops.new_zeros((0, self.dim))
 
@@ -139,9 +149,12 @@ class ConceptFusionEncoder(OpenClipText, Encoder):
             self.regions(rgb[b], None if depth_m is None else depth_m[b], None if instance is None else instance[b])
             for b in range(B)
         ]
-        whole = torch.tensor([[0.0, 0.0, W, H]], dtype=torch.float32).repeat(B, 1)
-        boxes = [torch.cat([whole[b : b + 1], torch.from_numpy(r.boxes_px())]) for b, r in enumerate(regions)]
-        feats = self._clip(cut_crops(to_tensor01(rgb, self.device), boxes, self.crop_size))
+        crops = []  # per frame: the whole image, then each region's box (PIL crops, as the reference cuts them)
+        for b, r in enumerate(regions):
+            image = Image.fromarray(np.ascontiguousarray(rgb[b]))
+            crops.append(self._transform(image))
+            crops.extend(self._transform(image.crop(tuple(int(v) for v in box))) for box in pixel_boxes(r))
+        feats = self._clip(torch.stack(crops))
         counts = [len(r) + 1 for r in regions]
         first = np.concatenate([[0], np.cumsum(counts)[:-1]])
         is_global = torch.zeros(feats.shape[0], dtype=torch.bool, device=feats.device)
@@ -156,14 +169,6 @@ class ConceptFusionEncoder(OpenClipText, Encoder):
         start = 0
         for b, r in enumerate(regions):
             masks = torch.from_numpy(r.resampled(self.out_size).reshape(len(r), h * w)).to(fused.device)
-            f = fused[start : start + len(r)]
+            out[b], valid[b] = paint_regions(fused[start : start + len(r)], masks)
             start += len(r)
-            valid[b] = masks.any(dim=0)
-            if len(r) == 0 or masks.sum(dim=0).max() <= 1:  # disjoint regions: each cell takes its region's feature
-                table = torch.cat([f.new_zeros(1, f.shape[1]), f])
-                torch.index_select(table, 0, torch.where(valid[b], masks.float().argmax(dim=0) + 1, 0), out=out[b])
-                continue
-            # overlapping regions (SAM): sum of the covering regions' features, renormalised; uncovered cells stay 0
-            torch.mm(masks.T.to(f.dtype), f, out=out[b])
-            out[b] /= out[b].norm(dim=-1, keepdim=True).clamp_min(1e-12)
         return DenseFeatures(out.reshape(B, h, w, -1).cpu(), valid.reshape(B, h, w).cpu(), (H, W))

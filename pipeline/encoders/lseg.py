@@ -15,6 +15,7 @@ logits = cosine / 0.07 (VLMaps stores the features multiplied by 1/0.07): ``temp
 from __future__ import annotations
 
 import math
+import pickle
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -50,7 +51,9 @@ def read_lseg_state_dict(path: Path, param: str = WEIGHTS_PARAM) -> dict[str, to
     try:
         try:
             ckpt = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
-        except Exception:  # noqa: BLE001 - lightning checkpoints may pickle hyper-parameters (argparse objects)
+        except (pickle.UnpicklingError, RuntimeError):
+            # lightning checkpoints may pickle hyper-parameters (argparse objects: refused by weights_only), and
+            # files in torch's legacy (non-zip) format cannot be memory-mapped (RuntimeError)
             ckpt = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as err:  # noqa: BLE001 - any load failure is reported as unusable weights
         raise weights_error(param, path, err) from None

@@ -73,21 +73,27 @@ def test_default_rgbd_regions_cover_the_objects(params):
     assert (red @ red.T).mean() > (red @ blue.T).mean()
 
 
-def test_crops_are_exact_at_scale_one_and_batched_over_frames():
-    from pipeline.encoders.conceptfusion import cut_crops
+def test_crops_go_through_the_models_own_open_clip_eval_transform(gt_encoder):
+    from PIL import Image
 
-    x = torch.rand(2, 3, 40, 50)
-    boxes = [torch.tensor([[5.0, 3.0, 21.0, 19.0]]), torch.tensor([[0.0, 0.0, 16.0, 16.0], [30.0, 20.0, 46.0, 36.0]])]
-    crops = cut_crops(x, boxes, (16, 16))
-    assert crops.shape == (3, 3, 16, 16)
-    assert torch.allclose(crops[0], x[0, :, 3:19, 5:21], atol=1e-6)
-    assert torch.allclose(crops[2], x[1, :, 20:36, 30:46], atol=1e-6)
-    big = cut_crops(x, [torch.tensor([[0.0, 0.0, 50.0, 40.0]])], (8, 8))  # > 2x: from the antialiased half image
-    assert big.shape == (1, 3, 8, 8) and (big - x.mean(dim=(2, 3))[0, :, None, None]).abs().mean() < 0.2
+    from pipeline.encoders.conceptfusion import eval_transform
+
+    rgb, depth, inst = toy_batch(1)
+    seen: list[torch.Tensor] = []
+    hook = gt_encoder.model.visual.register_forward_hook(lambda m, i, o: seen.append(i[0].clone()))
+    try:
+        gt_encoder.encode_images(rgb, depth_m=depth, instance=inst)
+    finally:
+        hook.remove()
+    tf = eval_transform(gt_encoder.model)  # shorter side to the input size, centre crop, CLIP normalisation
+    image = Image.fromarray(rgb[0])
+    # the whole frame, then the instance boxes (largest first): red block 22x20 at (4, 8), blue 24x20 at (40, 20)
+    expected = torch.stack([tf(image), tf(image.crop((40, 20, 60, 44))), tf(image.crop((4, 8, 24, 30)))])
+    assert torch.allclose(seen[0], expected, atol=1e-6)
 
 
 class _Overlapping:
-    """Two overlapping regions (as SAM gives): left 2/3 and right 2/3 of the frame."""
+    """Three overlapping regions (as SAM gives): left 2/3, right 2/3 and the middle of the frame."""
 
     def __init__(self, params):
         self.params = params
@@ -95,13 +101,32 @@ class _Overlapping:
     def __call__(self, rgb, depth_m, instance):
         from pipeline.encoders.regions import Regions
 
-        masks = np.zeros((2, 12, 16), bool)
+        masks = np.zeros((3, 12, 16), bool)
         masks[0, :, :10] = True
         masks[1, :, 6:] = True
+        masks[2, :, 4:12] = True
         return Regions(masks, rgb.shape[:2])
 
 
-def test_overlapping_regions_sum_and_renormalise(gt_encoder):
+def test_overlapping_regions_are_added_and_renormalised_in_order():
+    from pipeline.encoders.conceptfusion import paint_regions
+
+    masks = _Overlapping(None)(np.zeros((48, 64, 3), np.uint8), None, None).masks.reshape(3, -1)
+    masks[:, :16] = False  # the first row is in no region
+    fused = torch.nn.functional.normalize(torch.randn(3, 8, dtype=torch.float64), dim=-1)
+    got, valid = paint_regions(fused, torch.from_numpy(masks))
+    expected = np.zeros((masks.shape[1], 8))
+    for i in range(3):  # the reference's loop: add, then renormalise the region's cells
+        cells = masks[i]
+        acc = expected[cells] + fused[i].numpy()
+        expected[cells] = acc / np.linalg.norm(acc, axis=-1, keepdims=True)
+    np.testing.assert_allclose(got.numpy(), expected, atol=1e-12)
+    assert torch.equal(valid, torch.from_numpy(masks.any(axis=0)))
+    three = 16 + 8  # a cell of all three regions: not the plain renormalised sum
+    assert not torch.allclose(got[three], torch.nn.functional.normalize(fused.sum(0), dim=0), atol=1e-3)
+
+
+def test_overlapping_regions_through_the_encoder(gt_encoder):
     from pipeline.encoders.conceptfusion import ConceptFusionEncoder
 
     enc = ConceptFusionEncoder(gt_encoder.model, _Overlapping(gt_encoder.regions.params), arch=gt_encoder.arch,
@@ -109,7 +134,7 @@ def test_overlapping_regions_sum_and_renormalise(gt_encoder):
     rgb, _, _ = toy_batch(1)
     out = enc.encode_images(rgb)
     f = out.features[0]
-    a, b, both = f[0, 0], f[0, 15], f[0, 8]
+    a, b = f[0, 0], f[0, 15]  # only region 0; only region 1
     assert out.valid.all()
-    expected = (a + b) / (a + b).norm()
-    assert torch.allclose(both, expected, atol=1e-5)
+    assert torch.allclose(f[0, 4:6], f[0, 4:5].expand(2, -1))  # regions 0 and 2: one feature
+    assert not torch.allclose(f[0, 4], a, atol=1e-3) and not torch.allclose(f[0, 10], b, atol=1e-3)
