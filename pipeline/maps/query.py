@@ -29,9 +29,11 @@ level); ``max`` scores each cell of a cfmap that stores voxels by its best level
 (:class:`~pipeline.maps.levels.LevelScorer`), so a chair under a table top or a picture on a wall
 wins cells the top-down view gives to the table or the wall. A vlmap has one level per cell.
 
-Map features and the background scores are computed once per :class:`MapQuery` (cached), text
-features are cached per prompt, so a repeated query costs one ``(N,D) @ (D,)`` product plus the
-connected components. Scoring is numpy: with an encoder whose text side needs no torch (the oracle,
+The background scores are computed once per :class:`MapQuery` (with the first query's, in one pass),
+text features are cached per prompt. The first query reads the stored fp16 features in small chunks
+(upcast per chunk: no fp32 copy of the map, whose first touch costs more than the product); from the
+second query on, the map is kept as one fp32 copy, so a repeated query costs one ``(N,D) @ (D,)``
+product plus the connected components. Scoring is numpy: with an encoder whose text side needs no torch (the oracle,
 :func:`pipeline.encoders.text.text_encoder`) a query never imports torch.
 """
 
@@ -47,7 +49,7 @@ import numpy as np
 
 from pipeline.errors import ArtifactError, LineageError
 from pipeline.geometry import GridSpec
-from pipeline.maps.scoring import logsumexp
+from pipeline.maps.scoring import chunked_scores, logsumexp, upcast
 from pipeline.maps.store import SemanticMap
 
 DEFAULT_TEMPERATURE = 0.1
@@ -137,9 +139,11 @@ class MapQuery:
         self.levels = params.levels if smap.has_voxels else "top"  # a map without voxels has one level per cell
         self._levels = None  # the LevelScorer, built on the first query that needs it
         self._text: dict[str, np.ndarray] = {}
-        self._feats = smap.features()
+        self._f16 = smap.features16()  # (N,D) float16 as stored
+        self._f32: np.ndarray | None = None  # its fp32 copy, made on the second query (see the module docstring)
+        self._n_queries = 0
         self._bg_feats = self.text_features(self.background) if self.background else None
-        self._bg_scores = (self._feats @ self._bg_feats.T) if self.background else None  # (N,Tb)
+        self._bg_scores: np.ndarray | None = None  # (N,Tb), computed with the first query
         self._bg_cache: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
         self._lowrank: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._row, self._col = np.divmod(smap.cell, self.grid.cols)
@@ -181,31 +185,43 @@ class MapQuery:
         return bg_max, bg_lse, list(keep)
 
     # ------------------------------------------------------------------ scores
+    def _product(self, text: np.ndarray) -> np.ndarray:
+        """``(N,T)`` float32 scores of every cell against ``text`` ``(T,D)``."""
+        if self._f32 is not None:
+            return self._f32 @ text.T
+        return chunked_scores(self._f16, text, chunk_rows=4096)  # 8 MB of fp32 at a time (D = 512)
+
+    def _rows(self, idx: np.ndarray) -> np.ndarray:
+        """``(len(idx),D)`` float32 features of the cells ``idx``."""
+        return self._f32[idx] if self._f32 is not None else upcast(self._f16[idx])
+
     def _basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Rank-k basis V ``(D,k)`` of the map features, projections ``(N,k)`` and residual norms ``(N,)``."""
         if self._lowrank is None:
-            F = self._feats
-            sample = F[np.linspace(0, len(F) - 1, min(len(F), 20_000)).astype(np.int64)]
+            n = len(self._f16)
+            sample = self._rows(np.linspace(0, n - 1, min(n, 20_000)).astype(np.int64))
             _, _, vh = np.linalg.svd(sample, full_matrices=False)
             V = np.ascontiguousarray(vh[: self.params.query_rank].T)
-            P = F @ V
+            P = self._product(V.T)
             resid = np.sqrt(np.clip(1.0 - (P * P).sum(axis=1), 0, None))  # rows of F are unit: |F - P V^T|^2 = 1 - |P|^2
             self._lowrank = (V, P, resid)
         return self._lowrank
 
-    def _scores(self, q: np.ndarray, bg_max: np.ndarray, bg_lse: np.ndarray) -> np.ndarray:
+    def _scores(self, q: np.ndarray, bg_max: np.ndarray, bg_lse: np.ndarray, exact: np.ndarray | None = None
+                ) -> np.ndarray:
         """``(N,)`` query scores: exact, or (large maps) low-rank with exact refinement where it matters.
 
         Low rank: ``s~ = (F V)(V^T q)`` with ``|s - s~| <= r_i |q_perp|`` (``r_i`` the residual norm of
         row i). Every cell whose upper bound ``s~ + bound`` could win (beat the background and reach
         ``min_probability``) is recomputed exactly, so the winning cells, the candidates and the heatmap
         of every cell that can win are exact; other cells keep ``s~`` (their probability stays below
-        ``min_probability``, within the bound).
+        ``min_probability``, within the bound). ``exact``: the exact scores when already computed.
         """
-        n = len(self._feats)
-        if self.params.query_rank == 0 or n < self.params.query_lowrank_min_cells or \
-                self.params.query_rank >= self._feats.shape[1]:
-            return self._feats @ q
+        if exact is not None:
+            return exact
+        n, dim = self._f16.shape
+        if self.params.query_rank == 0 or n < self.params.query_lowrank_min_cells or self.params.query_rank >= dim:
+            return self._product(q[None])[:, 0]
         V, P, resid = self._basis()
         ql = V.T @ q
         q_perp = float((1.0 - float(ql @ ql)) if float(ql @ ql) < 1.0 else 0.0) ** 0.5
@@ -214,22 +230,29 @@ class MapQuery:
         p_upper = 1.0 / (1.0 + np.exp(np.clip(bg_lse - upper / self.temperature, -80, 80)))
         idx = np.flatnonzero((upper > bg_max) & (p_upper >= self.params.min_probability))
         if len(idx):
-            s[idx] = self._feats[idx] @ q
+            s[idx] = self._rows(idx) @ q
         return s
 
     # ------------------------------------------------------------------ query
     def scores(self, text: str) -> np.ndarray:
         """``(N,)`` float32 dot products of the observed cells with ``text``."""
         q = self.text_features([text])[0]
-        return self._feats @ q
+        return self._product(q[None])[:, 0]
 
     def query(self, text: str, pose: tuple[float, float, float] | None = None) -> QueryResult:
         """Heatmap and candidates for ``text``; ``pose`` = (x, y, yaw) world metres / radians."""
         t0 = time.perf_counter()
         g = self.grid
         q = self.text_features([text])[0]
+        if self._n_queries == 1:  # queried again: keep one fp32 copy for this and every later query
+            self._f32 = upcast(self._f16)
+        self._n_queries += 1
+        exact = None
+        if self._bg_feats is not None and self._bg_scores is None:  # the first query: background and query in one pass
+            both = self._product(np.concatenate([self._bg_feats, q[None]]))
+            self._bg_scores, exact = both[:, :-1], both[:, -1]
         bg_max, bg_lse, keep = self._background_for(q)
-        s = self._scores(q, bg_max, bg_lse)
+        s = self._scores(q, bg_max, bg_lse, exact)
         if self.levels == "max":
             s, bg_max, bg_lse = self._level_scorer().cell_scores(
                 q, self._bg_feats[keep] if keep else None, self.temperature, s, bg_max, bg_lse)

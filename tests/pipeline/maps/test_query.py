@@ -186,3 +186,14 @@ def test_levels_max_on_a_map_without_voxels_scores_its_single_level(map_path):
     q = _query(map_path, levels="max")
     assert q.levels == "top"  # a vlmap keeps one level per cell
     assert (q.query("chair").wins == _query(map_path).query("chair").wins).all()
+
+
+def test_the_first_query_reads_fp16_chunks_and_later_ones_one_fp32_copy(map_path):
+    q = _query(map_path)
+    first = q.query("table")
+    assert q._f32 is None  # one query: no fp32 copy of the map
+    again = q.query("table")
+    assert q._f32 is not None and q._f32.dtype == np.float32 and q._f32.shape == (1600, 64)
+    assert (first.wins == again.wins).all() and first.wins.sum() == 50
+    np.testing.assert_allclose(first.heatmap, again.heatmap, rtol=1e-6)
+    np.testing.assert_allclose(q.scores("table"), q._f32 @ q.text_features(["table"])[0], rtol=1e-6)
