@@ -27,6 +27,17 @@ One JSON object per line on stdout.
     .venv/bin/python benchmarks/bench_batch.py                      # 10 scenes x 1,416 frames (slow)
     .venv/bin/python benchmarks/bench_batch.py --scenes 2 --frames 240 --workers 1 2
     .venv/bin/python benchmarks/bench_batch.py --scenes 1 --frames 1400 --workers 1 --keep /tmp/batch
+
+``--within-scene`` measures one scene's map stages instead (:func:`within_scene`): the logs, ingest and
+reconstruct are built first (not timed); then ``zipon run --force --stage vlmap`` (``--map-stages``) with 1 and
+with 2 workers (``processes``: a local dask cluster; the chunks of ``maps.chunk_frames`` frames of the one scene
+are spread over the workers), printing wall seconds, the CPU seconds of every process of the run (``getrusage``
+of the finished children) and whether the maps' digests agree across worker counts; then the incremental rerun:
+the map built in this process on the scene cut to its first ``frames - append`` frames (frames.zarr and
+recon.zarr truncated: recon keeps its grid, the case where the fold is reusable), keeping its fold, and rebuilt
+on all the frames, timed, with the check that it equals the map ``zipon run`` built from scratch.
+
+    .venv/bin/python benchmarks/bench_batch.py --within-scene --frames 1400 --workers 1 2 --append 200
 """
 
 from __future__ import annotations
@@ -182,6 +193,112 @@ def encoder_share(params_path: Path, root: Path, scene: str, kind: str) -> dict:
             "encoder_share": round(spent[0] / stage, 4)}
 
 
+# ----------------------------------------------------------------------------- one scene's map stages
+
+def _children_cpu_s() -> float:
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def _truncated(src: Path, dst: Path, n: int, arrays: tuple[str, ...]) -> Path:
+    """A copy of the zarr store ``src`` at ``dst`` with ``arrays`` cut to their first ``n`` entries."""
+    import zarr
+
+    shutil.rmtree(dst, ignore_errors=True)
+    shutil.copytree(src, dst)
+    group = zarr.open_group(dst, mode="r+")
+    for name in arrays:
+        if name in group:
+            group[name].resize((n,) + group[name].shape[1:])
+    if "n_frames" in group.attrs:
+        group.attrs["n_frames"] = n
+    return dst
+
+
+def incremental_rerun(params_path: Path, root: Path, scene: str, stage: str, append: int) -> dict:
+    """Build ``stage`` in this process on the scene cut to ``n - append`` frames keeping its fold, then on all ``n``
+    frames (timed); the second map must equal the one ``zipon run`` built from scratch (its digest)."""
+    from pipeline.codedeps import code_digest
+    from pipeline.config import load_params
+    from pipeline.frames import FrameStore
+    from pipeline.maps.build import MAP_CONFIGS, build_map
+    from pipeline.maps.store import FORMAT_VERSION
+    from pipeline.runner import limit_native_threads
+    from pipeline.store import artifact_attrs, content_digest
+
+    params = load_params(params_path)
+    limit_native_threads(params.run.threads_per_worker)  # as in a worker
+    art = root / "data" / "artifacts" / scene
+    manifest = json.loads((root / "manifests" / scene / f"{stage}.json").read_text())
+    work = Path(tempfile.mkdtemp(prefix=f"incremental-{stage}-", dir=root))
+    try:
+        n = FrameStore(art / "frames.zarr").n_frames
+        before = n - append
+        frames = _truncated(art / "frames.zarr", work / "frames.zarr", before, ("rgb", "depth", "instance", "pose", "stamp"))
+        recon = _truncated(art / "recon.zarr", work / "recon.zarr", before, ("pose", "fused"))
+        config = MAP_CONFIGS[stage].from_params(params, scene)
+        attrs = artifact_attrs(stage, FORMAT_VERSION, stage, manifest["params_digest"])
+        kw = {"runtime": params.run, "fold_path": work / "fold",
+              "fold_key": {"params": manifest["params_digest"], "code": code_digest(f"stages.{stage}")}}
+        t0, c0 = time.perf_counter(), time.process_time()
+        first = build_map(config, frames, recon, work / "before.zarr", attrs, **kw)
+        t1, c1 = time.perf_counter(), time.process_time()
+        again = build_map(config, art / "frames.zarr", art / "recon.zarr", work / "after.zarr", attrs, **kw)
+        t2, c2 = time.perf_counter(), time.process_time()
+        fold_mb = sum(f.stat().st_size for f in (work / "fold").iterdir()) / 2**20
+        return {"map": stage, "frames_before": before, "frames_after": n, "first_build_s": round(t1 - t0, 2),
+                "first_build_cpu_s": round(c1 - c0, 2), "rerun_s": round(t2 - t1, 2), "rerun_cpu_s": round(c2 - c1, 2),
+                "chunks_reused": again["chunks_reused"], "frames_reused": again["frames_reused"],
+                "frames_processed": again["frames_processed"], "fold_cache_mb": round(fold_mb, 1),
+                "chunks_before": first["chunks"],
+                "equals_map_from_scratch": content_digest(work / "after.zarr") == manifest["outputs"][stage]["digest"]}
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def within_scene(args) -> None:
+    """One scene's map stages with 1 and 2 workers, and the incremental rerun (see the module docstring)."""
+    root = args.keep or Path(tempfile.mkdtemp(prefix="zipon-scene-"))
+    root.mkdir(parents=True, exist_ok=True)
+    params = write_params(root, 1, args.frames, args.width, args.height)
+    if args.chunk_frames:
+        import yaml
+
+        params.write_text(yaml.safe_dump({**yaml.safe_load(params.read_text()), "maps": {"chunk_frames": args.chunk_frames}},
+                                         sort_keys=False))
+    scene = "sim_00"
+    emit(bench="batch", kind="setup", mode="within_scene", frames=args.frames, size=[args.width, args.height],
+         map_stages=args.map_stages, cpus=os.cpu_count(), root=str(root))
+    try:
+        t_up, _ = zipon(params, "run", "--stage", "simulate", "--stage", "ingest", "--stage", "reconstruct")
+        emit(bench="batch", kind="upstream_built", seconds=round(t_up, 1), timed=False)
+        digests = {}
+        for workers in args.workers:
+            stage_args = sum((["--stage", s] for s in args.map_stages), [])
+            cpu0 = _children_cpu_s()
+            wall, peak = zipon(params, "-S", f"run.workers={workers}", "-S", "run.map_fold_cache=false",
+                               "run", "--force", *stage_args)
+            cpu = _children_cpu_s() - cpu0
+            for stage in args.map_stages:
+                m = json.loads((root / "manifests" / scene / f"{stage}.json").read_text())
+                digests.setdefault(stage, set()).add(m["outputs"][stage]["digest"])
+                emit(bench="batch", kind="map_stage", workers=workers, stage=stage, frames=args.frames,
+                     stage_wall_s=m["timing"]["seconds"], chunks=m["summary"]["chunks"],
+                     chunk_frames=m["params"]["maps.chunk_frames"])
+            emit(bench="batch", kind="map_run", workers=workers, stages=args.map_stages, wall_s=round(wall, 1),
+                 cpu_s_all_processes=round(cpu, 1), peak_rss_mb_largest_process=round(peak, 1),
+                 frames_per_s=round(args.frames * len(args.map_stages) / wall, 2))
+        emit(bench="batch", kind="map_digests", same_for_every_worker_count={s: len(d) == 1 for s, d in digests.items()})
+        if args.append:
+            for stage in args.map_stages:
+                emit(bench="batch", kind="incremental", **incremental_rerun(params, root, scene, stage, args.append))
+    finally:
+        if args.keep is None:
+            shutil.rmtree(root, ignore_errors=True)
+
+
 # ----------------------------------------------------------------------------- main
 
 def main() -> None:
@@ -196,7 +313,18 @@ def main() -> None:
     ap.add_argument("--stages", nargs="+", default=list(STAGES), choices=STAGES, help="stages to time (default: all)")
     ap.add_argument("--keep", type=Path, default=None,
                     help="work in this folder and keep it (default: a temp dir); logs already there are reused")
+    ap.add_argument("--within-scene", action="store_true",
+                    help="one scene's map stages with each worker count, then the incremental rerun (see above)")
+    ap.add_argument("--map-stages", nargs="+", default=["vlmap"], choices=("vlmap", "cfmap"),
+                    help="--within-scene: the map stages to run")
+    ap.add_argument("--chunk-frames", type=int, default=None, help="--within-scene: maps.chunk_frames (default: params')")
+    ap.add_argument("--append", type=int, default=200,
+                    help="--within-scene: frames appended for the incremental rerun (0 = skip it)")
     args = ap.parse_args()
+    if args.within_scene:
+        args.frames = 1400 if args.frames == 1416 else args.frames
+        within_scene(args)
+        return
 
     import torch
 
