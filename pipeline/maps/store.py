@@ -33,6 +33,7 @@ reader of one region reads only the chunks of its tiles; a query reads ``top/fea
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -283,18 +284,34 @@ class SemanticMap:
         self.lattice = self.meta.lattice.lattice(self.grid)
         self.encoder = self.meta.encoder.as_dict()
         self.tile_cells = self.meta.tile_cells
-        top = self.group["top"]
-        self.cell = top["cell"][...].astype(np.int64)
-        self.weight = top["weight"][...]
-        self.count = top["count"][...]
-        self.level = top["level"][...]
-        self.tile_start = top["tile_start"][...]
+        self.cell = self.group["top"]["cell"][...].astype(np.int64)
         self._features: np.ndarray | None = None
         self._index: np.ndarray | None = None
 
     @property
     def n_cells(self) -> int:
         return len(self.cell)
+
+    # read on first use (a query needs none of them)
+    @cached_property
+    def weight(self) -> np.ndarray:
+        """``(N,)`` float32 sum of point weights fused into each cell."""
+        return self.group["top"]["weight"][...]
+
+    @cached_property
+    def count(self) -> np.ndarray:
+        """``(N,)`` int32 points fused into each cell (0 = filled from a neighbour)."""
+        return self.group["top"]["count"][...]
+
+    @cached_property
+    def level(self) -> np.ndarray:
+        """``(N,)`` int16 height level of each cell's top."""
+        return self.group["top"]["level"][...]
+
+    @cached_property
+    def tile_start(self) -> np.ndarray:
+        """``(T+1,)`` int64 first row of each spatial tile."""
+        return self.group["top"]["tile_start"][...]
 
     @property
     def dim(self) -> int:
