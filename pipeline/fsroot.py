@@ -111,7 +111,9 @@ class RemoteRoot:
         """Upload the finished artifact ``local`` (a zarr folder or a file) as version ``digest`` of ``rel``."""
         key = self.key(version_key(rel, digest))
         if Path(local).is_dir():
-            self.fs.put(str(local), key, recursive=True)
+            # trailing slashes: the folder's CONTENT goes to the key even when a cut-short upload of this same
+            # version left objects there (without them fsspec would nest a copy inside); same keys, same bytes
+            self.fs.put(f"{local}/", f"{key}/", recursive=True)
         else:
             self.fs.put_file(str(local), key)
 

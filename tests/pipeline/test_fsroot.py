@@ -160,3 +160,21 @@ def test_a_data_root_url_fsspec_cannot_open_is_a_clear_error(tmp_path, capsys):
     code = main(["-q", "-p", str(tmp_path / "params.yaml"), "--data-dir", "nosuchfs://bucket/x", "status"])
     err = capsys.readouterr().err
     assert code == 1 and "data root nosuchfs://bucket/x: cannot open it with fsspec" in err
+
+
+def test_uploading_a_version_again_after_a_cut_short_upload_overwrites_it_in_place(tmp_path):
+    """Any fsspec filesystem works as the root (memory:// here): a second push of one version lands on the same
+    keys (a cut-short first upload is completed, not nested), and a pull checks the digest."""
+    store = tmp_path / "a.zarr"
+    group = zarr.open_group(zarr.storage.LocalStore(str(store)), mode="w-", zarr_format=3)
+    group.create_array("x", shape=(6,), chunks=(2,), dtype="int32")[:] = range(6)
+    digest = content_digest(store)
+    remote = RemoteRoot(f"memory://zipon-{tmp_path.name}/root")
+    remote.push(store, "artifacts/s0/a.zarr", digest)
+    keys_once = sorted(remote.fs.find(remote.key("artifacts")))
+    remote.fs.rm_file(keys_once[-1])  # as if the first upload had been cut short
+    remote.push(store, "artifacts/s0/a.zarr", digest)
+    assert sorted(remote.fs.find(remote.key("artifacts"))) == keys_once
+    remote.pull("artifacts/s0/a.zarr", digest, tmp_path / "mirror" / "a.zarr")
+    assert content_digest(tmp_path / "mirror" / "a.zarr") == digest
+    assert remote.digest("artifacts/s0/a.zarr", digest) == digest
