@@ -49,6 +49,10 @@ def open(source: str | Path = ".", *, data_dir: str | Path | None = None, manife
         raise MissingInputError(f"{path}: neither a params file, a folder with {PARAMS_FILE}, nor a data root "
                                 f"(a folder with artifacts/<scene>/)")
     ws = Workspace.resolve(params_path, data_dir, manifests_dir)
+    if ws.remote is not None:  # artifacts are read from local files; an object store is built through a cache
+        raise ConfigError(f"data_dir {ws.remote}: zipon.open reads artifacts from a local data root; after `zipon run "
+                          f"--data-dir {ws.remote}` (or `zipon status`) its local mirror is {ws.data_dir}: pass that "
+                          f"(and manifests_dir={str(ws.manifests_dir)!r})")
     return Dataset(ws, load_params(ws.params_path, overrides))
 
 

@@ -178,3 +178,13 @@ def test_uploading_a_version_again_after_a_cut_short_upload_overwrites_it_in_pla
     remote.pull("artifacts/s0/a.zarr", digest, tmp_path / "mirror" / "a.zarr")
     assert content_digest(tmp_path / "mirror" / "a.zarr") == digest
     assert remote.digest("artifacts/s0/a.zarr", digest) == digest
+
+
+def test_the_python_api_refuses_an_object_store_root_naming_its_mirror(tmp_path):
+    import zipon
+    from pipeline.errors import ConfigError
+
+    (tmp_path / "params.yaml").write_text(PARAMS)
+    with pytest.raises(ConfigError, match=r"data_dir s3://bucket/x: zipon.open reads artifacts from a local data root;"
+                       r".* its local mirror is .*\.zipon-cache"):
+        zipon.open(tmp_path / "params.yaml", data_dir="s3://bucket/x")
