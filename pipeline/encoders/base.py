@@ -35,7 +35,6 @@ the map stages store in their attrs. Encoders are chosen by name in ``params.yam
 
 from __future__ import annotations
 
-import hashlib
 import os
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
@@ -47,6 +46,7 @@ import torch
 import torch.nn.functional as F
 
 from pipeline.encoders.choice import encoder_choice, load  # noqa: F401  (encoder_choice re-exported)
+from pipeline.encoders.text import file_digest
 from pipeline.errors import ConfigError, InputDataError, MissingInputError
 
 if TYPE_CHECKING:
@@ -291,15 +291,6 @@ def resolve_device(device: str) -> str:
     if device == "cuda" and not torch.cuda.is_available():
         raise ConfigError("run.device: 'cuda' requested but torch sees no CUDA device (use 'cpu' or 'auto')")
     return device
-
-
-def file_digest(path: str | Path) -> str:
-    """blake2b digest of a file's bytes (weights identity)."""
-    h = hashlib.blake2b(digest_size=16)
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 22), b""):
-            h.update(chunk)
-    return "blake2b:" + h.hexdigest()
 
 
 def require_file(path: str | Path | None, param: str, what: str) -> Path:

@@ -42,7 +42,8 @@ import torch
 
 from pipeline.encoders.base import DenseFeatures, Encoder, PaletteFeatures, l2_normalize, register
 from pipeline.encoders.conceptfusion import fuse_region_features
-from pipeline.encoders.perception_text import ClipTextSpace, load_text_space, resolve_embeddings
+from pipeline.encoders.perception_text import (TEMPERATURE, VERSIONS, ClipTextSpace, load_text_space,
+                                               resolve_embeddings)
 from pipeline.errors import ConfigError, InputDataError
 from pipeline.perception_params import SimulatedCFParams, SimulatedLSegParams
 from pipeline.sim.catalog import COLOURS, MATERIALS
@@ -51,9 +52,6 @@ if TYPE_CHECKING:
     from pipeline.config import EncodersParams
     from pipeline.scene_gt import GTScene
 
-#: CLIP's learned logit scale is 100, but cosine gaps in this space (a chair cell vs 'chair' / 'floor':
-#: ~0.25) are ~2.5x those of real CLIP image-text pairs (~0.1), so logits use T = 0.025 to keep real margins.
-TEMPERATURE = 0.025
 
 
 def _frame_rng(seed: int, salt: str, scene: str, instance: np.ndarray) -> np.random.Generator:
@@ -229,7 +227,7 @@ class SimulatedLSeg(SimulatedPerception):
     """Dense LSeg-like perception (see the module docstring)."""
 
     name = "simulated_lseg"
-    version = "1"
+    version = VERSIONS[name]
     profile = "lseg"
     kind = ("simulated LSeg-like dense perception (CLIP ViT-B/32 text space; calibrated to ConceptGraphs "
             "Table I, Replica) - not a trained model")
@@ -254,7 +252,7 @@ class SimulatedCF(SimulatedPerception):
     """Region ConceptFusion-like perception (see the module docstring)."""
 
     name = "simulated_cf"
-    version = "1"
+    version = VERSIONS[name]
     profile = "conceptfusion"
     kind = ("simulated ConceptFusion-like region perception (CLIP ViT-B/32 text space; calibrated to ConceptGraphs "
             "Table I, Replica) - not a trained model")

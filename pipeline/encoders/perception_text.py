@@ -173,6 +173,13 @@ class ClipTextSpace:
         return _unit(v)
 
 
+#: CLIP's learned logit scale is 100, but cosine gaps in this space (a chair cell vs 'chair' / 'floor':
+#: ~0.25) are ~2.5x those of real CLIP image-text pairs (~0.1), so logits use T = 0.025 to keep real margins.
+TEMPERATURE = 0.025
+#: version of each simulated perception model (its features change when it does)
+VERSIONS = {"simulated_lseg": "1", "simulated_cf": "1"}
+
+
 @lru_cache(maxsize=4)
 def load_text_space(folder: str) -> ClipTextSpace:
     """One :class:`ClipTextSpace` per folder and process."""

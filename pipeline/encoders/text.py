@@ -1,14 +1,18 @@
 """Text sides of encoders that need no torch: what ``zipon query`` builds to encode its prompts.
 
-A map query needs only an encoder's text features. For the diagnostic oracle they are numpy data
-(:class:`~pipeline.encoders.oracle_text.OracleText`), so :func:`text_encoder` gives a
-:class:`TextEncoder` for it and the query imports neither torch nor the image side; for every other
-encoder it answers None and the caller builds the whole encoder (:func:`pipeline.encoders.build_encoder`).
-Both give the same features: the oracle's image-side class calls the same text code.
+A map query needs only an encoder's text features. For the diagnostic oracle
+(:class:`~pipeline.encoders.oracle_text.OracleText`) and the simulated perception models (the CLIP text
+embeddings of :class:`~pipeline.encoders.perception_text.ClipTextSpace`) they are numpy data, so
+:func:`text_encoder` gives a :class:`TextEncoder` for them and the query imports neither torch nor the
+image side; for every other encoder it answers None and the caller builds the whole encoder
+(:func:`pipeline.encoders.build_encoder`). Both give the same features: the image-side classes call the
+same text code.
 """
 
 from __future__ import annotations
 
+import hashlib
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
@@ -49,4 +53,20 @@ def text_encoder(params: "EncodersParams", name: str) -> TextEncoder | None:
         p = params.oracle
         words = OracleText(dim=p.dim, seed=p.seed, color_weight=p.color_weight, material_weight=p.material_weight)
         return TextEncoder(name, VERSION, p.dim, None, words.encode_text, words.bind_scene)
+    if name in ("simulated_lseg", "simulated_cf"):
+        from pipeline.encoders.perception_text import TEMPERATURE, VERSIONS, load_text_space, resolve_embeddings
+
+        space = load_text_space(resolve_embeddings(getattr(params, name).embeddings, f"encoders.{name}.embeddings"))
+        return TextEncoder(name, VERSIONS[name], space.dim, TEMPERATURE,
+                           lambda texts: np.stack([space.encode(t) for t in texts]).astype(np.float32),
+                           weights={"weights_file": Path(space.path).name, "weights_digest": file_digest(space.path)})
     return None
+
+
+def file_digest(path: str | Path) -> str:
+    """blake2b digest of a file's bytes (weights identity)."""
+    h = hashlib.blake2b(digest_size=16)
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 22), b""):
+            h.update(chunk)
+    return "blake2b:" + h.hexdigest()
