@@ -257,7 +257,8 @@ def build_map(
 
     from pipeline.encoders import build_encoder
     from pipeline.encoders.base import resolve_device
-    from pipeline.maps.fusion import (FusedCells, FusedVoxels, TopDownAccumulator, VoxelAccumulator, fill_unseen)
+    from pipeline.maps.fill import fill_unseen
+    from pipeline.maps.fusion import FusedCells, FusedVoxels, TopDownAccumulator, VoxelAccumulator
     from pipeline.maps.incremental import Fold, load_fold, save_fold
     from pipeline.maps.store import write_map
     from pipeline.recon import FREE

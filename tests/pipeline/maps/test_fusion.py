@@ -7,7 +7,7 @@ import torch
 from pipeline.encoders.base import PaletteFeatures
 from pipeline.geometry import GridSpec, Intrinsics
 from pipeline.maps.fusion import (BlockPoints, Lattice, TopDownAccumulator, VoxelAccumulator, depth_edges,
-                                  fill_unseen, locate_block, point_weights)
+                                  locate_block, point_weights)
 
 GRID = GridSpec(rows=4, cols=4, cell_size_m=1.0, origin_xy=(-2.0, 2.0))
 LAT = Lattice(GRID, floor_z=0.0, min_height_m=0.0, max_height_m=3.0, level_height_m=1.0)
@@ -130,26 +130,6 @@ def test_storage_grows_past_its_first_capacity():
     acc.add(_block(cells, np.zeros(10_000)), torch.ones(10_000, 2))
     out = acc.result()
     assert len(out.cell) == 10_000 and out.count.tolist() == [1] * 10_000
-
-
-def test_fill_unseen_fills_enclosed_holes_within_the_radius():
-    grid = GridSpec(rows=5, cols=5, cell_size_m=1.0, origin_xy=(0.0, 5.0))
-    lat = Lattice(grid, 0.0, 0.0, 3.0, 1.0)
-    acc = TopDownAccumulator(lat, 3)
-    ring = [r * 5 + c for r in range(4) for c in range(4) if r in (0, 3) or c in (0, 3)]  # a 4x4 ring
-    feats = ["a"] * len(ring)
-    feats[ring.index(5)] = "b"  # (1, 0): next to the hole cell (1, 1)
-    acc.add(_block(ring, [1] * len(ring)), _feats(feats))
-    fillable = np.ones((5, 5), bool)
-    fillable[2, 2] = False  # recon says free: never filled
-    out, n = fill_unseen(acc.result(), grid, fillable, radius_m=1.0)
-    # holes: (1,1), (1,2), (2,1), (2,2); (2,2) is not fillable; cells outside the ring are not holes
-    assert n == 3 and sorted(set(out.cell) - set(ring)) == [6, 7, 11]
-    i = out.cell.tolist().index(6)
-    assert out.count[i] == 0 and out.level[i] == 1
-    assert np.allclose(out.features[i].numpy(), FEATS["a"]) or np.allclose(out.features[i].numpy(), FEATS["b"])
-    out0, n0 = fill_unseen(acc.result(), grid, fillable, radius_m=0.0)
-    assert n0 == 0 and len(out0.cell) == len(ring)
 
 
 @pytest.mark.parametrize("acc_cls", [TopDownAccumulator, VoxelAccumulator])
