@@ -32,7 +32,7 @@ from pipeline.maps.store import SemanticMap
 class LevelScorer:
     """Best-level scores of a map's voxels per cell (see the module docstring)."""
 
-    def __init__(self, smap: SemanticMap, *, chunk_rows: int = 65536):
+    def __init__(self, smap: SemanticMap, *, chunk_rows: int = 4096):
         vx = smap.voxels()
         if vx is None:
             raise ArtifactError(f"{smap.path}: no voxels/ group; level-aware queries (query.levels: max) need a "

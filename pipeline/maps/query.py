@@ -49,7 +49,7 @@ import numpy as np
 
 from pipeline.errors import ArtifactError, LineageError
 from pipeline.geometry import GridSpec
-from pipeline.maps.scoring import chunked_scores, logsumexp, upcast
+from pipeline.maps.scoring import chunked_scores, logsumexp
 from pipeline.maps.store import SemanticMap
 
 DEFAULT_TEMPERATURE = 0.1
@@ -189,11 +189,11 @@ class MapQuery:
         """``(N,T)`` float32 scores of every cell against ``text`` ``(T,D)``."""
         if self._f32 is not None:
             return self._f32 @ text.T
-        return chunked_scores(self._f16, text, chunk_rows=4096)  # 8 MB of fp32 at a time (D = 512)
+        return chunked_scores(self._f16, text)
 
     def _rows(self, idx: np.ndarray) -> np.ndarray:
         """``(len(idx),D)`` float32 features of the cells ``idx``."""
-        return self._f32[idx] if self._f32 is not None else upcast(self._f16[idx])
+        return self._f32[idx] if self._f32 is not None else self._f16[idx].astype(np.float32)
 
     def _basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Rank-k basis V ``(D,k)`` of the map features, projections ``(N,k)`` and residual norms ``(N,)``."""
@@ -245,7 +245,7 @@ class MapQuery:
         g = self.grid
         q = self.text_features([text])[0]
         if self._n_queries == 1:  # queried again: keep one fp32 copy for this and every later query
-            self._f32 = upcast(self._f16)
+            self._f32 = self._f16.astype(np.float32)
         self._n_queries += 1
         exact = None
         if self._bg_feats is not None and self._bg_scores is None:  # the first query: background and query in one pass

@@ -41,7 +41,7 @@ import numpy as np
 
 from pipeline.errors import ArtifactError, MissingInputError
 from pipeline.geometry import GridSpec
-from pipeline.maps.scoring import chunked_scores, upcast
+from pipeline.maps.scoring import chunked_scores
 from pipeline.store import ArtifactAttrs, AttrsModel, GridAttrs, compressor, new_group
 
 if TYPE_CHECKING:  # zarr is imported where a map is read or written: building a stage config needs none
@@ -334,7 +334,7 @@ class SemanticMap:
         Not cached: a full fp32 copy is 737 MB for a 600x600x512 map. Callers that score many
         queries should keep :meth:`features16` and use :meth:`dot` (upcast per chunk).
         """
-        return upcast(self.features16())
+        return self.features16().astype(np.float32)
 
     def features16(self) -> np.ndarray:
         """``(N,D)`` float16 unit-norm features as stored (cached; half the memory of fp32)."""
@@ -342,7 +342,7 @@ class SemanticMap:
             self._features = np.ascontiguousarray(self.group["top"]["features"][...])
         return self._features
 
-    def dot(self, text: np.ndarray, rows: np.ndarray | None = None, chunk_rows: int = 65536) -> np.ndarray:
+    def dot(self, text: np.ndarray, rows: np.ndarray | None = None, chunk_rows: int = 4096) -> np.ndarray:
         """``(N,T)`` (or ``(len(rows),T)``) float32 scores ``features @ text.T`` for ``text`` ``(T,D)`` or ``(D,)``,
         upcasting ``chunk_rows`` rows of the fp16 features at a time (:func:`~pipeline.maps.scoring.chunked_scores`)."""
         text = np.asarray(text, np.float32)
