@@ -2,8 +2,10 @@
 
 Modules: :mod:`~pipeline.maps.fusion` (vectorized top-down + sparse voxel fusion and the height
 rule), :mod:`~pipeline.maps.build` (the stages' unit of work), :mod:`~pipeline.maps.store` (the
-map format, documented there as a tree, and the :class:`SemanticMap` reader),
-:mod:`~pipeline.maps.query` (heatmaps and object candidates), :mod:`~pipeline.maps.render` (PNGs).
+map format, documented there as a tree, its types ``Lattice``, ``MapCells``, ``MapVoxels``, ``MapAttrs``
+and the :class:`SemanticMap` reader), :mod:`~pipeline.maps.query` (heatmaps and object candidates),
+:mod:`~pipeline.maps.levels` (each cell's best height level: ``query.levels: max``),
+:mod:`~pipeline.maps.scoring` (numpy products of the fp16 features), :mod:`~pipeline.maps.render` (PNGs).
 """
 
 from pipeline.maps.store import FORMAT_VERSION, SemanticMap
