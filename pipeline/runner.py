@@ -85,6 +85,8 @@ class StageContext:
     params_digest: str
     show_progress: bool = True
     messages: list[str] = field(default_factory=list)
+    # CPU seconds and peak RSS of the stage's own tasks that ran in other worker processes (map_ordered)
+    elsewhere: dict[str, float] = field(default_factory=lambda: {"cpu_seconds": 0.0, "peak_rss_mb": 0.0})
 
     @classmethod
     def build(cls, spec: StageSpec, params: Params, scene: str, workspace: Workspace, inputs: dict[str, Path],
@@ -113,10 +115,12 @@ class StageContext:
     def map_ordered(self, fn: Callable[[Any], Any], items: list) -> Iterator[Any]:
         """``fn(item)`` for each item, yielded in item order, as tasks on the workers that run the stages
         (:func:`ordered_tasks`): within-stage parallelism, e.g. one long scene's map chunks."""
-        return ordered_tasks(fn, items, name=f"{self.stage}-{self.scene}", threads=self.runtime.threads_per_worker)
+        return ordered_tasks(fn, items, name=f"{self.stage}-{self.scene}", threads=self.runtime.threads_per_worker,
+                             usage=self.elsewhere)
 
 
-def ordered_tasks(fn: Callable[[Any], Any], items: list, *, name: str, threads: int = 1) -> Iterator[Any]:
+def ordered_tasks(fn: Callable[[Any], Any], items: list, *, name: str, threads: int = 1,
+                  usage: dict[str, float] | None = None) -> Iterator[Any]:
     """Yield ``fn(item)`` for every item, in item order, running the calls on every dask worker when there is one.
 
     Inside a ``dask.distributed`` worker (``run.scheduler`` ``processes``, which starts a local cluster, or a
@@ -129,7 +133,9 @@ def ordered_tasks(fn: Callable[[Any], Any], items: list, *, name: str, threads: 
     the same function on the same items, so the same results.
 
     ``fn`` and ``items`` must pickle (module-level functions, ``functools.partial`` of them). An exception of a
-    call is raised here, with its type, when its turn comes.
+    call is raised here, with its type, when its turn comes. ``usage`` (``cpu_seconds``, ``peak_rss_mb``) adds up
+    the calls that ran in other processes (this process's own CPU time already counts the rest), so a stage's
+    manifest counts every worker its tasks used.
     """
     client_context = _worker_client()
     if client_context is None:
@@ -153,8 +159,11 @@ def ordered_tasks(fn: Callable[[Any], Any], items: list, *, name: str, threads: 
         for _ in range(window):
             submit()
         while pending:
-            result = pending.popleft().result()
+            result, pid, cpu_s, rss_mb = pending.popleft().result()
             submit()
+            if usage is not None and pid != os.getpid():
+                usage["cpu_seconds"] = usage.get("cpu_seconds", 0.0) + cpu_s
+                usage["peak_rss_mb"] = max(usage.get("peak_rss_mb", 0.0), rss_mb)
             yield result
 
 
@@ -173,9 +182,12 @@ def _worker_client():
     return worker_client()
 
 
-def _ordered_call(fn: Callable[[Any], Any], threads: int, item: Any) -> Any:
+def _ordered_call(fn: Callable[[Any], Any], threads: int, item: Any) -> tuple[Any, int, float, float]:
+    """``(fn(item), pid, CPU seconds of this process during the call, its peak RSS in MiB)``."""
     limit_native_threads(threads)
-    return fn(item)
+    cpu0 = time.process_time()
+    result = fn(item)
+    return result, os.getpid(), time.process_time() - cpu0, peak_rss_mb()
 
 
 def _stderr_console():
@@ -408,7 +420,8 @@ def _run_stage(
             params=projection, params_digest=ctx.params_digest, inputs=in_digests, outputs=records,
             summary=summary, layout=dict(ARTIFACTS),
             timing={"started": started, "seconds": round(seconds, 3),
-                    "cpu_seconds": round(time.process_time() - cpu0, 3), "peak_rss_mb": round(peak_rss_mb(), 1),
+                    "cpu_seconds": round(time.process_time() - cpu0 + ctx.elsewhere["cpu_seconds"], 3),
+                    "peak_rss_mb": round(max(peak_rss_mb(), ctx.elsewhere["peak_rss_mb"]), 1),
                     "host": socket.gethostname(), "python": platform.python_version()},
         )
         check_inputs_unchanged(ws, scene, stage, upstream_stages(stages, params, scene, stage),

@@ -184,7 +184,8 @@ def _square_and_worker(x):
 def _ordered_in_a_worker(items):
     from pipeline.runner import ordered_tasks
 
-    return list(ordered_tasks(_square_and_worker, items, name="square"))
+    usage = {}
+    return list(ordered_tasks(_square_and_worker, items, name="square", usage=usage)), usage
 
 
 def test_ordered_tasks_run_on_every_worker_and_yield_in_item_order():
@@ -195,8 +196,9 @@ def test_ordered_tasks_run_on_every_worker_and_yield_in_item_order():
     assert list(ordered_tasks(lambda x: x * x, range(5), name="square")) == [0, 1, 4, 9, 16]  # no cluster: here
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster, \
             Client(cluster) as client:
-        out = client.submit(_ordered_in_a_worker, list(range(12))).result()  # a stage task spreading its items
+        out, usage = client.submit(_ordered_in_a_worker, list(range(12))).result()  # a stage task spreading its items
         assert [v for v, _ in out] == [x * x for x in range(12)]
         assert len({w for _, w in out}) == 2
+        assert usage == {}  # in-process workers: this process's own CPU time already counts every call
         with pytest.raises(ValueError, match="item 99 is bad"):
             client.submit(_ordered_in_a_worker, [1, 99, 2]).result()
