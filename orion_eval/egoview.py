@@ -105,6 +105,11 @@ class EgoRenderer:
         lo, hi, ids, vol = self.boxes
         p = points[hit]
         tol = self.tolerance
+        if len(p):  # only boxes overlapping the hit points' bounding box can hold one (a view sees a few rooms' parts)
+            near = np.flatnonzero(((lo - tol) <= p.max(axis=0)).all(axis=1) & ((hi + tol) >= p.min(axis=0)).all(axis=1))
+            lo, hi, ids, vol = lo[near], hi[near], ids[near], vol[near]
+        if not len(p) or not len(lo):
+            return np.zeros(hit.shape, np.uint16)
         inside = ((p[:, None, :] >= lo[None] - tol) & (p[:, None, :] <= hi[None] + tol)).all(axis=2)  # (N,M)
         cost = np.where(inside, vol[None], np.inf)
         k = np.argmin(cost, axis=1)

@@ -34,7 +34,7 @@ MERGE_M = 0.6
 
 def new_memory(ctx) -> MemoryMaps:
     """An empty ORION memory on the scene's ORION map text encoder."""
-    return MemoryMaps(lambda texts: ctx.arts.map_query(ctx.params.eval.orion_map).text_features(texts).numpy(),
+    return MemoryMaps(lambda texts: np.asarray(ctx.arts.map_query(ctx.params.eval.orion_map).text_features(texts)),
                       merge_m=MERGE_M)
 
 

@@ -3,7 +3,8 @@
 The scene's navigable cells usually cover a small part of the 600x600 grid, so the planner works
 on the navigable bounding box (plus a margin) — a :class:`~pipeline.geometry.GridSpec` of its own
 with the same cell size — which makes each fast-marching field several times cheaper. Fields are
-cached per target key for the whole scene (targets repeat across episodes, seeds and settings).
+cached per target key for the whole scene (targets repeat across episodes, seeds and settings), and so
+are whole routes per start pose and target (:meth:`NavPlanner.route`).
 """
 
 from __future__ import annotations
@@ -30,6 +31,10 @@ class NavPlanner:
         s = grid.cell_size_m
         self.crop_grid = GridSpec(r1 - r0, c1 - c0, s, (grid.origin_xy[0] + c0 * s, grid.origin_xy[1] - r0 * s))
         self.planner = RoutePlanner(nav[self.window], self.crop_grid, settings)
+        # route per (pose, target key, facing, end mask): deterministic agents repeat their first moves in every
+        # feedback setting and seed, so the same route is asked for again and again. A target key names its
+        # target (the FMM fields are cached by it too); an end mask is named by identity and kept alive here.
+        self._routes: dict[tuple, tuple[Route | None, np.ndarray | None]] = {}
 
     def crop(self, mask: np.ndarray) -> np.ndarray:
         """A full-grid ``(rows, cols)`` mask cut to the planner's window (cells outside are dropped)."""
@@ -47,15 +52,23 @@ class NavPlanner:
               ) -> Route | None:
         """Route from ``pose`` (x, y, yaw) to within ``settings.stop_radius_m`` of ``target_mask`` (full grid);
         a walk that cannot finish in the target finishes inside ``end_mask`` (full grid) when given."""
+        face = None if face_xy is None else np.asarray(face_xy, np.float64)
+        memo = (tuple(float(v) for v in pose), key, None if face is None else (face.shape, face.tobytes()),
+                None if end_mask is None else id(end_mask))
+        hit = self._routes.get(memo)
+        if hit is not None:
+            return hit[0]
         sub = self.crop(target_mask)
-        if not sub.any():
-            return None
-        end = None if end_mask is None else self.crop(end_mask)
-        try:
-            return self.planner.route(pose, sub, key=key, face_xy=None if face_xy is None else np.asarray(face_xy),
-                                      region=self.settings.stop_radius_m == 0, end_mask=end)
-        except ValueError:  # descent stuck or action budget exceeded: treat as unreachable
-            return None
+        route = None
+        if sub.any():
+            end = None if end_mask is None else self.crop(end_mask)
+            try:
+                route = self.planner.route(pose, sub, key=key, face_xy=face, region=self.settings.stop_radius_m == 0,
+                                           end_mask=end)
+            except ValueError:  # descent stuck or action budget exceeded: treat as unreachable
+                route = None
+        self._routes[memo] = (route, end_mask)
+        return route
 
     def geodesic(self, pose, target_mask: np.ndarray, *, key) -> float:
         """FMM distance (metres) from ``pose`` to the target region; inf when unreachable."""

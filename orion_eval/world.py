@@ -112,6 +112,9 @@ class SuccessRule:
         self.height = np.nan_to_num(np.asarray(height, dtype=np.float32), nan=-np.inf)
         self.camera_h = float(camera_height_m)
         self.sight = sight  # (origins (N,2), target_xy, z_levels, own) -> (N,) bool; None = 2.5-D height grid
+        # verdicts per (pose, goal): the user judges the same poses in every feedback setting (agents are
+        # deterministic); a goal geometry is named by identity and kept alive with its verdicts
+        self._verdicts: dict[tuple, tuple[dict, GoalGeometry]] = {}
 
     def geometry(self, footprints, mass_centers, z_ranges, footprint_mask: np.ndarray) -> GoalGeometry:
         own = own_cells(footprint_mask)
@@ -141,6 +144,12 @@ class SuccessRule:
     def evaluate(self, pose, goal: GoalGeometry) -> dict:
         """``{success, distance_m, bearing_deg, visible}`` for the best member of the goal's group."""
         x, y, yaw = (float(v) for v in pose)
+        memo = (x, y, yaw, id(goal))
+        if memo not in self._verdicts:
+            self._verdicts[memo] = (self._evaluate(x, y, yaw, goal), goal)
+        return dict(self._verdicts[memo][0])
+
+    def _evaluate(self, x: float, y: float, yaw: float, goal: GoalGeometry) -> dict:
         best = {"success": False, "distance_m": math.inf, "bearing_deg": 180.0, "visible": False}
         for k, poly in enumerate(goal.footprints):
             d = point_polygon_distance((x, y), poly)

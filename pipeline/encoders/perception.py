@@ -41,7 +41,6 @@ import numpy as np
 import torch
 
 from pipeline.encoders.base import DenseFeatures, Encoder, PaletteFeatures, l2_normalize, register
-from pipeline.encoders.conceptfusion import fuse_region_features
 from pipeline.encoders.perception_text import (TEMPERATURE, VERSIONS, ClipTextSpace, load_text_space,
                                                resolve_embeddings)
 from pipeline.errors import ConfigError, InputDataError
@@ -302,6 +301,8 @@ class SimulatedCF(SimulatedPerception):
         local_t = l2_normalize(torch.from_numpy(local[used]))
         g = l2_normalize((torch.from_numpy(np.bincount(region, weights=area, minlength=R)[used])[:, None]
                           * local_t).sum(0, keepdim=True))
+        from pipeline.encoders.conceptfusion import fuse_region_features  # imports open_clip: only when fusing
+
         fused = fuse_region_features(g, local_t, torch.zeros(len(local_t), dtype=torch.long), 1,
                                      self.p.global_temperature)
         table = np.zeros((R, self.dim))

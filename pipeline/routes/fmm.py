@@ -9,6 +9,7 @@ Arrays are ``(rows, cols)`` on a :class:`~pipeline.geometry.GridSpec`; distances
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,6 +19,8 @@ from scipy import ndimage
 from pipeline.geometry import GridSpec
 
 _NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
+_STEPS = np.linalg.norm(_NEIGHBOURS, axis=1)
+_SAMPLES: dict[int, np.ndarray] = {}
 
 
 def planning_mask(navigable: np.ndarray, grid: GridSpec, clearance_m: float) -> np.ndarray:
@@ -68,6 +71,8 @@ def descend(field: np.ndarray, start_rc: tuple[int, int], max_steps: int | None 
 
     Moves to the neighbour with the smallest ``field + step length`` ordering (steepest descent);
     stops at the target, or raises ``ValueError`` at a local minimum (never expected for FMM fields).
+    Inner cells read their 8 neighbours with one flat gather; cells on the grid's edge treat the
+    neighbours off the grid as unreachable (the same rule, spelled out).
     """
     rows, cols = field.shape
     r, c = int(start_rc[0]), int(start_rc[1])
@@ -75,53 +80,99 @@ def descend(field: np.ndarray, start_rc: tuple[int, int], max_steps: int | None 
         raise ValueError(f"start cell {(r, c)} cannot reach the target")
     path = [(r, c)]
     max_steps = max_steps or rows * cols
-    steps = np.linalg.norm(_NEIGHBOURS, axis=1)
+    flat = np.ascontiguousarray(field).ravel()
+    offsets = _NEIGHBOURS[:, 0] * cols + _NEIGHBOURS[:, 1]
     for _ in range(max_steps):
-        if field[r, c] <= 0:
+        f = field[r, c]
+        if f <= 0:
             return np.array(path)
-        nb = _NEIGHBOURS + (r, c)
-        ok = (nb[:, 0] >= 0) & (nb[:, 0] < rows) & (nb[:, 1] >= 0) & (nb[:, 1] < cols)
-        vals = np.full(8, np.inf)
-        vals[ok] = field[nb[ok, 0], nb[ok, 1]]
+        if 0 < r < rows - 1 and 0 < c < cols - 1:
+            vals = flat[r * cols + c + offsets]
+        else:
+            nb = _NEIGHBOURS + (r, c)
+            ok = (nb[:, 0] >= 0) & (nb[:, 0] < rows) & (nb[:, 1] >= 0) & (nb[:, 1] < cols)
+            vals = np.full(8, np.inf)
+            vals[ok] = field[nb[ok, 0], nb[ok, 1]]
         # slope = drop per unit length; prefer the steepest descent
-        slope = (field[r, c] - vals) / steps
-        k = int(np.argmax(slope))
-        if not (vals[k] < field[r, c]):
-            raise ValueError(f"descent stuck at cell {(r, c)} (field {field[r, c]:.3f})")
-        r, c = int(nb[k, 0]), int(nb[k, 1])
+        k = int(np.argmax((f - vals) / _STEPS))
+        if not (vals[k] < f):
+            raise ValueError(f"descent stuck at cell {(r, c)} (field {f:.3f})")
+        r, c = r + int(_NEIGHBOURS[k, 0]), c + int(_NEIGHBOURS[k, 1])
         path.append((r, c))
     raise ValueError("descent did not reach the target")
 
 
-def segment_free(mask: np.ndarray, a_rc: np.ndarray, b_rc: np.ndarray) -> np.ndarray:
-    """For segments between continuous cell coordinates ``(N,2)`` -> ``(N,)`` bool: every sample on the
-    segment (every 1/3 cell) lies in a True cell of ``mask``."""
-    a = np.asarray(a_rc, dtype=np.float64).reshape(-1, 2)
-    b = np.asarray(b_rc, dtype=np.float64).reshape(-1, 2)
-    n = int(np.ceil(np.max(np.linalg.norm(b - a, axis=1), initial=0.0) * 3)) + 2
-    t = np.linspace(0.0, 1.0, n)
-    pts = a[:, None] + (b - a)[:, None] * t[None, :, None]  # (N,n,2)
+def _samples(n: int) -> np.ndarray:
+    """``np.linspace(0, 1, n)``, computed once per ``n``."""
+    t = _SAMPLES.get(n)
+    if t is None:
+        t = _SAMPLES[n] = np.linspace(0.0, 1.0, n)
+    return t
+
+
+def _segments_free(mask: np.ndarray, a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """``(N,)`` bool: the ``n`` evenly spaced samples of each segment ``a[i] -> b[i]`` (``(N,2)`` continuous cell
+    coordinates) all lie in a True cell of ``mask``."""
+    pts = a[:, None] + (b - a)[:, None] * _samples(n)[None, :, None]  # (N,n,2)
     idx = np.floor(pts + 0.5).astype(np.int64)
     rows, cols = mask.shape
-    inside = (idx[..., 0] >= 0) & (idx[..., 0] < rows) & (idx[..., 1] >= 0) & (idx[..., 1] < cols)
-    idx = np.clip(idx, 0, [rows - 1, cols - 1])
-    return (inside & mask[idx[..., 0], idx[..., 1]]).all(axis=1)
+    r, c = idx[..., 0], idx[..., 1]
+    inside = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
+    return (inside & mask[np.minimum(np.maximum(r, 0), rows - 1), np.minimum(np.maximum(c, 0), cols - 1)]).all(axis=1)
 
 
-def shortcut(cells: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """String pulling: keep the fewest cells of the path such that each kept segment stays in ``mask``."""
+def _sample_count(a: np.ndarray, b: np.ndarray) -> int:
+    """Samples per segment of a batch: every 1/3 cell along the longest one, ends included."""
+    d = b - a
+    return int(np.ceil(np.sqrt((d * d).sum(axis=1)).max(initial=0.0) * 3)) + 2
+
+
+def segment_free(mask: np.ndarray, a_rc: np.ndarray, b_rc: np.ndarray) -> np.ndarray:
+    """For segments between continuous cell coordinates ``(N,2)`` -> ``(N,)`` bool: every sample on the
+    segment (every 1/3 cell of the batch's longest segment) lies in a True cell of ``mask``."""
+    a = np.asarray(a_rc, dtype=np.float64).reshape(-1, 2)
+    b = np.asarray(b_rc, dtype=np.float64).reshape(-1, 2)
+    if len(a) == 1:  # one segment (an agent's step): the same samples in plain floats, no array overhead
+        return np.array([_one_segment_free(mask, *a[0].tolist(), *b[0].tolist())])
+    return _segments_free(mask, a, b, _sample_count(a, b))
+
+
+def _one_segment_free(mask: np.ndarray, a0: float, a1: float, b0: float, b1: float) -> bool:
+    d0, d1 = b0 - a0, b1 - a1
+    n = int(math.ceil(math.sqrt(d0 * d0 + d1 * d1) * 3)) + 2
+    rows, cols = mask.shape
+    for t in _samples(n).tolist():
+        r, c = math.floor(a0 + d0 * t + 0.5), math.floor(a1 + d1 * t + 0.5)
+        if not (0 <= r < rows and 0 <= c < cols and mask[r, c]):
+            return False
+    return True
+
+
+def shortcut(cells: np.ndarray, mask: np.ndarray, chunk: int = 32) -> np.ndarray:
+    """String pulling: keep the fewest cells of the path such that each kept segment stays in ``mask``.
+
+    From each kept cell, the segments to all later cells are tested (sampled as one batch, as
+    :func:`segment_free` samples it) in runs of ``chunk``, stopping at the first run with a blocked one:
+    only the visible run up to the first blocked cell matters.
+    """
     cells = np.asarray(cells)
     if len(cells) <= 2:
         return cells
     keep = [0]
     i = 0
     while i < len(cells) - 1:
-        # farthest j visible from i (vectorised over all later cells)
-        later = cells[i + 1 :]
-        free = segment_free(mask, np.repeat(cells[i : i + 1], len(later), 0), later)
+        later = cells[i + 1 :].astype(np.float64)
+        start = np.repeat(cells[i : i + 1].astype(np.float64), len(later), 0)
+        n = _sample_count(start, later)  # the batch's sampling, whatever run is tested
+        first_blocked = None
+        for s in range(0, len(later), chunk):
+            free = _segments_free(mask, start[s : s + chunk], later[s : s + chunk], n)
+            blocked = np.flatnonzero(~free)
+            if blocked.size:
+                first_blocked = s + int(blocked[0])
+                break
         # the first blocked index bounds the visible run along the path
-        blocked = np.flatnonzero(~free)
-        j = i + 1 + (int(blocked[0]) - 1 if blocked.size else len(later) - 1)
+        j = i + 1 + (first_blocked - 1 if first_blocked is not None else len(later) - 1)
         j = max(j, i + 1)
         keep.append(j)
         i = j

@@ -51,8 +51,14 @@ def sight_levels(z_range) -> np.ndarray:
 
 
 def own_cells(object_mask: np.ndarray) -> np.ndarray:
-    """The object's own cells for line of sight: its footprint dilated by :data:`OWN_DILATION_CELLS`."""
-    return ndimage.binary_dilation(np.asarray(object_mask, bool), iterations=OWN_DILATION_CELLS)
+    """The object's own cells for line of sight: its footprint dilated by :data:`OWN_DILATION_CELLS`
+    (dilated on the footprint's bounding box grown by that many cells and one more, not the whole grid)."""
+    obj = np.asarray(object_mask, bool)
+    out = np.zeros_like(obj)
+    if obj.any():
+        win = _window(obj, OWN_DILATION_CELLS + 1)
+        out[win] = ndimage.binary_dilation(obj[win], iterations=OWN_DILATION_CELLS)
+    return out
 
 
 def recorded_camera_height(poses: np.ndarray, floor_z: float, default: float = 0.88) -> float:
@@ -153,12 +159,16 @@ def route_target(region: np.ndarray, object_mask: np.ndarray, grid: GridSpec, *,
     no cell that far inside (specks seen through a gap, thin strips) are no target unless no part has
     one; then the whole region is the target.
     """
-    region = np.asarray(region, bool)
-    if not region.any():
-        return region.copy()
+    full = np.asarray(region, bool)
+    if not full.any():
+        return full.copy()
+    # work on the bounding box of the region and the object plus a margin: the same labels, erosion and
+    # distances (every object cell is inside it), on a few thousand cells instead of the whole grid
+    obj_full = np.asarray(object_mask, bool)
+    win = _window(full | obj_full, margin_cells + 2)
+    region, obj = full[win], obj_full[win]
     lab, n = ndimage.label(region, structure=np.ones((3, 3), bool))
     inner = ndimage.binary_erosion(region, iterations=margin_cells) if margin_cells > 0 else region
-    obj = np.asarray(object_mask, bool)
     close = inner & (ndimage.distance_transform_edt(~obj) * grid.cell_size_m <= stop_radius_m + 1e-9) \
         if obj.any() else inner
     out = np.zeros_like(region)
@@ -170,7 +180,18 @@ def route_target(region: np.ndarray, object_mask: np.ndarray, grid: GridSpec, *,
         take = has & ~done
         out |= cand & take[lab]
         done |= take
-    return out if out.any() else region.copy()
+    if not out.any():
+        return full.copy()
+    result = np.zeros_like(full)
+    result[win] = out
+    return result
+
+
+def _window(mask: np.ndarray, pad: int) -> tuple[slice, slice]:
+    """The bounding box of ``mask``'s True cells grown by ``pad`` cells (clipped to the grid)."""
+    rr, cc = np.nonzero(mask)
+    return (slice(max(int(rr.min()) - pad, 0), min(int(rr.max()) + pad + 1, mask.shape[0])),
+            slice(max(int(cc.min()) - pad, 0), min(int(cc.max()) + pad + 1, mask.shape[1])))
 
 
 def route_aims(region: np.ndarray, object_mask: np.ndarray, grid: GridSpec, *, stop_radius_m: float
