@@ -4,7 +4,8 @@ Per episode (see :mod:`orion_eval.episode`): S, SPL = S * l / max(a, l), SIT = S
 (method x feedback setting, optionally per scene / goal) is the mean over its episodes of each seed,
 then the mean over seeds (``std`` across seeds is reported beside it). Values are percentages
 (0-100) as in the paper's tables. The success-by-turn curve is the share of episodes that succeed
-within i Talk turns, i = 1..I_max (Fig. 4).
+within i Talk turns, i = 1..I_max (Fig. 4). Wilcoxon tests pair episodes between methods, over all
+settings and within each setting (the paper's per-column test).
 """
 
 from __future__ import annotations
@@ -84,6 +85,27 @@ def wilcoxon_tests(episodes: list[dict], metric: str = "SR") -> list[dict]:
     return out
 
 
+def wilcoxon_by_feedback(episodes: list[dict], metric: str = "SR") -> list[dict]:
+    """:func:`wilcoxon_tests` within each feedback setting (the paper's per-column tests, Table I), each record
+    with its ``feedback``."""
+    by_fb = defaultdict(list)
+    for e in episodes:
+        by_fb[e["feedback"]].append(e)
+    return [{"feedback": fb, **t} for fb, eps in by_fb.items() for t in wilcoxon_tests(eps, metric)]
+
+
+def significantly_best(tests: list[dict], method: str, alpha: float = 0.05) -> set[str]:
+    """Feedback settings where ``method`` beats every other method that is tested against it with p < ``alpha``
+    (the paper's asterisk); ``tests`` from :func:`wilcoxon_by_feedback`. Upper bounds are left to the caller."""
+    wins: dict[str, list[bool]] = defaultdict(list)
+    for t in tests:
+        if method not in (t["a"], t["b"]):
+            continue
+        mine, other = (t["mean_a"], t["mean_b"]) if t["a"] == method else (t["mean_b"], t["mean_a"])
+        wins[t["feedback"]].append(t["p"] is not None and t["p"] < alpha and mine > other)
+    return {fb for fb, w in wins.items() if w and all(w)}
+
+
 def summarize(episodes: list[dict], *, methods, feedback, seeds, scenes, max_turns: int = 5) -> dict:
     """The results document: overall and per-scene / per-goal-type / per-goal tables, curves, tests."""
     slim = [{k: v for k, v in e.items() if k != "log"} for e in episodes]
@@ -95,5 +117,6 @@ def summarize(episodes: list[dict], *, methods, feedback, seeds, scenes, max_tur
         "by_goal": group(slim, "scene", "goal", "method", "feedback"),
         "success_by_turn": success_by_turn(slim, max_turns),
         "wilcoxon": {m: wilcoxon_tests(slim, m) for m in METRICS},
+        "wilcoxon_by_feedback": {m: wilcoxon_by_feedback(slim, m) for m in METRICS},
         "episodes": slim,
     }

@@ -8,7 +8,9 @@
 - Fig. 4: success rate within i Talk turns, one line per method, one panel per feedback setting
   (``success_by_turn.png``); SR per setting as bars (``sr_by_feedback.png``). One colour per method,
   the same in every run (:func:`method_color`); legends sit beside the axes, never over data.
-- Wilcoxon signed-rank tests (SR) between methods.
+- Wilcoxon signed-rank tests (SR) between methods: over all settings, and within each setting between the
+  methods that are not an upper bound (p per pair and setting); * marks an SR that beats every other such
+  method significantly (p < 0.05), as the paper's Table I does.
 - ``scenes/<scene>.html`` per scene: its table, pictures (floor plan, goals, routes, map queries with colour
   bars) and an episode browser (each method's path on the map with its dialogue) when the workspace is given.
 
@@ -45,6 +47,8 @@ DEFINITIONS = {
     "SIT": "success weighted by interaction turns: S / I, with I ≥ 1 the number of Talk turns of the episode.",
     "N": "episodes in the cell (goals × seeds); each value is the mean over seeds of the per-seed means, in percent.",
     "95 % CI": "Wilson score interval for SR, Student's t interval for SPL and SIT, over the cell's episodes.",
+    "*": "SR significantly above every other method that is not an upper bound in that setting (two-sided Wilcoxon "
+         "signed-rank test on the paired episodes, p < 0.05).",
 }
 EPISODES_PER_SCENE = 6  # the episode browser shows at most this many runs per scene
 
@@ -101,8 +105,10 @@ def cell_intervals(episodes: list[dict], *keys: str) -> dict:
     return out
 
 
-def _table(cells: dict, cis: dict, methods: list[str], columns: list[str], column_names: dict) -> dict:
-    """The data a results table template needs; bold = best per column and metric among non-upper-bound methods."""
+def _table(cells: dict, cis: dict, methods: list[str], columns: list[str], column_names: dict,
+           stars: set[tuple[str, str]] = frozenset()) -> dict:
+    """The data a results table template needs; bold = best per column and metric among non-upper-bound methods;
+    ``stars`` = (method, column) whose SR beats every other contender significantly (Wilcoxon, p < 0.05)."""
     contenders = [m for m in methods if m not in UPPER_BOUNDS]
     best = {}
     for c in columns:
@@ -117,7 +123,7 @@ def _table(cells: dict, cis: dict, methods: list[str], columns: list[str], colum
             cell = cells.get(me, {}).get(c, {})
             ci = cis.get(me, {}).get(c, {})
             groups.append({"n": cell.get("episodes"), "metrics": [
-                {"value": cell.get(m), "ci": ci.get(m),
+                {"value": cell.get(m), "ci": ci.get(m), "star": m == "SR" and (me, c) in stars,
                  "bold": me not in UPPER_BOUNDS and cell.get(m) is not None and cell.get(m) == best[(c, m)]}
                 for m in METRICS]})
         rows.append({"method": me, "name": method_name(me), "color": method_color(me),
@@ -222,6 +228,24 @@ def run_notes(run: dict) -> list[str]:
     return notes
 
 
+def setting_tests(results: dict, methods: list[str], fbs: list[str]) -> tuple[set[tuple[str, str]], dict]:
+    """From the per-setting Wilcoxon tests (SR) between the contenders (no upper bound): the (method, setting)
+    cells that beat every other contender significantly, and the table of p values (pair rows x settings)."""
+    from orion_eval.metrics import significantly_best
+
+    contenders = [m for m in methods if m not in UPPER_BOUNDS]
+    tests = [t for t in results.get("wilcoxon_by_feedback", {}).get("SR", [])
+             if t["a"] in contenders and t["b"] in contenders]
+    stars = {(m, fb) for m in contenders for fb in significantly_best(tests, m)}
+    rows: dict[tuple[str, str], dict] = {}
+    for t in tests:
+        rows.setdefault((t["a"], t["b"]), {})[t["feedback"]] = t
+    table = {"settings": [FB_NAMES.get(f, f) for f in fbs],
+             "rows": [{"pair": f"{method_name(a)} vs {method_name(b)}",
+                       "cells": [rows[(a, b)].get(fb) for fb in fbs]} for a, b in sorted(rows)]}
+    return stars, table
+
+
 def write_report(results: dict, out_dir: Path, *, ws=None, params=None) -> Path:
     """Write ``report.html``, its figures and ``scenes/<scene>.html`` into ``out_dir``; returns the report's path.
 
@@ -242,6 +266,7 @@ def write_report(results: dict, out_dir: Path, *, ws=None, params=None) -> Path:
     scenes = [s for s in run["scenes"] if s in results["by_scene"]]
     ci_scene = cell_intervals(episodes, "scene", "method", "feedback")
     legend = [{"name": method_name(m), "color": method_color(m), "upper": m in UPPER_BOUNDS} for m in methods]
+    stars, per_setting = setting_tests(results, methods, fbs)
     common = {"fb_names": FB_NAMES, "definitions": DEFINITIONS, "legend": legend, "run": run}
     (out_dir / "scenes").mkdir(exist_ok=True)
     for s in scenes:
@@ -255,7 +280,9 @@ def write_report(results: dict, out_dir: Path, *, ws=None, params=None) -> Path:
         (out_dir / "scenes" / f"{s}.html").write_text(page)
     page = env.get_template("report.html").render(
         notes=run_notes(run),
-        table1=_table(results["overall"], cell_intervals(episodes, "method", "feedback"), methods, fbs, FB_NAMES),
+        table1=_table(results["overall"], cell_intervals(episodes, "method", "feedback"), methods, fbs, FB_NAMES,
+                      stars),
+        setting_tests=per_setting,
         table2=_table(by_type, ci_type, methods, types, {t: t.capitalize() for t in types}),
         setting=FB_NAMES.get(setting, setting), tests=results["wilcoxon"]["SR"], names=NAMES,
         scenes=[{"name": s, "href": f"scenes/{s}.html",

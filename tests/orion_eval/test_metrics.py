@@ -51,3 +51,20 @@ def test_wilcoxon_matches_scipy_on_paired_episodes():
     assert t["pairs"] == 30 and t["p"] == pytest.approx(ref.pvalue) and t["statistic"] == pytest.approx(ref.statistic)
     same = [dict(e, method="c") for e in eps if e["method"] == "a"]
     assert [x for x in wilcoxon_tests(eps + same, "SR") if {x["a"], x["b"]} == {"a", "c"}][0]["p"] is None
+
+
+def test_per_setting_wilcoxon_and_the_significance_star():
+    from orion_eval.metrics import significantly_best, wilcoxon_by_feedback
+
+    rng = np.random.default_rng(1)
+    eps = []
+    for fb, (pa, pb) in {"yesno": (0.9, 0.2), "none": (0.5, 0.5)}.items():
+        xa, xb = rng.random(40) < pa, rng.random(40) < pb
+        eps += [_ep("a", 0, f"g{i}", bool(v), 1, 1, 1, fb) for i, v in enumerate(xa)]
+        eps += [_ep("b", 0, f"g{i}", bool(v), 1, 1, 1, fb) for i, v in enumerate(xb)]
+    tests = wilcoxon_by_feedback(eps, "SR")
+    assert {t["feedback"] for t in tests} == {"yesno", "none"} and all(t["pairs"] == 40 for t in tests)
+    yes = [t for t in tests if t["feedback"] == "yesno"][0]
+    assert yes["p"] == pytest.approx(wilcoxon(*[np.array([float(e["success"]) for e in eps if e["method"] == m
+                                                          and e["feedback"] == "yesno"]) for m in "ab"]).pvalue)
+    assert yes["p"] < 0.001 and significantly_best(tests, "a") == {"yesno"} and significantly_best(tests, "b") == set()

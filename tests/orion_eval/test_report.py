@@ -97,3 +97,14 @@ def test_scene_page_with_pictures_and_episodes_renders_in_chromium(built_scene, 
     assert img.shape[:2] == (2400, 1200)
     # the pictures loaded: many distinct colours (a page of text and tables alone has a handful)
     assert len(np.unique(img[::4, ::4].reshape(-1, 3), axis=0)) > 2000
+
+
+def test_per_setting_tests_are_listed_and_a_significant_best_sr_is_starred(tmp_path):
+    res = _results({"human": 1.0, "vlmap": 0.2, "orion": 0.9}, n=30, feedback=("yesno", "none"))
+    html = write_report(res, tmp_path).read_text()
+    table1 = html.split("Table I", 1)[1].split("Table II", 1)[0]
+    orion_row = table1.split("ORION", 1)[1].split("</tr>", 1)[0]
+    assert orion_row.count("<sup>*</sup>") == 2 and "<sup>*</sup>" not in table1.split("VLMap", 1)[1].split("</tr>")[0]
+    per_setting = html.split("per setting", 1)[1].split("Scenes", 1)[0]
+    assert "VLMap vs ORION" in per_setting or "ORION vs VLMap" in per_setting
+    assert "Human" not in per_setting  # upper bounds are not tested against the methods
