@@ -129,3 +129,15 @@ def test_zipon_eval_refuses_a_method_no_registry_has(tiny_scene, tmp_path, capsy
     err = " ".join(capsys.readouterr().err.split())
     assert "eval.methods: unknown method(s) ['gpt']; choose from ['human', 'cow', 'vlmap', 'cf', 'orion']" in err
     assert not (tmp_path / "out" / "results.json").exists()
+
+
+def test_scene_caches_do_not_change_episodes(tiny_scene):
+    """Routes, verdicts, views and detections cached while other settings ran give the same episodes as a scene
+    context that saw only this setting."""
+    from orion_eval.run import evaluate_scene
+
+    ws, params = tiny_scene
+    strip = lambda rs, fb: [{k: v for k, v in e.items() if k != "seconds"} for e in rs if e["feedback"] == fb]  # noqa: E731
+    shared = evaluate_scene(ws, params, "tiny", ["cow", "orion"], ["yesno", "procedural"], [0])
+    alone = evaluate_scene(ws, params, "tiny", ["cow", "orion"], ["procedural"], [0])
+    assert strip(shared, "procedural") == strip(alone, "procedural") and len(alone) > 0
