@@ -14,7 +14,8 @@ from types import UnionType
 from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
+from pydantic import (BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator,
+                      model_serializer, model_validator)
 
 from pipeline.errors import ConfigError
 from pipeline.perception_params import DetectorParams, SimulatedCFParams, SimulatedLSegParams
@@ -61,15 +62,40 @@ SceneFormat = Literal["auto", "mcap", "rosbag", "tum", "7scenes", "navchat", "re
 class SceneSource(Section):
     """Where one scene's raw data comes from."""
 
-    source: str = Field(
-        description="'simulate' for an embedded procedural scene (raw log written by the simulate stage), "
+    source: str | None = Field(
+        None, description="'simulate' for an embedded procedural scene (raw log written by the simulate stage), "
         "or a path (relative to the params file) to a raw log / dataset folder"
     )
-    format: SceneFormat = Field("auto", description="reader to use; 'auto' detects it from the path")
+    sources: list[str] | None = Field(
+        None, description="several raw logs / dataset folders of one scene, read in this order into one frames.zarr "
+        "(instead of 'source'; appending a log to the list lets the map stages reuse their fold)"
+    )
+    format: SceneFormat = Field("auto", description="reader to use; 'auto' detects it from each path")
+
+    @model_validator(mode="after")
+    def _one_source_key(self) -> "SceneSource":
+        if self.source is not None and self.sources is not None:
+            raise ValueError("give either 'source' (one log) or 'sources' (a list of logs), not both")
+        if self.source is None and self.sources is None:
+            raise ValueError("needs 'source' ('simulate' or a path) or 'sources' (a list of paths)")
+        if self.sources is not None and not self.sources:
+            raise ValueError("'sources' is empty: list at least one raw log or dataset folder")
+        if self.sources is not None and "simulate" in self.sources:
+            raise ValueError("'sources' lists paths; a simulated scene is 'source: simulate'")
+        return self
+
+    @model_serializer(mode="wrap")
+    def _without_unused_key(self, handler) -> dict:
+        return {k: v for k, v in handler(self).items() if not (k in ("source", "sources") and v is None)}
 
     @property
     def simulated(self) -> bool:
         return self.source == "simulate"
+
+    @property
+    def paths(self) -> list[str]:
+        """The raw logs / dataset folders in reading order (``['simulate']`` for a simulated scene)."""
+        return list(self.sources) if self.sources is not None else [self.source]
 
 
 # ----------------------------------------------------------------------------- stages
@@ -214,6 +240,15 @@ class GridParams(Section):
     rows: int = Field(600, gt=0, description="grid rows (north-south)")
     cols: int = Field(600, gt=0, description="grid columns (west-east)")
     cell_size_m: float = Field(0.05, gt=0, description="cell edge, metres")
+    centre_xy: tuple[float, float] | None = Field(
+        None, description="world x, y of the grid's centre, metres (snapped to the TSDF lattice); None = centred "
+        "on the surface reconstruct saw. Pin it (and reconstruct.floor_z_m) so appending logs keeps the map's fold"
+    )
+
+    @model_serializer(mode="wrap")
+    def _without_unpinned_centre(self, handler) -> dict:
+        """An unpinned centre is left out of the section's value: digests of grids without one stay as they were."""
+        return {k: v for k, v in handler(self).items() if not (k == "centre_xy" and v is None)}
 
 
 class ReconstructParams(DepthRange):

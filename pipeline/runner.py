@@ -216,13 +216,23 @@ def code_digest(spec: StageSpec) -> str:
     return codedeps.code_digest(spec.module)
 
 
-def source_path(ws: Workspace, params: Params, scene: str) -> Path:
-    """The raw data of a scene: the simulated log, or the configured path (relative to params.yaml)."""
+def source_paths(ws: Workspace, params: Params, scene: str) -> list[Path]:
+    """The raw data of a scene in reading order: the simulated log, or the configured paths (relative to
+    params.yaml; ``scenes.<scene>.source`` or ``.sources``)."""
     src = params.scenes[scene]
     if src.simulated:
-        return ws.artifact("raw_log", scene)
-    path = Path(src.source)
-    return path if path.is_absolute() else (ws.root / path)
+        return [ws.artifact("raw_log", scene)]
+    return [path if path.is_absolute() else (ws.root / path) for path in map(Path, src.paths)]
+
+
+def source_key(i: int) -> str:
+    """The input name of a scene's ``i``-th raw source (0-based): ``source``, ``source_2``, ``source_3``, ..."""
+    return SOURCE if i == 0 else f"{SOURCE}_{i + 1}"
+
+
+def scene_sources(inputs: dict[str, Path]) -> list[Path]:
+    """The raw sources among a stage's inputs (``source``, ``source_2``, ...), in reading order."""
+    return [inputs[source_key(i)] for i in range(len(inputs)) if source_key(i) in inputs]
 
 
 def producer(stages: dict[str, StageSpec], artifact: str) -> StageSpec:
@@ -239,10 +249,13 @@ def input_digests(ws: Workspace, params: Params, stages: dict[str, StageSpec], s
     out = {}
     for name in spec.inputs:
         if name == SOURCE and not params.scenes[scene].simulated:
-            path = source_path(ws, params, scene)
-            if not path.exists():
-                raise MissingInputError(f"{path}: raw data of scene {scene!r} not found (params.yaml scenes.{scene}.source)")
-            out[name] = files_digest([path])
+            paths = source_paths(ws, params, scene)
+            key = "sources" if params.scenes[scene].sources is not None else "source"
+            for path in paths:
+                if not path.exists():
+                    raise MissingInputError(f"{path}: raw data of scene {scene!r} not found "
+                                            f"(params.yaml scenes.{scene}.{key})")
+            out[name] = files_digest(paths)  # every log's bytes, in order: appending a log is a new input
             continue
         artifact = "raw_log" if name == SOURCE else name
         up = producer(stages, artifact)
@@ -399,10 +412,12 @@ def _run_stage(
     started = datetime.now(timezone.utc).isoformat(timespec="seconds")
     tmp = new_tmp_dir(ws.tmp_dir(scene), stage)
     try:
-        inputs = {
-            name: (source_path(ws, params, scene) if name == SOURCE else ws.artifact(name, scene))
-            for name in spec.inputs
-        }
+        inputs = {}
+        for name in spec.inputs:
+            if name == SOURCE:  # one input per raw log: source, source_2, ...
+                inputs.update({source_key(i): p for i, p in enumerate(source_paths(ws, params, scene))})
+            else:
+                inputs[name] = ws.artifact(name, scene)
         outputs = {name: tmp / ws.artifact(name, scene).name for name in spec.outputs}
         config, projection = spec.build_config(params, scene)
         ctx = StageContext(scene, stage, config, params.run, ws, inputs, outputs, digest_value(projection),

@@ -1,4 +1,4 @@
-"""Stage ``ingest``: a raw log or dataset folder -> ``frames.zarr``.
+"""Stage ``ingest``: a scene's raw logs or dataset folders (one, or several read in order) -> ``frames.zarr``.
 
 The work (reader, time matching, depth range, z-up world, the matching report) is
 :func:`pipeline.readers.ingest.ingest`; this module holds the stage's config and entry point.
@@ -7,7 +7,7 @@ The work (reader, time matching, depth range, z-up world, the matching report) i
 from __future__ import annotations
 
 from pipeline.config import IngestParams, Params, SceneFormat, StageConfig
-from pipeline.runner import StageContext
+from pipeline.runner import StageContext, scene_sources
 
 
 class Config(StageConfig):
@@ -27,10 +27,9 @@ class Config(StageConfig):
 
 
 def run(ctx: StageContext) -> dict:
-    """Read ``ctx.inputs['source']`` into ``ctx.outputs['frames']``; returns the matching summary."""
+    """Read the scene's raw logs (``ctx.inputs['source']``, then ``source_2``, ... in order:
+    ``scenes.<scene>.sources``) into ``ctx.outputs['frames']``; returns the matching summary."""
     from pipeline.readers.ingest import ingest  # here: the readers' imports (ROS, scipy) cost every `zipon status`
 
-    source = ctx.inputs["source"]
-    return ingest(source, ctx.outputs["frames"], ctx.config.ingest, ctx.config.format,
-                  params_digest=ctx.params_digest, source_label=ctx.workspace.relative(source), log=ctx.log,
-                  progress=ctx.progress)
+    return ingest(scene_sources(ctx.inputs), ctx.outputs["frames"], ctx.config.ingest, ctx.config.format,
+                  params_digest=ctx.params_digest, label=ctx.workspace.relative, log=ctx.log, progress=ctx.progress)

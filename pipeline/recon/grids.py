@@ -115,14 +115,18 @@ def lattice_ratio(grid: GridParams, p: ReconstructParams) -> int:
 
 
 def place_grid(xyz: np.ndarray, grid: GridParams, p: ReconstructParams) -> GridSpec:
-    """A grid of ``grid.rows x grid.cols`` centred on the surface (0.5-99.5 percentile box).
+    """A grid of ``grid.rows x grid.cols`` centred on ``grid.centre_xy`` when pinned, else on the surface
+    (0.5-99.5 percentile box of ``xyz`` ``(N,3)``, metres; more frames may move it).
 
     The origin is snapped so every cell centre is a TSDF lattice column.
     """
     n = lattice_ratio(grid, p)
     v, s = p.voxel_size_m, grid.cell_size_m
-    lo, hi = np.percentile(xyz[:, :2], [0.5, 99.5], axis=0)
-    centre = (lo + hi) / 2.0
+    if grid.centre_xy is not None:
+        centre = np.asarray(grid.centre_xy, np.float64)
+    else:
+        lo, hi = np.percentile(xyz[:, :2], [0.5, 99.5], axis=0)
+        centre = (lo + hi) / 2.0
     off = 0.0 if n % 2 == 0 else 0.5  # cell centre = origin + (j + 1/2) n v must be k v
     x0 = v * (np.round((centre[0] - grid.cols * s / 2.0) / v - off) + off)
     y0 = v * (np.round((centre[1] + grid.rows * s / 2.0) / v - off) + off)
