@@ -160,7 +160,7 @@ def dispatch(m, act: AgentAction) -> str:
 class LLMAgent:
     """An agent whose every action is chosen by the model (think-act-ask)."""
 
-    name = "llm"
+    name, label, colour, upper_bound = "llm", "LLM agent", "#17becf", False
 
     def __init__(self, client: ChatClient, max_turns: int = 40):
         self.client, self.max_turns = client, max_turns

@@ -29,15 +29,12 @@ from pathlib import Path
 
 import numpy as np
 
+from orion_eval.agents import AGENTS
+from orion_eval.llm import LLMAgent
 from orion_eval.metrics import METRICS
 
-NAMES = {"human": "Human (GT route)", "cow": "CoW", "vlmap": "VLMap", "cf": "CF", "orion": "ORION"}
-UPPER_BOUNDS = {"human"}  # methods that follow the ground truth: shown for reference, never "best"
 FB_NAMES = {"none": "No interaction", "yesno": "Yes/No", "corrective": "Corrective", "descriptive": "Descriptive",
             "landmark": "Landmark", "procedural": "Procedural", "mixed": "Mixed"}
-# fixed colours (matplotlib tab10 hues) so a method looks the same in every run and figure
-METHOD_COLORS = {"human": "#7f7f7f", "cow": "#ff7f0e", "vlmap": "#2ca02c", "cf": "#9467bd", "orion": "#d62728",
-                 "llm": "#17becf"}
 _KEY = {"SR": "success", "SPL": "spl", "SIT": "sit"}
 DEFINITIONS = {
     "SR": "success rate: share of episodes that end with the user confirming the goal (the agent within the "
@@ -53,14 +50,29 @@ DEFINITIONS = {
 EPISODES_PER_SCENE = 6  # the episode browser shows at most this many runs per scene
 
 
+def _agent(m: str):
+    """The agent class registered as ``m`` (the LLM agent included), or ``None`` for a name no agent has."""
+    if m == LLMAgent.name:
+        return LLMAgent
+    return AGENTS.get(m)
+
+
 def method_name(m: str) -> str:
-    return NAMES.get(m, m)
+    """How tables and figures name method ``m``: its agent's ``label``, else the name itself."""
+    return getattr(_agent(m), "label", "") or m
+
+
+def is_upper_bound(m: str) -> bool:
+    """Whether ``m`` follows the ground truth (shown for reference, never "best")."""
+    return bool(getattr(_agent(m), "upper_bound", False))
 
 
 def method_color(m: str) -> str:
-    """The method's fixed colour; any other name gets a colour derived from its text (stable across runs)."""
-    if m in METHOD_COLORS:
-        return METHOD_COLORS[m]
+    """The method's fixed colour (its agent's ``colour``, matplotlib tab10 hues); any other name gets a colour
+    derived from its text (stable across runs)."""
+    colour = getattr(_agent(m), "colour", "")
+    if colour:
+        return colour
     h = int(hashlib.blake2b(m.encode(), digest_size=4).hexdigest(), 16)
     import colorsys
 
@@ -109,7 +121,7 @@ def _table(cells: dict, cis: dict, methods: list[str], columns: list[str], colum
            stars: set[tuple[str, str]] = frozenset()) -> dict:
     """The data a results table template needs; bold = best per column and metric among non-upper-bound methods;
     ``stars`` = (method, column) whose SR beats every other contender significantly (Wilcoxon, p < 0.05)."""
-    contenders = [m for m in methods if m not in UPPER_BOUNDS]
+    contenders = [m for m in methods if not is_upper_bound(m)]
     best = {}
     for c in columns:
         for m in METRICS:
@@ -124,10 +136,10 @@ def _table(cells: dict, cis: dict, methods: list[str], columns: list[str], colum
             ci = cis.get(me, {}).get(c, {})
             groups.append({"n": cell.get("episodes"), "metrics": [
                 {"value": cell.get(m), "ci": ci.get(m), "star": m == "SR" and (me, c) in stars,
-                 "bold": me not in UPPER_BOUNDS and cell.get(m) is not None and cell.get(m) == best[(c, m)]}
+                 "bold": not is_upper_bound(me) and cell.get(m) is not None and cell.get(m) == best[(c, m)]}
                 for m in METRICS]})
         rows.append({"method": me, "name": method_name(me), "color": method_color(me),
-                     "upper": me in UPPER_BOUNDS, "groups": groups})
+                     "upper": is_upper_bound(me), "groups": groups})
     return {"columns": [column_names.get(c, c) for c in columns], "metrics": list(METRICS), "rows": rows}
 
 
@@ -161,7 +173,7 @@ def plot_success_by_turn(results: dict, path: Path) -> Path:
             ys = sbt.get(me, {}).get(fb)
             if ys:
                 ax.plot(range(1, len(ys) + 1), ys, marker="o", color=method_color(me),
-                        linestyle="--" if me in UPPER_BOUNDS else "-", label=method_name(me))
+                        linestyle="--" if is_upper_bound(me) else "-", label=method_name(me))
         ax.set_title(FB_NAMES.get(fb, fb), fontsize=10)
         ax.set_xlabel("interaction turns")
         ax.set_ylim(0, 100)
@@ -189,7 +201,7 @@ def plot_sr_by_feedback(results: dict, path: Path) -> Path:
     for i, me in enumerate(methods):
         ys = [results["overall"].get(me, {}).get(fb, {}).get("SR") or 0 for fb in fbs]
         ax.bar(np.arange(len(fbs)) + i * w, ys, w, color=method_color(me), label=method_name(me),
-               hatch="//" if me in UPPER_BOUNDS else None, edgecolor="white")
+               hatch="//" if is_upper_bound(me) else None, edgecolor="white")
     ax.set_xticks(np.arange(len(fbs)) + w * (len(methods) - 1) / 2)
     ax.set_xticklabels([FB_NAMES.get(f, f) for f in fbs], fontsize=8)
     ax.set_ylabel("SR (%)")
@@ -233,7 +245,7 @@ def setting_tests(results: dict, methods: list[str], fbs: list[str]) -> tuple[se
     cells that beat every other contender significantly, and the table of p values (pair rows x settings)."""
     from orion_eval.metrics import significantly_best
 
-    contenders = [m for m in methods if m not in UPPER_BOUNDS]
+    contenders = [m for m in methods if not is_upper_bound(m)]
     tests = [t for t in results.get("wilcoxon_by_feedback", {}).get("SR", [])
              if t["a"] in contenders and t["b"] in contenders]
     stars = {(m, fb) for m in contenders for fb in significantly_best(tests, m)}
@@ -265,7 +277,7 @@ def write_report(results: dict, out_dir: Path, *, ws=None, params=None) -> Path:
     env = _env()
     scenes = [s for s in run["scenes"] if s in results["by_scene"]]
     ci_scene = cell_intervals(episodes, "scene", "method", "feedback")
-    legend = [{"name": method_name(m), "color": method_color(m), "upper": m in UPPER_BOUNDS} for m in methods]
+    legend = [{"name": method_name(m), "color": method_color(m), "upper": is_upper_bound(m)} for m in methods]
     stars, per_setting = setting_tests(results, methods, fbs)
     common = {"fb_names": FB_NAMES, "definitions": DEFINITIONS, "legend": legend, "run": run}
     (out_dir / "scenes").mkdir(exist_ok=True)
@@ -284,7 +296,7 @@ def write_report(results: dict, out_dir: Path, *, ws=None, params=None) -> Path:
                       stars),
         setting_tests=per_setting,
         table2=_table(by_type, ci_type, methods, types, {t: t.capitalize() for t in types}),
-        setting=FB_NAMES.get(setting, setting), tests=results["wilcoxon"]["SR"], names=NAMES,
+        setting=FB_NAMES.get(setting, setting), tests=results["wilcoxon"]["SR"], names={m: method_name(m) for m in methods},
         scenes=[{"name": s, "href": f"scenes/{s}.html",
                  "episodes": sum(1 for e in episodes if e["scene"] == s)} for s in scenes],
         **common)

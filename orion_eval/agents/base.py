@@ -75,6 +75,9 @@ class Agent(ABC):
     """A scripted policy over the ORION modules."""
 
     name: str = ""
+    label: str = ""  # how tables and figures name the method (defaults to ``name``)
+    colour: str = ""  # its fixed colour in every figure ("#rrggbb"; empty: one derived from the name)
+    upper_bound: bool = False  # follows the ground truth: shown for reference, never "best" or starred
     persistent_memory: bool = False  # True: evaluate_scene carries the agent's memory across a scene's goals
 
     def __init__(self, params):

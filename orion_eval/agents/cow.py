@@ -10,7 +10,7 @@ class CowAgent(Agent):
     """Search (spin, then frontiers) with detection; after a "No" the place is skipped; a description
     sharpens the detection query and a route is followed."""
 
-    name = "cow"
+    name, label, colour = "cow", "CoW", "#ff7f0e"
 
     def run(self, m, instruction: str, goal_name: str) -> None:
         query = goal_name

@@ -12,7 +12,7 @@ class HumanAgent(Agent):
     """Knows the goal (ground truth): FMM route into the goal region the routes stage stored (within the
     success distance, mass centre in line of sight), face the nearest member's mass centre, Talk."""
 
-    name = "human"
+    name, label, colour, upper_bound = "human", "Human (GT route)", "#7f7f7f", True
 
     def run(self, m, instruction: str, goal_name: str) -> None:
         goal = m.run.user.goal  # the upper bound may look at the ground truth

@@ -58,10 +58,10 @@ class MapAgent(Agent):
 
 @register
 class VLMapAgent(MapAgent):
-    name, which = "vlmap", "vlmap"
+    name, which, label, colour = "vlmap", "vlmap", "VLMap", "#2ca02c"
 
 
 @register
 class CFAgent(MapAgent):
-    name, which = "cf", "cfmap"
+    name, which, label, colour = "cf", "cfmap", "CF", "#9467bd"
 

@@ -14,7 +14,7 @@ from orion_eval.agents.maps import MapAgent
 
 @register
 class OrionAgent(MapAgent):
-    name = "orion"
+    name, label, colour = "orion", "ORION", "#d62728"
     persistent_memory = True  # the memory is carried across the goals of a scene (evaluate_scene)
 
     def __init__(self, params):

@@ -6,9 +6,11 @@ import subprocess
 import numpy as np
 import pytest
 
+from orion_eval.agents.human import HumanAgent
+from orion_eval.agents.orion import OrionAgent
 from orion_eval.metrics import summarize
-from orion_eval.report import (METHOD_COLORS, cell_intervals, confidence_interval, method_color, run_notes,
-                               write_report)
+from orion_eval.report import (cell_intervals, confidence_interval, is_upper_bound, method_color, method_name,
+                               run_notes, write_report)
 
 
 def _episodes(rates: dict[str, float], n: int = 10, feedback=("mixed",)) -> list[dict]:
@@ -66,7 +68,9 @@ def test_bold_goes_to_the_best_method_that_is_not_an_upper_bound(tmp_path):
 
 
 def test_method_colours_are_stable_and_names_escaped(tmp_path):
-    assert method_color("orion") == METHOD_COLORS["orion"]
+    # registered agents bring their own label, colour and upper-bound flag (one home: the agent class)
+    assert method_color("orion") == OrionAgent.colour and method_name("human") == HumanAgent.label
+    assert is_upper_bound("human") and not is_upper_bound("orion") and not is_upper_bound("my<agent>")
     assert method_color("my<agent>") == method_color("my<agent>") and method_color("my<agent>").startswith("#")
     assert method_color("a") != method_color("b")
     html = write_report(_results({"my<agent>": 0.5, "orion": 0.2}), tmp_path).read_text()
