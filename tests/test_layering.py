@@ -241,3 +241,21 @@ def test_stores_import_no_algorithm_that_fills_them():
     found = {m: sorted({n for n, _ in imports(modules[m], m, modules, module_level=False)} - STORE_MAY_IMPORT)
              for m in STORE_MODULES}
     assert {m: names for m, names in found.items() if names} == {}
+
+
+# pipeline.config is read by every command, the fast ones (status, params, query) included: it stays a leaf
+# (the params sections live there, not beside their packages; README, "Where zipon departs from DESIGN.md").
+CONFIG_MAY_IMPORT = {"pipeline", "pipeline.errors", "pipeline.perception_params", "pipeline.plugins"}
+
+
+def test_config_and_what_it_imports_are_leaves():
+    modules = project_modules(ROOT)
+    seen, todo = set(), ["pipeline.config"]
+    while todo:
+        name = todo.pop()
+        seen.add(name)
+        for dep, line in imports(modules[name], name, modules, module_level=False):
+            assert dep in CONFIG_MAY_IMPORT | {"pipeline.config"}, f"{modules[name]}:{line} imports {dep}"
+            if dep not in seen and dep != "pipeline":
+                todo.append(dep)
+    assert seen == {"pipeline.config", "pipeline.errors", "pipeline.perception_params", "pipeline.plugins"}
