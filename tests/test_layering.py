@@ -29,9 +29,6 @@ MODULE_LEVEL_CYCLES_ALLOWED: dict[frozenset[str], str] = {}
 # Cycles closed only by imports inside functions (they work, but a module still needs its importer).
 DEFERRED_CYCLES_ALLOWED = {
     **MODULE_LEVEL_CYCLES_ALLOWED,
-    # zipon.api's run_eval calls zipon.evaluate.run_eval, which opens datasets through zipon.api (the facade
-    # and its evaluator are one unit; no issue item removes this yet).
-    frozenset({"zipon.api", "zipon.evaluate"}): "none yet",
     # The encoder registry is filled on demand (pipeline.encoders.choice.load imports every implementation
     # inside a function so that building a stage config imports no torch); each implementation imports base.
     frozenset({"pipeline.encoders.base", "pipeline.encoders.choice", "pipeline.encoders.conceptfusion",

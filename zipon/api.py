@@ -102,7 +102,7 @@ class Dataset:
         """:func:`zipon.run_eval` on this dataset."""
         from zipon.evaluate import run_eval
 
-        return run_eval(self, out_dir, **kwargs)
+        return run_eval(self.workspace, self.params, out_dir, **kwargs)
 
 
 class Scene:
@@ -311,3 +311,12 @@ def map_to_xarray(smap):
     )
     return ds
 
+
+def run_eval(dataset, out_dir: str | Path = "eval_out", **kwargs) -> dict:
+    """Evaluate agents on built scenes; writes ``out_dir/results.json`` (+ report.html) and returns the results.
+
+    ``dataset``: a :class:`Dataset` or anything :func:`open` takes; the keywords (``agents``, ``scenes``,
+    ``feedback``, ``seeds``, ``report``, ``progress``) are :func:`zipon.evaluate.run_eval`'s.
+    """
+    ds = dataset if isinstance(dataset, Dataset) else open(dataset)
+    return ds.run_eval(out_dir, **kwargs)

@@ -18,24 +18,23 @@ from typing import Sequence
 from pipeline.errors import ConfigError
 
 
-def run_eval(dataset, out_dir: str | Path = "eval_out", *, agents: Sequence | None = None,
+def run_eval(workspace, params, out_dir: str | Path = "eval_out", *, agents: Sequence | None = None,
              scenes: Sequence[str] | None = None, feedback: Sequence[str] | None = None,
              seeds: int | Sequence[int] | None = None, report: bool = True, progress: bool = False) -> dict:
-    """Evaluate agents on built scenes; writes ``out_dir/results.json`` (+ report.html) and returns the results.
+    """Evaluate agents on the built scenes of ``workspace`` (a :class:`~pipeline.paths.Workspace`) with
+    ``params``; writes ``out_dir/results.json`` (+ report.html) and returns the results. :func:`zipon.run_eval`
+    (in :mod:`zipon.api`) opens a dataset first and calls this.
 
-    ``dataset``: a :class:`zipon.Dataset` or anything :func:`zipon.open` takes. ``agents``: built-in
-    names and/or :class:`~orion_eval.agents.Agent` subclasses (default: params ``eval.methods``).
-    ``seeds``: a count (``2`` = seeds 0 and 1) or explicit seeds (default: params ``eval.seeds``).
+    ``agents``: built-in names and/or :class:`~orion_eval.agents.Agent` subclasses (default: params
+    ``eval.methods``). ``seeds``: a count (``2`` = seeds 0 and 1) or explicit seeds (default: params ``eval.seeds``).
     """
     from orion_eval.run import run_eval as _run_eval
-    from zipon.api import Dataset, open
 
-    ds = dataset if isinstance(dataset, Dataset) else open(dataset)
     names, classes = agent_names(agents)
     if isinstance(seeds, bool) or (isinstance(seeds, int) and seeds < 1):
         raise ConfigError(f"seeds: expected a count >= 1 or a list of seeds, got {seeds!r}")
     seed_list = list(range(seeds)) if isinstance(seeds, int) else (None if seeds is None else [int(s) for s in seeds])
-    return _run_eval(ds.workspace, ds.params, Path(out_dir), scenes=list(scenes) if scenes else None,
+    return _run_eval(workspace, params, Path(out_dir), scenes=list(scenes) if scenes else None,
                      methods=names, feedback=list(feedback) if feedback else None, seeds=seed_list,
                      progress=progress, report=report, agent_classes=classes or None)
 

@@ -366,14 +366,13 @@ def eval_cmd(
     `zipon eval -m mypkg.agents:Greedy --seed-list 3`
     """
     from pipeline.errors import ConfigError
-    from zipon.api import Dataset
     from zipon.evaluate import run_eval
 
     if seeds is not None and seed_list:
         raise ConfigError("--seeds N (a count) and --seed-list (explicit seeds) exclude each other")
     ws, params = G.load()
     agents = [_agent_class(m) if ":" in m else m for m in methods] or None
-    results = run_eval(Dataset(ws, params), out_dir, scenes=scenes or None, agents=agents, feedback=feedback or None,
+    results = run_eval(ws, params, out_dir, scenes=scenes or None, agents=agents, feedback=feedback or None,
                        seeds=seed_list or seeds, progress=not G.quiet)
     print_eval(results, out_dir)
 
