@@ -241,7 +241,7 @@ class GridParams(Section):
     cols: int = Field(600, gt=0, description="grid columns (west-east)")
     cell_size_m: float = Field(0.05, gt=0, description="cell edge, metres")
     centre_xy: tuple[float, float] | None = Field(
-        None, description="world x, y of the grid's centre, metres (snapped to the TSDF lattice); None = centred "
+        None, description="world x, y of the grid's centre, metres (snapped to the TSDF lattice); null = centred "
         "on the surface reconstruct saw. Pin it (and reconstruct.floor_z_m) so appending logs keeps the map's fold"
     )
 
@@ -676,8 +676,9 @@ class TaskParams(Section):
 
 
 class RoutesParams(Section):
-    """Goals + navigable grid -> episodes, geodesic routes and procedural text (``routes.zarr``); the action
-    space, success rule and planning margins are the task's (``task``)."""
+    """Goals + navigable grid -> episodes, geodesic routes and procedural text (``routes.zarr``).
+
+    The action space, success rule and planning margins are the task's (``task``)."""
 
     seed: int = Field(0, description="seed of the start poses")
     episodes_per_goal: int = Field(3, gt=0, description="episodes (start poses) per goal")
