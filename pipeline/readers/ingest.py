@@ -20,7 +20,6 @@ import numpy as np
 from pipeline.config import IngestParams, digest_value
 from pipeline.errors import InputDataError
 from pipeline.frames import ARTIFACT, FORMAT_VERSION, FrameBlock, FrameStoreWriter
-from pipeline.geometry import rotate_world
 from pipeline.readers import FrameMatcher, open_reader
 from pipeline.readers.matcher import index_ranges
 from pipeline.readers.world_up import WorldUp
@@ -61,7 +60,7 @@ def ingest(source: Path | Sequence[Path], out_path: Path, params: IngestParams, 
                 blocks = world.apply(one.blocks())
             else:
                 one.check_same_camera(first)
-                blocks = _rotated(one.blocks(), world.R, writer.n)  # the scene's one world: the first log's rotation
+                blocks = _after(world.rotated(one.blocks()), writer.n)  # the scene's one world: the first log's
             start, fractions = writer.n, []
             with _BackgroundAppender(writer) as appender:
                 for block in (progress(blocks, description="frames") if progress else blocks):
@@ -157,11 +156,9 @@ def _camera(k) -> str:
     return f"{k.width}x{k.height} fx {k.fx:.6g} fy {k.fy:.6g} cx {k.cx:.6g} cy {k.cy:.6g}"
 
 
-def _rotated(blocks: Iterable[FrameBlock], R: np.ndarray, offset: int) -> Iterator[FrameBlock]:
-    """A later log's blocks in the scene's world (``R``, the first log's rotation), indexed after the frames
-    already written."""
+def _after(blocks: Iterable[FrameBlock], offset: int) -> Iterator[FrameBlock]:
+    """A later log's blocks, indexed after the ``offset`` frames already written."""
     for b in blocks:
-        b.T_world_camera = rotate_world(R, b.T_world_camera)
         b.start += offset
         yield b
 

@@ -211,7 +211,12 @@ class WorldUp:
                 self._find_floor(pending)
         elif not self.identity:
             self.log(f"world_up: {self.record()['how']}; rotated onto +z")
-        for b in itertools.chain(pending, blocks):
+        yield from self.rotated(itertools.chain(pending, blocks))
+
+    def rotated(self, blocks: Iterable[FrameBlock]) -> Iterator[FrameBlock]:
+        """``blocks`` with their poses rotated by the rotation already chosen (a scene's later logs take the
+        first log's, so the scene has one world)."""
+        for b in blocks:
             b.T_world_camera = rotate_world(self.R, b.T_world_camera)
             yield b
 
