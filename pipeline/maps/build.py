@@ -276,7 +276,7 @@ def build_map(
     fold = (VoxelAccumulator if kind.fuses_voxels else TopDownAccumulator)(lattice, identity["dim"], device=device)
     key = digest_value({"format": FOLD_FORMAT, **(fold_key or {}), "encoder": identity, "lattice": lattice.to_attrs(),
                         "grid": [recon.grid.rows, recon.grid.cols, recon.grid.cell_size_m, list(recon.grid.origin_xy)],
-                        "intrinsics": fs.attrs["intrinsics"], "ground_truth": digest_value(fs.attrs.get("ground_truth")),
+                        "intrinsics": fs.meta.intrinsics.to_dict(), "ground_truth": digest_value(fs.meta.ground_truth),
                         "devices": [encoder_device, device], "encoder_batch": runtime.encoder_batch_size,
                         "torch": torch.__version__})
     digests: list[str] = []
