@@ -891,13 +891,19 @@ def parse_params(raw: dict, *, origin: str = "params", overrides: list[str] | tu
         raise ConfigError(_format_errors(err, origin)) from None
 
 
+def yaml_load(text: str) -> Any:
+    """``yaml.safe_load`` through libyaml's parser when PyYAML has it (same documents, same objects; ~10x faster
+    on params.yaml, a quarter of a ``zipon status``)."""
+    return yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+
+
 def load_params(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> Params:
     """Read and validate ``params.yaml``."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: params file not found (run zipon from the project folder or pass --params)")
     try:
-        raw = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+        raw = yaml_load(path.read_text(encoding="utf-8")) or {}
     except UnicodeDecodeError as err:
         raise ConfigError(f"{path}: not UTF-8 text (byte {err.start}: {err.object[err.start:err.start + 1]!r}); "
                           f"save it as UTF-8") from None

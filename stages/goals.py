@@ -7,12 +7,7 @@ The work (objects, walls, goal regions, procedural feedback planned as the route
 from __future__ import annotations
 
 from pipeline.config import GoalsParams, Params, StageConfig, TaskParams, section_keys
-from pipeline.frames import FrameStore
-from pipeline.goals.build import build_scene_goals
-from pipeline.goals.store import ARTIFACT, FORMAT_VERSION
-from pipeline.recon import Recon
 from pipeline.runner import StageContext
-from pipeline.store import artifact_attrs
 
 
 # goals.* entries keyed by scene: a scene's config holds only its own entry
@@ -49,6 +44,13 @@ class Config(StageConfig):
 
 def run(ctx: StageContext) -> dict:
     """Write ``ctx.outputs['goals']`` from the scene's frames and recon; returns the summary."""
+    # here: the goal builder's imports (scipy.ndimage, scikit-fmm, opencv) cost every `zipon status`
+    from pipeline.frames import FrameStore
+    from pipeline.goals.build import build_scene_goals
+    from pipeline.goals.store import ARTIFACT, FORMAT_VERSION
+    from pipeline.recon import Recon
+    from pipeline.store import artifact_attrs
+
     return build_scene_goals(FrameStore(ctx.inputs["frames"]), Recon(ctx.inputs["recon"]), ctx.outputs["goals"],
                              artifact_attrs(ARTIFACT, FORMAT_VERSION, "goals", ctx.params_digest), scene=ctx.scene,
                              goals=ctx.config.goals, task=ctx.config.task, root=ctx.workspace.root, log=ctx.log)

@@ -7,12 +7,7 @@ The work (seeded starts, FMM routes into the goals' stored regions, actions, tex
 from __future__ import annotations
 
 from pipeline.config import RoutesParams, StageConfig, TaskParams
-from pipeline.goals.store import Goals
-from pipeline.recon import Recon
-from pipeline.routes.build import build_routes
-from pipeline.routes.store import ARTIFACT, FORMAT_VERSION
 from pipeline.runner import StageContext
-from pipeline.store import artifact_attrs
 
 
 class Config(StageConfig):
@@ -24,6 +19,13 @@ class Config(StageConfig):
 
 def run(ctx: StageContext) -> dict:
     """Write ``ctx.outputs['routes']`` from the scene's goals and recon; returns the summary."""
+    # here: the route planner's imports (scikit-fmm, scipy.ndimage) cost every `zipon status`
+    from pipeline.goals.store import Goals
+    from pipeline.recon import Recon
+    from pipeline.routes.build import build_routes
+    from pipeline.routes.store import ARTIFACT, FORMAT_VERSION
+    from pipeline.store import artifact_attrs
+
     attrs = artifact_attrs(ARTIFACT, FORMAT_VERSION, "routes", ctx.params_digest, scene=ctx.scene)
     return build_routes(Goals(ctx.inputs["goals"]), Recon(ctx.inputs["recon"]), ctx.outputs["routes"], attrs,
                         ctx.config.routes, ctx.config.task, log=ctx.log,

@@ -17,10 +17,10 @@ text feature is the query's own, cosine > 0.99, is left out):
   ``query.min_candidate_area_m2`` and mean probability ``query.min_candidate_score``, found with
   opencv. Each has an ``obj_id`` (its rank in this
   result, 1-based), a ``center_xy`` (the component's cell nearest its centroid, so it always lies on
-  the component), the cell nearest the pose, the nearest navigable cell to the centre (an
-  approach point, when recon's navigable grid is given), ``distance_m`` from the pose to the
-  nearest cell and ``angle_rad`` = bearing of the centre relative to the pose's heading
-  (counter-clockwise positive, so > 0 means to the left), ``area_m2`` and ``score`` (mean
+  the component), the cell nearest the pose, the navigable cell nearest the centre (an
+  approach point, when recon's navigable grid is given; of equally near ones the first in
+  row-major order), ``distance_m`` from the pose to the nearest cell and ``angle_rad`` = bearing
+  of the centre relative to the pose's heading (counter-clockwise positive, so > 0 means to the left), ``area_m2`` and ``score`` (mean
   heatmap probability). With a pose, candidates are sorted by distance (retrieve_map's order);
   without one, by mass = score x area, largest first.
 
@@ -147,17 +147,21 @@ class MapQuery:
         self._bg_cache: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
         self._lowrank: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._row, self._col = np.divmod(smap.cell, self.grid.cols)
-        self._nearest_nav = None
+        self._nav_rc: np.ndarray | None = None  # (M,2) navigable cells, row-major
         if navigable is not None:
             if navigable.shape != (self.grid.rows, self.grid.cols):
                 raise LineageError(f"{smap.path}: navigable grid {navigable.shape} does not match the map's grid "
                                    f"{(self.grid.rows, self.grid.cols)} (map and recon from different runs?)")
             if navigable.any():
-                from scipy.ndimage import distance_transform_edt
-
-                self._nearest_nav = distance_transform_edt(~navigable, return_distances=False, return_indices=True)
+                self._nav_rc = np.argwhere(navigable).astype(np.int32)
         self.gt = gt
         self._footprints = gt.instance_footprints(self.grid) if gt is not None else None
+
+    def _nearest_navigable(self, rc: tuple[int, int]) -> np.ndarray:
+        """The navigable cell nearest ``rc`` (Euclidean, in cells; ties to the first in row-major order): one
+        distance per navigable cell per candidate, instead of a distance transform of the whole grid per map."""
+        d2 = (self._nav_rc[:, 0] - rc[0]).astype(np.int64) ** 2 + (self._nav_rc[:, 1] - rc[1]).astype(np.int64) ** 2
+        return self._nav_rc[int(np.argmin(d2))]
 
     # ------------------------------------------------------------------ text
     def text_features(self, texts: list[str]) -> np.ndarray:
@@ -338,9 +342,8 @@ class MapQuery:
             nxy = tuple(float(v) for v in g.cell_to_world(np.array(nrc)))
             gxy = g.cell_to_world(np.array([centroids[k, 1], centroids[k, 0]]))
             approach = None
-            if self._nearest_nav is not None:
-                arc = self._nearest_nav[:, crc[0], crc[1]]
-                approach = tuple(float(v) for v in g.cell_to_world(arc))
+            if self._nav_rc is not None:
+                approach = tuple(float(v) for v in g.cell_to_world(self._nearest_navigable(crc)))
             dist = ang = None
             if pose is not None:
                 dist = float(math.hypot(nxy[0] - pose[0], nxy[1] - pose[1]))

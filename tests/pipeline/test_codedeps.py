@@ -1,6 +1,7 @@
 """A stage's code is the import closure of its module: editing any file it runs makes it stale, editing a
 file it never imports does not. Checked on a copy of the project, edited in place."""
 
+import json
 import shutil
 
 import pytest
@@ -111,3 +112,53 @@ def test_statement_walk_finds_every_import_ast_walk_finds():
     for path in sorted(p for pkg in ("pipeline", "stages", "orion_eval", "zipon") for p in (codedeps.ROOT / pkg).rglob("*.py")):
         tree = ast.parse(path.read_bytes())
         assert names(codedeps._statements(tree.body)) == names(ast.walk(tree)), path
+
+
+@pytest.fixture
+def fresh_cache(tmp_path, monkeypatch):
+    """An empty on-disk import cache in ``tmp_path/cache`` and no in-process memory of parsed files."""
+    monkeypatch.setenv("ZIPON_CACHE", str(tmp_path / "cache"))
+
+    def forget():
+        monkeypatch.setattr(codedeps, "_IMPORTS", codedeps._ImportCache())
+        monkeypatch.setattr(codedeps, "_CLOSURES", {})
+        codedeps._parsed_imports.cache_clear()
+
+    forget()
+    yield forget
+    codedeps._parsed_imports.cache_clear()
+
+
+def _closure(root, entry="stages.routes"):
+    return [p.relative_to(root).as_posix() for p in codedeps.import_closure(entry, root)]
+
+
+def test_the_import_cache_serves_a_new_process_and_an_edit_is_read_again(checkout, fresh_cache, monkeypatch):
+    first = _closure(checkout)
+    path = codedeps._ImportCache.path()
+    assert path.parent.name == "cache" and len(json.loads(path.read_text())) == len(first)
+    fresh_cache()  # a new process: nothing in memory, the file on disk
+    parsed = []
+    real = codedeps._named_imports
+    monkeypatch.setattr(codedeps, "_named_imports", lambda *a: parsed.append(a[2]) or real(*a))
+    assert _closure(checkout) == first and parsed == []
+    (checkout / "pipeline" / "lazy_dep.py").write_text("VALUE = 1\n")
+    stage = checkout / "stages" / "routes.py"
+    stage.write_text(stage.read_text() + "\n\ndef _uses_lazy():\n    from pipeline import lazy_dep\n")
+    assert _closure(checkout) == sorted([*first, "pipeline/lazy_dep.py"])
+    assert parsed == ["stages.routes", "pipeline.lazy_dep"]  # only the edited and the new file were parsed
+
+
+def test_a_damaged_or_unwritable_cache_changes_nothing(checkout, fresh_cache, monkeypatch, tmp_path):
+    expected = _closure(checkout)
+    path = codedeps._ImportCache.path()
+    path.write_text("{not json")
+    fresh_cache()
+    assert _closure(checkout) == expected
+    assert isinstance(json.loads(path.read_text()), dict)  # rewritten whole
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    monkeypatch.setenv("ZIPON_CACHE", str(blocker / "cache"))  # its folder cannot be made
+    fresh_cache()
+    assert _closure(checkout) == expected and not (blocker / "cache").exists()
+

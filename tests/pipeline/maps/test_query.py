@@ -94,6 +94,14 @@ def test_approach_points_and_grid_checks(map_path):
     q = _query(map_path, navigable=nav)
     c = q.query("table").candidates[0]
     assert c.center_rc == (22, 9) and c.approach_xy == pytest.approx(GRID.cell_to_world(np.array([22, 20])))
+    # equally near navigable cells on both sides (3 cells left, 3 right): the first in row-major order wins
+    nav = np.zeros((40, 40), bool)
+    nav[22, [6, 12]] = nav[25, 9] = True
+    c = _query(map_path, navigable=nav).query("table").candidates[0]
+    assert c.approach_xy == pytest.approx(GRID.cell_to_world(np.array([22, 6])))
+    nav[22, 6] = False  # (22, 12) and (25, 9) are both 3 cells away: (22, 12) comes first row-major
+    c = _query(map_path, navigable=nav).query("table").candidates[0]
+    assert c.approach_xy == pytest.approx(GRID.cell_to_world(np.array([22, 12])))
     with pytest.raises(LineageError, match="does not match the map's grid"):
         _query(map_path, navigable=np.zeros((5, 5), bool))
 
