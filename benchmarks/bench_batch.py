@@ -38,6 +38,16 @@ recon.zarr truncated: recon keeps its grid, the case where the fold is reusable)
 on all the frames, timed, with the check that it equals the map ``zipon run`` built from scratch.
 
     .venv/bin/python benchmarks/bench_batch.py --within-scene --frames 1400 --workers 1 2 --append 200
+
+``--real-encoders`` measures one scene's map stage (default 16 frames at 640x480, built upstream first, not timed)
+with each real encoder at its default size, from random weights saved to files (the same compute as trained ones;
+nothing is downloaded): open_clip ViT-B/32 MaskCLIP at 480x640 and the public-size LSeg (ViT-L/16, 480 px windows)
+for the vlmap, ConceptFusion for the cfmap with ``--encoders conceptfusion``. Per encoder it prints the stage's
+CPU seconds split into the encoder's forward passes, its model loads (fixed per chunk) and the rest, the ratio
+rest / encoder (issue 13's target: at most 0.10, encoder-bound), frames/s and CPU seconds per frame, and the CPU
+hours the paper's 14,159 frames would take (divide by the cores or GPUs a user has).
+
+    .venv/bin/python benchmarks/bench_batch.py --real-encoders --frames 16 --encoders maskclip lseg
 """
 
 from __future__ import annotations
@@ -156,9 +166,12 @@ def kernel_index_add(h: int, w: int, dim: int, frames: int = 16, cells: int = 40
     return (time.perf_counter() - t0) / frames
 
 
-def encoder_share(params_path: Path, root: Path, scene: str, kind: str) -> dict:
-    """Seconds of one map stage's unit of work (``build_map``) on ``scene`` and of the encoder inside it
-    (the encoder's ``encode_images`` timed by a wrapper), in this process, single-threaded."""
+def encoder_share(params_path: Path, root: Path, scene: str, kind: str, params=None) -> dict:
+    """CPU seconds of one map stage's unit of work (``build_map``) on ``scene``, in this process, split into the
+    encoder's forward passes (``Encoder.encode_images``, timed by a wrapper), its model loads (``build_encoder``:
+    once for the map's identity, once per chunk task; a fixed cost per chunk, not per frame) and the rest (frames
+    read, projection, fusion, the store written). ``params``: the Params to use instead of ``params_path``'s."""
+    import pipeline.encoders
     from pipeline.config import load_params
     from pipeline.encoders.base import Encoder
     from pipeline.maps import fusion, store  # noqa: F401  (imported before timing: not the stage's work)
@@ -167,30 +180,83 @@ def encoder_share(params_path: Path, root: Path, scene: str, kind: str) -> dict:
     from pipeline.scene_gt import GTScene  # noqa: F401
     from pipeline.store import artifact_attrs
 
-    spent = [0.0]
-    encode = Encoder.encode_images
+    spent = {"encode": 0.0, "load": 0.0}
+    encode, build = Encoder.encode_images, pipeline.encoders.build_encoder
 
-    def timed(self, *a, **kw):
-        t0 = time.process_time()
-        try:
-            return encode(self, *a, **kw)
-        finally:
-            spent[0] += time.process_time() - t0
+    def clocked(fn, key):
+        def wrapper(*a, **kw):
+            t0 = time.process_time()
+            try:
+                return fn(*a, **kw)
+            finally:
+                spent[key] += time.process_time() - t0
+        return wrapper
 
-    params = load_params(params_path)
+    params = params or load_params(params_path)
     config = MAP_CONFIGS[kind].from_params(params, scene)
     art = root / "data" / "artifacts" / scene
     out = Path(tempfile.mkdtemp(prefix=f"share-{kind}-")) / f"{kind}.zarr"
-    Encoder.encode_images = timed
+    Encoder.encode_images = clocked(encode, "encode")
+    pipeline.encoders.build_encoder = clocked(build, "load")
     try:
-        t0 = time.process_time()
-        build_map(config, art / "frames.zarr", art / "recon.zarr", out, artifact_attrs(kind, 1, kind, "bench"))
-        stage = time.process_time() - t0
+        t0, w0 = time.process_time(), time.perf_counter()
+        summary = build_map(config, art / "frames.zarr", art / "recon.zarr", out, artifact_attrs(kind, 1, kind, "bench"),
+                            runtime=params.run)
+        stage, wall = time.process_time() - t0, time.perf_counter() - w0
     finally:
-        Encoder.encode_images = encode
+        Encoder.encode_images, pipeline.encoders.build_encoder = encode, build
         shutil.rmtree(out.parent, ignore_errors=True)
-    return {"map": kind, "encoder": config.encoder, "stage_cpu_s": round(stage, 3), "encoder_cpu_s": round(spent[0], 3),
-            "encoder_share": round(spent[0] / stage, 4)}
+    rest = stage - spent["encode"] - spent["load"]
+    return {"map": kind, "encoder": config.encoder, "chunks": summary["chunks"], "stage_wall_s": round(wall, 3),
+            "stage_cpu_s": round(stage, 3), "encoder_cpu_s": round(spent["encode"], 3),
+            "model_load_cpu_s": round(spent["load"], 3), "other_cpu_s": round(rest, 3),
+            "encoder_share": round(spent["encode"] / stage, 4),
+            "other_over_encoder": round(rest / spent["encode"], 4) if spent["encode"] else None}
+
+
+def real_encoders(args) -> None:
+    """One scene's map stage with each real encoder (random weights saved to files: the same compute as trained
+    ones) at its default size: the encoder's share of the stage and frames/s per encoder (see the module docstring)."""
+    import open_clip
+    import torch
+
+    from pipeline.config import load_params
+    from pipeline.encoders.lseg_net import LSEG_VITL16_384, LSegNet
+
+    root = args.keep or Path(tempfile.mkdtemp(prefix="zipon-encoders-"))
+    root.mkdir(parents=True, exist_ok=True)
+    params_path = write_params(root, 1, args.frames, args.width, args.height)
+    scene = "sim_00"
+    emit(bench="batch", kind="setup", mode="real_encoders", frames=args.frames, size=[args.width, args.height],
+         encoders=args.encoders, cpus=os.cpu_count(), torch_threads=torch.get_num_threads(), root=str(root))
+    try:
+        t_up, _ = zipon(params_path, "run", "--stage", "simulate", "--stage", "ingest", "--stage", "reconstruct")
+        emit(bench="batch", kind="upstream_built", seconds=round(t_up, 1), timed=False)
+        torch.manual_seed(0)
+        clip = root / "open_clip_vit_b32_random.pt"
+        if not clip.exists():
+            torch.save(open_clip.create_model("ViT-B-32", pretrained=None).state_dict(), clip)
+        lseg = root / "lseg_vitl16_random.ckpt"
+        if "lseg" in args.encoders and not lseg.exists():
+            torch.save({"state_dict": {f"net.{k}": v for k, v in LSegNet(LSEG_VITL16_384).state_dict().items()}}, lseg)
+        base = load_params(params_path)
+        for name in args.encoders:
+            kind = "cfmap" if name == "conceptfusion" else "vlmap"
+            weights = getattr(base.encoders, name).model_copy(update={"weights": str(lseg if name == "lseg" else clip)})
+            enc = base.encoders.model_copy(update={"simulated": None, kind: name, name: weights})
+            params = base.model_copy(update={"encoders": enc})
+            row = encoder_share(params_path, root, scene, kind, params=params)
+            frames = args.frames
+            emit(bench="batch", kind="real_encoder", frames=frames, **row,
+                 frames_per_s=round(frames / row["stage_wall_s"], 3),
+                 cpu_s_per_frame=round(row["stage_cpu_s"] / frames, 3),
+                 encoder_cpu_s_per_frame=round(row["encoder_cpu_s"] / frames, 3),
+                 target_other_over_encoder=0.10,
+                 projected_cpu_hours_for_target=round(args.target_frames * row["stage_cpu_s"] / frames / 3600, 1),
+                 target_frames=args.target_frames)
+    finally:
+        if args.keep is None:
+            shutil.rmtree(root, ignore_errors=True)
 
 
 # ----------------------------------------------------------------------------- one scene's map stages
@@ -320,7 +386,16 @@ def main() -> None:
     ap.add_argument("--chunk-frames", type=int, default=None, help="--within-scene: maps.chunk_frames (default: params')")
     ap.add_argument("--append", type=int, default=200,
                     help="--within-scene: frames appended for the incremental rerun (0 = skip it)")
+    ap.add_argument("--real-encoders", action="store_true",
+                    help="one scene's map stage with each real encoder (random weights) at its default size: the "
+                    "encoder's share and frames/s per encoder (see above)")
+    ap.add_argument("--encoders", nargs="+", default=["maskclip", "lseg"], choices=("maskclip", "lseg", "conceptfusion"),
+                    help="--real-encoders: the encoders to measure")
     args = ap.parse_args()
+    if args.real_encoders:
+        args.frames = 16 if args.frames == 1416 else args.frames
+        real_encoders(args)
+        return
     if args.within_scene:
         args.frames = 1400 if args.frames == 1416 else args.frames
         within_scene(args)
