@@ -39,7 +39,8 @@ on all the frames, timed, with the check that it equals the map ``zipon run`` bu
 
     .venv/bin/python benchmarks/bench_batch.py --within-scene --frames 1400 --workers 1 2 --append 200
 
-``--real-encoders`` measures one scene's map stage (default 16 frames at 640x480, built upstream first, not timed)
+``--real-encoders`` measures one scene's map stage (default 16 frames at 640x480, LSeg on the first 4 of them;
+built upstream first, not timed)
 with each real encoder at its default size, from random weights saved to files (the same compute as trained ones;
 nothing is downloaded): open_clip ViT-B/32 MaskCLIP at 480x640 and the public-size LSeg (ViT-L/16, 480 px windows)
 for the vlmap, ConceptFusion for the cfmap with ``--encoders conceptfusion``. Per encoder it prints the stage's
@@ -166,11 +167,12 @@ def kernel_index_add(h: int, w: int, dim: int, frames: int = 16, cells: int = 40
     return (time.perf_counter() - t0) / frames
 
 
-def encoder_share(params_path: Path, root: Path, scene: str, kind: str, params=None) -> dict:
+def encoder_share(params_path: Path, root: Path, scene: str, kind: str, params=None, frames: int | None = None) -> dict:
     """CPU seconds of one map stage's unit of work (``build_map``) on ``scene``, in this process, split into the
     encoder's forward passes (``Encoder.encode_images``, timed by a wrapper), its model loads (``build_encoder``:
     once for the map's identity, once per chunk task; a fixed cost per chunk, not per frame) and the rest (frames
-    read, projection, fusion, the store written). ``params``: the Params to use instead of ``params_path``'s."""
+    read, projection, fusion, the store written). ``params``: the Params to use instead of ``params_path``'s;
+    ``frames``: map only the scene's first ``frames`` frames (copies of frames.zarr and recon.zarr cut short)."""
     import pipeline.encoders
     from pipeline.config import load_params
     from pipeline.encoders.base import Encoder
@@ -196,11 +198,15 @@ def encoder_share(params_path: Path, root: Path, scene: str, kind: str, params=N
     config = MAP_CONFIGS[kind].from_params(params, scene)
     art = root / "data" / "artifacts" / scene
     out = Path(tempfile.mkdtemp(prefix=f"share-{kind}-")) / f"{kind}.zarr"
+    frames_zarr, recon_zarr = art / "frames.zarr", art / "recon.zarr"
+    if frames:
+        frames_zarr = _truncated(frames_zarr, out.parent / "frames.zarr", frames, FRAME_ARRAYS)
+        recon_zarr = _truncated(recon_zarr, out.parent / "recon.zarr", frames, RECON_FRAME_ARRAYS)
     Encoder.encode_images = clocked(encode, "encode")
     pipeline.encoders.build_encoder = clocked(build, "load")
     try:
         t0, w0 = time.process_time(), time.perf_counter()
-        summary = build_map(config, art / "frames.zarr", art / "recon.zarr", out, artifact_attrs(kind, 1, kind, "bench"),
+        summary = build_map(config, frames_zarr, recon_zarr, out, artifact_attrs(kind, 1, kind, "bench"),
                             runtime=params.run)
         stage, wall = time.process_time() - t0, time.perf_counter() - w0
     finally:
@@ -245,8 +251,9 @@ def real_encoders(args) -> None:
             weights = getattr(base.encoders, name).model_copy(update={"weights": str(lseg if name == "lseg" else clip)})
             enc = base.encoders.model_copy(update={"simulated": None, kind: name, name: weights})
             params = base.model_copy(update={"encoders": enc})
-            row = encoder_share(params_path, root, scene, kind, params=params)
-            frames = args.frames
+            frames = min(args.lseg_frames, args.frames) if name == "lseg" else args.frames
+            row = encoder_share(params_path, root, scene, kind, params=params,
+                                frames=frames if frames < args.frames else None)
             emit(bench="batch", kind="real_encoder", frames=frames, **row,
                  frames_per_s=round(frames / row["stage_wall_s"], 3),
                  cpu_s_per_frame=round(row["stage_cpu_s"] / frames, 3),
@@ -266,6 +273,10 @@ def _children_cpu_s() -> float:
 
     r = resource.getrusage(resource.RUSAGE_CHILDREN)
     return r.ru_utime + r.ru_stime
+
+
+FRAME_ARRAYS = ("rgb", "depth", "instance", "pose", "stamp")  # frames.zarr's per-frame arrays
+RECON_FRAME_ARRAYS = ("pose", "fused")  # recon.zarr's
 
 
 def _truncated(src: Path, dst: Path, n: int, arrays: tuple[str, ...]) -> Path:
@@ -302,8 +313,8 @@ def incremental_rerun(params_path: Path, root: Path, scene: str, stage: str, app
     try:
         n = FrameStore(art / "frames.zarr").n_frames
         before = n - append
-        frames = _truncated(art / "frames.zarr", work / "frames.zarr", before, ("rgb", "depth", "instance", "pose", "stamp"))
-        recon = _truncated(art / "recon.zarr", work / "recon.zarr", before, ("pose", "fused"))
+        frames = _truncated(art / "frames.zarr", work / "frames.zarr", before, FRAME_ARRAYS)
+        recon = _truncated(art / "recon.zarr", work / "recon.zarr", before, RECON_FRAME_ARRAYS)
         config = MAP_CONFIGS[stage].from_params(params, scene)
         attrs = artifact_attrs(stage, FORMAT_VERSION, stage, manifest["params_digest"])
         kw = {"runtime": params.run, "fold_path": work / "fold",
@@ -389,6 +400,8 @@ def main() -> None:
     ap.add_argument("--real-encoders", action="store_true",
                     help="one scene's map stage with each real encoder (random weights) at its default size: the "
                     "encoder's share and frames/s per encoder (see above)")
+    ap.add_argument("--lseg-frames", type=int, default=4,
+                    help="--real-encoders: frames LSeg maps (the public ViT-L/16 takes tens of CPU seconds a frame)")
     ap.add_argument("--encoders", nargs="+", default=["maskclip", "lseg"], choices=("maskclip", "lseg", "conceptfusion"),
                     help="--real-encoders: the encoders to measure")
     args = ap.parse_args()
