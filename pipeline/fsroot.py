@@ -20,10 +20,13 @@ old or the new set, never a mix.
 
 Locks: ``artifacts/<scene>/.<stage>.lock`` is created with a conditional write (``If-None-Match: *``, s3fs's
 ``mode="create"``; S3 and moto honour it), so exactly one run builds a (scene, stage); a second fails at once
-with :class:`~pipeline.errors.LockedError`, as on a local root. The lock names its holder (pid, host); a lock
-left by a killed run is NOT reclaimed automatically (an object store cannot tell a dead holder from a slow one):
-the error names the object to delete once that run is known dead. Object stores without conditional writes
-cannot lock; zipon refuses to build there (the error says so) rather than risk two writers.
+with :class:`~pipeline.errors.LockedError`, as on a local root. The lock holds its holder's owner record (pid, host,
+process start token: :func:`pipeline.locks.holder_record`) and a nonce. The rule is that of local locks
+(:mod:`pipeline.locks`): a lock left by a dead process of THIS host (pid gone, or reused by another process: the
+start token differs) is reclaimed automatically, the check-delete-create serialised between this host's processes
+by a host-local file lock; a lock of ANOTHER host is never broken (its process cannot be probed from here): the error
+names the object to delete once that run is known dead. Object stores without conditional writes cannot lock;
+zipon refuses to build there (the error says so) rather than risk two writers.
 
 A stage checks, just before step 2, that the manifests of its inputs are still the ones it pulled; a stage
 whose input was republished meanwhile is not published (as :func:`pipeline.publication.check_inputs_unchanged`).
@@ -33,18 +36,30 @@ whose input was republished meanwhile is not published (as :func:`pipeline.publi
 
 from __future__ import annotations
 
-import os
-import socket
+import hashlib
+import tempfile
 import uuid
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
 
 from pipeline.errors import ArtifactError, LockedError, MissingInputError, StageError
+from pipeline.locks import holder_is_dead, holder_record, parse_holder
 from pipeline.manifest import Manifest
 from pipeline.paths import ARTIFACTS, LOCK, MANIFEST, Workspace
 from pipeline.store import (DIGEST_ALGO, content_digest, hash_stream, hash_zarr_group, new_digest, publish, remove,
                             write_text_atomic)
+
+RECLAIM_WAIT_S = 30.0  # at most this long for another process of this host reclaiming the same lock (a few requests)
+
+
+def reclaim_guard(uri: str) -> Path:
+    """The host-local file that serialises reclaiming the lock object ``uri`` between this host's processes (in the
+    temp folder, so runs with different mirrors of one data root share it)."""
+    folder = Path(tempfile.gettempdir()) / "zipon-locks"
+    folder.mkdir(mode=0o1777, exist_ok=True)
+    return folder / f"{hashlib.blake2b(uri.encode(), digest_size=8).hexdigest()}.lock"
+
 
 def version_key(rel: str, digest: str) -> str:
     """The object-store key of one published version of the artifact at ``rel``: ``<rel>@<digest hex>``."""
@@ -79,6 +94,14 @@ class RemoteRoot:
         except FileNotFoundError:
             return None
 
+    def scenes(self) -> list[str]:
+        """The scenes with at least one published manifest (``manifests/<scene>/``), sorted."""
+        try:
+            entries = self.fs.ls(self.key("manifests"), detail=False, refresh=True)
+        except FileNotFoundError:
+            return []
+        return sorted(e.rstrip("/").rsplit("/", 1)[-1] for e in entries)
+
     def write_text(self, rel: str, text: str) -> None:
         """One PUT: the object is replaced whole or not at all."""
         self.fs.pipe_file(self.key(rel), text.encode("utf-8"))
@@ -87,23 +110,58 @@ class RemoteRoot:
 
     @contextmanager
     def lock(self, rel: str, what: str) -> Iterator[None]:
-        """Hold the lock object ``rel`` for the body (fail fast); ``what`` names the outputs in errors."""
-        body = f"{os.getpid()}\n{socket.gethostname()}\n{uuid.uuid4().hex}\n"
-        try:
-            self.fs.pipe_file(self.key(rel), body.encode(), mode="create")
-        except FileExistsError:
-            holder = (self.read_text(rel) or "").splitlines()
-            who = f"pid {holder[0]} on host {holder[1]}" if len(holder) >= 2 else "a run that did not record itself"
-            raise LockedError(f"{what} is being built by another zipon run: {who} holds {self.uri(rel)}. Wait for "
-                              f"that run to finish; if it is gone, delete {self.uri(rel)} and run again") from None
-        except (NotImplementedError, TypeError) as err:
-            raise StageError(f"data root {self.url}: this filesystem offers no conditional (create-only) write, so "
-                             f"zipon cannot lock {what} there ({err}); build on a local or S3 data root") from None
+        """Hold the lock object ``rel`` for the body (fail fast); ``what`` names the outputs in errors.
+
+        A lock left by a dead process of this host is reclaimed (:func:`pipeline.locks.holder_is_dead`, the rule of
+        local locks); any other holder makes this raise :class:`LockedError` naming it and the object."""
+        body = holder_record() + f"{uuid.uuid4().hex}\n"  # the owner record, then a nonce: release deletes only ours
+        if not self._create(rel, body, what):
+            text = self.read_text(rel)  # None: released (or being reclaimed) since the create: try again below
+            if text is not None and not holder_is_dead(parse_holder(text)):
+                raise self._locked(rel, what, text)
+            self._reclaim(rel, body, what)
         try:
             yield
         finally:
             if (self.read_text(rel) or "") == body:
                 self.fs.rm_file(self.key(rel))
+
+    def _create(self, rel: str, body: str, what: str) -> bool:
+        """Create the lock object ``rel`` holding ``body`` unless it exists (one conditional PUT); whether it did."""
+        try:
+            self.fs.pipe_file(self.key(rel), body.encode(), mode="create")
+        except FileExistsError:
+            return False
+        except (NotImplementedError, TypeError) as err:
+            raise StageError(f"data root {self.url}: this filesystem offers no conditional (create-only) write, so "
+                             f"zipon cannot lock {what} there ({err}); build on a local or S3 data root") from None
+        return True
+
+    def _reclaim(self, rel: str, body: str, what: str) -> None:
+        """Replace the lock ``rel`` of a dead process of this host (or none: it went meanwhile) with ours.
+
+        Two processes of this host that found the same dead holder take turns through a host-local file lock on this
+        key (:func:`reclaim_guard`): the first deletes and creates; the second then reads the first's live record and
+        fails. Other hosts never delete a lock of this host, so nothing else races the delete."""
+        from filelock import FileLock, Timeout
+
+        try:
+            with FileLock(str(reclaim_guard(self.uri(rel))), timeout=RECLAIM_WAIT_S, mode=0o666):
+                text = self.read_text(rel)  # again: another process of this host may have reclaimed it meanwhile
+                if text is not None:
+                    if not holder_is_dead(parse_holder(text)):
+                        raise self._locked(rel, what, text)
+                    self.fs.rm_file(self.key(rel))
+                if not self._create(rel, body, what):
+                    raise self._locked(rel, what, self.read_text(rel))
+        except Timeout:
+            raise self._locked(rel, what, self.read_text(rel)) from None
+
+    def _locked(self, rel: str, what: str, text: str | None) -> LockedError:
+        holder = parse_holder(text)
+        who = f"pid {holder[0]} on host {holder[1]}" if holder else "a run that did not record itself"
+        return LockedError(f"{what} is being built by another zipon run: {who} holds {self.uri(rel)}. Wait for that "
+                           f"run to finish; if it is gone, delete {self.uri(rel)} and run again")
 
     # ------------------------------------------------------------------ artifacts
 
@@ -174,10 +232,11 @@ class RemoteRoot:
 
     # ------------------------------------------------------------------ stages
 
-    def pull_stage(self, ws: Workspace, scene: str, stage: str, outputs: tuple[str, ...]) -> str | None:
-        """Mirror the published version of (scene, stage) into the local cache: its outputs (downloaded only when
-        the local copy is not that version) and then its manifest. Returns the manifest's text (``None``: the stage
-        was never published, and the local manifest is removed so the cache cannot claim it was)."""
+    def pull_stage(self, ws: Workspace, scene: str, stage: str, outputs: tuple[str, ...] | None = None) -> str | None:
+        """Mirror the published version of (scene, stage) into the local cache: its ``outputs`` (default: every one
+        its manifest names; downloaded only when the local copy is not that version) and then its manifest. Returns
+        the manifest's text (``None``: the stage was never published, and the local manifest is removed so the cache
+        cannot claim it was)."""
         text = self.read_text(MANIFEST_KEY.format(scene=scene, stage=stage))
         local = ws.manifest(scene, stage)
         if text is None:
@@ -193,7 +252,7 @@ class RemoteRoot:
             return (have is not None and name in have.outputs and have.outputs[name].digest == digest
                     and ws.artifact(name, scene).exists())
 
-        for name in outputs:
+        for name in man.outputs if outputs is None else outputs:
             rec = man.outputs.get(name)
             if rec is not None and not mirrored(name, rec.digest):
                 self.pull(ARTIFACTS[name].format(scene=scene), rec.digest, ws.artifact(name, scene),
@@ -270,3 +329,12 @@ def pull_all(ws: Workspace, pairs: list[tuple[str, str]], outputs: dict[str, tup
                                 + "; ".join(bad) + ". Rebuild them with zipon run --force")
     for scene, stage in pairs:
         remote.pull_stage(ws, scene, stage, outputs[stage])
+
+
+def pull_stages(ws: Workspace, pairs: list[tuple[str, str]]) -> None:
+    """Mirror the published version of each (scene, stage) of ``pairs`` into the local cache, for a command that
+    reads it there (``zipon query``, :func:`zipon.open`, ...): only versions not mirrored yet are downloaded, each
+    digest-checked; a stage never published stays absent, so the reader reports it as not built."""
+    remote = RemoteRoot(ws.remote)
+    for scene, stage in pairs:
+        remote.pull_stage(ws, scene, stage)

@@ -23,13 +23,43 @@ must not share a data root: each would take the other's live pids for dead ones.
 
 from __future__ import annotations
 
+import os
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
 from filelock import SoftFileLock, Timeout
+# filelock's owner identity (host name with its pid namespace, process start token, the staleness probe): the
+# records and the rule its SoftFileLock uses, shared by the object-store locks (pipeline.fsroot)
+from filelock._identity import host_name, owner_is_stale, process_start_token
 
 from pipeline.errors import LockedError
+
+
+def holder_record() -> str:
+    """This process's owner record as filelock's marker writes it: ``<pid>\\n<host>\\n<start token>\\n`` (the start
+    token is empty where the platform offers none). :mod:`pipeline.fsroot` writes the same record into its lock
+    objects, so one rule (:func:`holder_is_dead`) judges both kinds of lock."""
+    token = process_start_token(os.getpid())
+    return f"{os.getpid()}\n{host_name()}\n{'' if token is None else token}\n"
+
+
+def parse_holder(text: str | None) -> tuple[int, str, int | None] | None:
+    """``(pid, host, start token or None)`` from an owner record (lines beyond the third are ignored), or ``None``
+    when the text records no owner."""
+    lines = (text or "").splitlines()
+    if len(lines) < 2 or not lines[0].isdigit() or not lines[1]:
+        return None
+    token = int(lines[2]) if len(lines) > 2 and lines[2].isdigit() else None
+    return int(lines[0]), lines[1], token
+
+
+def holder_is_dead(holder: tuple[int, str, int | None] | None) -> bool:
+    """Whether the owner ``(pid, host, start token)`` is a process of THIS host that is gone: its pid is not alive,
+    or now names another process (a different start token). Another host's owner, or a record naming no owner
+    (``None``), is never judged dead: neither can be probed from here. filelock's own probe, the one its soft locks
+    reclaim by."""
+    return holder is not None and owner_is_stale(*holder)
 
 
 def lock_holder(path: Path) -> tuple[int, str] | None:
@@ -38,12 +68,10 @@ def lock_holder(path: Path) -> tuple[int, str] | None:
     filelock's marker is ``<pid>\\n<host>\\n[<start token>\\n]``.
     """
     try:
-        lines = Path(path).read_text(encoding="utf-8").splitlines()
+        holder = parse_holder(Path(path).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError):
         return None
-    if len(lines) < 2 or not lines[0].isdigit() or not lines[1]:
-        return None
-    return int(lines[0]), lines[1]
+    return None if holder is None else holder[:2]
 
 
 @contextmanager

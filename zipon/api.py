@@ -21,6 +21,8 @@ from pipeline.paths import PARAMS_FILE, Workspace
 MAP_NAMES = ("vlmap", "cfmap")
 _BUILD_STAGE = {"frames": "ingest", "recon": "reconstruct", "vlmap": "vlmap", "cfmap": "cfmap", "goals": "goals",
                 "routes": "routes"}
+READ_STAGES = tuple(dict.fromkeys(_BUILD_STAGE.values()))  # the stages whose artifacts a Scene reads
+_PRODUCER = {**_BUILD_STAGE, "raw_log": "simulate", "recon_mesh": "reconstruct", "recon_points": "reconstruct"}
 
 
 def open(source: str | Path = ".", *, data_dir: str | Path | None = None, manifests_dir: str | Path | None = None,
@@ -30,6 +32,10 @@ def open(source: str | Path = ".", *, data_dir: str | Path | None = None, manife
     ``source`` is a ``params.yaml``, a project folder holding one, or a data root (a folder with
     ``artifacts/<scene>/``; its params are the ``params.yaml`` beside it when there is one, else the
     defaults). ``overrides`` are ``KEY=VALUE`` strings as for ``zipon -S``.
+
+    ``data_dir`` may be an object store (``s3://bucket/prefix``, :mod:`pipeline.fsroot`): the published version of
+    an artifact is then brought into the local mirror (:func:`pipeline.paths.cache_dir`) when it is first asked for
+    (:meth:`Scene.path`; :meth:`Dataset.mirror` brings whole scenes), and read there.
     """
     from pipeline.config import load_params, parse_params
 
@@ -49,10 +55,6 @@ def open(source: str | Path = ".", *, data_dir: str | Path | None = None, manife
         raise MissingInputError(f"{path}: neither a params file, a folder with {PARAMS_FILE}, nor a data root "
                                 f"(a folder with artifacts/<scene>/)")
     ws = Workspace.resolve(params_path, data_dir, manifests_dir)
-    if ws.remote is not None:  # artifacts are read from local files; an object store is built through a cache
-        raise ConfigError(f"data_dir {ws.remote}: zipon.open reads artifacts from a local data root; after `zipon run "
-                          f"--data-dir {ws.remote}` (or `zipon status`) its local mirror is {ws.data_dir}: pass that "
-                          f"(and manifests_dir={str(ws.manifests_dir)!r})")
     return Dataset(ws, load_params(ws.params_path, overrides))
 
 
@@ -62,16 +64,43 @@ class Dataset:
     def __init__(self, workspace: Workspace, params):
         self.workspace, self.params = workspace, params
         self._scenes: dict[str, Scene] = {}
+        self._mirrored: set[tuple[str, str]] = set()  # (scene, stage) pairs mirrored from an object store
 
     @property
     def names(self) -> list[str]:
-        """Scenes in params order, then any other scene folder under ``artifacts/``."""
+        """Scenes in params order, then any other scene folder under ``artifacts/`` (and, on an object store, any
+        other scene with a published manifest)."""
         names = list(self.params.scenes)
         root = self.workspace.data_dir / "artifacts"
         if root.is_dir():
             names += sorted(p.name for p in root.iterdir() if p.is_dir() and p.name not in names
                             and not p.name.startswith("."))
-        return names
+        return names + [n for n in self._published if n not in names]
+
+    @cached_property
+    def _published(self) -> list[str]:
+        """Scenes with a published manifest on the object-store data root (none for a local root)."""
+        if self.workspace.remote is None:
+            return []
+        from pipeline.fsroot import RemoteRoot
+
+        return RemoteRoot(self.workspace.remote).scenes()
+
+    def mirror(self, scenes: Sequence[str] | None = None, stages: Sequence[str] = READ_STAGES) -> None:
+        """On an object-store data root: bring the published versions of ``stages`` (default: every stage a Scene
+        reads) of ``scenes`` (default: all) into the local mirror, where this dataset reads them
+        (:func:`pipeline.fsroot.pull_stages`: only versions not mirrored yet are downloaded, each digest-checked; a
+        stage never published stays absent). Each (scene, stage) is mirrored once per Dataset; nothing happens on a
+        local data root."""
+        if self.workspace.remote is None:
+            return
+        todo = [(scene, stage) for scene in dict.fromkeys(self.names if scenes is None else scenes)
+                for stage in stages if (scene, stage) not in self._mirrored]
+        if todo:
+            from pipeline.fsroot import pull_stages
+
+            pull_stages(self.workspace, todo)
+            self._mirrored.update(todo)
 
     @property
     def scenes(self) -> list["Scene"]:
@@ -102,6 +131,7 @@ class Dataset:
         """:func:`zipon.run_eval` on this dataset."""
         from zipon.evaluate import run_eval
 
+        self.mirror(kwargs.get("scenes") or self.params.eval.scenes or list(self.params.scenes))  # what it evaluates
         return run_eval(self.workspace, self.params, out_dir, **kwargs)
 
 
@@ -112,11 +142,14 @@ class Scene:
         self.dataset, self.name = dataset, name
 
     def __repr__(self) -> str:
-        have = [a for a in _BUILD_STAGE if self.path(a).exists()]
+        have = [a for a in _BUILD_STAGE if self.dataset.workspace.artifact(a, self.name).exists()]  # no download
         return f"Scene({self.name!r}, artifacts={have})"
 
     def path(self, artifact: str) -> Path:
-        """Where ``artifact`` ('frames', 'recon', 'vlmap', ...) of this scene lives (it may not exist yet)."""
+        """Where ``artifact`` ('frames', 'recon', 'vlmap', ...) of this scene lives (it may not exist yet). On an
+        object-store data root the published version of its stage is brought into the local mirror first."""
+        if artifact in _PRODUCER:
+            self.dataset.mirror([self.name], [_PRODUCER[artifact]])
         return self.dataset.workspace.artifact(artifact, self.name)
 
     def _existing(self, artifact: str) -> Path:

@@ -72,12 +72,32 @@ def _globals(
 
 # ----------------------------------------------------------------------------- helpers
 
-REMOTE_COMMANDS = ("run", "stage", "status", "verify")  # the commands that work on an object-store data root
+# What each command does on an object-store data root (--data-dir s3://bucket/prefix, pipeline.fsroot; the README's
+# "Data root on an object store" says the same). run, stage: build in the local mirror holding the object store's
+# lock, then publish. status, verify: mirror every published stage first. Commands that read artifacts bring the
+# published versions of what they read into the mirror and read it there (zipon.Scene.path, zipon.Dataset.mirror).
+# goals import also rebuilds goals and routes as stages, which publishes them. The rest read no artifacts.
+REMOTE_COMMANDS = ("run", "stage", "status", "verify", "query", "render", "view", "eval", "goals export",
+                   "goals export-navchat", "goals template", "goals import", "goals schema", "params", "encoders list",
+                   "encoders check", "recon-eval")
+# Commands that would write into the data root outside the stages (nothing would publish it): refused, saying why.
+REMOTE_REFUSED = {
+    "simulate": "writes its logs into the data root's raw/ folder outside any stage, so they would not be published; "
+                "list the scenes in params.yaml with source: simulate and `zipon run` builds and publishes their logs "
+                "(stage simulate)",
+    "ingest": "builds a scene that params.yaml does not list; add it under scenes: in params.yaml and run "
+              "`zipon run -s SCENE --stage ingest`, which publishes it",
+    "dvc": "writes dvc.yaml for DVC, which tracks outputs in a local data root; on an object store the manifests "
+           "record every published version (`zipon status`, `zipon verify`)",
+    "demo": "builds, draws and evaluates in one local data root; on an object store run `zipon run`, then "
+            "`zipon eval` or `zipon render`, which read the published artifacts",
+}
 
 
 def remote_root_ready(ws, params) -> None:
-    """On an object-store data root (:mod:`pipeline.fsroot`): refuse the commands that read artifacts in place, and
-    for ``status`` / ``verify`` mirror every published stage into the local cache first (digests checked)."""
+    """On an object-store data root (:mod:`pipeline.fsroot`): refuse the commands that would write into it outside
+    the stages, and for ``status`` / ``verify`` mirror every published stage into the local cache first (digests
+    checked). Commands that read artifacts mirror the scenes they open themselves (:meth:`zipon.Dataset.mirror`)."""
     from typer._click.globals import get_current_context
 
     from pipeline.errors import ConfigError
@@ -86,14 +106,17 @@ def remote_root_ready(ws, params) -> None:
     from stages import STAGES
 
     context = get_current_context(silent=True)
-    command = context.info_name if context is not None else "(no command)"
+    command = " ".join(context.command_path.split()[1:]) if context is not None else "(no command)"
+    if command in REMOTE_REFUSED:
+        raise ConfigError(f"--data-dir {ws.remote}: zipon {command} {REMOTE_REFUSED[command]}")
     if command not in REMOTE_COMMANDS:
-        raise ConfigError(f"--data-dir {ws.remote}: zipon {command} reads artifacts from a local data root; on an "
-                          f"object store only zipon {', '.join(REMOTE_COMMANDS)} work. After one of them the local "
-                          f"mirror is {ws.data_dir}: pass it as --data-dir (and --manifests-dir {ws.manifests_dir})")
+        raise ConfigError(f"--data-dir {ws.remote}: zipon {command} works on a local data root only; on an object "
+                          f"store zipon {', '.join(REMOTE_COMMANDS)} work. After one of them the local mirror is "
+                          f"{ws.data_dir}: pass it as --data-dir (and --manifests-dir {ws.manifests_dir})")
     if command in ("status", "verify"):
         pull_all(ws, plan(STAGES, params, list(params.scenes)), {name: s.outputs for name, s in STAGES.items()},
                  verify=command == "verify")
+
 
 def print_outcomes(outcomes) -> bool:
     table = Table(title="zipon run", show_lines=False)

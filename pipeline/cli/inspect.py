@@ -38,9 +38,9 @@ def render(
 
     if what not in RENDERS:
         raise ConfigError(f"--what {what!r}: choose one of {', '.join(RENDERS)}")
-    ws = _scene(scene).dataset.workspace
-    target = Path(out_png) if out_png else ws.renders(scene) / f"{what}.png"
-    art = lambda name: ws.artifact(name, scene)  # noqa: E731
+    sc = _scene(scene)
+    target = Path(out_png) if out_png else sc.dataset.workspace.renders(scene) / f"{what}.png"
+    art = sc.path  # on an object store: the artifact's published version, mirrored on first use
     if what == "frames":
         from pipeline.pictures import frames_contact_sheet
 
@@ -100,8 +100,9 @@ def goals_import(
     from pipeline.store import remove, write_text_atomic
     from stages import STAGES
 
-    ws, _ = G.load()
-    doc = validate_edit(edit_file, ws.artifact("goals", scene))
+    sc = _scene(scene)
+    ws = sc.dataset.workspace
+    doc = validate_edit(edit_file, sc.path("goals"))  # on an object store: the published goals, mirrored first
     rel = edit_relpath(doc)
     stored = ws.root / rel
     created = [p for p in (stored.parent, stored) if not p.exists()]  # removed again if the import fails
@@ -157,9 +158,10 @@ def goals_export_navchat(
     from pipeline.goals.navchat import export_scene, write_navchat
     from pipeline.goals.store import Goals
 
-    ws, params = G.load()
-    goals = Goals(ws.artifact("goals", scene))
-    frames = FrameStore(ws.artifact("frames", scene)) if ws.artifact("frames", scene).exists() else None
+    sc = _scene(scene)  # on an object store its published goals and frames are mirrored on first use
+    ws, params = sc.dataset.workspace, sc.dataset.params
+    goals = Goals(sc.path("goals"))
+    frames = FrameStore(sc.path("frames")) if sc.path("frames").exists() else None
     objects_json, final_json = export_scene(goals, params.goals, frames, scene, ws.root)
     write_navchat(folder, objects_json, final_json)
     out.print(f"{folder}/objects.json, {folder}/final.json")
@@ -366,14 +368,14 @@ def eval_cmd(
     `zipon eval -m mypkg.agents:Greedy --seed-list 3`
     """
     from pipeline.errors import ConfigError
-    from zipon.evaluate import run_eval
+    from zipon.api import Dataset
 
     if seeds is not None and seed_list:
         raise ConfigError("--seeds N (a count) and --seed-list (explicit seeds) exclude each other")
-    ws, params = G.load()
     agents = [_agent_class(m) if ":" in m else m for m in methods] or None
-    results = run_eval(ws, params, out_dir, scenes=scenes or None, agents=agents, feedback=feedback or None,
-                       seeds=seed_list or seeds, progress=not G.quiet)
+    # Dataset.run_eval: on an object store the evaluated scenes are mirrored first
+    results = Dataset(*G.load()).run_eval(out_dir, scenes=scenes or None, agents=agents, feedback=feedback or None,
+                                          seeds=seed_list or seeds, progress=not G.quiet)
     print_eval(results, out_dir)
 
 
@@ -423,6 +425,7 @@ def view(
     from pipeline.viewer import write_recording
 
     sc = _scene(scene)
+    sc.dataset.mirror([scene])  # on an object store: the scene's published artifacts (the recording reads them all)
     ws, params = sc.dataset.workspace, sc.dataset.params
     target = out_file or ws.renders(scene) / f"{scene}.rrd"
     s = write_recording(ws, params, scene, target, episode=episode, eval_dir=eval_dir, method=method,
