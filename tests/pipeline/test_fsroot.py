@@ -248,8 +248,8 @@ def tiny_on_s3(built_scene, s3_endpoint):
 
 def test_readers_mirror_the_published_scene_from_a_fresh_cache(built_scene, tiny_on_s3, tmp_path, s3_env,
                                                                monkeypatch, capsys):
-    """`zipon query`, `zipon goals export`, `zipon eval` and zipon.open on the s3 root, from a fresh cache, read what
-    the local root reads; a scene never published is absent (the usual error, exit 1)."""
+    """`zipon query`, `zipon goals export`, `zipon render` and zipon.open on the s3 root, from a fresh cache, read
+    what the local root reads; a scene never published is absent (the usual error, exit 1)."""
     import numpy as np
 
     import zipon
@@ -287,22 +287,33 @@ def test_readers_mirror_the_published_scene_from_a_fresh_cache(built_scene, tiny
     assert not (mirror / "raw").exists()
     assert main([*base, "goals", "export", "tiny", "-o", str(tmp_path / "s3.yaml")]) == 0
     assert (tmp_path / "s3.yaml").read_text() == (tmp_path / "local.yaml").read_text()
+    assert main([*base, "render", "tiny", "--what", "goals", "-o", str(tmp_path / "goals.png")]) == 0
+    assert main([*local, "render", "tiny", "--what", "goals", "-o", str(tmp_path / "local.png")]) == 0
+    assert (tmp_path / "goals.png").read_bytes() == (tmp_path / "local.png").read_bytes()
     capsys.readouterr()
     assert main([*base, "query", "ghost", cls]) == 1
     assert "scene 'ghost' has no vlmap yet (build it: zipon run -s ghost --stage vlmap)" in capsys.readouterr().err
     assert not (mirror / "artifacts/ghost").exists()
     assert main([*base, "query", "nope", cls]) == 1
     assert "unknown scene 'nope'" in capsys.readouterr().err
-    assert main([*base, "eval", "-o", str(tmp_path / "eval"), "-s", "tiny", "-m", "vlmap", "-f", "none",
-                 "--seeds", "1"]) == 0
-    assert json.loads((tmp_path / "eval" / "results.json").read_text())["overall"]["vlmap"]["none"]["episodes"] > 0
-    assert (mirror / "artifacts/tiny/cfmap.zarr").is_dir() and (mirror / "artifacts/tiny/routes.zarr").is_dir()
 
     ds = zipon.open(tmp_path / "params.yaml", data_dir=url)  # the Python API (the mirror is current: no download)
     assert ds.workspace.remote == url and ds.workspace.data_dir == mirror and list(ds) == ["tiny", "ghost"]
     ref = zipon.open(ws.params_path, data_dir=ws.data_dir, manifests_dir=ws.manifests_dir)["tiny"]
     np.testing.assert_array_equal(ds["tiny"].vlmap.query(cls).heatmap, ref.vlmap.query(cls).heatmap)
     np.testing.assert_array_equal(ds["tiny"].frames.poses(), ref.frames.poses())
+
+
+def test_eval_on_s3_mirrors_every_stage_of_its_scenes(built_scene, tiny_on_s3, tmp_path, s3_env, monkeypatch):
+    ws, _ = built_scene
+    monkeypatch.setenv("ZIPON_CACHE", str(tmp_path / "fresh"))
+    assert main(["-q", "-p", str(ws.params_path), "--data-dir", tiny_on_s3, "eval", "-o", str(tmp_path / "eval"),
+                 "-s", "tiny", "-m", "vlmap", "-f", "none", "--seeds", "1"]) == 0
+    assert json.loads((tmp_path / "eval" / "results.json").read_text())["overall"]["vlmap"]["none"]["episodes"] > 0
+    mirror = cache_dir(tiny_on_s3, ws.root)
+    for stage in ("ingest", "reconstruct", "vlmap", "cfmap", "goals", "routes"):
+        assert Manifest.read(mirror / "manifests" / "tiny" / f"{stage}.json") == Manifest.read(ws.manifest("tiny", stage))
+    assert not (mirror / "raw").exists()
 
 
 def test_goals_import_on_s3_publishes_its_rebuild(built_scene, tiny_on_s3, tmp_path, s3_env, monkeypatch):
