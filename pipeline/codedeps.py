@@ -30,6 +30,7 @@ from pathlib import Path
 
 from pipeline import __version__
 from pipeline.errors import ZiponError
+from pipeline.paths import ENV_CACHE
 
 ROOT = Path(__file__).resolve().parent.parent
 PROJECT_PACKAGES = ("pipeline", "stages", "orion_eval", "zipon", "tests")
@@ -111,9 +112,10 @@ class _ImportCache:
 
     @staticmethod
     def path() -> Path:
-        base = os.environ.get("ZIPON_CACHE") or os.environ.get("XDG_CACHE_HOME")
-        folder = Path(base) if base else Path.home() / ".cache"
-        return (folder if os.environ.get("ZIPON_CACHE") else folder / "zipon") / f"imports-v{_ImportCache.VERSION}.json"
+        name = f"imports-v{_ImportCache.VERSION}.json"
+        if os.environ.get(ENV_CACHE):  # zipon's own cache folder (pipeline.paths), when the user set one
+            return Path(os.environ[ENV_CACHE]) / name
+        return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "zipon" / name
 
     def _load(self) -> dict[str, list[str]]:
         if self._entries is None:
