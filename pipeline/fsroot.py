@@ -300,8 +300,7 @@ def remote_stage(ws: Workspace, scene: str, stage: str, outputs: dict[str, tuple
         yield publish_now
 
 
-def pull_all(ws: Workspace, pairs: list[tuple[str, str]], outputs: dict[str, tuple[str, ...]], *,
-             verify: bool = False) -> None:
+def pull_all(ws: Workspace, pairs: list[tuple[str, str]], *, verify: bool = False) -> None:
     """Mirror every published (scene, stage) of ``pairs`` into the local cache (``zipon status`` and ``zipon verify``
     then read the mirror; every downloaded version's digest is checked on the way).
 
@@ -327,8 +326,7 @@ def pull_all(ws: Workspace, pairs: list[tuple[str, str]], outputs: dict[str, tup
         if bad:
             raise ArtifactError(f"{len(bad)} published artifact(s) on {remote.url} do not match their manifests: "
                                 + "; ".join(bad) + ". Rebuild them with zipon run --force")
-    for scene, stage in pairs:
-        remote.pull_stage(ws, scene, stage, outputs[stage])
+    pull_stages(ws, pairs)
 
 
 def pull_stages(ws: Workspace, pairs: list[tuple[str, str]]) -> None:

@@ -114,8 +114,7 @@ def remote_root_ready(ws, params) -> None:
                           f"store zipon {', '.join(REMOTE_COMMANDS)} work. After one of them the local mirror is "
                           f"{ws.data_dir}: pass it as --data-dir (and --manifests-dir {ws.manifests_dir})")
     if command in ("status", "verify"):
-        pull_all(ws, plan(STAGES, params, list(params.scenes)), {name: s.outputs for name, s in STAGES.items()},
-                 verify=command == "verify")
+        pull_all(ws, plan(STAGES, params, list(params.scenes)), verify=command == "verify")
 
 
 def print_outcomes(outcomes) -> bool:

@@ -25,6 +25,7 @@ __all__ = ["RenderedFrames", "SceneRenderer", "SimulatedRecording", "draw_scene_
 
 
 def __getattr__(name: str):
+    # explicit imports, not importlib with a computed name: pipeline.codedeps reads them (a stage's code closure)
     if name in ("RenderedFrames", "SceneRenderer"):
         from pipeline.sim import render as module
     elif name in ("generate_scene", "scene_seed"):
