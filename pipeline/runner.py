@@ -18,6 +18,7 @@ import importlib.util
 import os
 import platform
 import socket
+import threading
 import time
 import traceback
 from dataclasses import dataclass, field, replace
@@ -33,7 +34,7 @@ from pipeline.manifest import Manifest, OutputRecord
 from pipeline.paths import ARTIFACTS, Workspace
 from pipeline.locks import output_lock
 from pipeline.publication import check_inputs_unchanged, publish_outputs, recover
-from pipeline.store import content_digest, files_digest, new_tmp_dir, remove, sweep_tmp
+from pipeline.store import ArrayDigests, content_digest, files_digest, new_tmp_dir, remove, sweep_tmp
 
 SOURCE = "source"  # the pseudo-input naming a scene's raw data (a log, a folder)
 
@@ -87,6 +88,7 @@ class StageContext:
     messages: list[str] = field(default_factory=list)
     # CPU seconds and peak RSS of the stage's own tasks that ran in other worker processes (map_ordered)
     elsewhere: dict[str, float] = field(default_factory=lambda: {"cpu_seconds": 0.0, "peak_rss_mb": 0.0})
+    known_digests: dict[str, ArrayDigests] = field(default_factory=dict)  # output -> its arrays' digests
 
     @classmethod
     def build(cls, spec: StageSpec, params: Params, scene: str, workspace: Workspace, inputs: dict[str, Path],
@@ -95,6 +97,11 @@ class StageContext:
         config, projection = spec.build_config(params, scene)
         return cls(scene, spec.name, config, params.run, workspace, inputs, outputs, digest_value(projection),
                    show_progress)
+
+    def array_digests(self, output: str) -> ArrayDigests:
+        """The content digests of ``output``'s arrays, for its writer to keep as it writes them
+        (:class:`pipeline.store.ArrayDigests`): the runner then digests that zarr store without reading it back."""
+        return self.known_digests.setdefault(output, ArrayDigests())
 
     def log(self, message: str) -> None:
         self.messages.append(message)
@@ -136,6 +143,11 @@ def ordered_tasks(fn: Callable[[Any], Any], items: list, *, name: str, threads: 
     call is raised here, with its type, when its turn comes. ``usage`` (``cpu_seconds``, ``peak_rss_mb``) adds up
     the calls that ran in other processes (this process's own CPU time already counts the rest), so a stage's
     manifest counts every worker its tasks used.
+
+    Memory: what a caller folds (a map's accumulators) grows with the results it consumes, and a worker starts
+    every ready stage while those already started wait, seceded. So in one worker process at most as many
+    callers as it has threads consume results at a time (:func:`_consuming_slots`); the others wait for their
+    turn seceded, holding no worker thread and no results, and their calls are not submitted yet.
     """
     client_context = _worker_client()
     if client_context is None:
@@ -145,7 +157,7 @@ def ordered_tasks(fn: Callable[[Any], Any], items: list, *, name: str, threads: 
     import uuid
     from collections import deque
 
-    with client_context as client:
+    with client_context as client, _consuming_slots():
         window = sum(client.nthreads().values()) + 1
         token = uuid.uuid4().hex[:8]
         todo = iter(enumerate(items))
@@ -153,7 +165,8 @@ def ordered_tasks(fn: Callable[[Any], Any], items: list, *, name: str, threads: 
 
         def submit() -> None:
             for i, item in todo:
-                pending.append(client.submit(_ordered_call, fn, threads, item, key=f"{name}-{i}-{token}", pure=False))
+                pending.append(client.submit(_ordered_call, fn, threads, item, key=f"{name}-{i}-{token}", pure=False,
+                                             priority=CALL_PRIORITY))
                 return
 
         for _ in range(window):
@@ -165,6 +178,28 @@ def ordered_tasks(fn: Callable[[Any], Any], items: list, *, name: str, threads: 
                 usage["cpu_seconds"] = usage.get("cpu_seconds", 0.0) + cpu_s
                 usage["peak_rss_mb"] = max(usage.get("peak_rss_mb", 0.0), rss_mb)
             yield result
+
+
+# dask priority of the calls of a running stage (ordered_tasks): above every stage task (run_many gives those
+# their stage's level, 0..len(stages)), so a worker finishes the stages already started before it starts another:
+# the folds in memory stay few, and a started stage's outputs come as early as they can
+CALL_PRIORITY = 1000
+
+
+_CONSUMING: "threading.Semaphore | None" = None
+_CONSUMING_INIT = threading.Lock()
+
+
+def _consuming_slots() -> "threading.Semaphore":
+    """The semaphore of this worker process bounding the :func:`ordered_tasks` callers that consume results at a
+    time: one per worker thread."""
+    global _CONSUMING
+    with _CONSUMING_INIT:
+        if _CONSUMING is None:
+            from distributed import get_worker
+
+            _CONSUMING = threading.Semaphore(get_worker().state.nthreads)
+    return _CONSUMING
 
 
 def _worker_client():
@@ -458,7 +493,8 @@ def _run_stage(
         for name, path in outputs.items():
             if not path.exists():
                 raise StageError(f"stage {stage} (scene {scene}) did not write its output {name!r}")
-            records[name] = OutputRecord(path=ws.relative(ws.artifact(name, scene)), digest=content_digest(path))
+            known = ctx.known_digests[name].known() if name in ctx.known_digests else None
+            records[name] = OutputRecord(path=ws.relative(ws.artifact(name, scene)), digest=content_digest(path, known))
         seconds = time.perf_counter() - t0
         man = Manifest(
             stage=stage, scene=scene, code_version=__version__, code_digest=code_digest(spec),
@@ -524,6 +560,22 @@ def upstream_stages(stages: dict[str, StageSpec], params: Params, scene: str, st
     return ups
 
 
+def stage_levels(stages: dict[str, StageSpec]) -> dict[str, int]:
+    """Each stage's level: the number of stages on the longest path from it to a stage nothing reads (0).
+
+    ``run_many`` gives a stage task its level as dask priority (highest first, the classic list-scheduling rule):
+    the long chains every scene must go through one after the other (ingest, reconstruct) run before the stages
+    whose work spreads over every worker (the maps' chunks), so the last scene's chain does not leave a worker
+    idle at the end of a batch."""
+    level: dict[str, int] = {}
+    for name in reversed(stage_order(stages)):
+        readers = [r for r, spec in stages.items()
+                   if any(i != SOURCE and producer(stages, i).name == name for i in spec.inputs)
+                   or (name == producer(stages, "raw_log").name and SOURCE in spec.inputs)]
+        level[name] = 1 + max((level[r] for r in readers), default=-1)
+    return level
+
+
 def plan(stages: dict[str, StageSpec], params: Params, scenes: list[str], only: list[str] | None = None
          ) -> list[tuple[str, str]]:
     """(scene, stage) pairs to consider, in an order that respects dependencies."""
@@ -551,13 +603,15 @@ def run_many(
 
     scheduler = scheduler or params.run.scheduler
     threads = params.run.threads_per_worker
+    levels = stage_levels(stages)
     tasks: dict[tuple[str, str], Any] = {}
     for scene, stage in pairs:
         ups = [tasks[(scene, u)] for u in upstream_stages(stages, params, scene, stage) if (scene, u) in tasks]
-        tasks[(scene, stage)] = dask.delayed(_task, pure=False)(
-            ws, params, stages, scene, stage, force, show_progress, threads, *ups,
-            dask_key_name=f"{stage}-{scene}",
-        )
+        with dask.annotate(priority=levels[stage]):  # read by dask.distributed only (stage_levels says why)
+            tasks[(scene, stage)] = dask.delayed(_task, pure=False)(
+                ws, params, stages, scene, stage, force, show_progress, threads, *ups,
+                dask_key_name=f"{stage}-{scene}",
+            )
     if not tasks:
         return []
     values = list(tasks.values())

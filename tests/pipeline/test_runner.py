@@ -204,6 +204,40 @@ def test_ordered_tasks_run_on_every_worker_and_yield_in_item_order():
             client.submit(_ordered_in_a_worker, [1, 99, 2]).result()
 
 
+def test_stage_levels_put_the_long_chains_first():
+    """Each stage's level (its dask priority) is the longest path to a stage nothing reads: the raw chain
+    (simulate, ingest, reconstruct) before goals, goals before the stages whose work spreads over the workers."""
+    from pipeline.runner import stage_levels
+    from stages import STAGES
+
+    assert stage_levels(STAGES) == {"simulate": 4, "ingest": 3, "reconstruct": 2, "goals": 1, "routes": 0,
+                                    "vlmap": 0, "cfmap": 0}
+
+
+def _consume(items):
+    """A stage task folding its items' results: (time of its first result, of its last, the results)."""
+    from pipeline.runner import ordered_tasks
+
+    times, out = [], []
+    for value in ordered_tasks(_square_and_worker, items, name="square"):
+        times.append(time.monotonic())
+        out.append(value[0])
+    return times[0], times[-1], out
+
+
+def test_a_worker_folds_one_stage_at_a_time_while_the_others_wait():
+    """Three stage tasks on a one-thread worker all start (each secedes at once), but only one at a time consumes
+    results (its folds are the memory a map stage holds); every one finishes, none deadlocks."""
+    from distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster, \
+            Client(cluster) as client:
+        runs = client.gather([client.submit(_consume, list(range(k, k + 6)), pure=False) for k in (0, 10, 20)])
+    assert [out for _, _, out in runs] == [[x * x for x in range(k, k + 6)] for k in (0, 10, 20)]
+    spans = sorted((first, last) for first, last, _ in runs)
+    assert all(a_last < b_first for (_, a_last), (b_first, _) in zip(spans, spans[1:]))
+
+
 FAULTS_SCRIPT = """
 import resource, sys
 import numpy as np
