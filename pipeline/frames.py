@@ -27,7 +27,7 @@ import numpy as np
 from pipeline.errors import ArtifactError
 from pipeline.geometry import Intrinsics
 from pipeline.scene_gt import GTScene
-from pipeline.store import ArtifactAttrs, compressor, new_group, open_group
+from pipeline.store import ArrayDigests, ArtifactAttrs, compressor, new_group, open_group
 
 ARTIFACT = "frames"
 FORMAT_VERSION = 1
@@ -75,7 +75,8 @@ class FrameBlock:
 
 
 class FrameStoreWriter:
-    """Appends frame blocks to a new ``frames.zarr`` at ``path`` (a stage's temporary output)."""
+    """Appends frame blocks to a new ``frames.zarr`` at ``path`` (a stage's temporary output); with ``digests``
+    (:class:`pipeline.store.ArrayDigests`) the arrays' content digests are kept as the blocks are written."""
 
     def __init__(
         self,
@@ -87,8 +88,10 @@ class FrameStoreWriter:
         with_instance: bool = False,
         compression_level: int = 3,
         codec: str = "zstd",
+        digests: ArrayDigests | None = None,
     ):
         self.path = Path(path)
+        self.digests = digests  # kept while writing, so the runner need not read the store back to digest it
         self.intrinsics = intrinsics
         self.block_frames = block_frames
         self.n = 0
@@ -150,6 +153,8 @@ class FrameStoreWriter:
             z = self.arrays[name]
             z.resize((self.n + b,) + z.shape[1:])
             z[self.n : self.n + b] = arr
+            if self.digests is not None:
+                self.digests.update(name, arr)
         self.n += b
 
     def close(self, **final_attrs) -> int:

@@ -63,7 +63,11 @@ def verify_stage(ws: Workspace, spec: StageSpec, scene: str) -> list[VerifyRow]:
                 rows.append(VerifyRow(scene, spec.name, name, False, f"unreadable: {where}"))
                 continue
             ok = got == rec.digest
-            rows.append(VerifyRow(scene, spec.name, name, ok, "" if ok else f"digest {got} != manifest {rec.digest}"))
+            problem = "" if ok else f"digest {got} != manifest {rec.digest}"
+            if not ok and got.split(":", 1)[0] != rec.digest.split(":", 1)[0]:
+                problem += (f" (recorded by an older zipon, as {rec.digest.split(':', 1)[0]!r}; rebuild it with "
+                            f"`zipon run -s {scene} --stage {spec.name} --force` to record it as {got.split(':', 1)[0]!r})")
+            rows.append(VerifyRow(scene, spec.name, name, ok, problem))
     return rows
 
 

@@ -32,4 +32,5 @@ def run(ctx: StageContext) -> dict:
     from pipeline.readers.ingest import ingest  # here: the readers' imports (ROS, scipy) cost every `zipon status`
 
     return ingest(scene_sources(ctx.inputs), ctx.outputs["frames"], ctx.config.ingest, ctx.config.format,
-                  params_digest=ctx.params_digest, label=ctx.workspace.relative, log=ctx.log, progress=ctx.progress)
+                  params_digest=ctx.params_digest, label=ctx.workspace.relative, log=ctx.log, progress=ctx.progress,
+                  digests=ctx.array_digests("frames"))

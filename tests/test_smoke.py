@@ -58,7 +58,7 @@ def test_every_stage_ran_and_recorded_its_lineage(built_scene):
         assert man is not None, f"no manifest for {stage}"
         for name in STAGES[stage].outputs:
             assert ws.artifact(name, "tiny").exists()
-            assert man.outputs[name].digest.startswith("blake2b:")
+            assert man.outputs[name].digest.startswith("blake3:")
     recon = Manifest.read(ws.manifest("tiny", "reconstruct")).outputs["recon"].digest
     for stage in ("vlmap", "cfmap", "goals", "routes"):
         assert Manifest.read(ws.manifest("tiny", stage)).inputs["recon"] == recon

@@ -21,7 +21,6 @@ so that frames appended to a scene are the only ones fused on the next run.
 from __future__ import annotations
 
 import functools
-import hashlib
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
@@ -32,6 +31,7 @@ import numpy as np
 from pipeline.config import EncodersParams, MapsParams, Params, RunParams, StageConfig, digest_value, section_keys
 from pipeline.errors import StageError
 from pipeline.frames import FrameStore
+from pipeline.store import DIGEST_ALGO, new_digest, update_array
 
 if TYPE_CHECKING:
     from pipeline.maps.fusion import FusionState
@@ -132,7 +132,7 @@ class CfmapConfig(MapConfig):
 MAP_CONFIGS: dict[str, type[MapConfig]] = {cfg.kind.value: cfg for cfg in (VlmapConfig, CfmapConfig)}
 
 
-FOLD_FORMAT = 1  # bump when the chunk digests or the fold's content change meaning
+FOLD_FORMAT = 2  # bump when the chunk digests or the fold's content change meaning
 
 
 @dataclass(frozen=True)
@@ -192,8 +192,9 @@ def fuse_chunk(job: MapJob, chunk: tuple[int, int, int], *, fuse: bool = True) -
     index, start, stop = chunk
     kind, p = job.config.kind, job.config.maps
     fs, _, poses, usable, lattice = _open_inputs(job.frames_path, job.recon_path, p)
-    digest = hashlib.blake2b(digest_size=16)
-    digest.update(np.ascontiguousarray(poses[start:stop]).tobytes() + usable[start:stop].tobytes())
+    digest = new_digest()
+    update_array(digest, poses[start:stop])
+    update_array(digest, usable[start:stop])
     encoder = acc = None
     if fuse and usable[start:stop].any():
         encoder = build_encoder(job.config.encoders, job.config.encoder, runtime=job.runtime)
@@ -207,7 +208,7 @@ def fuse_chunk(job: MapJob, chunk: tuple[int, int, int], *, fuse: bool = True) -
                                     instance=fs.has_instance):
             for array in (block.rgb if job.reads_rgb else None, block.depth_mm, block.instance):
                 if array is not None:
-                    digest.update(np.ascontiguousarray(array))
+                    update_array(digest, array)
             ok = usable[block.start : block.start + len(block)]
             if encoder is None or not ok.any():
                 continue
@@ -222,7 +223,7 @@ def fuse_chunk(job: MapJob, chunk: tuple[int, int, int], *, fuse: bool = True) -
             fused_frames += int(ok.sum())
             pixels += pts.n_fused
     state = None if not fuse else acc.state() if acc is not None else None
-    return ChunkResult(index, "blake2b:" + digest.hexdigest(), state, fused_frames, pixels)
+    return ChunkResult(index, f"{DIGEST_ALGO}:{digest.hexdigest()}", state, fused_frames, pixels)
 
 
 def build_map(

@@ -23,17 +23,18 @@ from pipeline.frames import ARTIFACT, FORMAT_VERSION, FrameBlock, FrameStoreWrit
 from pipeline.readers import FrameMatcher, open_reader
 from pipeline.readers.matcher import index_ranges
 from pipeline.readers.world_up import WorldUp
-from pipeline.store import artifact_attrs, remove
+from pipeline.store import ArrayDigests, artifact_attrs, remove
 
 
 def ingest(source: Path | Sequence[Path], out_path: Path, params: IngestParams, fmt: str = "auto", *,
            params_digest: str, label: Callable[[Path], str] = Path.as_posix, log: Callable[[str], None] = print,
-           progress=None) -> dict:
+           progress=None, digests: ArrayDigests | None = None) -> dict:
     """Read ``source`` (one log / folder, or several of one scene, read in order) and write ``out_path`` (a new
     frames.zarr). Frame indices continue from one log to the next; stamps stay as recorded; every log must
     carry the first one's camera (intrinsics, instance images, ground truth, world convention), and it takes
     the first one's world rotation. Returns the matching summary (with several logs: counts summed over the
-    logs, one summary per log under ``sources``). ``label`` names a log in messages and attrs."""
+    logs, one summary per log under ``sources``). ``label`` names a log in messages and attrs; ``digests`` keeps
+    the arrays' content digests as they are written (:class:`pipeline.frames.FrameStoreWriter`)."""
     paths = [Path(source)] if isinstance(source, (str, Path)) else [Path(p) for p in source]
     if not paths:
         raise InputDataError("no raw log or dataset folder to read", field="scenes.<scene>.sources",
@@ -56,7 +57,8 @@ def ingest(source: Path | Sequence[Path], out_path: Path, params: IngestParams, 
                                          expected="'dataset' or '+z' for simulated logs")
                 writer = FrameStoreWriter(out_path, one.info.intrinsics, attrs=one.attrs(params, params_digest),
                                           block_frames=params.block_frames, with_instance=one.info.has_instance,
-                                          compression_level=params.compression_level, codec=params.codec)
+                                          compression_level=params.compression_level, codec=params.codec,
+                                          digests=digests)
                 blocks = world.apply(one.blocks())
             else:
                 one.check_same_camera(first)

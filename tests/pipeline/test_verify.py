@@ -93,5 +93,20 @@ def test_content_staleness_rehashes(built):
     arr = zarr.open_array(str(ws.artifact("frames", "s0") / "values"), mode="r+")
     arr[0, 0] = (int(arr[0, 0]) + 1) % 256
     why = content_staleness(ws, spec, "s0")
-    assert why.startswith("frames digest blake2b:") and "!= manifest" in why
+    assert why.startswith("frames digest blake3:") and "!= manifest" in why and "older zipon" not in why
     assert content_staleness(ws, spec, "s1") == ""
+
+
+def test_a_store_digest_recorded_the_older_way_says_so(built):
+    from pipeline.manifest import Manifest
+
+    ws, params = built
+    path = ws.manifest("s0", "ingest")
+    man = Manifest.read(path)
+    rec = man.outputs["frames"]
+    old = man.model_copy(update={"outputs": {"frames": rec.model_copy(update={"digest": "blake2b:" + "0" * 32})}})
+    old.write(path)
+    row = rows_by_key(ws, params)[("s0", "ingest", "frames")]
+    assert not row.ok
+    assert "recorded by an older zipon, as 'blake2b'" in row.problem
+    assert "zipon run -s s0 --stage ingest --force" in row.problem and "'blake3'" in row.problem
