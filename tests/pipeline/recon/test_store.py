@@ -56,3 +56,16 @@ def test_points_in_any_order_write_the_same_bytes(tmp_path):
     write_points(tmp_path / "a.ply", xyz, normals, colors)
     write_points(tmp_path / "b.ply", xyz[perm], normals[perm], colors[perm])
     assert (tmp_path / "a.ply").read_bytes() == (tmp_path / "b.ply").read_bytes()
+
+
+def test_canonical_point_order_is_the_sort_by_every_column():
+    rng = np.random.default_rng(2)
+    xyz = rng.integers(0, 6, (3000, 3)).astype(np.float32)  # positions shared by many rows
+    xyz[rng.integers(0, 3000, 20)] = np.nan
+    normals = rng.integers(0, 2, (3000, 3)).astype(np.float32)
+    colors = rng.integers(0, 3, (3000, 3)).astype(np.uint8)
+    keys = np.c_[xyz, normals, colors.astype(np.float32)]
+    got = keys[canonical_point_order(xyz, normals, colors)]
+    assert np.array_equal(got, keys[np.lexsort(keys.T[::-1])], equal_nan=True)
+    distinct = xyz[~np.isnan(xyz).any(axis=1)][:50] + np.arange(50, dtype=np.float32)[:, None] * 10
+    assert np.array_equal(canonical_point_order(distinct), np.lexsort(distinct.T[::-1]))
