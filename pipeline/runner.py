@@ -21,6 +21,7 @@ import socket
 import threading
 import time
 import traceback
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
@@ -87,7 +88,9 @@ class StageContext:
     show_progress: bool = True
     messages: list[str] = field(default_factory=list)
     # CPU seconds and peak RSS of the stage's own tasks that ran in other worker processes (map_ordered)
-    elsewhere: dict[str, float] = field(default_factory=lambda: {"cpu_seconds": 0.0, "peak_rss_mb": 0.0})
+    # and the time it waited for its turn to consume their results (_consuming_turn)
+    elsewhere: dict[str, float] = field(default_factory=lambda: {"cpu_seconds": 0.0, "peak_rss_mb": 0.0,
+                                                                 "waited_seconds": 0.0})
     known_digests: dict[str, ArrayDigests] = field(default_factory=dict)  # output -> its arrays' digests
 
     @classmethod
@@ -157,7 +160,7 @@ def ordered_tasks(fn: Callable[[Any], Any], items: list, *, name: str, threads: 
     import uuid
     from collections import deque
 
-    with client_context as client, _consuming_slots():
+    with client_context as client, _consuming_turn(usage):
         window = sum(client.nthreads().values()) + 1
         token = uuid.uuid4().hex[:8]
         todo = iter(enumerate(items))
@@ -200,6 +203,17 @@ def _consuming_slots() -> "threading.Semaphore":
 
             _CONSUMING = threading.Semaphore(get_worker().state.nthreads)
     return _CONSUMING
+
+
+@contextmanager
+def _consuming_turn(usage: dict[str, float] | None):
+    """Hold one of this worker process's :func:`_consuming_slots`; the wait for it goes to ``usage['waited_seconds']``
+    (a stage's manifest records it: the time the stage stood in line, not working)."""
+    slots, t0 = _consuming_slots(), time.perf_counter()
+    with slots:
+        if usage is not None:
+            usage["waited_seconds"] = usage.get("waited_seconds", 0.0) + time.perf_counter() - t0
+        yield
 
 
 def _worker_client():
@@ -504,6 +518,7 @@ def _run_stage(
             timing={"started": started, "seconds": round(seconds, 3),
                     "cpu_seconds": round(time.process_time() - cpu0 + ctx.elsewhere["cpu_seconds"], 3),
                     "peak_rss_mb": round(max(peak_rss_mb(), ctx.elsewhere["peak_rss_mb"]), 1),
+                    "waited_seconds": round(ctx.elsewhere["waited_seconds"], 3),
                     "host": socket.gethostname(), "python": platform.python_version()},
         )
         check_inputs_unchanged(ws, scene, stage, upstream_stages(stages, params, scene, stage),

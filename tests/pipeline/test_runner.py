@@ -199,7 +199,8 @@ def test_ordered_tasks_run_on_every_worker_and_yield_in_item_order():
         out, usage = client.submit(_ordered_in_a_worker, list(range(12))).result()  # a stage task spreading its items
         assert [v for v, _ in out] == [x * x for x in range(12)]
         assert len({w for _, w in out}) == 2
-        assert usage == {}  # in-process workers: this process's own CPU time already counts every call
+        assert set(usage) == {"waited_seconds"}  # in-process workers: this process's CPU time counts every call
+        assert usage["waited_seconds"] < 1.0  # no other stage held the worker's turn
         with pytest.raises(ValueError, match="item 99 is bad"):
             client.submit(_ordered_in_a_worker, [1, 99, 2]).result()
 
@@ -218,11 +219,11 @@ def _consume(items):
     """A stage task folding its items' results: (time of its first result, of its last, the results)."""
     from pipeline.runner import ordered_tasks
 
-    times, out = [], []
-    for value in ordered_tasks(_square_and_worker, items, name="square"):
+    times, out, usage = [], [], {}
+    for value in ordered_tasks(_square_and_worker, items, name="square", usage=usage):
         times.append(time.monotonic())
         out.append(value[0])
-    return times[0], times[-1], out
+    return times[0], times[-1], out, usage["waited_seconds"]
 
 
 def test_a_worker_folds_one_stage_at_a_time_while_the_others_wait():
@@ -233,9 +234,11 @@ def test_a_worker_folds_one_stage_at_a_time_while_the_others_wait():
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster, \
             Client(cluster) as client:
         runs = client.gather([client.submit(_consume, list(range(k, k + 6)), pure=False) for k in (0, 10, 20)])
-    assert [out for _, _, out in runs] == [[x * x for x in range(k, k + 6)] for k in (0, 10, 20)]
-    spans = sorted((first, last) for first, last, _ in runs)
+    assert [out for _, _, out, _ in runs] == [[x * x for x in range(k, k + 6)] for k in (0, 10, 20)]
+    spans = sorted((first, last) for first, last, _, _ in runs)
     assert all(a_last < b_first for (_, a_last), (b_first, _) in zip(spans, spans[1:]))
+    waits = [waited for *_, waited in runs]  # recorded for the manifest: the time a stage stood in line
+    assert min(waits) >= 0 and max(waits) > 0.05  # the last in line waited for at least one 50 ms call
 
 
 FAULTS_SCRIPT = """
