@@ -17,8 +17,11 @@ It also runs each map stage's unit of work once more in-process on the first sce
 encoder's share of its CPU time (``encoder_share``; target: the oracle at most 5 %).
 
 A stage's CPU seconds are its worker process's over the stage's span: while a map stage waits for its chunks
-(seceded), its worker runs other tasks, whose CPU is then counted twice, so under ``processes`` the per-stage
-figures are upper bounds. Each run's ``cpu_s`` is exact: ``getrusage`` of every process of the run.
+or for its turn to fold them (seceded), its worker runs other tasks, whose CPU is then counted twice, so under
+``processes`` the per-stage figures are upper bounds, and the map stages' are the in-process ``encoder_share``
+lines' (one scene, nothing else running). A stage's ``wall_s`` leaves out the time it stood in line for a turn
+(``waited_s``, the manifests' ``timing.waited_seconds``). Each run's ``cpu_s`` is exact: ``getrusage`` of every
+process of the run.
 
 Each run's line also gives its wall time, frames/s over the whole batch, the largest worker's
 peak RSS (``ru_maxrss`` of the run's processes) and the wall time the same rate implies for the
@@ -436,6 +439,7 @@ def main() -> None:
         emit(bench="batch", kind="logs_written", seconds=round(t_logs, 1), timed=False)
 
     from pipeline.config import load_params
+    from pipeline.paths import FOLD
 
     p = load_params(params)
     h, w = p.encoders.oracle.out_size
@@ -448,6 +452,8 @@ def main() -> None:
     try:
         for workers in args.workers:
             run_args = ["-S", f"run.workers={workers}", "run", "--force", *sum((["--stage", s] for s in args.stages), [])]
+            for fold in data.glob(FOLD.format(scene="*", stage="*")):  # each run a first build: no fold reused
+                shutil.rmtree(fold)
             cpu0 = _children_cpu_s()
             wall, peak = zipon(params, *run_args)
             cpu_run = _children_cpu_s() - cpu0  # every process of the run (scheduler, workers), all their threads
@@ -465,10 +471,12 @@ def main() -> None:
             timing = manifests(root, scenes, args.stages)
             for stage in args.stages:
                 t = timing[stage]
-                secs = sum(x["seconds"] for x in t)
+                waited = sum(x.get("waited_seconds", 0.0) for x in t)  # map stages standing in line for a turn
+                secs = sum(x["seconds"] for x in t) - waited
                 cpu = sum(x.get("cpu_seconds", float("nan")) for x in t)
                 row = {"bench": "batch", "kind": "stage", "workers": workers, "stage": stage,
-                       "frames_per_s": round(total / secs, 2), "wall_s": round(secs, 2), "cpu_s": round(cpu, 2),
+                       "frames_per_s": round(total / secs, 2), "wall_s": round(secs, 2), "waited_s": round(waited, 2),
+                       "cpu_s": round(cpu, 2),
                        "cpu_frames_per_s": round(total / cpu, 2) if cpu == cpu else None,
                        "peak_rss_mb": round(max(x.get("peak_rss_mb", float("nan")) for x in t), 1)}
                 kernel = KERNEL_OF.get(stage)
