@@ -548,14 +548,19 @@ def _task(ws, params, stages, scene, stage, force, show_progress, threads, *upst
 
 # ----------------------------------------------------------------------------- the DAG
 
+def producers_of(stages: dict[str, StageSpec], name: str) -> set[str]:
+    """The stages whose outputs stage ``name`` reads in the stage graph (a raw log's ``SOURCE`` counts as the
+    raw log's producer, as for a simulated scene; :func:`upstream_stages` is the per-scene answer)."""
+    return {producer(stages, "raw_log" if i == SOURCE else i).name for i in stages[name].inputs}
+
+
 def stage_order(stages: dict[str, StageSpec]) -> list[str]:
     """Stages in dependency order (stable: registry order breaks ties)."""
     order: list[str] = []
     pending = list(stages)
     while pending:
         for name in pending:
-            ups = {producer(stages, "raw_log" if i == SOURCE else i).name for i in stages[name].inputs}
-            if ups <= set(order):
+            if producers_of(stages, name) <= set(order):
                 order.append(name)
                 pending.remove(name)
                 break
@@ -584,10 +589,7 @@ def stage_levels(stages: dict[str, StageSpec]) -> dict[str, int]:
     idle at the end of a batch."""
     level: dict[str, int] = {}
     for name in reversed(stage_order(stages)):
-        readers = [r for r, spec in stages.items()
-                   if any(i != SOURCE and producer(stages, i).name == name for i in spec.inputs)
-                   or (name == producer(stages, "raw_log").name and SOURCE in spec.inputs)]
-        level[name] = 1 + max((level[r] for r in readers), default=-1)
+        level[name] = 1 + max((level[r] for r in stages if name in producers_of(stages, r)), default=-1)
     return level
 
 

@@ -36,6 +36,7 @@ if TYPE_CHECKING:  # zarr is imported where a store is opened or written: `zipon
 # (:class:`ArrayDigests`) instead of reading the store back. Digests of older zipons read "blake2b:...".
 DIGEST_ALGO = "blake3"
 Hasher = blake3.blake3
+KnownDigests = Mapping[str, tuple[tuple[int, ...], bytes]]  # array name -> (shape, digest): ArrayDigests.known
 
 
 # ----------------------------------------------------------------------------- zarr
@@ -166,15 +167,14 @@ def _json_default(obj: Any) -> Any:
 
 # ----------------------------------------------------------------------------- digests
 
-def _hash_zarr(path: Path, h: Hasher, known: Mapping[str, tuple[tuple[int, ...], bytes]] | None = None) -> None:
+def _hash_zarr(path: Path, h: Hasher, known: KnownDigests | None = None) -> None:
     """Hash decoded content (not compressed bytes) so the digest is codec-version independent."""
     import zarr
 
     hash_zarr_group(zarr.open_group(zarr.storage.LocalStore(str(path), read_only=True), mode="r"), h, known)
 
 
-def hash_zarr_group(root: zarr.Group, h: Hasher, known: Mapping[str, tuple[tuple[int, ...], bytes]] | None = None
-                    ) -> None:
+def hash_zarr_group(root: zarr.Group, h: Hasher, known: KnownDigests | None = None) -> None:
     """:func:`content_digest`'s hashing of an open zarr store, on any store (an object store's too): every node in
     name order, its attrs, and for an array its dtype, shape, fill value and :func:`array_digest`.
 
@@ -226,7 +226,7 @@ class ArrayDigests:
         update_array(self._hashes[name], rows)
         self._rows[name] = (self._rows.get(name, (0,))[0] + len(rows), *rows.shape[1:])
 
-    def known(self) -> dict[str, tuple[tuple[int, ...], bytes]]:
+    def known(self) -> KnownDigests:
         return {name: (self._rows[name], h.digest()) for name, h in self._hashes.items()}
 
 
@@ -246,7 +246,7 @@ def new_digest() -> Hasher:
     return blake3.blake3()
 
 
-def content_digest(path: Path, known: Mapping[str, tuple[tuple[int, ...], bytes]] | None = None) -> str:
+def content_digest(path: Path, known: KnownDigests | None = None) -> str:
     """Deterministic digest of an artifact: a zarr store (decoded; ``known``: :meth:`ArrayDigests.known` of its
     writer, see :func:`hash_zarr_group`), a folder, or a file."""
     path = Path(path)

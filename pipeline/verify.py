@@ -64,9 +64,10 @@ def verify_stage(ws: Workspace, spec: StageSpec, scene: str) -> list[VerifyRow]:
                 continue
             ok = got == rec.digest
             problem = "" if ok else f"digest {got} != manifest {rec.digest}"
-            if not ok and got.split(":", 1)[0] != rec.digest.split(":", 1)[0]:
-                problem += (f" (recorded by an older zipon, as {rec.digest.split(':', 1)[0]!r}; rebuild it with "
-                            f"`zipon run -s {scene} --stage {spec.name} --force` to record it as {got.split(':', 1)[0]!r})")
+            algo, recorded_algo = got.split(":", 1)[0], rec.digest.split(":", 1)[0]
+            if not ok and algo != recorded_algo:
+                problem += (f" (recorded by an older zipon, as {recorded_algo!r}; rebuild it with "
+                            f"`zipon run -s {scene} --stage {spec.name} --force` to record it as {algo!r})")
             rows.append(VerifyRow(scene, spec.name, name, ok, problem))
     return rows
 
