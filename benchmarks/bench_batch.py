@@ -52,7 +52,7 @@ with each real encoder at its default size, from random weights saved to files (
 nothing is downloaded): open_clip ViT-B/32 MaskCLIP at 480x640 and the public-size LSeg (ViT-L/16, 480 px windows)
 for the vlmap, ConceptFusion for the cfmap with ``--encoders conceptfusion``. Per encoder it prints the stage's
 CPU seconds split into the encoder's forward passes, its model loads (fixed per chunk) and the rest, the ratio
-rest / encoder (issue 13's target: at most 0.10, encoder-bound), frames/s and CPU seconds per frame, and the CPU
+rest / encoder (target: at most 0.10, encoder-bound), frames/s and CPU seconds per frame, and the CPU
 hours the paper's 14,159 frames would take (divide by the cores or GPUs a user has).
 
     .venv/bin/python benchmarks/bench_batch.py --real-encoders --frames 16 --encoders maskclip lseg

@@ -3,7 +3,7 @@
 Each command runs as its own process (``.venv/bin/zipon`` or ``python -m``-free entry: the console
 script of this environment), in a workspace folder holding ``params.yaml`` and, for the query, a built
 vlmap (``zipon demo`` makes one). Per command it prints the median and all wall times, the median
-CPU seconds (user + sys of the child), the target from issue 13 (``--help``/``status``/``params`` 1 s,
+CPU seconds (user + sys of the child), the target (``--help``/``status``/``params`` 1 s,
 ``query`` 1.5 s) and the machine's load average, which on a shared machine inflates wall times.
 With ``--importtime`` it also prints the slowest top-level imports of each command
 (``python -X importtime``). One JSON object per line on stdout.

@@ -235,7 +235,7 @@ class IngestParams(DepthRange):
 
 
 class GridParams(Section):
-    """The top-down grid every map, route and evaluator reads (DESIGN.md)."""
+    """The top-down grid every map, route and evaluator reads (world <-> cell: pipeline.geometry, nowhere else)."""
 
     rows: int = Field(600, gt=0, description="grid rows (north-south)")
     cols: int = Field(600, gt=0, description="grid columns (west-east)")
@@ -460,10 +460,11 @@ class EncodersParams(Section):
                        "one an installed package registers in the zipon.encoders entry points")
     cfmap: str = Field("conceptfusion", description="encoder of the cfmap stage (built-in or plugin, as vlmap)")
     simulated: str | None = Field(
-        "oracle",
+        "perception",
         description="encoder used INSTEAD of vlmap/cfmap for simulated scenes: 'perception' = simulated perception "
-        "models (simulated_lseg for the vlmap, simulated_cf for the cfmap), 'oracle' = the ground-truth diagnostic; "
-        "None = simulated scenes use vlmap/cfmap like real ones",
+        "models (simulated_lseg for the vlmap, simulated_cf for the cfmap), 'oracle' = the ground-truth DIAGNOSTIC "
+        "(perfect features, an upper bound, labelled so in every result); None = simulated scenes use vlmap/cfmap "
+        "like real ones",
     )
     lseg: LSegParams = LSegParams()
     maskclip: MaskClipParams = MaskClipParams()

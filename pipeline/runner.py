@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from pipeline import __version__
-from pipeline import codedeps
+from pipeline import codedeps, logs
 from pipeline.config import Params, RunParams, StageConfig, canonical_json, digest_value, project
 from pipeline.errors import MissingInputError, StageError, ZiponError, os_error_message
 from pipeline.manifest import Manifest, OutputRecord
@@ -107,11 +107,11 @@ class StageContext:
         return self.known_digests.setdefault(output, ArrayDigests())
 
     def log(self, message: str) -> None:
+        """Keep ``message`` for the stage's outcome and log it (``zipon.stages``, info)."""
         self.messages.append(message)
         if self.show_progress:
-            from rich.console import Console
-
-            Console(stderr=True).print(f"[dim]{self.scene}/{self.stage}:[/dim] {message}")
+            logs.ensure_configured()  # a dask worker process: nothing configured its logging
+        logs.get_logger("stages").info("%s/%s: %s", self.scene, self.stage, message)
 
     def progress(self, iterable, total: int | None = None, description: str = ""):
         """Iterate with a progress bar (rich) when progress is shown."""

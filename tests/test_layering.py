@@ -205,7 +205,7 @@ STAGE_MODULES = sorted(p for p in (ROOT / "stages").glob("*.py") if p.name != "_
 
 @pytest.mark.parametrize("path", STAGE_MODULES, ids=lambda p: p.stem)
 def test_a_stage_is_its_config_and_a_short_run_over_the_library(path):
-    """The stage rule (DESIGN.md): ``Config`` + ``run(ctx)`` of at most 40 lines and no loop of its own; it imports
+    """The stage rule (docs: architecture): ``Config`` + ``run(ctx)`` of at most 40 lines and no loop of its own; it imports
     the library, not another stage."""
     tree = ast.parse(path.read_text())
     defs = {n.name: n for n in tree.body if isinstance(n, (ast.FunctionDef, ast.ClassDef))}
@@ -241,7 +241,7 @@ def test_stores_import_no_algorithm_that_fills_them():
 
 
 # pipeline.config is read by every command, the fast ones (status, params, query) included: it stays a leaf
-# (the params sections live there, not beside their packages; README, "Where zipon departs from DESIGN.md").
+# (the params sections live there, not beside their packages; docs: architecture, design decisions).
 CONFIG_MAY_IMPORT = {"pipeline", "pipeline.errors", "pipeline.perception_params", "pipeline.plugins"}
 
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import sys
 
-import typer
 from rich.markup import escape
 
 from pipeline.cli import build, inspect
@@ -20,29 +19,21 @@ __all__ = ["app", "build", "entry", "inspect", "main"]
 
 def main(argv: list[str] | None = None) -> int:
     """Console entry: run the app; turn zipon errors and OS errors (disk full, read-only, permissions)
-    into a one-line message naming the path and exit code 1; usage errors exit 2."""
-    from typer._click.exceptions import ClickException
-
+    into a one-line message naming the path and exit code 1; usage errors exit 2 (typer shows them)."""
     from pipeline.errors import os_error_message
 
     try:
-        # standalone_mode=False: typer RETURNS the code of typer.Exit(n) instead of raising it.
-        code = app(args=argv, standalone_mode=False, prog_name="zipon")
+        # standalone mode: typer prints usage errors (exit 2) and turns typer.Exit(n) into SystemExit(n)
+        app(args=argv, prog_name="zipon")
+    except SystemExit as e:
+        return e.code if isinstance(e.code, int) else 0 if e.code is None else 1
     except ZiponError as err:
         console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False, soft_wrap=True)
         return 1
     except OSError as err:  # after ZiponError: MissingInputError is a FileNotFoundError too
         console.print(f"[red]error:[/red] {escape(os_error_message(err))}", highlight=False, soft_wrap=True)
         return 1
-    except typer.Exit as e:
-        return e.exit_code
-    except typer.Abort:
-        console.print("aborted")
-        return 130
-    except ClickException as e:  # usage errors: typer's own message and exit code 2
-        e.show()
-        return e.exit_code
-    return code if isinstance(code, int) else 0
+    return 0
 
 
 def entry() -> None:

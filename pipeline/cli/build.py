@@ -154,7 +154,7 @@ def ingest(
 ):
     """Ingest one raw log or dataset folder into DATA/artifacts/SCENE/frames.zarr (with its manifest).
 
-    Examples: `zipon ingest robot.mcap --scene kitchen` · `zipon ingest ../shared/data/real/tum_fr1_rpy_head30 --scene tum --format tum`
+    Examples: `zipon ingest robot.mcap --scene kitchen` · `zipon ingest rgbd_dataset_freiburg1_desk --scene desk --format tum`
     """
     from pipeline.config import parse_params
     from pipeline.runner import run_many

@@ -15,7 +15,7 @@ from rich.markup import escape
 from rich.table import Table
 
 app = typer.Typer(
-    add_completion=False,
+    add_completion=True,
     no_args_is_help=True,
     pretty_exceptions_show_locals=False,
     rich_markup_mode="markdown",
@@ -33,6 +33,7 @@ class Globals:
     manifests_dir: Optional[Path] = None
     overrides: tuple[str, ...] = ()
     quiet: bool = False
+    command: str = ""  # the command being run, as typed: "status", "goals export" (set by the groups' callbacks)
 
     def workspace(self):
         from pipeline.paths import Workspace
@@ -52,8 +53,25 @@ class Globals:
 G = Globals()
 
 
+def _print_version(value: bool) -> None:
+    if value:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            out.print(f"zipon {version('zipon')}", highlight=False)
+        except PackageNotFoundError:  # run from a source tree that was never installed
+            out.print("zipon (not installed: no package metadata; pip install -e . records it)", highlight=False)
+        raise typer.Exit()
+
+
+def subcommand(ctx: typer.Context) -> None:
+    """A group's callback: record which command of it runs (``G.command``: "goals export")."""
+    G.command = f"{ctx.info_name} {ctx.invoked_subcommand}"
+
+
 @app.callback()
 def _globals(
+    ctx: typer.Context,
     params: Optional[Path] = typer.Option(None, "--params", "-p", help="params file (default ./params.yaml)"),
     data_dir: Optional[str] = typer.Option(
         None, "--data-dir", envvar="ZIPON_DATA",
@@ -65,9 +83,17 @@ def _globals(
     overrides: list[str] = typer.Option(
         [], "--set", "-S", help="override a param for this run, e.g. -S simulate.frames=100 (repeatable)"
     ),
-    quiet: bool = typer.Option(False, "--quiet", "-q", metavar="", help="no progress bars"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", metavar="", help="warnings and errors only, no progress bars"),
+    verbose: int = typer.Option(0, "--verbose", "-v", count=True, metavar="", show_default=False,
+                                help="more detail: -v debug messages, -vv also DVC's and dask's own"),
+    version: bool = typer.Option(False, "--version", metavar="", is_eager=True, callback=_print_version,
+                                 help="print zipon's version and exit"),
 ):
+    from pipeline import logs
+
     G.params, G.data_dir, G.manifests_dir, G.overrides, G.quiet = params, data_dir, manifests_dir, tuple(overrides), quiet
+    G.command = ctx.invoked_subcommand or ""
+    logs.configure(-1 if quiet else verbose, console)
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -98,15 +124,12 @@ def remote_root_ready(ws, params) -> None:
     """On an object-store data root (:mod:`pipeline.fsroot`): refuse the commands that would write into it outside
     the stages, and for ``status`` / ``verify`` mirror every published stage into the local cache first (digests
     checked). Commands that read artifacts mirror the scenes they open themselves (:meth:`zipon.Dataset.mirror`)."""
-    from typer._click.globals import get_current_context
-
     from pipeline.errors import ConfigError
     from pipeline.fsroot import pull_all
     from pipeline.runner import plan
     from stages import STAGES
 
-    context = get_current_context(silent=True)
-    command = " ".join(context.command_path.split()[1:]) if context is not None else "(no command)"
+    command = G.command or "(no command)"
     if command in REMOTE_REFUSED:
         raise ConfigError(f"--data-dir {ws.remote}: zipon {command} {REMOTE_REFUSED[command]}")
     if command not in REMOTE_COMMANDS:

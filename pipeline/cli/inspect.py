@@ -8,7 +8,7 @@ from typing import Optional
 import typer
 from rich.table import Table
 
-from pipeline.cli.common import G, app, console, out, print_eval, run_stages
+from pipeline.cli.common import G, app, console, out, print_eval, run_stages, subcommand
 from pipeline.errors import ZiponError
 
 
@@ -68,6 +68,7 @@ goals_app = typer.Typer(help="Review and edit goals: export for people, import t
                         "Example: `zipon goals export sim_00 -o goals.yaml`",
                         no_args_is_help=True)
 app.add_typer(goals_app, name="goals")
+goals_app.callback()(subcommand)
 
 
 @goals_app.command("export")
@@ -315,6 +316,7 @@ def recon_eval(
 encoders_app = typer.Typer(help="Open-vocabulary encoders: list them, check that one loads and runs. "
                            "Example: `zipon encoders check --which vlmap`", no_args_is_help=True)
 app.add_typer(encoders_app, name="encoders")
+encoders_app.callback()(subcommand)
 
 
 @encoders_app.command("list")

@@ -2,15 +2,19 @@
 ``param_keys`` leaves its config unchanged, changing one inside changes the digest; settings in ``run`` and
 ``query`` are in no stage's keys; per-scene entries count only for their own scene."""
 
+from pathlib import Path
 from types import UnionType
 from typing import Any, Literal, Union, get_args, get_origin
 
 import pytest
 from pydantic import BaseModel, ValidationError
 
-from pipeline.config import Params, digest_value, parse_params, project
+import yaml
+
+from pipeline.config import Params, digest_value, params_yaml, parse_params, project
 from stages import STAGES
 
+REPO = Path(__file__).resolve().parents[2]
 SCENES = {"s0": {"source": "simulate"}, "r0": {"source": "logs/r0.mcap", "format": "mcap"}}
 
 
@@ -125,10 +129,23 @@ def test_goal_edits_count_only_for_their_scene():
     assert spec.config_class().extra_inputs(edited, "r0") == {}
 
 
-def test_a_minimal_params_file_builds_simulated_scenes_with_the_oracle():
+def test_a_minimal_params_file_maps_simulated_scenes_with_simulated_perception():
     params = parse_params({"scenes": {"a": {"source": "simulate"}}})
-    config = STAGES["vlmap"].config_class().from_params(params, "a")
-    assert config.encoder == "oracle"
+    assert STAGES["vlmap"].config_class().from_params(params, "a").encoder == "simulated_lseg"
+    assert STAGES["cfmap"].config_class().from_params(params, "a").encoder == "simulated_cf"
+    oracle = parse_params({"scenes": {"a": {"source": "simulate"}}, "encoders": {"simulated": "oracle"}})
+    assert STAGES["vlmap"].config_class().from_params(oracle, "a").encoder == "oracle"  # only when chosen
+
+
+def test_the_shipped_params_file_is_the_defaults():
+    """``zipon params --defaults`` and the shipped params.yaml agree on every key but ``scenes``."""
+    shipped = yaml.safe_load((REPO / "params.yaml").read_text())
+    defaults = yaml.safe_load(params_yaml(parse_params({"scenes": {"sim_00": {"source": "simulate"}}})))
+    shipped.pop("scenes"), defaults.pop("scenes")
+    differ = {f"{section}.{key}" for section in shipped.keys() | defaults.keys()
+              for key in (shipped.get(section) or {}).keys() | (defaults.get(section) or {}).keys()
+              if (shipped.get(section) or {}).get(key, "absent") != (defaults.get(section) or {}).get(key, "absent")}
+    assert differ == set()
 
 
 def test_the_task_facts_have_one_home_read_by_goals_and_routes():

@@ -1,3 +1,6 @@
+import logging
+
+import pytest
 
 from pipeline.cli import app, main
 
@@ -119,3 +122,42 @@ def test_python_dash_m_runs_the_same_cli():
                           env={"COLUMNS": "200", "PATH": ""}, timeout=60)
     assert done.returncode == 0, done.stderr
     assert all(f" {name} " in done.stdout for name in ("run", "demo", "query", "eval", "goals", "encoders"))
+
+
+def test_version_comes_from_the_package_metadata(capsys):
+    from importlib.metadata import version
+
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.strip() == f"zipon {version('zipon')}"
+
+
+def test_shell_completion_script(capsys):
+    assert main(["--show-completion", "bash"]) == 0
+    script = capsys.readouterr().out
+    assert "_zipon_completion()" in script and "_ZIPON_COMPLETE=complete_bash" in script
+
+
+@pytest.mark.parametrize("flags, zipon_level, dvc_level", [
+    (["-q"], logging.WARNING, logging.WARNING), ([], logging.INFO, logging.WARNING),
+    (["-v"], logging.DEBUG, logging.WARNING), (["-vv"], logging.DEBUG, logging.INFO),
+])
+def test_quiet_and_verbose_set_the_logging_levels(tmp_path, capsys, flags, zipon_level, dvc_level):
+    """The library logs (logger ``zipon``), the CLI picks the level; DVC's own info ("Updating lock file") only
+    with -vv."""
+    (tmp_path / "params.yaml").write_text("scenes: {a: {source: simulate}}\n")
+    assert main([*flags, "-p", str(tmp_path / "params.yaml"), "params"]) == 0
+    assert logging.getLogger("zipon").level == zipon_level
+    assert logging.getLogger("dvc").level == logging.getLogger("distributed").level == dvc_level
+
+
+def test_a_stage_message_is_logged_and_shown_unless_quiet(capsys):
+    from pipeline import logs
+
+    logs.configure(0)
+    logs.get_logger("stages").info("%s/%s: %s", "a", "ingest", "read 3 frames")
+    logs.get_logger("stages").debug("hidden at info")
+    assert capsys.readouterr().err == "a/ingest: read 3 frames\n"
+    logs.configure(-1)
+    logs.get_logger("stages").info("not shown with -q")
+    logs.get_logger("stages").warning("shown")
+    assert capsys.readouterr().err == "warning: shown\n"
