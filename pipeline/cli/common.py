@@ -46,7 +46,7 @@ class Globals:
         ws = self.workspace()
         params = load_params(ws.params_path, self.overrides)
         if ws.remote is not None:
-            remote_root_ready(ws, params)
+            remote_root_ready(ws, params, self.command)
         return ws, params
 
 
@@ -120,7 +120,7 @@ REMOTE_REFUSED = {
 }
 
 
-def remote_root_ready(ws, params) -> None:
+def remote_root_ready(ws, params, command: str) -> None:
     """On an object-store data root (:mod:`pipeline.fsroot`): refuse the commands that would write into it outside
     the stages, and for ``status`` / ``verify`` mirror every published stage into the local cache first (digests
     checked). Commands that read artifacts mirror the scenes they open themselves (:meth:`zipon.Dataset.mirror`)."""
@@ -129,7 +129,7 @@ def remote_root_ready(ws, params) -> None:
     from pipeline.runner import plan
     from stages import STAGES
 
-    command = G.command or "(no command)"
+    command = command or "(no command)"
     if command in REMOTE_REFUSED:
         raise ConfigError(f"--data-dir {ws.remote}: zipon {command} {REMOTE_REFUSED[command]}")
     if command not in REMOTE_COMMANDS:

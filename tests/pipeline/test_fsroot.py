@@ -203,19 +203,15 @@ def test_commands_that_would_write_the_data_root_outside_the_stages_refuse_an_ob
 
 
 def test_a_command_not_classified_for_object_stores_is_refused(tmp_path):
-    from typer._click import Context
-    from typer.core import TyperCommand as Command
-
     from pipeline.cli.common import remote_root_ready
     from pipeline.errors import ConfigError
 
     (tmp_path / "params.yaml").write_text(PARAMS)
     ws = Workspace.resolve(tmp_path / "params.yaml", data_dir="s3://bucket/x")
-    with Context(Command("newcmd"), parent=Context(Command("zipon"), info_name="zipon"), info_name="newcmd"):
-        with pytest.raises(ConfigError, match=r"--data-dir s3://bucket/x: zipon newcmd works on a local data "
-                           r"root only; on an object store zipon run, stage, .* work. After one of them the local "
-                           r"mirror is "):
-            remote_root_ready(ws, load_params(ws.params_path))
+    with pytest.raises(ConfigError, match=r"--data-dir s3://bucket/x: zipon newcmd works on a local data "
+                       r"root only; on an object store zipon run, stage, .* work. After one of them the local "
+                       r"mirror is "):
+        remote_root_ready(ws, load_params(ws.params_path), "newcmd")
 
 
 def test_every_command_says_what_it_does_on_an_object_store():
