@@ -309,7 +309,7 @@ def incremental_rerun(params_path: Path, root: Path, scene: str, stage: str, app
     from pipeline.frames import FrameStore
     from pipeline.maps.build import MAP_CONFIGS, build_map
     from pipeline.maps.store import FORMAT_VERSION
-    from pipeline.runner import limit_native_threads
+    from pipeline.process import limit_native_threads
     from pipeline.store import artifact_attrs, content_digest
 
     params = load_params(params_path)

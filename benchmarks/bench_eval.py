@@ -60,7 +60,8 @@ def build(root: Path, n_scenes: int, frames: int, rebuild: bool = False, stages:
     they are (any code change makes them stale to ``zipon run``, and rebuilding ten scenes takes long):
     ``rebuild`` runs the pipeline on them, which reruns what is stale; ``stages`` reruns only those stages (forced,
     e.g. goals and routes after their format changed)."""
-    from pipeline.runner import plan, run_many
+    from pipeline.stagegraph import plan
+    from pipeline.runner import run_many
     from stages import STAGES
 
     root.mkdir(parents=True, exist_ok=True)

@@ -54,7 +54,7 @@ def status(
     """
     from rich.markup import escape
 
-    from pipeline.runner import plan, staleness
+    from pipeline.stagegraph import plan, staleness
     from stages import STAGES
 
     ws, params = G.load()

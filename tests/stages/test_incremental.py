@@ -14,7 +14,8 @@ from pipeline.geometry import Intrinsics
 from pipeline.manifest import Manifest
 from pipeline.paths import Workspace
 from pipeline.ros2 import Ros2LogWriter
-from pipeline.runner import input_digests, run_stage
+from pipeline.stagegraph import input_digests
+from pipeline.runner import run_stage
 from stages import STAGES
 from tests.fixtures.recon_scenes import box_room_gt, box_room_poses, render_frames
 
