@@ -37,7 +37,7 @@ from _common import emit
 from orion_eval.agents import AGENTS
 from orion_eval.run import run_eval
 from orion_eval.user import FEEDBACK_SETTINGS
-from pipeline.config import load_params
+from pipeline.paramsfile import load_params
 from pipeline.paths import Workspace
 
 METHODS = list(AGENTS)  # every registered agent, in the paper's table order

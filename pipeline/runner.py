@@ -24,7 +24,8 @@ from typing import Any, Callable, Iterator
 
 from pipeline import __version__
 from pipeline import codedeps, logs
-from pipeline.config import Params, RunParams, StageConfig, digest_value
+from pipeline.config import Params, RunParams
+from pipeline.stageconfig import StageConfig, digest_value
 from pipeline.errors import StageError, ZiponError, os_error_message
 from pipeline.manifest import Manifest, OutputRecord
 from pipeline.paths import ARTIFACTS, Workspace

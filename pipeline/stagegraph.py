@@ -16,7 +16,8 @@ from pathlib import Path
 from typing import Any, Callable
 
 from pipeline import codedeps
-from pipeline.config import Params, StageConfig, canonical_json, digest_value, project
+from pipeline.config import Params
+from pipeline.stageconfig import StageConfig, canonical_json, digest_value, project
 from pipeline.errors import MissingInputError, ZiponError
 from pipeline.manifest import Manifest
 from pipeline.paths import Workspace

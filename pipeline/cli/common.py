@@ -41,7 +41,7 @@ class Globals:
         return Workspace.resolve(self.params, self.data_dir, self.manifests_dir)
 
     def load(self):
-        from pipeline.config import load_params
+        from pipeline.paramsfile import load_params
 
         ws = self.workspace()
         params = load_params(ws.params_path, self.overrides)

@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from pipeline.config import load_params, params_yaml, parse_params
+from pipeline.paramsfile import load_params, params_yaml, parse_params
 from pipeline.dvcfile import render_dvc_yaml
 from pipeline.manifest import Manifest
 from pipeline.paths import Workspace

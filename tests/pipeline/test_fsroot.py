@@ -14,7 +14,7 @@ import s3fs
 import zarr
 
 from pipeline.cli import main
-from pipeline.config import load_params
+from pipeline.paramsfile import load_params
 from pipeline.errors import LockedError, StageError
 from pipeline.fsroot import MANIFEST_KEY, RemoteRoot, reclaim_guard, remote_stage, version_key
 from pipeline.manifest import Manifest

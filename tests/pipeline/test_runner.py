@@ -8,7 +8,7 @@ import time
 import pytest
 import zarr
 
-from pipeline.config import load_params
+from pipeline.paramsfile import load_params
 from pipeline.errors import ConfigError
 from pipeline.manifest import Manifest
 from pipeline.stagegraph import plan, staleness

@@ -2,7 +2,7 @@ import shutil
 
 import pytest
 
-from pipeline.config import load_params
+from pipeline.paramsfile import load_params
 from pipeline.stagegraph import plan
 from pipeline.runner import run_many
 from pipeline.verify import content_staleness, locate_corruption, scenes_on_disk, verify_all

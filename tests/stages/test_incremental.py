@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import yaml
 
-from pipeline.config import param_value, parse_params
+from pipeline.paramsfile import parse_params
+from pipeline.stageconfig import param_value
 from pipeline.frames import FrameStore
 from pipeline.geometry import Intrinsics
 from pipeline.manifest import Manifest
