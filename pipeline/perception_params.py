@@ -16,7 +16,9 @@ from __future__ import annotations
 
 from typing import Annotated, Optional
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
+
+from pipeline.section import Section
 
 CellSize = tuple[Annotated[int, Field(gt=0)], Annotated[int, Field(gt=0)]]  # (height, width)
 
@@ -35,14 +37,7 @@ PUBLISHED = {
 }
 
 
-class _Section(BaseModel):
-    """Unknown keys are errors, values are immutable, no NaN / infinity (like :class:`pipeline.config.Section`,
-    which imports this module and so cannot be its base)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-
-class _PerceptionParams(_Section):
+class _PerceptionParams(Section):
     """What both simulated perception models share: the text space, the seed and the class confusions."""
 
     embeddings: Optional[str] = Field(
@@ -133,7 +128,7 @@ class SimulatedCFParams(_PerceptionParams):
     )
 
 
-class DetectorParams(_Section):
+class DetectorParams(Section):
     """Simulated open-vocabulary detector (GroundingDINO-like boxes + verification) on the ego view, used by
     the CoW and ORION agents instead of ground-truth visibility. Not a trained model."""
 

@@ -38,7 +38,7 @@ def built_scene(tmp_path_factory):
     Returns ``(Workspace, Params)``; tests must not modify its artifacts.
     """
     from pipeline.cli import main
-    from pipeline.config import load_params
+    from pipeline.paramsfile import load_params
     from pipeline.paths import Workspace
 
     root = tmp_path_factory.mktemp("smoke_ws")

@@ -54,7 +54,7 @@ def status(
     """
     from rich.markup import escape
 
-    from pipeline.runner import plan, staleness
+    from pipeline.stagegraph import plan, staleness
     from stages import STAGES
 
     ws, params = G.load()
@@ -156,7 +156,7 @@ def ingest(
 
     Examples: `zipon ingest robot.mcap --scene kitchen` · `zipon ingest rgbd_dataset_freiburg1_desk --scene desk --format tum`
     """
-    from pipeline.config import parse_params
+    from pipeline.paramsfile import parse_params
     from pipeline.runner import run_many
     from stages import STAGES
 
@@ -183,7 +183,7 @@ def params_cmd(
 
     Examples: `zipon params --defaults` · `zipon params --write` (after upgrading zipon)
     """
-    from pipeline.config import parse_params, params_yaml
+    from pipeline.paramsfile import parse_params, params_yaml
 
     if defaults:
         params = parse_params({"scenes": {"sim_00": {"source": "simulate"}}})

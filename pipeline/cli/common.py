@@ -41,7 +41,7 @@ class Globals:
         return Workspace.resolve(self.params, self.data_dir, self.manifests_dir)
 
     def load(self):
-        from pipeline.config import load_params
+        from pipeline.paramsfile import load_params
 
         ws = self.workspace()
         params = load_params(ws.params_path, self.overrides)
@@ -126,7 +126,7 @@ def remote_root_ready(ws, params, command: str) -> None:
     checked). Commands that read artifacts mirror the scenes they open themselves (:meth:`zipon.Dataset.mirror`)."""
     from pipeline.errors import ConfigError
     from pipeline.fsroot import pull_all
-    from pipeline.runner import plan
+    from pipeline.stagegraph import plan
     from stages import STAGES
 
     command = command or "(no command)"
@@ -171,7 +171,8 @@ def run_stages(scenes: list[str], stages_wanted: list[str] | None, force: bool, 
     """Run the plan; then record what is built in dvc.lock (not for `zipon stage`, which `dvc repro` calls
     while it holds DVC's lock and records the result itself)."""
     from pipeline.errors import ConfigError
-    from pipeline.runner import plan, run_many
+    from pipeline.stagegraph import plan
+    from pipeline.runner import run_many
     from stages import STAGES
 
     ws, params = G.load()

@@ -6,11 +6,11 @@ from pathlib import Path
 import pytest
 import yaml
 
-from pipeline.config import load_params, params_yaml, parse_params
+from pipeline.paramsfile import load_params, params_yaml, parse_params
 from pipeline.dvcfile import render_dvc_yaml
 from pipeline.manifest import Manifest
 from pipeline.paths import Workspace
-from pipeline.runner import staleness
+from pipeline.stagegraph import staleness
 from stages import STAGES
 
 REPO = Path(__file__).resolve().parents[2]
@@ -66,7 +66,7 @@ def _dvc_stale(tmp_path, env) -> set[str]:
 
 
 def _zipon_stale(ws, params) -> set[str]:
-    from pipeline.runner import plan
+    from pipeline.stagegraph import plan
 
     return {f"{scene}/{stage}" for scene, stage in plan(STAGES, params, list(params.scenes))
             if staleness(ws, params, STAGES, STAGES[stage], scene)}

@@ -14,12 +14,13 @@ import s3fs
 import zarr
 
 from pipeline.cli import main
-from pipeline.config import load_params
+from pipeline.paramsfile import load_params
 from pipeline.errors import LockedError, StageError
 from pipeline.fsroot import MANIFEST_KEY, RemoteRoot, reclaim_guard, remote_stage, version_key
 from pipeline.manifest import Manifest
 from pipeline.paths import ARTIFACTS, Workspace, cache_dir, is_url
-from pipeline.runner import plan, run_many
+from pipeline.stagegraph import plan
+from pipeline.runner import run_many
 from pipeline.store import content_digest
 from tests.fixtures.toy_stages import TOY_STAGES
 

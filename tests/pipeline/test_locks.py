@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from pipeline.cli import main
-from pipeline.config import load_params
+from pipeline.paramsfile import load_params
 from pipeline.errors import LockedError
 from pipeline.locks import lock_holder, output_lock
 from pipeline.runner import run_stage

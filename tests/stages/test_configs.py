@@ -11,7 +11,10 @@ from pydantic import BaseModel, ValidationError
 
 import yaml
 
-from pipeline.config import Params, digest_value, params_yaml, parse_params, project
+from pipeline.config import GridParams, Params
+from pipeline.perception_params import DetectorParams, SimulatedCFParams, SimulatedLSegParams
+from pipeline.paramsfile import params_yaml, parse_params
+from pipeline.stageconfig import digest_value, project
 from stages import STAGES
 
 REPO = Path(__file__).resolve().parents[2]
@@ -205,3 +208,15 @@ def test_every_depth_range_is_checked_once_the_same_way(section, tmp_path, capsy
     assert main(["-p", str(p), "status"]) == 1
     err = " ".join(capsys.readouterr().err.split())
     assert f"{p}: {section}: depth_min_m (3) must be below depth_max_m (2)" in err
+
+
+@pytest.mark.parametrize("model", [DetectorParams, SimulatedLSegParams, SimulatedCFParams, GridParams])
+def test_every_params_model_is_equally_strict(model):
+    """One base class for every params model: a number given as a string or a boolean is refused everywhere."""
+    field = "seed" if "seed" in model.model_fields else "rows"
+    with pytest.raises(ValidationError, match="expected a number, got the string '3'"):
+        model(**{field: "3"})
+    with pytest.raises(ValidationError, match="expected a number, got true"):
+        model(**{field: True})
+    with pytest.raises(ValidationError, match="Extra inputs are not permitted"):
+        model(unknown_key=1)

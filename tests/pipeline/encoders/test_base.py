@@ -158,7 +158,7 @@ def test_choice_per_stage_and_simulated_override(params):
 
 
 def test_params_validation_names_the_key():
-    from pipeline.config import parse_params
+    from pipeline.paramsfile import parse_params
 
     with pytest.raises(ConfigError, match=r"encoders\.vlmap"):
         parse_params({"scenes": {}, "encoders": {"vlmap": "clipseg"}})
