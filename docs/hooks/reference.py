@@ -265,6 +265,15 @@ def cli_reference() -> str:
 
 # ----------------------------------------------------------------------------- mkdocs
 
+_ROLE = re.compile(r":(?:class|mod|func|meth|data|attr|exc):(?=<code>)")
+
+
+def on_page_content(html, page, config, files):
+    """Docstrings cite objects with reST roles (``:func:`x```); mkdocstrings renders the literal but keeps the role's
+    name before it. Drop the name (mkdocs ``on_page_content`` event)."""
+    return _ROLE.sub("", html)
+
+
 def on_files(files, config):
     """Add the two generated pages to the site (mkdocs ``on_files`` event)."""
     from mkdocs.structure.files import File
