@@ -101,3 +101,12 @@ def test_params_reference_states_defaults_and_constraints(reference):
     page = reference.params_reference()
     assert "| `cell_size_m` | float &gt; 0 (m) | `0.05` | cell edge, metres |" in page
     assert "| `image_transport` | \"raw\" \\| \"compressed\" | `\"raw\"` |" in page
+
+
+def test_pages_name_nothing_outside_the_repository():
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    assert len(pages) > 10
+    outside = re.compile(r"\.\./shared|\bDESIGN\.md\b|\bSTYLE\.md\b|\bissue \d+")
+    found = [f"{p.relative_to(ROOT)}: {m.group(0)}" for p in pages
+             for m in outside.finditer(p.read_text(encoding="utf-8"))]
+    assert not found, f"pages citing what a clone does not have: {found}"

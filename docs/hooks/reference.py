@@ -218,10 +218,14 @@ def _param_rows(command: Any, ctx: typer.Context) -> list[str]:
         else:
             name = ", ".join(f"`{n}`" for n in [*param.opts, *param.secondary_opts])
             kind = "flag" if param.is_flag else kind
+            if getattr(param, "count", False):  # -v, -vv: a flag counted
+                short = min(param.opts, key=len)
+                kind = f"flag, repeatable ({short}{short[-1]})"
         help_text = param.help or ""
         if getattr(param, "envvar", None):
             help_text += f" (environment: `{param.envvar}`)"
-        shown = None if callable(param.default) or getattr(param, "is_flag", False) else param.default
+        shown = None if (callable(param.default) or getattr(param, "is_flag", False)
+                         or getattr(param, "count", False)) else param.default
         default = "required" if param.required else ("" if shown in (None, (), []) else f"`{shown}`")
         rows.append(f"| {name} | {_cell(kind)} | {_cell(default)} | {_cell(help_text)} |")
     return rows
