@@ -8,6 +8,7 @@ calls the two functions directly.
 
 from __future__ import annotations
 
+import html
 import inspect
 import json
 import re
@@ -39,9 +40,20 @@ def _rst_to_md(text: str) -> str:
 
 
 def _cell(text: str) -> str:
-    """Text safe inside one Markdown table cell: one line, pipes and angle brackets escaped."""
-    text = " ".join(str(text).split())
-    return text.replace("|", "\\|").replace("<", "&lt;").replace(">", "&gt;")
+    """Text safe inside one Markdown table cell: one line, pipes and angle brackets escaped. A code span holding a
+    pipe or an angle bracket becomes HTML, since Markdown keeps escapes inside code spans literally."""
+    parts = " ".join(str(text).split()).split("`")
+    if len(parts) % 2 == 0:  # an unpaired backtick: no code spans
+        parts = ["'".join(parts)]
+    out = []
+    for i, part in enumerate(parts):
+        if i % 2 == 0:
+            out.append(part.replace("|", "\\|").replace("<", "&lt;").replace(">", "&gt;"))
+        elif any(ch in part for ch in "|<>"):
+            out.append("<code>" + html.escape(part).replace("|", "&#124;") + "</code>")
+        else:
+            out.append(f"`{part}`")
+    return "".join(out)
 
 
 def _doc(obj: Any) -> str:
@@ -166,8 +178,9 @@ def params_reference() -> str:
     out = ["# Params reference", "",
            "Every tunable of `params.yaml`, generated from the pydantic models that validate it "
            "(`pipeline.config.Params` and its sections) each time the docs are built. "
-           "`zipon params --defaults` prints the same defaults as a commented YAML file, and "
-           "`-S key=value` overrides one key for one run.", "",
+           "`zipon params --defaults` prints the same defaults as a commented YAML file, `zipon params --write` "
+           "completes a params file in place, and `-S key=value` overrides one key for one run (recorded in the "
+           "manifests).", "",
            "Types are strict: `true` is not a number, `\"3\"` is not a number, NaN and infinity are refused, "
            "and an unknown key is an error naming it. Each table lists the keys of the section in its heading "
            "(`grid` → `grid.cell_size_m`); the type column gives the constraints the value must meet and, in "
@@ -231,6 +244,18 @@ def _param_rows(command: Any, ctx: typer.Context) -> list[str]:
     return rows
 
 
+def _summary(command: Any) -> str:
+    """The first sentence of a command's help, without its examples."""
+    first = _rst_to_md(inspect.cleandoc(command.help or "")).split("\n\n", 1)[0]
+    first = re.split(r"\bExamples?:", first, maxsplit=1)[0]
+    return " ".join(first.split()).rstrip(" .") + "."
+
+
+def _anchor(words: list[str]) -> str:
+    """The id mkdocs' toc gives the heading `` `zipon goals export` ``."""
+    return "-".join(w.lower() for w in words)
+
+
 def cli_commands() -> list[str]:
     """Every command of the ``zipon`` CLI as its full name (``zipon``, ``zipon run``, ``zipon goals export``)."""
     from pipeline.cli import app
@@ -249,7 +274,11 @@ def cli_reference() -> str:
            "Exit codes: 0 success; 1 any failure (a stage failed, an artifact does not match its manifest, "
            "something is stale under `--check`, invalid params or input files, a held lock), always with a one-line "
            "message naming the file, key or topic; 2 a usage error (unknown option, missing argument)."]
-    for path, command in _walk(root, []):
+    commands = _walk(root, [])
+    out += ["", "| command | what it does |", "| --- | --- |"]
+    out += [f"| [`{' '.join(['zipon', *path])}`](#{_anchor(['zipon', *path])}) | {_cell(_summary(command))} |"
+            for path, command in commands[1:]]
+    for path, command in commands:
         full = " ".join(["zipon", *path])
         ctx = typer.Context(command, info_name=full)
         pieces = [re.sub(r"\{(\w+)\}", lambda m: m.group(1).upper(), p) for p in command.collect_usage_pieces(ctx)]
