@@ -173,7 +173,8 @@ def _params_section(model: type[BaseModel], path: str, depth: int, out: list[str
 def params_reference() -> str:
     """The params reference page: every section and key of ``params.yaml`` with its type, default, unit,
     constraints and description, read from the pydantic models."""
-    from pipeline.config import MOVED_KEYS, Params
+    from pipeline.config import Params
+    from pipeline.paramsfile import MOVED_KEYS
 
     out = ["# Params reference", "",
            "Every tunable of `params.yaml`, generated from the pydantic models that validate it "
