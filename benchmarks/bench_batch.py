@@ -90,7 +90,7 @@ def write_params(root: Path, scenes: int, frames: int, width: int, height: int) 
     return path
 
 
-ZIPON = ("import resource, sys; from pipeline.cli import main; code = main(sys.argv[1:]); "
+ZIPON = ("import resource, sys; from zipon.cli import main; code = main(sys.argv[1:]); "
          "kid = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss; me = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss; "
          "print('PEAK_RSS_KB', max(kid, me), file=sys.stderr); sys.exit(code)")
 

@@ -25,7 +25,7 @@ from pathlib import Path
 from _common import ROOT, emit
 
 TARGETS_S = {"--help": 1.0, "status": 1.0, "params": 1.0, "query": 1.5}
-ENTRY = "import sys; from pipeline.cli import main; sys.exit(main(sys.argv[1:]))"
+ENTRY = "import sys; from zipon.cli import main; sys.exit(main(sys.argv[1:]))"
 
 
 def run_once(cmd: list[str], cwd: Path, extra: tuple[str, ...] = ()) -> tuple[float, float, subprocess.CompletedProcess]:

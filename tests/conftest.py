@@ -37,7 +37,7 @@ def built_scene(tmp_path_factory):
 
     Returns ``(Workspace, Params)``; tests must not modify its artifacts.
     """
-    from pipeline.cli import main
+    from zipon.cli import main
     from pipeline.paramsfile import load_params
     from pipeline.paths import Workspace
 

@@ -11,7 +11,7 @@ import pytest
 import typer
 from pydantic import BaseModel
 
-from pipeline.cli import app
+from zipon.cli import app
 from pipeline.config import Params
 
 ROOT = Path(__file__).resolve().parents[1]

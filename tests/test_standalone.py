@@ -50,7 +50,7 @@ def zipon(root: Path, *args: str, timeout: float = 600) -> subprocess.CompletedP
     env = {**os.environ, "PYTHONPATH": str(root), "HF_HUB_OFFLINE": "1", "DVC_NO_ANALYTICS": "1",
            "ZIPON_CACHE": str(root.parent / "cache")}
     env.pop("ZIPON_DATA", None), env.pop("ZIPON_MANIFESTS", None)
-    return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], cwd=root, env=env, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "zipon.cli", *args], cwd=root, env=env, capture_output=True,
                           text=True, timeout=timeout)
 
 

@@ -1,7 +1,7 @@
 """MkDocs hook: the params reference and the CLI reference, generated at build time so they cannot drift.
 
 ``params_reference()`` walks the pydantic models of ``params.yaml`` (:class:`pipeline.config.Params` and every
-section below it) and ``cli_reference()`` walks the click command tree of the typer app (:data:`pipeline.cli.app`).
+section below it) and ``cli_reference()`` walks the click command tree of the typer app (:data:`zipon.cli.app`).
 ``on_files`` adds both pages to the site as ``reference/params.md`` and ``reference/cli.md``; ``tests/test_docs.py``
 calls the two functions directly.
 """
@@ -259,14 +259,14 @@ def _anchor(words: list[str]) -> str:
 
 def cli_commands() -> list[str]:
     """Every command of the ``zipon`` CLI as its full name (``zipon``, ``zipon run``, ``zipon goals export``)."""
-    from pipeline.cli import app
+    from zipon.cli import app
 
     return [" ".join(["zipon", *path]) for path, _ in _walk(typer.main.get_command(app), [])]
 
 
 def cli_reference() -> str:
     """The CLI reference page: every command with its usage, help text and options, read from the typer app."""
-    from pipeline.cli import app
+    from zipon.cli import app
 
     root = typer.main.get_command(app)
     out = ["# CLI reference", "",

@@ -76,7 +76,7 @@ def _zipon_stale(ws, params) -> set[str]:
 def test_zipon_run_leaves_dvc_with_nothing_to_do_and_both_name_the_same_stale_stages(tmp_path):
     """After `zipon run`, `dvc status` is clean and `dvc repro` runs nothing; after a params change both name
     the same stale stages."""
-    from pipeline.cli import main
+    from zipon.cli import main
 
     ws, params, env = _dvc_project(tmp_path, {"t0": {"source": "simulate"}}, frames=60,
                                    reconstruct={"voxel_size_m": 0.05}, encoders={"oracle": {"out_size": [30, 40]}})
@@ -114,7 +114,7 @@ def test_dvc_repro_runs_the_same_stages_offline(tmp_path):
 def test_a_folder_dvc_cannot_open_builds_and_says_why_dvc_lock_was_left(tmp_path, capsys):
     """A .dvc/ folder outside git (and without core.no_scm) is not a DVC project DVC can run: the run succeeds,
     says why dvc.lock was not written, and writes no dvc.yaml there."""
-    from pipeline.cli import main
+    from zipon.cli import main
 
     (tmp_path / ".dvc").mkdir()
     (tmp_path / "params.yaml").write_text("scenes:\n  a: {source: simulate}\n"

@@ -13,7 +13,7 @@ import pytest
 import s3fs
 import zarr
 
-from pipeline.cli import main
+from zipon.cli import main
 from pipeline.paramsfile import load_params
 from pipeline.errors import LockedError, StageError
 from pipeline.fsroot import MANIFEST_KEY, RemoteRoot, reclaim_guard, remote_stage, version_key
@@ -204,7 +204,7 @@ def test_commands_that_would_write_the_data_root_outside_the_stages_refuse_an_ob
 
 
 def test_a_command_not_classified_for_object_stores_is_refused(tmp_path):
-    from pipeline.cli.common import remote_root_ready
+    from zipon.cli.common import remote_root_ready
     from pipeline.errors import ConfigError
 
     (tmp_path / "params.yaml").write_text(PARAMS)
@@ -219,8 +219,8 @@ def test_every_command_says_what_it_does_on_an_object_store():
     """A new command must be classified (works there, or refused saying why) before it can meet an s3 root."""
     import typer
 
-    from pipeline.cli import app
-    from pipeline.cli.common import REMOTE_COMMANDS, REMOTE_REFUSED
+    from zipon.cli import app
+    from zipon.cli.common import REMOTE_COMMANDS, REMOTE_REFUSED
 
     root = typer.main.get_command(app)
     names = {f"{n} {sub}" if sub else n for n, cmd in root.commands.items()

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.cli import main
+from zipon.cli import main
 from pipeline.paramsfile import load_params
 from pipeline.errors import LockedError
 from pipeline.locks import lock_holder, output_lock

@@ -184,7 +184,7 @@ def test_the_task_facts_have_one_home_read_by_goals_and_routes():
                                     "radius; task.stop_radius_m is where walks to a ground-truth goal aim)"),
 ])
 def test_a_moved_task_key_is_an_error_naming_its_new_home(old, new, tmp_path, capsys):
-    from pipeline.cli import main
+    from zipon.cli import main
 
     p = tmp_path / "params.yaml"
     p.write_text("scenes:\n  a: {source: simulate}\n" + old + "\n")
@@ -195,7 +195,7 @@ def test_a_moved_task_key_is_an_error_naming_its_new_home(old, new, tmp_path, ca
 
 @pytest.mark.parametrize("section", ["simulate", "ingest", "reconstruct", "maps"])
 def test_every_depth_range_is_checked_once_the_same_way(section, tmp_path, capsys):
-    from pipeline.cli import main
+    from zipon.cli import main
     from pipeline.config import DepthRange
 
     base = _params()

@@ -137,7 +137,7 @@ def test_the_source_digest_covers_every_log_in_order(two_logs):
 # ----------------------------------------------------------------------------- errors through the CLI
 
 def _cli(tmp_path, scenes: dict, *args, capsys) -> tuple[int, str]:
-    from pipeline.cli import main
+    from zipon.cli import main
 
     raw = {"scenes": scenes, **PARAMS}
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw))

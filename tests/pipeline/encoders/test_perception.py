@@ -123,7 +123,7 @@ def test_wrong_embeddings_are_one_clear_error(tmp_path, array, raw, expect):
 
 @pytest.mark.parametrize("broken", ["missing", "shape"])
 def test_cli_names_the_key_and_the_file_and_exits_1(tmp_path, capsys, broken):
-    from pipeline.cli import main
+    from zipon.cli import main
 
     folder = tmp_path / "nowhere" if broken == "missing" else _embeddings_folder(tmp_path, np.ones((3, 8), np.float32))
     (tmp_path / "params.yaml").write_text("scenes: {a: {source: simulate}}\n"

@@ -1,7 +1,7 @@
 """The ``zipon`` command line. Only this package turns errors into messages and exit codes.
 
-:mod:`pipeline.cli.common` holds the app and what the commands share; importing :mod:`pipeline.cli.build` and
-:mod:`pipeline.cli.inspect` here registers their commands on it.
+:mod:`zipon.cli.common` holds the app and what the commands share; importing :mod:`zipon.cli.build` and
+:mod:`zipon.cli.inspect` here registers their commands on it.
 """
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import sys
 
 from rich.markup import escape
 
-from pipeline.cli import build, inspect
-from pipeline.cli.common import app, console
+from zipon.cli import build, inspect
+from zipon.cli.common import app, console
 from pipeline.errors import ZiponError
 
 __all__ = ["app", "build", "entry", "inspect", "main"]

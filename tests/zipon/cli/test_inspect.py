@@ -1,4 +1,4 @@
-"""The commands on built artifacts (pipeline/cli/inspect.py) on the session's tiny scene: one consistent CLI."""
+"""The commands on built artifacts (zipon/cli/inspect.py) on the session's tiny scene: one consistent CLI."""
 
 import json
 import math
@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.cli import main
+from zipon.cli import main
 
 
 def cli(ws, *args) -> int:
@@ -93,7 +93,7 @@ def test_query_without_candidates_says_why(built_scene, capsys):
 
 
 def test_no_candidates_reason_names_the_threshold_that_failed():
-    from pipeline.cli.inspect import no_candidates_reason
+    from zipon.cli.inspect import no_candidates_reason
     from pipeline.config import QueryParams
     from pipeline.geometry import GridSpec
     from pipeline.maps.query import QueryResult

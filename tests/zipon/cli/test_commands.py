@@ -2,7 +2,7 @@ import logging
 
 import pytest
 
-from pipeline.cli import app, main
+from zipon.cli import app, main
 
 
 def test_every_command_has_help_with_an_example(capsys):
@@ -114,11 +114,11 @@ def test_strict_params_types_name_the_key(tmp_path, capsys):
 
 
 def test_python_dash_m_runs_the_same_cli():
-    """`python -m pipeline.cli` is the `zipon` command (the package's commands register without an import cycle)."""
+    """`python -m zipon.cli` is the `zipon` command (the package's commands register without an import cycle)."""
     import subprocess
     import sys
 
-    done = subprocess.run([sys.executable, "-m", "pipeline.cli", "--help"], capture_output=True, text=True,
+    done = subprocess.run([sys.executable, "-m", "zipon.cli", "--help"], capture_output=True, text=True,
                           env={"COLUMNS": "200", "PATH": ""}, timeout=60)
     assert done.returncode == 0, done.stderr
     assert all(f" {name} " in done.stdout for name in ("run", "demo", "query", "eval", "goals", "encoders"))

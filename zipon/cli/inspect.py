@@ -8,7 +8,7 @@ from typing import Optional
 import typer
 from rich.table import Table
 
-from pipeline.cli.common import G, app, console, out, print_eval, run_stages, subcommand
+from zipon.cli.common import G, app, console, out, print_eval, run_stages, subcommand
 from pipeline.errors import ZiponError
 
 

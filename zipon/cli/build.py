@@ -10,7 +10,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from pipeline.cli.common import G, app, console, out, print_eval, print_outcomes, run_stages
+from zipon.cli.common import G, app, console, out, print_eval, print_outcomes, run_stages
 
 
 @app.command()

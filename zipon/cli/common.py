@@ -1,6 +1,6 @@
 """What every ``zipon`` command shares: the app, the global options (:data:`G`), the consoles, and the helpers
 that run the stage plan and print its outcomes and evaluation results. The commands live in
-:mod:`pipeline.cli.build` and :mod:`pipeline.cli.inspect`; :mod:`pipeline.cli` imports both and turns errors into
+:mod:`zipon.cli.build` and :mod:`zipon.cli.inspect`; :mod:`zipon.cli` imports both and turns errors into
 messages and exit codes."""
 
 from __future__ import annotations
