@@ -176,22 +176,6 @@ def _scene(name: str):
     return Dataset(ws, params)[name]
 
 
-def _parse_pose_deg(text: str) -> tuple[float, float, float]:
-    """``"x,y,yaw"`` (metres, metres, DEGREES) -> (x, y, yaw radians); InputDataError naming --pose otherwise."""
-    import math
-
-    from pipeline.errors import InputDataError
-
-    parts = [p for p in text.replace(" ", "").split(",") if p]
-    try:
-        if len(parts) != 3:
-            raise ValueError
-        x, y, yaw_deg = (float(p) for p in parts)
-    except ValueError:
-        raise InputDataError(f"got {text!r}", field="--pose", expected="x,y,yaw: metres, metres, degrees") from None
-    return x, y, math.radians(yaw_deg)
-
-
 def _object_keys(scene) -> dict[int, str]:
     """Ground-truth instance id -> object key (``chair_0``) from the scene's goals, when built."""
     if not scene.path("goals").exists():
@@ -245,10 +229,12 @@ def query(
     """
     import math
 
+    from pipeline.maps.query import parse_pose
+
     if levels is not None:  # checked like every params key (a ConfigError names query.levels and the choices)
         G.overrides = (*G.overrides, f"query.levels={levels}")
     sc = _scene(scene)
-    result = sc.map(map_name).query(text, _parse_pose_deg(pose) if pose else None)
+    result = sc.map(map_name).query(text, parse_pose(pose, degrees=True) if pose else None)
     keys = _object_keys(sc)
     if png:
         from pipeline.maps.render import render_query

@@ -49,7 +49,7 @@ def test_query_bad_inputs_exit_1_with_clear_messages(built_scene, capsys):
     assert cli(ws, "query", "nope", "chair") == 1
     assert "unknown scene 'nope'" in capsys.readouterr().err
     assert cli(ws, "query", "tiny", "chair", "--pose", "1,2") == 1
-    assert "field --pose: got '1,2' (expected x,y,yaw: metres, metres, degrees)" in capsys.readouterr().err
+    assert "field --pose: got '1,2' (expected x,y,yaw in metres, metres, degrees)" in capsys.readouterr().err
     assert cli(ws, "query", "tiny", "chair", "--pose", "1e4,0,0") == 1
     assert "lies off the map's grid" in capsys.readouterr().err
     assert cli(ws, "query", "tiny", "chair", "--map", "octomap") == 1

@@ -38,7 +38,7 @@ _TRIS = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 
 
 
 @dataclass
-class RenderedFrames:
+class RaycastFrames:
     """A block of ``B`` rendered frames."""
 
     rgb: np.ndarray  # (B,H,W,3) uint8
@@ -155,7 +155,7 @@ def texture(points: np.ndarray, normals: np.ndarray, code: np.ndarray) -> np.nda
     return out
 
 
-class SceneRenderer:
+class SceneRaycaster:
     """Renders RGB, z-depth and instance ids of a :class:`GTScene` for batches of camera poses."""
 
     def __init__(self, gt: GTScene, intrinsics: Intrinsics, *, nthreads: int = 0):
@@ -192,13 +192,13 @@ class SceneRenderer:
         return {"t_hit": hits["t_hit"].numpy(), "primitive_ids": hits["primitive_ids"].numpy(),
                 "normals": hits["primitive_normals"].numpy()}
 
-    def render(self, T_world_camera: np.ndarray) -> RenderedFrames:
+    def raycast(self, T_world_camera: np.ndarray) -> RaycastFrames:
         """Render poses ``(B,4,4)`` (``T_world_camera``, OpenCV optical) in one ray-casting call."""
         rays = self.rays(T_world_camera)
         hits = self.cast(rays)
         return self.shade(rays, hits)
 
-    def shade(self, rays: np.ndarray, hits: dict[str, np.ndarray]) -> RenderedFrames:
+    def shade(self, rays: np.ndarray, hits: dict[str, np.ndarray]) -> RaycastFrames:
         """Colour, depth and instance images from the hits of :meth:`rays`."""
         t = hits["t_hit"]
         prim = hits["primitive_ids"]
@@ -221,4 +221,4 @@ class SceneRenderer:
         rgb.reshape(-1, 3)[flat_hit] = (colour * 255.0 + 0.5).astype(np.uint8)
         instance = np.where(hit, self.instance[box], 0).astype(np.uint16)
         depth = np.where(hit, t, np.inf).astype(np.float32)
-        return RenderedFrames(rgb=rgb, depth_m=depth, instance=instance)
+        return RaycastFrames(rgb=rgb, depth_m=depth, instance=instance)

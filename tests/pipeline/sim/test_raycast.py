@@ -5,7 +5,7 @@ import numpy as np
 from pipeline.config import SimulateParams
 from pipeline.geometry import Intrinsics, backproject, camera_pose_from_base, transform_points
 from pipeline.scene_gt import Box, GTObject, GTRoom, GTScene
-from pipeline.sim import SceneRenderer, generate_scene, plan_actions
+from pipeline.sim import SceneRaycaster, generate_scene, plan_actions
 
 K = Intrinsics.from_hfov(160, 120, 90.0)
 
@@ -25,9 +25,9 @@ def _box_room() -> GTScene:
 def test_depth_equals_analytic_wall_distance():
     gt = _box_room()
     gt = gt.model_copy(update={"objects": []})
-    r = SceneRenderer(gt, K)
+    r = SceneRaycaster(gt, K)
     T = camera_pose_from_base(1.0, 2.0, 0.0, 0.88)  # facing +x: the wall face at x = 5.95
-    out = r.render(T[None])
+    out = r.raycast(T[None])
     d = out.depth_m[0]
     # The central rows/cols see only the east wall (a plane normal to the optical axis): z-depth 4.95 m.
     centre = d[36:72, 50:110]
@@ -48,7 +48,7 @@ def test_instance_pixels_backproject_into_their_boxes():
     gt = generate_scene("demo", SimulateParams())
     states, _ = plan_actions(gt, 0.18, 50)
     poses = np.stack([camera_pose_from_base(x, y, yaw, 0.88) for x, y, yaw in states[::25]])
-    out = SceneRenderer(gt, K).render(poses)
+    out = SceneRaycaster(gt, K).raycast(poses)
     seen = set()
     for i, T in enumerate(poses):
         pts = transform_points(T, backproject(out.depth_m[i], K).reshape(-1, 3))
@@ -64,10 +64,10 @@ def test_instance_pixels_backproject_into_their_boxes():
 
 def test_render_is_deterministic_and_batch_independent():
     gt = _box_room()
-    r = SceneRenderer(gt, K)
+    r = SceneRaycaster(gt, K)
     poses = np.stack([camera_pose_from_base(1.0, 2.0, a, 0.88) for a in (0.0, 0.3, -0.2)])
-    a = r.render(poses)
-    b = SceneRenderer(gt, K).render(poses[1:2])
+    a = r.raycast(poses)
+    b = SceneRaycaster(gt, K).raycast(poses[1:2])
     assert np.array_equal(a.rgb[1], b.rgb[0]) and np.array_equal(a.instance[1], b.instance[0])
     np.testing.assert_array_equal(a.depth_m[1], b.depth_m[0])
     assert (a.instance[0] == 7).sum() > 50  # the cube is in view straight ahead
