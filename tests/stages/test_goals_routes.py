@@ -183,11 +183,24 @@ def test_render_goals_and_routes(built):
 
     from pipeline.goals.render import render_goals
 
+    from pipeline.goals.store import Goals
+    from pipeline.pictures import label_colors
+
     tmp, _, _, recon, *_ = built
+    n_goals = len(Goals(tmp / "goals.zarr").goals)
+    colours = label_colors(np.arange(1, n_goals + 1)).reshape(-1, 3)
+    images = {}
     for what in ("goals", "routes"):
         png = render_goals(recon, tmp / "goals.zarr", tmp / "routes.zarr", what, tmp / f"{what}.png")
-        img = cv2.imread(str(png))
-        assert img is not None and img.shape[0] > 300 and img.shape[1] > 400
+        img = cv2.imread(str(png))[..., ::-1]  # RGB
+        assert img.shape[0] > 300 and img.shape[1] > 400
+        # every goal is drawn in its own colour (its filled footprint, its number's disc and its legend swatch)
+        drawn = [int(np.all(img == c, axis=-1).sum()) for c in colours]
+        assert min(drawn) >= 20, drawn
+        images[what] = img
+    # the routes picture adds each episode's path and start to the same goals
+    rows = min(len(images["goals"]), len(images["routes"])) - 100  # the map above the legends
+    assert np.any(images["goals"][:rows] != images["routes"][:rows], axis=-1).sum() > 200
 
 
 @pytest.mark.parametrize("max_goals", [4, 5])

@@ -123,7 +123,7 @@ def simulate(
 ):
     """Write procedural indoor scenes as ROS 2 MCAP logs (the embedded default data).
 
-    `zipon simulate --scenes 10 --frames 1400` gives the paper's ~14k frames. Build them with
+    Example: `zipon simulate --scenes 10 --frames 1400` gives the paper's ~14k frames. Build them with
     `zipon ingest DATA/raw/sim_00.mcap --scene sim_00`, or list them in params.yaml with `source: simulate`.
     """
     from pipeline.sim import simulate_scene

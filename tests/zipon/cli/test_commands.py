@@ -10,7 +10,8 @@ def test_every_command_has_help_with_an_example(capsys):
 
     def walk(group, prefix):
         for name, command in group.commands.items():
-            assert "zipon" in (command.help or ""), f"zipon {prefix}{name} --help lacks an example"
+            text = " ".join((command.help or "").split())
+            assert "Example" in text and f"`zipon {prefix}{name}" in text, f"zipon {prefix}{name} --help lacks an example"
             if hasattr(command, "commands"):
                 walk(command, f"{prefix}{name} ")
 
