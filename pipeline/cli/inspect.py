@@ -8,8 +8,7 @@ from typing import Optional
 import typer
 from rich.table import Table
 
-from pipeline.cli.common import G, app, console, out, print_eval, run_stages
-from pipeline.errors import ZiponError
+from pipeline.cli.common import G, app, console, out, print_eval, print_outcomes
 
 
 RENDERS = {
@@ -94,54 +93,24 @@ def goals_import(
 
     Example: `zipon goals import sim_00 sim_00_goals.yaml`
     """
-    from pipeline.dvcfile import sync_dvc_lock
-    from pipeline.goals.edits import edit_relpath, record_goals_edit, validate_edit
-    from pipeline.goals.schema import dump_document
-    from pipeline.store import remove, write_text_atomic
+    from pipeline.goals.edits import EditNotSaved, save_goals_edit, validate_edit
     from stages import STAGES
 
     sc = _scene(scene)
-    ws = sc.dataset.workspace
     doc = validate_edit(edit_file, sc.path("goals"))  # on an object store: the published goals, mirrored first
-    rel = edit_relpath(doc)
-    stored = ws.root / rel
-    created = [p for p in (stored.parent, stored) if not p.exists()]  # removed again if the import fails
-    write_text_atomic(stored, dump_document(doc, ".yaml"))
-    manifests = {stage: ws.manifest(scene, stage) for stage in ("goals", "routes")}
-    published = {stage: path.read_bytes() if path.is_file() else None for stage, path in manifests.items()}
-    before = G.overrides
-    G.overrides = (*before, f"goals.edits.{scene}={rel}")  # the rebuild sees the edit; params.yaml not yet
-    failure: Exception | None = None
-    try:  # dvc.lock follows params.yaml, so it is recorded below once the edit is in params.yaml
-        ok = run_stages([scene], ["goals", "routes"], False, "sync", record_dvc=False)
-    except Exception as err:  # noqa: BLE001 - re-raised below, after undoing what this command wrote
-        ok, failure = False, err
-    finally:
-        G.overrides = before
-    if ok:
-        try:
-            record_goals_edit(ws.params_path, scene, rel)
-        except (OSError, ZiponError) as err:
-            ok, failure = False, err
-    if not ok:
-        for path in reversed(created):
-            remove(path)
-        console.print(f"goals import failed: {ws.params_path.name} unchanged")
-        # a stage published with the edit before a later one failed is rebuilt without it (the same inputs
-        # and params as before give the same content)
-        rebuilt = [stage for stage, path in manifests.items()
-                   if (path.read_bytes() if path.is_file() else None) != published[stage]]
-        if rebuilt:
-            console.print(f"rebuilding {scene}'s {' and '.join(rebuilt)} without the edit")
-            run_stages([scene], rebuilt, False, "sync")
-        if failure is not None:
-            raise failure
-        raise typer.Exit(1)
-    out.print(f"stored {rel}; {ws.params_path.name} goals.edits.{scene} updated")
-    ws, params = G.load()
-    note = sync_dvc_lock(ws, params, STAGES, [(scene, "goals"), (scene, "routes")], G.overrides)
-    if note:
-        console.print(f"[dim]{note}[/dim]")
+    ws = sc.dataset.workspace
+    try:
+        saved = save_goals_edit(ws, scene, doc, STAGES, overrides=G.overrides, show_progress=not G.quiet)
+    except EditNotSaved as err:
+        if err.outcomes:
+            print_outcomes(err.outcomes)
+        if err.restored:
+            console.print(f"rebuilt {scene}'s {' and '.join(err.restored)} without the edit")
+        raise
+    print_outcomes(saved.outcomes)
+    out.print(f"stored {saved.path}; {ws.params_path.name} goals.edits.{scene} updated")
+    if saved.dvc_note:
+        console.print(f"[dim]{saved.dvc_note}[/dim]")
 
 
 @goals_app.command("export-navchat")
