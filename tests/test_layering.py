@@ -23,6 +23,8 @@ STAGES_IMPORT_ALLOWED = {
     "pipeline/cli/common.py": "by design (the CLI is a client of the stages)",
     "pipeline/cli/build.py": "by design (the CLI is a client of the stages)",
     "pipeline/cli/inspect.py": "by design (the CLI is a client of the stages)",
+    # saving on the annotation page rebuilds goals and routes through the stage registry, as goals import does
+    "zipon/annotate/server.py": "by design (a client of the stages, like the CLI)",
 }
 # Module-level import cycles that exist today, each with the issue item that removes it.
 MODULE_LEVEL_CYCLES_ALLOWED: dict[frozenset[str], str] = {}

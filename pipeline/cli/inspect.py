@@ -113,6 +113,44 @@ def goals_import(
         console.print(f"[dim]{saved.dvc_note}[/dim]")
 
 
+@app.command()
+def annotate(
+    scene: Optional[str] = typer.Argument(None, help="scene to open first (default: the first in params.yaml)"),
+    port: int = typer.Option(8765, "--port", min=1, max=65535, help="TCP port"),
+    host: str = typer.Option("127.0.0.1", "--host", help="address to listen on; any other than 127.0.0.1 / "
+                             "localhost needs the printed token in the URL"),
+):
+    """Serve a local web page to see a scene in metres and edit its objects, goals and feedback (saving is
+    `zipon goals import`'s transaction). Stop it with Ctrl-C.
+
+    Examples: `zipon annotate sim_00` · `zipon annotate --port 9000` · `zipon annotate --host 0.0.0.0`
+    """
+    import secrets
+    import socket
+
+    import uvicorn
+
+    from zipon.annotate.server import LOOPBACK, create_app
+
+    G.load()  # the params file is valid (and on an object store this command is refused, saying why)
+    token = None if host in LOOPBACK else secrets.token_urlsafe(24)
+    application = create_app(G.params, G.data_dir, G.manifests_dir, scene=scene, overrides=G.overrides,
+                             token=token, allowed_hosts=LOOPBACK if token is None else None)
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:  # a clear error, not uvicorn's
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind((host, port))
+        except OSError as err:
+            from pipeline.errors import ConfigError
+
+            raise ConfigError(f"--host {host} --port {port}: cannot listen there ({err.strerror}); pick another "
+                              f"--port") from None
+    shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+    url = f"http://{shown}:{port}/" + (f"?token={token}" if token else "") + (f"#{scene}" if scene else "")
+    out.print(f"zipon annotate: open {url}\n(Ctrl-C stops it)", soft_wrap=True)
+    uvicorn.run(application, host=host, port=port, log_level="warning")
+
+
 @goals_app.command("export-navchat")
 def goals_export_navchat(
     scene: str = typer.Argument(..., help="scene name"),
