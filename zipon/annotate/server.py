@@ -50,6 +50,7 @@ class Workbench:
         self.allowed_hosts = tuple(allowed_hosts) if allowed_hosts is not None else None
         self.max_body = max_body
         self._views: dict = {}
+        self._plays: dict = {}  # id -> zipon.annotate.play.PlaySession
         self._save = threading.Lock()
         self.default_scene = scene
         if scene is not None:  # an unknown scene fails at start, naming the known ones
@@ -328,7 +329,7 @@ def descriptive_warnings(doc, goals) -> list[dict]:
         for kind, words, has in (("colour", colours, obj.color_name.lower()), ("material", materials,
                                                                                 obj.material.lower())):
             said = sorted(w for w in words if re.search(rf"\b{re.escape(w)}\b", text))
-            if has and said and has not in said:
+            if has and said and not re.search(rf"\b{re.escape(has)}\b", text):
                 found.append({"field": f"goals[{i}].feedback.descriptive",
                               "message": f"says {', '.join(said)} but {obj.key}'s {kind} is {has}"})
     return found
@@ -491,6 +492,72 @@ def objects_save(request, wb, body):
             "next": f"in params.yaml: goals: {{objects: file, objects_files: {{{view.name}: {rel}}}}}"}
 
 
+# ----------------------------------------------------------------------------- play as the user
+
+MAX_PLAYS = 8  # episodes kept per server (the oldest finished one is dropped first)
+
+
+@endpoint()
+def agents(request, wb, body):
+    from orion_eval.agents import AGENTS
+
+    return {"agents": [{"name": name, "label": getattr(cls, "label", name)} for name, cls in AGENTS.items()]}
+
+
+@endpoint(write=True)
+def play_start(request, wb, body):
+    from orion_eval.agents import AGENTS
+    from zipon.annotate.play import PlaySession
+
+    scene = request.path_params["scene"]
+    view = wb.scene(scene)
+    method, goal, seed = body.get("method"), body.get("goal"), body.get("seed", 0)
+    if method not in AGENTS:
+        raise HTTPError(400, f"unknown agent {method!r}; choose from {list(AGENTS)}", "method")
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+        raise HTTPError(400, f"seed {seed!r} is not a non-negative integer", "seed")
+    if not isinstance(goal, str):
+        raise HTTPError(400, "give the goal id to play", "goal")
+    wb.refuse_if_locked(scene)
+    if len(wb._plays) >= MAX_PLAYS:
+        done = [k for k, p in wb._plays.items() if p.result is not None or p.error is not None]
+        if not done:
+            raise HTTPError(429, f"{MAX_PLAYS} episodes are running; finish one first", "method")
+        wb._plays.pop(done[0])
+    session = PlaySession(wb.workspace, view.scene.dataset.params, scene, method, goal, seed)
+    wb._plays[session.id] = session
+    session.wait(20.0)
+    return session.state()
+
+
+def _play(request, wb):
+    session = wb._plays.get(request.path_params["play"])
+    if session is None or session.scene != request.path_params["scene"]:
+        raise HTTPError(404, f"no episode {request.path_params['play']!r} is being played here", "play")
+    return session
+
+
+@endpoint()
+def play_state(request, wb, body):
+    return _play(request, wb).state()
+
+
+@endpoint(write=True)
+def play_reply(request, wb, body):
+    session = _play(request, wb)
+    text = body.get("text")
+    if not isinstance(text, str) or not text.strip() or len(text) > 2000:
+        raise HTTPError(400, "the reply must be text of 1 to 2000 characters", "text")
+    session.reply(text.strip())
+    session.wait(20.0)
+    return session.state()
+
+
+@endpoint()
+def play_ego(request, wb, body):
+    return _png(_play(request, wb).ego_png())
+
+
 # ----------------------------------------------------------------------------- the app
 
 def create_app(params=None, data_dir=None, manifests_dir=None, *, scene=None, overrides=(), token=None,
@@ -518,6 +585,11 @@ def create_app(params=None, data_dir=None, manifests_dir=None, *, scene=None, ov
         Route(s + "/objects", objects_get, methods=["GET"]),
         Route(s + "/objects", objects_save, methods=["PUT"]),
         Route(s + "/objects/validate", objects_validate, methods=["POST"]),
+        Route("/api/agents", agents),
+        Route(s + "/play", play_start, methods=["POST"]),
+        Route(s + "/play/{play}", play_state),
+        Route(s + "/play/{play}/reply", play_reply, methods=["POST"]),
+        Route(s + "/play/{play}/ego.png", play_ego),
         Mount("/static", StaticFiles(directory=STATIC), name="static"),
     ]
     app = Starlette(routes=routes)

@@ -7,7 +7,7 @@ const S = {
   view: { s: 40, ox: 0, oy: 0 },
   doc: null, etag: null, goal: -1, selectedObject: null,
   objects: null, object: -1, proposals: [], heatmap: null,
-  drawing: null, mode: null, route: null, routeFor: -1, clicked: null,
+  drawing: null, mode: null, play: null, route: null, routeFor: -1, clicked: null,
 };
 
 function el(tag, text, cls) {
@@ -96,6 +96,10 @@ function draw() {
     const [u, v] = toScreen(p.center_xy[0], p.center_xy[1]); ctx.fillStyle = "#ff7f00"; ctx.font = "bold 12px sans-serif"; ctx.fillText(`#${p.rank} ${p.score.toFixed(2)}`, u + 4, v - 4); });
   if (S.drawing && S.drawing.points.length) { poly(S.drawing.points, false); ctx.strokeStyle = "#1d6fd8"; ctx.lineWidth = 2; ctx.stroke();
     S.drawing.points.forEach(([x, y]) => { const [u, v] = toScreen(x, y); ctx.fillStyle = "#1d6fd8"; ctx.fillRect(u - 3, v - 3, 6, 6); }); }
+  if (S.play && S.play.poses.length) {
+    poly(S.play.poses.map((p) => [p[0], p[1]]), false); ctx.strokeStyle = "#0057b8"; ctx.lineWidth = 3; ctx.stroke();
+    startMark(S.play.pose, "#0057b8");
+  }
   if (S.clicked) { const [u, v] = toScreen(S.clicked[0], S.clicked[1]); ctx.strokeStyle = "#e00"; ctx.lineWidth = 2; ctx.beginPath(); ctx.arc(u, v, 7, 0, 2 * Math.PI); ctx.stroke(); }
   axes();
   scaleBar();
@@ -141,8 +145,13 @@ function highlightLandmarks() {
   const gl = S.doc.goals[S.goal], objects = objectShapes(), byKey = Object.fromEntries(objects.map((o) => [o.key, o]));
   const text = (gl.feedback.landmark || "").toLowerCase(), first = byKey[gl.objects[0]];
   if (!first || !text) return;
-  const named = objects.filter((o) => !gl.objects.includes(o.key) && (text.includes(o.key.toLowerCase()) || new RegExp(`\\b${o.cls.toLowerCase()}\\b`).test(text)));
-  const near = named.sort((a, b) => dist(a.mass_center, first.mass_center) - dist(b.mass_center, first.mass_center)).slice(0, 3);
+  // an object named by its key, else the nearest object of each class the text names
+  const others = objects.filter((o) => !gl.objects.includes(o.key))
+    .sort((a, b) => dist(a.mass_center, first.mass_center) - dist(b.mass_center, first.mass_center));
+  const near = others.filter((o) => text.includes(o.key.toLowerCase()));
+  new Set(others.map((o) => o.cls)).forEach((cls) => {
+    if (new RegExp(`\\b${cls.toLowerCase()}\\b`).test(text)) near.push(others.find((o) => o.cls === cls));
+  });
   near.forEach((o) => { poly(o.footprint); ctx.strokeStyle = "#d0008f"; ctx.lineWidth = 3; ctx.stroke();
     const [a, b] = [toScreen(...first.mass_center), toScreen(...o.mass_center)]; ctx.setLineDash([4, 4]); ctx.beginPath(); ctx.moveTo(...a); ctx.lineTo(...b); ctx.stroke(); ctx.setLineDash([]); });
 }
@@ -192,7 +201,7 @@ canvas.addEventListener("wheel", (e) => {
   S.view.s *= k; S.view.ox = e.offsetX - x * S.view.s; S.view.oy = e.offsetY + y * S.view.s; draw();
 }, { passive: false });
 
-function setMode(text) { S.mode = text; $("mode").textContent = text || ""; $("mode").style.display = text ? "block" : "none"; }
+function setMode(text, kind) { S.mode = text ? kind || "draw" : null; $("mode").textContent = text || ""; $("mode").style.display = text ? "block" : "none"; }
 
 async function click(pt) {
   const r3 = (v) => Math.round(v * 1000) / 1000;
@@ -301,7 +310,7 @@ $("goal-delete").addEventListener("click", () => {
   S.doc.goals.splice(S.goal, 1); S.goal = -1; $("goal-form").hidden = true; renderGoals(); draw(); validateGoals();
 });
 
-$("route-pick").addEventListener("click", () => { setMode("click the route's start on the map"); });
+$("route-pick").addEventListener("click", () => { setMode("click the route's start on the map", "route"); });
 $("route-use").addEventListener("click", () => {
   if (!S.route || !S.route.text) return;
   $("goal-form").procedural.value = S.route.text; readGoalForm(); validateGoals();
@@ -472,13 +481,55 @@ async function loadObjects() {
   renderObjects(); draw();
 }
 
+// ------------------------------------------------------------------ play as the user
+
+async function loadAgents() {
+  if ($("play-agent").options.length) return;
+  const r = await api("/api/agents");
+  if (!r.ok) { $("play-error").textContent = r.body.error; return; }
+  $("play-agent").replaceChildren(...r.body.agents.map((a) => { const o = el("option", a.label); o.value = a.name; return o; }));
+  $("play-goal").replaceChildren(...S.data.goals.map((g) => { const o = el("option", `${g.number}. ${g.name}`); o.value = g.id; return o; }));
+}
+
+function showPlay(st) {
+  S.play = st;
+  $("play-error").textContent = st.error || "";
+  const ego = $("play-ego"); ego.hidden = false; ego.src = scenePath(`/play/${st.id}/ego.png?step=${st.steps}`);
+  const res = st.result;
+  $("play-status").textContent = res
+    ? `episode over (${res.end}): ${res.success ? "success" : "failure"}, SPL ${res.spl.toFixed(2)}, SIT ${res.sit.toFixed(2)}, ${res.steps} steps, ${res.talk_turns} questions; stored with the human-answered episodes`
+    : `${st.instruction} · step ${st.steps} · ${st.status}`;
+  $("play-question").hidden = st.status !== "waiting";
+  if (st.question) { $("play-asks").textContent = st.question.text; $("play-suggestion").textContent = st.question.suggestion || "(none)"; }
+  $("play-dialogue").replaceChildren(...st.dialogue.map((d) => el("li", `${d.speaker} (step ${d.step}): ${d.text}`, d.speaker)));
+  draw();
+  if (st.status === "running") setTimeout(async () => { const r = await api(scenePath(`/play/${st.id}`)); if (r.ok) showPlay(r.body); }, 700);
+}
+
+$("play-start").addEventListener("click", async () => {
+  $("play-status").textContent = "the agent is walking …";
+  const r = await api(scenePath("/play"), { method: "POST", body: { method: $("play-agent").value, goal: $("play-goal").value, seed: Number($("play-seed").value) } });
+  if (!r.ok) { $("play-error").textContent = r.body.error; $("play-status").textContent = ""; return; }
+  $("play-reply").value = ""; showPlay(r.body);
+});
+$("play-suggest").addEventListener("click", () => { $("play-reply").value = $("play-suggestion").textContent; });
+$("play-send").addEventListener("click", async () => {
+  const text = $("play-reply").value;
+  $("play-status").textContent = "the agent is walking …";
+  $("play-question").hidden = true; S.play.status = "sent";
+  const r = await api(scenePath(`/play/${S.play.id}/reply`), { method: "POST", body: { text } });
+  if (!r.ok) { $("play-error").textContent = r.body.error; return; }
+  $("play-reply").value = ""; showPlay(r.body);
+});
+
 // ------------------------------------------------------------------ tabs, scenes, start
 
 document.querySelectorAll("nav button").forEach((b) => b.addEventListener("click", async () => {
   document.querySelectorAll("nav button").forEach((x) => x.classList.toggle("active", x === b));
-  ["goals", "objects", "views", "history"].forEach((t) => { $(`tab-${t}`).hidden = t !== b.dataset.tab; });
+  ["goals", "objects", "views", "history", "play"].forEach((t) => { $(`tab-${t}`).hidden = t !== b.dataset.tab; });
   if (b.dataset.tab === "objects" && !S.objects) await loadObjects();
   if (b.dataset.tab === "history") await loadHistory();
+  if (b.dataset.tab === "play") await loadAgents();
   if (b.dataset.tab !== "objects") { S.objects = null; S.object = -1; $("object-form").hidden = true; S.proposals = []; S.heatmap = null; }
   draw();
 }));
@@ -488,7 +539,7 @@ $("scene").addEventListener("change", () => { location.hash = $("scene").value; 
 window.addEventListener("resize", draw);
 
 async function loadScene(name, keepView) {
-  S.scene = name; status(`loading ${name} …`);
+  S.scene = name; status(`loading ${name} …`); delete document.body.dataset.ready;
   const r = await api(scenePath());
   if (!r.ok) { status(r.body.error); S.data = null; draw(); return; }
   S.data = r.body;
