@@ -127,6 +127,7 @@ def annotate(
     """
     import secrets
     import socket
+    import threading
 
     import uvicorn
 
@@ -148,6 +149,7 @@ def annotate(
     shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
     url = f"http://{shown}:{port}/" + (f"?token={token}" if token else "") + (f"#{scene}" if scene else "")
     out.print(f"zipon annotate: open {url}\n(Ctrl-C stops it)", soft_wrap=True)
+    threading.Thread(target=application.state.workbench.warm, name="annotate-warm", daemon=True).start()
     uvicorn.run(application, host=host, port=port, log_level="warning")
 
 

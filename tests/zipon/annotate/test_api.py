@@ -440,3 +440,54 @@ def test_a_failed_rebuild_is_reported_and_undone(own_root, monkeypatch):
     assert body["restored"] == ["goals"]
     assert (own_root / "params.yaml").read_bytes() == params_text and not (own_root / "goals_edits").exists()
     assert goals_doc(client)[1] == etag  # goals rebuilt without the edit: the same document
+
+
+# ----------------------------------------------------------------------------- play as the user
+
+def test_play_refuses_what_it_cannot_play(client, summary, shared_root):
+    before = tree_state(shared_root)
+    goal = summary["goals"][0]["id"]
+    url = f"/api/scenes/{SCENE}/play"
+    refused(client.post(url, json={"method": "telepathy", "goal": goal}, **W), 400, "unknown agent 'telepathy'")
+    refused(client.post(url, json={"method": "vlmap", "goal": "sofa_99"}, **W), 422, "no goal 'sofa_99'")
+    refused(client.post(url, json={"method": "vlmap", "goal": goal, "seed": -1}, **W), 400, "seed -1")
+    refused(client.post(url, json={"method": "vlmap", "goal": goal, "seed": True}, **W), 400, "seed True")
+    refused(client.post(url, json={"method": "vlmap", "goal": goal}), 403, "cross-origin write refused")
+    refused(client.get(f"{url}/abc123"), 404, "no episode 'abc123'")
+    refused(client.post(f"{url}/abc123/reply", json={"text": "No."}, **W), 404, "no episode 'abc123'")
+    assert tree_state(shared_root) == before
+    assert [a["name"] for a in client.get("/api/agents").json()["agents"]][:2] == ["human", "cow"]
+
+
+def test_play_an_episode_answering_as_the_user(own_root, summary):
+    client = make_client(own_root)
+    goal = next((g for g in summary["goals"] if g["type"] == "ambiguous"), summary["goals"][0])
+    state = client.post(f"/api/scenes/{SCENE}/play", json={"method": "vlmap", "goal": goal["id"]}, **W).json()
+    replies = 0
+    while state["status"] == "waiting" and replies < 10:
+        assert state["question"]["text"] and state["question"]["suggestion"]
+        refused(client.post(f"/api/scenes/{SCENE}/play/{state['id']}/reply", json={"text": "  "}, **W), 400,
+                "1 to 2000 characters")
+        state = client.post(f"/api/scenes/{SCENE}/play/{state['id']}/reply", json={"text": "No, it is by the TV."},
+                            **W).json()
+        replies += 1
+    assert state["status"] == "done", state
+    refused(client.post(f"/api/scenes/{SCENE}/play/{state['id']}/reply", json={"text": "hello"}, **W), 422,
+            "not waiting for a reply")
+    assert png(client.get(f"/api/scenes/{SCENE}/play/{state['id']}/ego.png")).ndim == 3
+    [record] = [json.loads(line) for line in (own_root / "data" / "eval" / "human" / f"{SCENE}.episodes.jsonl")
+                .read_text().splitlines()]
+    assert record["feedback"] == "human" and record["goal"] == goal["id"]
+    said = [d["text"] for d in record["log"]["dialogue"] if d["speaker"] == "user"]
+    assert said[:replies] == ["No, it is by the TV."] * replies
+    assert state["result"]["talk_turns"] == record["talk_turns"] == replies + record["success"]
+
+
+def test_warm_reads_the_first_scene_before_the_page_asks(shared_root):
+    from zipon.annotate.scene import LAYERS
+
+    wb = make_client(shared_root).app.state.workbench
+    assert wb._views == {}
+    wb.warm()
+    view = wb._views[SCENE]
+    assert {("layer", name) for name in LAYERS} <= set(view._cache) and "recon" in view._cache
