@@ -88,15 +88,20 @@ class SceneView:
         return [{"id": rid, "type": r.type, "name": r.name, "owners": list(r.owners),
                  "polygon": [list(p) for p in outlines.get(rid, [])]} for rid, r in rooms.items()]
 
+    def _observed_rc(self) -> tuple[int, int, int, int]:
+        """``(row0, row1, col0, col1)`` (ends excluded) of the observed cells: the whole grid when none are."""
+        rows, cols = np.nonzero(self.recon.occupancy > 0)
+        if rows.size == 0:
+            return 0, self.recon.grid.rows, 0, self.recon.grid.cols
+        return int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
+
     def _observed_xy(self) -> list[float]:
         """``(x_min, x_max, y_min, y_max)`` of the observed cells (what the page fits to), metres."""
         grid = self.recon.grid
-        rows, cols = np.nonzero(self.recon.occupancy > 0)
-        if rows.size == 0:
-            return list(grid.extent_xy)
+        r0, r1, c0, c1 = self._get("observed_rc", self._observed_rc)
         x0, y1 = grid.origin_xy
         c = grid.cell_size_m
-        return [x0 + cols.min() * c, x0 + (cols.max() + 1) * c, y1 - (rows.max() + 1) * c, y1 - rows.min() * c]
+        return [x0 + c0 * c, x0 + c1 * c, y1 - r1 * c, y1 - r0 * c]
 
     def _room_outlines(self) -> dict[str, list]:
         """Room id -> floor outline: the simulator's ground truth, else the scene's objects file."""
@@ -219,22 +224,27 @@ class SceneView:
         import base64
 
         result = self.scene.map(which).query(text)
-        heat = result.heatmap
+        grid = result.grid
+        r0, r1, c0, c1 = self._get("observed_rc", self._observed_rc)  # the heatmap is sent for the observed box
+        heat = result.heatmap[r0:r1, c0:c1]
         rgba = np.zeros((*heat.shape, 4), np.uint8)
-        finite = np.isfinite(heat)
         rgba[..., :3] = cv2.applyColorMap((np.clip(np.nan_to_num(heat), 0, 1) * 255).astype(np.uint8),
                                           cv2.COLORMAP_INFERNO)[..., ::-1]
-        rgba[..., 3] = np.where(finite, 170, 0)
+        rgba[..., 3] = np.where(np.isfinite(heat), 170, 0)
+        x0, y1 = grid.origin_xy
+        cell = grid.cell_size_m
         proposals = []
         for c in result.candidates:
-            mask = (result.labels == c.label).astype(np.uint8)
-            outline = _outline(mask, result.grid)
+            b0, b1, b2, b3 = c.bbox_rc
+            mask = (result.labels[b0:b2, b1:b3] == c.label).astype(np.uint8)
+            outline = _outline(mask, grid, offset_rc=(b0, b1))
             if len(outline) >= 3:
                 proposals.append({"rank": c.obj_id, "score": round(float(c.score), 3),
                                   "area_m2": round(float(c.area_m2), 3), "center_xy": [float(v) for v in c.center_xy],
                                   "footprint": outline})
         return {"text": text, "map": which, "seconds": round(result.seconds, 3), "proposals": proposals,
-                "heatmap": "data:image/png;base64," + base64.b64encode(_png(rgba)).decode()}
+                "heatmap": "data:image/png;base64," + base64.b64encode(_png(rgba)).decode(),
+                "heatmap_extent_xy": [x0 + c0 * cell, x0 + c1 * cell, y1 - r1 * cell, y1 - r0 * cell]}
 
     # ------------------------------------------------------------------------- procedural preview
 
@@ -283,15 +293,16 @@ def _rounded(xy: np.ndarray) -> list[list[float]]:
     return [[round(float(a), 3), round(float(b), 3)] for a, b in np.asarray(xy).reshape(-1, 2)]
 
 
-def _outline(mask: np.ndarray, grid, up: int = 4) -> list[list[float]]:
-    """The outer contour of the largest blob of ``mask`` as a counter-clockwise world polygon along the cells' edges
-    (traced on the mask upsampled ``up`` times, simplified to a quarter cell)."""
+def _outline(mask: np.ndarray, grid, up: int = 4, offset_rc: tuple[int, int] = (0, 0)) -> list[list[float]]:
+    """The outer contour of the largest blob of ``mask`` (whose cell (0, 0) is the grid's ``offset_rc``) as a
+    counter-clockwise world polygon along the cells' edges (traced on the mask upsampled ``up`` times, simplified to
+    a quarter cell)."""
     big = cv2.resize(np.pad(mask, 1), None, fx=up, fy=up, interpolation=cv2.INTER_NEAREST)
     contours, _ = cv2.findContours(big, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     if not contours:
         return []
     c = cv2.approxPolyDP(max(contours, key=cv2.contourArea), 1.0, True).reshape(-1, 2).astype(np.float64)
-    c = (c + 0.5) / up - 1  # (col, row) in cells of the unpadded grid, at the cells' edges
+    c = (c + 0.5) / up - 1 + np.array([offset_rc[1], offset_rc[0]])  # (col, row) on the grid, at the cells' edges
     x0, y1 = grid.origin_xy
     xy = np.stack([x0 + c[:, 0] * grid.cell_size_m, y1 - c[:, 1] * grid.cell_size_m], -1)
     if len(xy) >= 3:
@@ -313,5 +324,5 @@ def _png(img: np.ndarray) -> bytes:
         bgr = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
     else:
         bgr = img
-    ok, buf = cv2.imencode(".png", bgr)
+    ok, buf = cv2.imencode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, 1])  # speed over size: served locally
     return buf.tobytes()

@@ -63,7 +63,10 @@ function draw() {
   const [u0, v0] = toScreen(x0, y1), [u1, v1] = toScreen(x1, y0);
   ctx.imageSmoothingEnabled = false;
   if (img && img.complete) ctx.drawImage(img, u0, v0, u1 - u0, v1 - v0);
-  if (S.heatmap && S.heatmap.complete) ctx.drawImage(S.heatmap, u0, v0, u1 - u0, v1 - v0);
+  if (S.heatmap && S.heatmap.complete) {
+    const [hx0, hx1, hy0, hy1] = S.heatmapExtent, [a0, b0] = toScreen(hx0, hy1), [a1, b1] = toScreen(hx1, hy0);
+    ctx.drawImage(S.heatmap, a0, b0, a1 - a0, b1 - b0);
+  }
   if ($("show-rooms").checked) {
     S.data.rooms.forEach((r, i) => { if (r.polygon.length < 3) return; poly(r.polygon); ctx.strokeStyle = hue(i, S.data.rooms.length); ctx.lineWidth = 2; ctx.setLineDash([6, 4]); ctx.stroke(); ctx.setLineDash([]);
       const c = centroid(r.polygon), [u, v] = toScreen(c[0], c[1]); ctx.fillStyle = "#333"; ctx.font = "12px sans-serif"; ctx.fillText(r.name || r.id, u - 20, v); });
@@ -439,6 +442,7 @@ $("propose").addEventListener("click", async () => {
   if (!r.ok) { $("objects-error").textContent = r.body.error; status(""); return; }
   $("objects-error").textContent = "";
   S.proposals = r.body.proposals;
+  S.heatmapExtent = r.body.heatmap_extent_xy;
   S.heatmap = new Image(); S.heatmap.onload = draw; S.heatmap.src = r.body.heatmap;
   status(`${r.body.proposals.length} proposals for "${r.body.text}" (${r.body.seconds} s)`);
   renderProposals();
