@@ -230,7 +230,7 @@ class SceneView:
         rgba = np.zeros((*heat.shape, 4), np.uint8)
         rgba[..., :3] = cv2.applyColorMap((np.clip(np.nan_to_num(heat), 0, 1) * 255).astype(np.uint8),
                                           cv2.COLORMAP_INFERNO)[..., ::-1]
-        rgba[..., 3] = np.where(np.isfinite(heat), 170, 0)
+        rgba[..., 3] = np.where(np.isfinite(heat), 30 + 190 * np.clip(np.nan_to_num(heat), 0, 1), 0).astype(np.uint8)
         x0, y1 = grid.origin_xy
         cell = grid.cell_size_m
         proposals = []

@@ -121,6 +121,13 @@ def test_the_page_end_to_end(page, served, tmp_path):
         pg.mouse.click(*at(pg, *xy))
     pg.click("#draw-done")
     assert pg.locator("#object-list li").count() == n + 2
+    pg.keyboard.down("Shift")  # shift + drag moves the drawn footprint 0.5 m east
+    pg.mouse.move(*at(pg, 6.3, 3.25))
+    pg.mouse.down()
+    pg.mouse.move(*at(pg, 6.8, 3.25), steps=5)
+    pg.mouse.up()
+    pg.keyboard.up("Shift")
+    corners = [(x + 0.5, y) for x, y in corners]
     pg.fill("#object-form input[name=color_name]", "red")
     pg.fill("#objects-path", "objects/drawn.yaml")
     pg.click("#objects-save")

@@ -188,16 +188,30 @@ function inside(pt, polygon) {
 }
 
 let drag = null;
-canvas.addEventListener("mousedown", (e) => { drag = { x: e.offsetX, y: e.offsetY, moved: false }; });
+canvas.addEventListener("mousedown", (e) => {
+  drag = { x: e.offsetX, y: e.offsetY, moved: false, object: null };
+  // shift + drag on the selected object of the objects file moves its footprint
+  const o = S.objects && S.object >= 0 ? S.objects.objects[S.object] : null;
+  if (e.shiftKey && o && inside(toWorld(e.offsetX, e.offsetY), o.footprint)) drag.object = o;
+});
 canvas.addEventListener("mousemove", (e) => {
   const [x, y] = toWorld(e.offsetX, e.offsetY);
   $("cursor").textContent = `x ${x.toFixed(2)} m, y ${y.toFixed(2)} m`;
   if (!drag) return;
   const dx = e.offsetX - drag.x, dy = e.offsetY - drag.y;
   if (Math.abs(dx) + Math.abs(dy) > 3) drag.moved = true;
-  if (drag.moved) { S.view.ox += dx; S.view.oy += dy; drag.x = e.offsetX; drag.y = e.offsetY; draw(); }
+  if (drag.moved && drag.object) {
+    const mx = dx / S.view.s, my = -dy / S.view.s, r3 = (v) => Math.round(v * 1000) / 1000;
+    drag.object.footprint = drag.object.footprint.map(([x, y]) => [r3(x + mx), r3(y + my)]);
+    drag.object.mass_center = centroid(drag.object.footprint);
+    drag.x = e.offsetX; drag.y = e.offsetY; draw();
+  } else if (drag.moved) { S.view.ox += dx; S.view.oy += dy; drag.x = e.offsetX; drag.y = e.offsetY; draw(); }
 });
-canvas.addEventListener("mouseup", (e) => { const d = drag; drag = null; if (d && !d.moved) click(toWorld(e.offsetX, e.offsetY)); });
+canvas.addEventListener("mouseup", (e) => {
+  const d = drag; drag = null;
+  if (d && d.object && d.moved) { selectObject(S.object); validateObjects(); return; }
+  if (d && !d.moved) click(toWorld(e.offsetX, e.offsetY));
+});
 canvas.addEventListener("wheel", (e) => {
   e.preventDefault();
   const k = Math.exp(-e.deltaY * 0.0015), [x, y] = toWorld(e.offsetX, e.offsetY);
