@@ -179,6 +179,9 @@ def test_the_page_end_to_end(page, served, tmp_path):
     params_text = (root / "params.yaml").read_bytes()
     edits = sorted((root / "goals_edits").iterdir())
     pg.click("#goal-list li >> nth=1")
+    pg.fill("#goal-form input[name=name]", '<img id="injected" src="x">')  # user text is shown as text
+    pg.wait_for_function("() => document.querySelector('#goal-list li.selected').textContent.startsWith('<img')")
+    assert pg.locator("#injected").count() == 0
     first = exported["goals"][0]["name"]
     pg.fill("#goal-form input[name=name]", first.upper())
     pg.wait_for_function("() => document.getElementById('goal-error').textContent.includes('not unique')")
