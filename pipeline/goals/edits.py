@@ -77,7 +77,7 @@ def record_goals_edit(params_path: Path, scene: str, rel_path: str) -> None:
     from ruamel.yaml import YAML
     from ruamel.yaml.comments import CommentedMap
 
-    from pipeline.config import parse_params
+    from pipeline.paramsfile import parse_params
 
     params_path = Path(params_path)
     rt = YAML()  # round-trip: keeps comments and layout
@@ -132,8 +132,9 @@ def save_goals_edit(ws, scene: str, doc: GoalsDocument, stages: dict, *, overrid
     values. On failure the stored file is removed, a stage already republished with the edit is rebuilt without it
     (same inputs and params, so the same content), and :class:`EditNotSaved` (or the error that stopped the
     rebuild) is raised."""
-    from pipeline.config import load_params
-    from pipeline.runner import plan, run_many
+    from pipeline.paramsfile import load_params
+    from pipeline.runner import run_many
+    from pipeline.stagegraph import plan
     from pipeline.store import remove
 
     rel = edit_relpath(doc)

@@ -59,7 +59,7 @@ class Workbench:
                 raise ConfigError(f"unknown scene {scene!r}; params scenes: {sorted(known)}")
 
     def dataset(self):
-        from pipeline.config import load_params
+        from pipeline.paramsfile import load_params
         from zipon.api import Dataset
 
         return Dataset(self.workspace, load_params(self.workspace.params_path, self.overrides))
@@ -78,7 +78,7 @@ class Workbench:
         """Read the first scene's summary and layers and import what a save imports (torch and open3d, through the
         stage runner's thread limits), so the first page and the first save do not wait for them. ``zipon
         annotate`` runs it in a thread while the server starts."""
-        from pipeline.runner import limit_native_threads
+        from pipeline.process import limit_native_threads
         from zipon.annotate.scene import LAYERS
 
         ds = self.dataset()

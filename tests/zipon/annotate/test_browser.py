@@ -71,7 +71,7 @@ def at(pg, x: float, y: float) -> tuple[float, float]:
 
 
 def goals_export(root) -> dict:
-    from pipeline.cli import main
+    from zipon.cli import main
 
     out = root / "exported.yaml"
     assert main(["-q", "-p", str(root / "params.yaml"), "goals", "export", SCENE, "-o", str(out)]) == 0

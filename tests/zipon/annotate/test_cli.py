@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import socket
 
-from pipeline.cli import main
+from zipon.cli import main
 
 
 def test_unknown_scene(shared_root, capsys):
