@@ -552,12 +552,21 @@ document.querySelectorAll("nav button").forEach((b) => b.addEventListener("click
   draw();
 }));
 ["show-objects", "show-goals", "show-routes", "show-trajectory", "show-rooms"].forEach((id) => $(id).addEventListener("change", draw));
-$("layer").addEventListener("change", () => { S.layer = $("layer").value; draw(); });
+$("layer").addEventListener("change", async () => { S.layer = $("layer").value; await loadLayer(S.layer); draw(); });
 $("scene").addEventListener("change", () => { location.hash = $("scene").value; loadScene($("scene").value); });
 window.addEventListener("resize", draw);
 
+function loadLayer(name) {
+  return new Promise((done) => {
+    if (S.layers[name]) { done(); return; }
+    const img = new Image(); img.onload = () => { draw(); done(); }; img.onerror = done;
+    img.src = scenePath(`/layers/${name}.png`); S.layers[name] = img;
+  });
+}
+
 async function loadScene(name, keepView) {
   S.scene = name; status(`loading ${name} …`); delete document.body.dataset.ready;
+  const goalsAsked = api(scenePath("/goals"));  // in parallel with the summary
   const r = await api(scenePath());
   if (!r.ok) { status(r.body.error); S.data = null; draw(); return; }
   S.data = r.body;
@@ -566,17 +575,14 @@ async function loadScene(name, keepView) {
   $("layer").value = S.layer;
   $("propose-map").replaceChildren(...S.data.maps.map((m) => el("option", m)));
   S.layers = {};
-  const loaded = S.data.layers.map((l) => new Promise((done) => {
-    const img = new Image(); img.onload = () => { draw(); done(); }; img.onerror = done;
-    img.src = scenePath(`/layers/${l}.png`); S.layers[l] = img;
-  }));
-  const g = await api(scenePath("/goals"));
+  const first = loadLayer(S.layer);  // the others are fetched when chosen
+  const g = await goalsAsked;
   S.doc = g.ok ? g.body.document : null; S.etag = g.ok ? g.body.digest : null; S.goal = -1;
   $("goal-form").hidden = true; $("goal-error").textContent = g.ok ? "" : g.body.error; $("goal-warnings").replaceChildren();
   $("goals-save").disabled = !g.ok;
   renderGoals();
   if (!keepView) fit();
-  await loaded[S.data.layers.indexOf(S.layer)];
+  await first;
   draw();
   status(`${name}: ${S.data.objects.length} objects, ${S.data.goals.length} goals, ${S.data.routes.length} routes` + (S.data.ground_truth ? " (ground truth)" : ""));
   document.body.dataset.ready = name;
