@@ -6,15 +6,19 @@
   ``<edits_dir>/<scene>-<digest>.yaml``; the returned path goes into ``goals.edits[scene]`` (see
   :func:`record_goals_edit`), so the goals stage applies it deterministically and a new edit changes
   the stage's params digest. Rerunning upstream stages keeps the edit as long as its objects exist.
+- :func:`save_goals_edit` is the whole transaction ``zipon goals import`` and ``zipon annotate`` run: store the
+  validated edit, rebuild goals and routes with it, then record it in the params file; when the rebuild fails,
+  everything it wrote is undone and :class:`EditNotSaved` says why.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
 
-from pipeline.errors import InputDataError
+from pipeline.errors import InputDataError, StageError
 from pipeline.goals.schema import (GoalsDocument, check_against_objects, document_digest, dump_document,
                                    load_document)
 from pipeline.goals.store import Goals
@@ -37,12 +41,17 @@ def validate_edit(edit_file: Path, goals_path: Path) -> GoalsDocument:
     Raises :class:`InputDataError` naming the file, the field path and the reason.
     """
     edit_file = Path(edit_file)
-    doc = load_document(edit_file)
+    return check_document(load_document(edit_file), goals_path, origin=edit_file)
+
+
+def check_document(doc: GoalsDocument, goals_path: Path, *, origin: Path | str | None = None) -> GoalsDocument:
+    """``doc`` checked against the scene in ``goals_path``: same scene, and every object and room it names exists
+    there (:class:`InputDataError` naming ``origin``, the field path and the reason)."""
     goals = Goals(goals_path)
     if doc.scene != goals.scene:
         raise InputDataError(f"document is for scene {doc.scene!r}, the goals store is scene {goals.scene!r}",
-                             path=edit_file, field="scene")
-    check_against_objects(doc, set(goals.objects), set(goals.document.rooms), path=edit_file)
+                             path=origin, field="scene")
+    check_against_objects(doc, set(goals.objects), set(goals.document.rooms), path=origin)
     return doc
 
 
@@ -88,3 +97,86 @@ def record_goals_edit(params_path: Path, scene: str, rel_path: str) -> None:
     text = buf.getvalue()
     parse_params(yaml.safe_load(text), origin=str(params_path))
     write_text_atomic(params_path, text)
+
+
+# ----------------------------------------------------------------------------- the import transaction
+
+REBUILT = ("goals", "routes")
+
+
+@dataclass(frozen=True)
+class SavedEdit:
+    """A goals edit stored, rebuilt into goals and routes, and recorded in the params file."""
+
+    scene: str
+    path: str  # the stored edit, relative to the params file's folder (the value of goals.edits.<scene>)
+    digest: str  # the document's digest (part of the stored file's name)
+    outcomes: tuple  # the rebuild's pipeline.runner.Outcome of goals and routes
+    dvc_note: str  # what happened to dvc.lock ("" when nothing needed saying)
+
+
+class EditNotSaved(StageError):
+    """The rebuild with the edit failed; the params file, the stored edits and the built goals and routes are as
+    they were. ``outcomes`` are the failed rebuild's, ``restored`` the stages rebuilt without the edit."""
+
+    def __init__(self, message: str, outcomes: tuple = (), restored: tuple[str, ...] = ()):
+        super().__init__(message)
+        self.outcomes, self.restored = outcomes, restored
+
+
+def save_goals_edit(ws, scene: str, doc: GoalsDocument, stages: dict, *, overrides: tuple[str, ...] = (),
+                    show_progress: bool = False, record_dvc: bool = True) -> SavedEdit:
+    """Store the validated ``doc`` content-addressed beside ``ws``'s params file, rebuild ``scene``'s goals and
+    routes with it (``stages``: the stage registry; each stage under its lock), then set ``goals.edits.<scene>`` in
+    the params file (comments kept) and record both stages in dvc.lock. ``overrides`` are the caller's ``--set``
+    values. On failure the stored file is removed, a stage already republished with the edit is rebuilt without it
+    (same inputs and params, so the same content), and :class:`EditNotSaved` (or the error that stopped the
+    rebuild) is raised."""
+    from pipeline.paramsfile import load_params
+    from pipeline.runner import run_many
+    from pipeline.stagegraph import plan
+    from pipeline.store import remove
+
+    rel = edit_relpath(doc)
+    stored = ws.root / rel
+    created = [p for p in (stored.parent, stored) if not p.exists()]  # removed again if the import fails
+    write_text_atomic(stored, dump_document(doc, ".yaml"))
+    manifests = {stage: ws.manifest(scene, stage) for stage in REBUILT}
+    published = {stage: _bytes(path) for stage, path in manifests.items()}
+
+    def rebuild(extra: tuple[str, ...]) -> list:
+        params = load_params(ws.params_path, (*overrides, *extra))
+        pairs = plan(stages, params, [scene], list(REBUILT))
+        return run_many(ws, params, stages, pairs, scheduler="sync", show_progress=show_progress)
+
+    outcomes: list = []
+    failure: Exception | None = None
+    try:  # the rebuild sees the edit through an override; the params file is written once it succeeded
+        outcomes = rebuild((f"goals.edits.{scene}={rel}",))
+        failed = [o for o in outcomes if o.status == "failed"]
+        if failed:
+            failure = EditNotSaved(f"{failed[0].scene}/{failed[0].stage}: {failed[0].error.splitlines()[0]}")
+        else:
+            record_goals_edit(ws.params_path, scene, rel)
+    except Exception as err:  # noqa: BLE001 - re-raised below, after undoing what this transaction wrote
+        failure = err
+    if failure is not None:
+        for path in reversed(created):
+            remove(path)
+        restored = tuple(stage for stage, path in manifests.items() if _bytes(path) != published[stage])
+        if restored:
+            rebuild(())
+        if isinstance(failure, EditNotSaved):
+            raise EditNotSaved(f"{failure}; {ws.params_path.name} unchanged", tuple(outcomes), restored) from None
+        raise failure
+    note = ""
+    if record_dvc:
+        from pipeline.dvcfile import sync_dvc_lock
+
+        params = load_params(ws.params_path, overrides)
+        note = sync_dvc_lock(ws, params, stages, [(scene, stage) for stage in REBUILT], overrides)
+    return SavedEdit(scene, rel, document_digest(doc), tuple(outcomes), note)
+
+
+def _bytes(path: Path) -> bytes | None:
+    return path.read_bytes() if path.is_file() else None

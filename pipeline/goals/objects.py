@@ -212,7 +212,11 @@ def validation_error(err: ValidationError, path: Path | str | None, prefix: str 
 
 def objects_from_file(path: Path, scene: str) -> ObjectSet:
     """A user file (YAML/JSON) with ``rooms`` and ``objects`` in the :class:`ObjectSet` layout."""
-    raw = read_structured(path)
+    return objects_from_data(read_structured(path), scene, path)
+
+
+def objects_from_data(raw: object, scene: str, path: Path | str | None = None) -> ObjectSet:
+    """:func:`objects_from_file`'s checks on data already read (``path`` names its origin in errors)."""
     if not isinstance(raw, dict):
         raise InputDataError("expected a mapping with 'objects' (and optional 'rooms')", path=path)
     raw = {"scene": scene, "source": "file", **raw}

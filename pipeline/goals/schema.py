@@ -131,7 +131,11 @@ def dump_document(doc: GoalsDocument, suffix: str) -> str:
 
 def load_document(path: Path) -> GoalsDocument:
     """Parse and validate a goals document; :class:`InputDataError` names the file, field and reason."""
-    raw = read_structured(path)
+    return document_from_data(read_structured(path), path)
+
+
+def document_from_data(raw: object, path: Path | str | None = None) -> GoalsDocument:
+    """:func:`load_document`'s checks on data already read (``path`` names its origin in errors)."""
     if not isinstance(raw, dict):
         raise InputDataError("expected a mapping (format, scene, rooms, objects, goals)", path=path)
     try:

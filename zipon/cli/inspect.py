@@ -8,8 +8,7 @@ from typing import Optional
 import typer
 from rich.table import Table
 
-from zipon.cli.common import G, app, console, out, print_eval, run_stages, subcommand
-from pipeline.errors import ZiponError
+from zipon.cli.common import G, app, console, out, print_eval, print_outcomes, subcommand
 
 
 RENDERS = {
@@ -95,54 +94,64 @@ def goals_import(
 
     Example: `zipon goals import sim_00 sim_00_goals.yaml`
     """
-    from pipeline.dvcfile import sync_dvc_lock
-    from pipeline.goals.edits import edit_relpath, record_goals_edit, validate_edit
-    from pipeline.goals.schema import dump_document
-    from pipeline.store import remove, write_text_atomic
+    from pipeline.goals.edits import EditNotSaved, save_goals_edit, validate_edit
     from stages import STAGES
 
     sc = _scene(scene)
-    ws = sc.dataset.workspace
     doc = validate_edit(edit_file, sc.path("goals"))  # on an object store: the published goals, mirrored first
-    rel = edit_relpath(doc)
-    stored = ws.root / rel
-    created = [p for p in (stored.parent, stored) if not p.exists()]  # removed again if the import fails
-    write_text_atomic(stored, dump_document(doc, ".yaml"))
-    manifests = {stage: ws.manifest(scene, stage) for stage in ("goals", "routes")}
-    published = {stage: path.read_bytes() if path.is_file() else None for stage, path in manifests.items()}
-    before = G.overrides
-    G.overrides = (*before, f"goals.edits.{scene}={rel}")  # the rebuild sees the edit; params.yaml not yet
-    failure: Exception | None = None
-    try:  # dvc.lock follows params.yaml, so it is recorded below once the edit is in params.yaml
-        ok = run_stages([scene], ["goals", "routes"], False, "sync", record_dvc=False)
-    except Exception as err:  # noqa: BLE001 - re-raised below, after undoing what this command wrote
-        ok, failure = False, err
-    finally:
-        G.overrides = before
-    if ok:
+    ws = sc.dataset.workspace
+    try:
+        saved = save_goals_edit(ws, scene, doc, STAGES, overrides=G.overrides, show_progress=not G.quiet)
+    except EditNotSaved as err:
+        if err.outcomes:
+            print_outcomes(err.outcomes)
+        if err.restored:
+            console.print(f"rebuilt {scene}'s {' and '.join(err.restored)} without the edit")
+        raise
+    print_outcomes(saved.outcomes)
+    out.print(f"stored {saved.path}; {ws.params_path.name} goals.edits.{scene} updated")
+    if saved.dvc_note:
+        console.print(f"[dim]{saved.dvc_note}[/dim]")
+
+
+@app.command()
+def annotate(
+    scene: Optional[str] = typer.Argument(None, help="scene to open first (default: the first in params.yaml)"),
+    port: int = typer.Option(8765, "--port", min=1, max=65535, help="TCP port"),
+    host: str = typer.Option("127.0.0.1", "--host", help="address to listen on; any other than 127.0.0.1 / "
+                             "localhost needs the printed token in the URL"),
+):
+    """Serve a local web page to see a scene in metres and edit its objects, goals and feedback (saving is
+    `zipon goals import`'s transaction). Stop it with Ctrl-C.
+
+    Examples: `zipon annotate sim_00` · `zipon annotate --port 9000` · `zipon annotate --host 0.0.0.0`
+    """
+    import secrets
+    import socket
+    import threading
+
+    import uvicorn
+
+    from zipon.annotate.server import LOOPBACK, create_app
+
+    G.load()  # the params file is valid (and on an object store this command is refused, saying why)
+    token = None if host in LOOPBACK else secrets.token_urlsafe(24)
+    application = create_app(G.params, G.data_dir, G.manifests_dir, scene=scene, overrides=G.overrides,
+                             token=token, allowed_hosts=LOOPBACK if token is None else None)
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:  # a clear error, not uvicorn's
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
-            record_goals_edit(ws.params_path, scene, rel)
-        except (OSError, ZiponError) as err:
-            ok, failure = False, err
-    if not ok:
-        for path in reversed(created):
-            remove(path)
-        console.print(f"goals import failed: {ws.params_path.name} unchanged")
-        # a stage published with the edit before a later one failed is rebuilt without it (the same inputs
-        # and params as before give the same content)
-        rebuilt = [stage for stage, path in manifests.items()
-                   if (path.read_bytes() if path.is_file() else None) != published[stage]]
-        if rebuilt:
-            console.print(f"rebuilding {scene}'s {' and '.join(rebuilt)} without the edit")
-            run_stages([scene], rebuilt, False, "sync")
-        if failure is not None:
-            raise failure
-        raise typer.Exit(1)
-    out.print(f"stored {rel}; {ws.params_path.name} goals.edits.{scene} updated")
-    ws, params = G.load()
-    note = sync_dvc_lock(ws, params, STAGES, [(scene, "goals"), (scene, "routes")], G.overrides)
-    if note:
-        console.print(f"[dim]{note}[/dim]")
+            probe.bind((host, port))
+        except OSError as err:
+            from pipeline.errors import ConfigError
+
+            raise ConfigError(f"--host {host} --port {port}: cannot listen there ({err.strerror}); pick another "
+                              f"--port") from None
+    shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+    url = f"http://{shown}:{port}/" + (f"?token={token}" if token else "") + (f"#{scene}" if scene else "")
+    out.print(f"zipon annotate: open {url}\n(Ctrl-C stops it)", soft_wrap=True)
+    threading.Thread(target=application.state.workbench.warm, name="annotate-warm", daemon=True).start()
+    uvicorn.run(application, host=host, port=port, log_level="warning")
 
 
 @goals_app.command("export-navchat")

@@ -1,0 +1,45 @@
+"""A copy of the tiny built scene for the annotation server's tests, and a client that talks to it as the page does
+(its own origin on writes)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+SCENE = "tiny"
+ORIGIN = "http://127.0.0.1"
+
+
+def copy_built(ws, dst: Path) -> Path:
+    dst.mkdir(parents=True)
+    shutil.copy(ws.params_path, dst / "params.yaml")
+    shutil.copytree(ws.data_dir, dst / "data", ignore=shutil.ignore_patterns("renders", ".tmp", "*.lock"))
+    shutil.copytree(ws.manifests_dir, dst / "manifests")
+    return dst
+
+
+def tree_state(root: Path) -> dict[str, tuple]:
+    """Every file under ``root`` -> (size, mtime ns); lock files and renders left out (not built content)."""
+    return {p.relative_to(root).as_posix(): (p.stat().st_size, p.stat().st_mtime_ns) for p in sorted(root.rglob("*"))
+            if p.is_file() and not p.name.endswith(".lock") and "renders" not in p.parts}
+
+
+def make_client(root: Path, **kw):
+    from starlette.testclient import TestClient
+
+    from zipon.annotate import app
+
+    return TestClient(app(root / "params.yaml", root / "data", root / "manifests", **kw), base_url=ORIGIN)
+
+
+@pytest.fixture(scope="module")
+def shared_root(built_scene, tmp_path_factory) -> Path:
+    """A copy only read (tests that write take their own)."""
+    return copy_built(built_scene[0], tmp_path_factory.mktemp("annotate") / "ws")
+
+
+@pytest.fixture
+def own_root(built_scene, tmp_path) -> Path:
+    return copy_built(built_scene[0], tmp_path / "ws")

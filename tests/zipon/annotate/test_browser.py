@@ -1,0 +1,218 @@
+"""The annotation page in a real headless browser (Debian's chromium driven by playwright): open the scene, look at
+the frames that saw an object, accept a map proposal, draw a footprint, save the objects file, create a goal with
+descriptive and procedural feedback and save it (goals export then holds it and routes.zarr was rebuilt), see an
+invalid edit refused inline with nothing saved, play one episode as the user. A screenshot of each state is written
+under the test's tmp folder.
+
+Playwright over Selenium: one pip package (the Python client and its driver; its own browser downloads are never
+used: ``executable_path`` points at Debian's chromium), auto-waiting locators and no chromedriver version to match.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import socket
+import threading
+import time
+
+import pytest
+import yaml
+
+from tests.zipon.annotate.conftest import SCENE
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+
+
+@pytest.fixture
+def served(own_root):
+    """The app on a free port of 127.0.0.1, served by uvicorn in a thread for the test's length."""
+    import uvicorn
+
+    from zipon.annotate import app
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(app(own_root / "params.yaml", own_root / "data", own_root / "manifests"),
+                                           host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not server.started:
+        assert time.monotonic() < deadline and thread.is_alive(), "the server did not start"
+        time.sleep(0.05)
+    yield f"http://127.0.0.1:{port}/", own_root
+    server.should_exit = True
+    thread.join(timeout=10)
+
+
+@pytest.fixture
+def page(served):
+    if not shutil.which(CHROMIUM) and not shutil.os.path.exists(CHROMIUM):
+        pytest.skip("Debian's chromium is not installed (setup.sh installs it)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        pg = browser.new_page(viewport={"width": 1400, "height": 850})
+        errors = []
+        pg.on("pageerror", lambda e: errors.append(str(e)))
+        yield pg
+        browser.close()
+        assert errors == [], errors
+
+
+def at(pg, x: float, y: float) -> tuple[float, float]:
+    """The page's pixel of world point (x, y) metres."""
+    u, v = pg.evaluate(f"() => toScreen({x}, {y})")
+    box = pg.locator("#map").bounding_box()
+    return box["x"] + u, box["y"] + v
+
+
+def goals_export(root) -> dict:
+    from zipon.cli import main
+
+    out = root / "exported.yaml"
+    assert main(["-q", "-p", str(root / "params.yaml"), "goals", "export", SCENE, "-o", str(out)]) == 0
+    return yaml.safe_load(out.read_text())
+
+
+@pytest.mark.slow
+def test_the_page_end_to_end(page, served, tmp_path):
+    from pipeline.goals.objects import objects_from_file
+    from pipeline.manifest import Manifest
+
+    url, root = served
+    shots = tmp_path / "screenshots"
+    shots.mkdir()
+    pg = page
+    pg.goto(url)
+    pg.wait_for_selector(f"body[data-ready={SCENE}]")
+    data = pg.evaluate("() => S.data")
+    assert pg.locator("#goal-list li").count() == len(data["goals"]) > 0
+    pg.screenshot(path=str(shots / "1_scene.png"))
+
+    # the frames that saw an object
+    obj = next(o for o in data["objects"] if o["cls"] == "couch") if any(
+        o["cls"] == "couch" for o in data["objects"]) else data["objects"][0]
+    pg.mouse.click(*at(pg, *obj["mass_center"]))
+    pg.click("nav button[data-tab=views]")
+    pg.wait_for_selector("#views figure img")
+    pg.wait_for_function("() => [...document.querySelectorAll('#views img')].every(i => i.complete && "
+                         "i.naturalWidth > 0)")
+    assert pg.locator("#views figure").count() >= 1
+    pg.screenshot(path=str(shots / "2_views.png"))
+
+    # objects: accept a map proposal, draw a footprint, save the objects file
+    pg.click("nav button[data-tab=objects]")
+    pg.wait_for_selector("#object-list li")
+    n = pg.locator("#object-list li").count()
+    chair = next(o["cls"] for o in data["objects"] if o["cls"] == "chair") if any(
+        o["cls"] == "chair" for o in data["objects"]) else obj["cls"]
+    pg.fill("#propose-text", chair)
+    pg.click("#propose")
+    pg.wait_for_selector("#proposals li")
+    pg.screenshot(path=str(shots / "3_proposals.png"))
+    pg.click("#proposals li >> nth=0 >> text=accept")
+    pg.click("#draw")
+    corners = [(6.0, 3.0), (6.6, 3.0), (6.6, 3.5), (6.0, 3.5)]
+    for xy in corners:
+        pg.mouse.click(*at(pg, *xy))
+    pg.click("#draw-done")
+    assert pg.locator("#object-list li").count() == n + 2
+    pg.keyboard.down("Shift")  # shift + drag moves the drawn footprint 0.5 m east
+    pg.mouse.move(*at(pg, 6.3, 3.25))
+    pg.mouse.down()
+    pg.mouse.move(*at(pg, 6.8, 3.25), steps=5)
+    pg.mouse.up()
+    pg.keyboard.up("Shift")
+    corners = [(x + 0.5, y) for x, y in corners]
+    pg.fill("#object-form input[name=color_name]", "red")
+    pg.fill("#objects-path", "objects/drawn.yaml")
+    pg.click("#objects-save")
+    pg.wait_for_selector("#objects-result:not(:empty)")
+    pg.screenshot(path=str(shots / "4_objects.png"))
+    saved = objects_from_file(root / "objects" / "drawn.yaml", SCENE)
+    drawn = saved.objects[-1]
+    assert len(saved.objects) == n + 2 and drawn.color_name == "red" and drawn.key == f"{chair}_" + drawn.key.split(
+        "_")[-1]
+    assert [tuple(round(v, 1) for v in p) for p in drawn.footprint] == corners
+
+    # a new goal with descriptive and procedural feedback
+    doc = pg.evaluate("() => S.doc")
+    in_goals = {k for g in doc["goals"] for k in g["objects"]}
+    identities = [o["identity"].lower() for o in doc["objects"].values()]
+    target = next(o for o in data["objects"] if o["key"] not in in_goals and o["key"] in doc["objects"]
+                  and identities.count(doc["objects"][o["key"]]["identity"].lower()) == 1
+                  and pg.evaluate(f"() => objectShapes().find(o => inside({o['mass_center']}, o.footprint)).key")
+                  == o["key"])
+    pg.click("nav button[data-tab=goals]")
+    pg.mouse.click(*at(pg, *target["mass_center"]))
+    pg.click("#goal-new")
+    pg.fill("#goal-form input[name=name]", "Alice's reading spot")
+    pg.fill("#goal-form textarea[name=descriptive]", f"It is a {target['cls']} by the wall.")
+    start = data["routes"][0]["start"]
+    pg.click("#route-pick")
+    pg.mouse.click(*at(pg, start[0], start[1]))
+    pg.wait_for_selector("#route-use:not([hidden])")
+    pg.click("#route-use")
+    procedural = pg.input_value("#goal-form textarea[name=procedural]")
+    assert procedural and "go forward" in procedural
+    pg.wait_for_function("() => !document.getElementById('goals-save').disabled")
+    assert pg.inner_text("#goal-error") == ""
+    pg.screenshot(path=str(shots / "5_goal_edit.png"))
+    routes_before = Manifest.read(root / "manifests" / SCENE / "routes.json")
+    pg.click("#goals-save")
+    pg.wait_for_function("() => document.getElementById('save-result').textContent.startsWith('saved')",
+                         timeout=180_000)
+    pg.wait_for_selector(f"body[data-ready={SCENE}]")
+    assert pg.evaluate("() => S.doc.goals.some(g => g.name === \"Alice's reading spot\")")
+    pg.screenshot(path=str(shots / "6_saved.png"))
+    exported = goals_export(root)
+    mine = next(g for g in exported["goals"] if g["name"] == "Alice's reading spot")
+    assert mine["objects"] == [target["key"]] and mine["feedback"]["procedural"] == procedural
+    assert mine["feedback"]["descriptive"] == f"It is a {target['cls']} by the wall."
+    assert Manifest.read(root / "manifests" / SCENE / "routes.json").inputs != routes_before.inputs
+
+    # an invalid edit: shown inline, nothing saved
+    params_text = (root / "params.yaml").read_bytes()
+    edits = sorted((root / "goals_edits").iterdir())
+    pg.click("#goal-list li >> nth=1")
+    pg.fill("#goal-form input[name=name]", '<img id="injected" src="x">')  # user text is shown as text
+    pg.wait_for_function("() => document.querySelector('#goal-list li.selected').textContent.startsWith('<img')")
+    assert pg.locator("#injected").count() == 0
+    first = exported["goals"][0]["name"]
+    pg.fill("#goal-form input[name=name]", first.upper())
+    pg.wait_for_function("() => document.getElementById('goal-error').textContent.includes('not unique')")
+    assert pg.is_disabled("#goals-save")
+    pg.screenshot(path=str(shots / "7_invalid.png"))
+    assert (root / "params.yaml").read_bytes() == params_text and sorted((root / "goals_edits").iterdir()) == edits
+
+    # history
+    pg.click("nav button[data-tab=history]")
+    pg.wait_for_selector("#history li button")
+    assert "(current)" in pg.inner_text("#history li >> nth=0")
+
+    # play as the user: answer each question with the simulated user's reply until the episode ends
+    pg.click("nav button[data-tab=play]")
+    pg.wait_for_selector("#play-agent option", state="attached")
+    pg.select_option("#play-agent", "vlmap")
+    ambiguous = next((g["id"] for g in exported["goals"] if g["type"] == "ambiguous"), exported["goals"][0]["id"])
+    pg.select_option("#play-goal", ambiguous)
+    pg.click("#play-start")
+    for _ in range(12):
+        pg.wait_for_function("() => S.play && !['running', 'sent'].includes(S.play.status)", timeout=60_000)
+        if pg.evaluate("() => S.play.status") != "waiting":
+            break
+        pg.screenshot(path=str(shots / "8_play_question.png"))
+        pg.click("#play-suggest")
+        pg.click("#play-send")
+    pg.wait_for_function("() => S.play.status === 'done'", timeout=60_000)
+    pg.screenshot(path=str(shots / "9_play_done.png"))
+    assert "episode over" in pg.inner_text("#play-status")
+    [record] = [json.loads(line) for line in (root / "data" / "eval" / "human" / f"{SCENE}.episodes.jsonl")
+                .read_text().splitlines()]
+    assert record["feedback"] == "human" and record["method"] == "vlmap" and record["goal"] == ambiguous
+    assert record["talk_turns"] == sum(d["speaker"] == "agent" for d in record["log"]["dialogue"]) >= 1
+    print(f"screenshots: {shots}")

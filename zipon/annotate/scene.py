@@ -1,0 +1,328 @@
+"""What the annotation page shows of one scene, read from its built artifacts: the top-down layers as PNG, the
+objects, goals (numbered as ``zipon render --what goals`` numbers them), routes and camera trajectory as JSON in
+world metres, the frames that saw a place, map-query proposals and procedural-route previews."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from pipeline.errors import InputDataError
+
+LAYERS = ("color", "height", "occupancy", "navigable", "rooms")
+TRAJECTORY_POINTS = 400  # at most this many camera poses are sent (evenly spaced)
+SEEN_MAX = 6  # frames listed for a clicked place
+SEEN_TOLERANCE_M = 0.15  # a frame saw the place when its depth there is within this of the distance
+
+
+@dataclass
+class SceneView:
+    """The annotation page's reading of one scene (a :class:`zipon.Scene`); cached per server, dropped on save."""
+
+    scene: object  # zipon.Scene
+    _cache: dict = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return self.scene.name
+
+    def has(self, artifact: str) -> bool:
+        return self.scene.dataset.workspace.artifact(artifact, self.name).exists()
+
+    def _get(self, key, make):
+        if key not in self._cache:
+            self._cache[key] = make()
+        return self._cache[key]
+
+    @property
+    def recon(self):
+        return self._get("recon", lambda: self.scene.recon)
+
+    @property
+    def goals(self):
+        return self._get("goals", lambda: self.scene.goals if self.has("goals") else None)
+
+    @property
+    def frames(self):
+        return self._get("frames", lambda: self.scene.frames if self.has("frames") else None)
+
+    def summary(self) -> dict:
+        """Grid, layers, rooms, objects, goals, routes and trajectory, all in world metres."""
+        recon = self.recon
+        grid = recon.grid
+        goals = self.goals
+        out = {
+            "scene": self.name,
+            "grid": {"rows": grid.rows, "cols": grid.cols, "cell_size_m": grid.cell_size_m,
+                     "origin_xy": list(grid.origin_xy), "extent_xy": list(grid.extent_xy),
+                     "observed_xy": self._observed_xy()},
+            "floor_z": float(recon.meta.floor_z),
+            "layers": [name for name in LAYERS if name != "rooms" or self._rooms()],
+            "maps": [m for m in ("vlmap", "cfmap") if self.has(m)],
+            "rooms": self._rooms(),
+            "objects": [], "goals": [], "routes": [], "ground_truth": False,
+            "trajectory": self._trajectory(),
+        }
+        if goals is not None:
+            out["objects"] = [_object_json(o) for o in goals.objects.values()]
+            out["ground_truth"] = goals.meta.source == "gt"
+            out["goals"] = [{"number": k, "id": g.id, "name": g.name, "type": g.type, "room_id": g.room_id,
+                             "objects": list(g.object_keys), "mass_center": [float(v) for v in g.mass_center],
+                             "landmarks": [lm["object"] for lm in g.landmarks if "object" in lm]}
+                            for k, g in enumerate(goals.goals, 1)]
+        if self.has("routes"):
+            routes = self.scene.routes
+            out["routes"] = [{"id": e.id, "goal_id": e.goal_id, "start": [float(v) for v in e.start],
+                              "path": _rounded(e.path_xy)} for e in routes.episodes]
+        return out
+
+    def _rooms(self) -> list[dict]:
+        goals = self.goals
+        if goals is None:
+            return []
+        outlines = self._get("room_outlines", self._room_outlines)
+        rooms = goals.document.rooms
+        return [{"id": rid, "type": r.type, "name": r.name, "owners": list(r.owners),
+                 "polygon": [list(p) for p in outlines.get(rid, [])]} for rid, r in rooms.items()]
+
+    def _observed_rc(self) -> tuple[int, int, int, int]:
+        """``(row0, row1, col0, col1)`` (ends excluded) of the observed cells: the whole grid when none are."""
+        rows, cols = np.nonzero(self.recon.occupancy > 0)
+        if rows.size == 0:
+            return 0, self.recon.grid.rows, 0, self.recon.grid.cols
+        return int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
+
+    def _observed_xy(self) -> list[float]:
+        """``(x_min, x_max, y_min, y_max)`` of the observed cells (what the page fits to), metres."""
+        grid = self.recon.grid
+        r0, r1, c0, c1 = self._get("observed_rc", self._observed_rc)
+        x0, y1 = grid.origin_xy
+        c = grid.cell_size_m
+        return [x0 + c0 * c, x0 + c1 * c, y1 - r1 * c, y1 - r0 * c]
+
+    def _room_outlines(self) -> dict[str, list]:
+        """Room id -> floor outline: the simulator's ground truth, else the scene's objects file."""
+        frames = self.frames
+        gt = frames.ground_truth if frames is not None else None
+        if gt is not None:
+            return {r.id: [list(map(float, p)) for p in r.polygon] for r in gt.rooms}
+        objset = self.objects_file()
+        return {} if objset is None else {r.id: [list(map(float, p)) for p in r.polygon] for r in objset.rooms}
+
+    def objects_file(self):
+        """The scene's objects file (``goals.objects_files.<scene>``) as an ObjectSet, or None when it has none."""
+        from pipeline.goals.objects import objects_from_file
+
+        ds = self.scene.dataset
+        rel = ds.params.goals.objects_files.get(self.name)
+        if rel is None or not (ds.workspace.root / rel).is_file():
+            return None
+        return objects_from_file(ds.workspace.root / rel, self.name)
+
+    def _trajectory(self) -> list[list[float]]:
+        poses = self.recon.poses
+        if len(poses) == 0:
+            return []
+        idx = np.unique(np.linspace(0, len(poses) - 1, min(len(poses), TRAJECTORY_POINTS)).round().astype(int))
+        xy = poses[idx, :2, 3]
+        fwd = poses[idx, :2, 2]  # the camera's optical axis (z) on the floor plane
+        yaw = np.arctan2(fwd[:, 1], fwd[:, 0])
+        return [[round(float(x), 3), round(float(y), 3), round(float(a), 3)] for (x, y), a in zip(xy, yaw)]
+
+    # ------------------------------------------------------------------------- layers
+
+    def layer_png(self, name: str) -> bytes:
+        """One pixel per grid cell, north up; transparent where nothing was observed."""
+        if name not in LAYERS:
+            raise InputDataError(f"unknown layer {name!r}", field="layer", expected=f"one of {list(LAYERS)}")
+        return self._get(("layer", name), lambda: _png(self._layer_rgba(name)))
+
+    def _layer_rgba(self, name: str) -> np.ndarray:
+        recon = self.recon
+        occ = recon.occupancy
+        known = occ > 0
+        rgba = np.zeros((*occ.shape, 4), np.uint8)
+        if name == "color":
+            rgba[..., :3] = recon.color
+        elif name == "height":
+            h = recon.height
+            finite = np.isfinite(h)
+            top = float(np.nanpercentile(h[finite], 99)) if finite.any() else 1.0
+            v = np.clip(np.nan_to_num(h) / max(top, 1e-6), 0, 1)
+            rgba[..., :3] = cv2.applyColorMap((v * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)[..., ::-1]
+            known = finite
+        elif name == "occupancy":
+            rgba[..., :3] = np.where((occ == 2)[..., None], [40, 40, 40], [235, 235, 235])
+        elif name == "navigable":
+            nav = recon.navigable
+            rgba[..., :3] = np.where(nav[..., None], [120, 200, 120], [200, 200, 200])
+        else:  # rooms: each room outline filled in its own colour
+            from pipeline.goals.objects import rasterize_polygons
+
+            rooms = [r for r in self._rooms() if len(r["polygon"]) >= 3]
+            lab = rasterize_polygons([np.asarray(r["polygon"]) for r in rooms], recon.grid,
+                                     list(range(1, len(rooms) + 1)))
+            palette = np.array([[0, 0, 0], *[_hue(i, len(rooms)) for i in range(len(rooms))]], np.uint8)
+            rgba[..., :3] = palette[lab]
+            known = lab > 0
+        rgba[..., 3] = np.where(known, 255, 0)
+        return rgba
+
+    # ------------------------------------------------------------------------- frames that saw a place
+
+    def seen(self, x: float, y: float) -> dict:
+        """Frames whose camera saw the world point (x, y) on the top surface there: its projection falls in the
+        image and the depth there agrees with the distance (so a wall in between rules the frame out). The nearest
+        views first."""
+        frames = self.frames
+        if frames is None:
+            raise InputDataError(f"scene {self.name} has no frames.zarr", field="frames")
+        grid = self.recon.grid
+        rc = grid.world_to_cell(np.array([x, y]))
+        if not grid.inside(rc):
+            raise InputDataError(f"({x:g}, {y:g}) is off the map", field="x,y",
+                                 expected=f"a point inside {[round(v, 2) for v in grid.extent_xy]}")
+        h = self._get("height", lambda: self.recon.height)[int(rc[0]), int(rc[1])]
+        z = float(self.recon.meta.floor_z) + (float(h) if np.isfinite(h) else 0.0)
+        point = np.array([x, y, z, 1.0])
+        poses = self._get("poses", frames.poses)
+        cam = np.einsum("nij,j->ni", np.linalg.inv(poses), point)[:, :3]
+        intr = frames.intrinsics
+        ahead = cam[:, 2] > 0.05
+        u = np.where(ahead, intr.fx * cam[:, 0] / np.where(ahead, cam[:, 2], 1) + intr.cx, -1)
+        v = np.where(ahead, intr.fy * cam[:, 1] / np.where(ahead, cam[:, 2], 1) + intr.cy, -1)
+        inside = ahead & (u >= 0) & (u < intr.width) & (v >= 0) & (v < intr.height)
+        found = []
+        for i in np.flatnonzero(inside)[np.argsort(cam[inside, 2], kind="stable")]:
+            depth = float(frames.group["depth"][int(i), int(v[i]), int(u[i])]) / 1000.0
+            if depth > 0 and abs(depth - cam[i, 2]) <= SEEN_TOLERANCE_M + 0.05 * cam[i, 2]:
+                found.append({"frame": int(i), "distance_m": round(float(cam[i, 2]), 3),
+                              "pixel": [int(u[i]), int(v[i])], "pose": _pose_xy_yaw(poses[i])})
+            if len(found) >= SEEN_MAX:
+                break
+        return {"x": x, "y": y, "z": round(z, 3), "candidates": int(inside.sum()), "frames": found}
+
+    def ego_png(self, index: int, pixel: tuple[int, int] | None = None) -> bytes:
+        frames = self.frames
+        if frames is None or not 0 <= index < frames.n_frames:
+            raise InputDataError(f"frame {index} is not in {self.name}'s frames.zarr",
+                                 field="frame", expected=f"0 .. {0 if frames is None else frames.n_frames - 1}")
+        rgb = np.ascontiguousarray(frames.group["rgb"][index])
+        if pixel is not None:
+            r = max(3, rgb.shape[1] // 40)
+            cv2.circle(rgb, pixel, r, (255, 0, 0), max(1, r // 3), cv2.LINE_AA)
+        return _png(rgb)
+
+    # ------------------------------------------------------------------------- map-assisted proposals
+
+    def propose(self, which: str, text: str) -> dict:
+        """The map query's candidates for ``text`` as proposed footprints (outline of each connected winning
+        region, world metres) with their scores, and the heatmap as a PNG data URL."""
+        import base64
+
+        result = self.scene.map(which).query(text)
+        grid = result.grid
+        r0, r1, c0, c1 = self._get("observed_rc", self._observed_rc)  # the heatmap is sent for the observed box
+        heat = result.heatmap[r0:r1, c0:c1]
+        rgba = np.zeros((*heat.shape, 4), np.uint8)
+        rgba[..., :3] = cv2.applyColorMap((np.clip(np.nan_to_num(heat), 0, 1) * 255).astype(np.uint8),
+                                          cv2.COLORMAP_INFERNO)[..., ::-1]
+        rgba[..., 3] = np.where(np.isfinite(heat), 30 + 190 * np.clip(np.nan_to_num(heat), 0, 1), 0).astype(np.uint8)
+        x0, y1 = grid.origin_xy
+        cell = grid.cell_size_m
+        proposals = []
+        for c in result.candidates:
+            b0, b1, b2, b3 = c.bbox_rc
+            mask = (result.labels[b0:b2, b1:b3] == c.label).astype(np.uint8)
+            outline = _outline(mask, grid, offset_rc=(b0, b1))
+            if len(outline) >= 3:
+                proposals.append({"rank": c.obj_id, "score": round(float(c.score), 3),
+                                  "area_m2": round(float(c.area_m2), 3), "center_xy": [float(v) for v in c.center_xy],
+                                  "footprint": outline})
+        return {"text": text, "map": which, "seconds": round(result.seconds, 3), "proposals": proposals,
+                "heatmap": "data:image/png;base64," + base64.b64encode(_png(rgba)).decode(),
+                "heatmap_extent_xy": [x0 + c0 * cell, x0 + c1 * cell, y1 - r1 * cell, y1 - r0 * cell]}
+
+    # ------------------------------------------------------------------------- procedural preview
+
+    def route(self, start: tuple[float, float, float], object_keys: list[str]) -> dict:
+        """The route (polyline, metres) and its procedural text from ``start`` = (x, y, yaw radians) to the
+        objects ``object_keys`` of the built goals."""
+        from pipeline.goals.objects import rasterize_polygons
+        from pipeline.routes.actions import RoutePlanner, RouteSettings
+
+        goals = self.goals
+        if goals is None:
+            raise InputDataError(f"scene {self.name} has no goals.zarr", field="goals")
+        unknown = [k for k in object_keys if k not in goals.objects]
+        if unknown or not object_keys:
+            raise InputDataError(f"unknown objects {unknown}" if unknown else "no objects given", field="objects",
+                                 expected="object keys of the scene")
+        recon = self.recon
+        grid = recon.grid
+        if not grid.inside(grid.world_to_cell(np.array(start[:2]))):
+            raise InputDataError(f"start ({start[0]:g}, {start[1]:g}) is off the map", field="start")
+        planner = self._get("planner", lambda: RoutePlanner(
+            recon.navigable, grid, RouteSettings.from_config(self.scene.dataset.params.task)))
+        mask = rasterize_polygons([np.asarray(goals.objects[k].footprint) for k in object_keys], grid) > 0
+        first = goals.objects[object_keys[0]]
+        route = planner.route(start, mask, face_xy=np.asarray(first.mass_center, dtype=np.float64))
+        if route is None:
+            return {"reachable": False, "path": [], "text": None}
+        return {"reachable": True, "path": _rounded(route.path.polyline_xy), "text": route.text,
+                "length_m": round(float(route.path.length_m), 2)}
+
+
+# ----------------------------------------------------------------------------- helpers
+
+def _object_json(o) -> dict:
+    return {"key": o.key, "cls": o.cls, "room": o.room, "footprint": [list(map(float, p)) for p in o.footprint],
+            "mass_center": [float(v) for v in o.mass_center], "color_name": o.color_name, "material": o.material,
+            "size": o.size, "instance_id": o.instance_id, "z_range": [float(v) for v in o.z_range],
+            "description": list(o.description)}
+
+
+def _pose_xy_yaw(T: np.ndarray) -> list[float]:
+    return [round(float(T[0, 3]), 3), round(float(T[1, 3]), 3), round(math.atan2(T[1, 2], T[0, 2]), 3)]
+
+
+def _rounded(xy: np.ndarray) -> list[list[float]]:
+    return [[round(float(a), 3), round(float(b), 3)] for a, b in np.asarray(xy).reshape(-1, 2)]
+
+
+def _outline(mask: np.ndarray, grid, up: int = 4, offset_rc: tuple[int, int] = (0, 0)) -> list[list[float]]:
+    """The outer contour of the largest blob of ``mask`` (whose cell (0, 0) is the grid's ``offset_rc``) as a
+    counter-clockwise world polygon along the cells' edges (traced on the mask upsampled ``up`` times, simplified to
+    a quarter cell)."""
+    big = cv2.resize(np.pad(mask, 1), None, fx=up, fy=up, interpolation=cv2.INTER_NEAREST)
+    contours, _ = cv2.findContours(big, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    if not contours:
+        return []
+    c = cv2.approxPolyDP(max(contours, key=cv2.contourArea), 1.0, True).reshape(-1, 2).astype(np.float64)
+    c = (c + 0.5) / up - 1 + np.array([offset_rc[1], offset_rc[0]])  # (col, row) on the grid, at the cells' edges
+    x0, y1 = grid.origin_xy
+    xy = np.stack([x0 + c[:, 0] * grid.cell_size_m, y1 - c[:, 1] * grid.cell_size_m], -1)
+    if len(xy) >= 3:
+        area = 0.5 * np.sum(xy[:, 0] * np.roll(xy[:, 1], -1) - np.roll(xy[:, 0], -1) * xy[:, 1])
+        if area < 0:
+            xy = xy[::-1]
+    return _rounded(xy)
+
+
+def _hue(i: int, n: int) -> list[int]:
+    hsv = np.array([[[int(180 * i / max(n, 1)), 120, 230]]], np.uint8)
+    return [int(v) for v in cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0, 0]]
+
+
+def _png(img: np.ndarray) -> bytes:
+    if img.ndim == 3 and img.shape[2] == 4:
+        bgr = cv2.cvtColor(img, cv2.COLOR_RGBA2BGRA)
+    elif img.ndim == 3:
+        bgr = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
+    else:
+        bgr = img
+    ok, buf = cv2.imencode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, 1])  # speed over size: served locally
+    return buf.tobytes()

@@ -1,0 +1,614 @@
+"""The annotation server: a Starlette app over one workspace (params file + data root).
+
+Every endpoint answers JSON (or a PNG); errors are ``{"error": message, "field": path}`` with a 4xx status and
+change nothing. Safety: a token is required when one is set (``zipon annotate`` sets one for any host but
+127.0.0.1), writes must come from the page's own origin, request bodies are capped, file paths the page names must
+stay inside the workspace, and a scene whose stage lock another run holds is refused with that holder named.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import math
+import re
+import secrets
+import threading
+from pathlib import Path
+
+from starlette.applications import Starlette
+from starlette.concurrency import run_in_threadpool
+from starlette.requests import Request
+from starlette.responses import FileResponse, JSONResponse, Response
+from starlette.routing import Mount, Route
+from starlette.staticfiles import StaticFiles
+
+from pipeline.errors import ConfigError, InputDataError, LockedError, ZiponError
+
+STATIC = Path(__file__).resolve().parent / "static"
+MAX_BODY = 2_000_000  # bytes of a request body (a goals document of a few hundred goals is ~200 kB)
+TOKEN_COOKIE = "zipon_annotate_token"
+LOOPBACK = ("127.0.0.1", "localhost", "::1", "[::1]")
+
+
+class HTTPError(Exception):
+    def __init__(self, status: int, message: str, field: str | None = None, **extra):
+        super().__init__(message)
+        self.status, self.message, self.field, self.extra = status, message, field, extra
+
+
+class Workbench:
+    """The server's state: the workspace, the open scenes' views, and one lock that serialises saves."""
+
+    def __init__(self, params=None, data_dir=None, manifests_dir=None, *, overrides=(), scene=None, token=None,
+                 allowed_hosts=LOOPBACK, max_body=MAX_BODY):
+        from pipeline.paths import Workspace
+
+        self.workspace = Workspace.resolve(params, data_dir, manifests_dir)
+        self.overrides = tuple(overrides)
+        self.token = token
+        self.allowed_hosts = tuple(allowed_hosts) if allowed_hosts is not None else None
+        self.max_body = max_body
+        self._views: dict = {}
+        self._plays: dict = {}  # id -> zipon.annotate.play.PlaySession
+        self._save = threading.Lock()
+        self.default_scene = scene
+        if scene is not None:  # an unknown scene fails at start, naming the known ones
+            known = self.dataset().params.scenes
+            if scene not in known:
+                raise ConfigError(f"unknown scene {scene!r}; params scenes: {sorted(known)}")
+
+    def dataset(self):
+        from pipeline.paramsfile import load_params
+        from zipon.api import Dataset
+
+        return Dataset(self.workspace, load_params(self.workspace.params_path, self.overrides))
+
+    def scene(self, name: str):
+        from zipon.annotate.scene import SceneView
+
+        if name not in self._views:
+            ds = self.dataset()
+            if name not in ds.params.scenes:
+                raise HTTPError(404, f"unknown scene {name!r}; params scenes: {sorted(ds.params.scenes)}", "scene")
+            self._views[name] = SceneView(ds[name])
+        return self._views[name]
+
+    def warm(self) -> None:
+        """Read the first scene's summary and layers and import what a save imports (torch and open3d, through the
+        stage runner's thread limits), so the first page and the first save do not wait for them. ``zipon
+        annotate`` runs it in a thread while the server starts."""
+        from pipeline.process import limit_native_threads
+        from zipon.annotate.scene import LAYERS
+
+        ds = self.dataset()
+        name = self.default_scene or next(iter(ds.params.scenes), None)
+        if name is not None and self.workspace.artifact("recon", name).exists():
+            view = self.scene(name)
+            view.summary()
+            for layer_name in LAYERS:
+                view.layer_png(layer_name)
+        limit_native_threads(ds.params.run.threads_per_worker)
+
+    def forget(self, name: str) -> None:
+        self._views.pop(name, None)
+
+    def lock_holder(self, scene: str) -> str | None:
+        """``"pid P on host H holds PATH"`` for a live lock on any of the scene's stages, else None."""
+        from pipeline.locks import holder_is_dead, parse_holder
+
+        folder = self.workspace.artifact("frames", scene).parent
+        for path in sorted(folder.glob(".*.lock")) if folder.is_dir() else ():
+            try:
+                holder = parse_holder(path.read_text(encoding="utf-8"))
+            except OSError:
+                continue
+            if not holder_is_dead(holder):
+                who = f"pid {holder[0]} on host {holder[1]}" if holder else "a process that did not record itself"
+                return f"{who} holds {path}"
+        return None
+
+    def refuse_if_locked(self, scene: str) -> None:
+        holder = self.lock_holder(scene)
+        if holder:
+            raise HTTPError(409, f"scene {scene} is being rebuilt by another zipon run: {holder}; try again when it "
+                                 f"has finished", "scene")
+
+    def workspace_path(self, rel: str, field: str) -> Path:
+        """``rel`` (relative to the params file's folder) as a path that stays inside it, YAML or JSON."""
+        root = self.workspace.root.resolve()
+        if not isinstance(rel, str) or not rel or rel.startswith(("/", "\\")) or "\x00" in rel:
+            raise HTTPError(400, f"{rel!r} is not a relative path", field)
+        path = (root / rel).resolve()
+        if not path.is_relative_to(root):
+            raise HTTPError(400, f"{rel!r} leaves the workspace {root}", field)
+        if path.suffix.lower() not in (".yaml", ".yml", ".json"):
+            raise HTTPError(400, f"{rel!r} is not a .yaml, .yml or .json file", field)
+        return path
+
+
+# ----------------------------------------------------------------------------- request helpers
+
+def _guard(request: Request, *, write: bool = False) -> Workbench:
+    wb: Workbench = request.app.state.workbench
+    host = (request.headers.get("host") or "").rsplit(":", 1)[0] if "]" not in (request.headers.get("host") or "") \
+        else request.headers.get("host", "").rsplit("]", 1)[0] + "]"
+    if wb.allowed_hosts is not None and host not in wb.allowed_hosts:
+        raise HTTPError(403, f"host {host!r} is not served here (allowed: {', '.join(wb.allowed_hosts)})", "Host")
+    if wb.token is not None:
+        given = (request.query_params.get("token") or request.headers.get("x-zipon-token")
+                 or request.cookies.get(TOKEN_COOKIE) or "")
+        if not secrets.compare_digest(given, wb.token):
+            raise HTTPError(403, "a token is needed: open the URL zipon annotate printed (…?token=…)", "token")
+    if write:
+        origin = request.headers.get("origin")
+        own = f"{request.url.scheme}://{request.headers.get('host', '')}"
+        if origin != own:
+            raise HTTPError(403, f"cross-origin write refused: Origin {origin!r} is not {own!r}", "Origin")
+    return wb
+
+
+async def _body(request: Request, wb: Workbench) -> dict:
+    length = request.headers.get("content-length")
+    if length is not None and length.isdigit() and int(length) > wb.max_body:
+        raise HTTPError(413, f"request body of {int(length):,} bytes is over the {wb.max_body:,}-byte limit", "body")
+    data = b""
+    async for chunk in request.stream():
+        data += chunk
+        if len(data) > wb.max_body:
+            raise HTTPError(413, f"request body is over the {wb.max_body:,}-byte limit", "body")
+    try:
+        doc = json.loads(data.decode("utf-8"), parse_constant=_no_constant)
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise HTTPError(400, f"the body is not JSON: {err}", "body") from None
+    if not isinstance(doc, dict):
+        raise HTTPError(400, "the body must be a JSON object", "body")
+    return doc
+
+
+def _no_constant(name: str):
+    raise HTTPError(400, f"{name} is not a number (coordinates must be finite)", "body")
+
+
+def _number(request: Request, name: str, default: float | None = None) -> float:
+    text = request.query_params.get(name)
+    if text is None:
+        if default is not None:
+            return default
+        raise HTTPError(400, f"missing query parameter {name}", name)
+    try:
+        value = float(text)
+    except ValueError:
+        raise HTTPError(400, f"{name}={text!r} is not a number", name) from None
+    if not math.isfinite(value):
+        raise HTTPError(400, f"{name}={text!r} is not finite", name)
+    return value
+
+
+def _error(err: Exception) -> JSONResponse:
+    if isinstance(err, HTTPError):
+        return JSONResponse({"error": err.message, "field": err.field, **err.extra}, status_code=err.status)
+    if isinstance(err, LockedError):
+        return JSONResponse({"error": str(err), "field": "scene"}, status_code=409)
+    if isinstance(err, InputDataError):
+        return JSONResponse({"error": str(err), "field": err.field}, status_code=422)
+    return JSONResponse({"error": str(err), "field": None}, status_code=400)
+
+
+def endpoint(write: bool = False):
+    """Wrap a handler ``(request, workbench) -> Response|dict``: guard it, run blocking work off the event loop,
+    and turn zipon errors into JSON error responses."""
+    def wrap(fn):
+        async def handler(request: Request):
+            try:
+                wb = _guard(request, write=write)
+                body = await _body(request, wb) if request.method in ("POST", "PUT") else None
+                result = await run_in_threadpool(fn, request, wb, body)
+            except (HTTPError, ZiponError) as err:
+                return _error(err)
+            return result if isinstance(result, Response) else JSONResponse(result)
+        handler.__name__ = fn.__name__
+        return handler
+    return wrap
+
+
+def _png(data: bytes) -> Response:
+    return Response(data, media_type="image/png", headers={"Cache-Control": "no-store"})
+
+
+# ----------------------------------------------------------------------------- pages and scene reading
+
+async def index(request: Request):
+    try:
+        wb = _guard(request)
+    except HTTPError as err:
+        return _error(err)
+    response = FileResponse(STATIC / "index.html", headers={"Cache-Control": "no-store"})
+    if wb.token is not None:
+        response.set_cookie(TOKEN_COOKIE, wb.token, httponly=True, samesite="strict")
+    return response
+
+
+@endpoint()
+def scenes(request, wb, body):
+    ds = wb.dataset()
+    return {"scenes": [{"name": s, "built": [a for a in ("frames", "recon", "vlmap", "cfmap", "goals", "routes")
+                                             if wb.workspace.artifact(a, s).exists()],
+                        "locked": wb.lock_holder(s)} for s in ds.params.scenes],
+            "default": wb.default_scene or next(iter(ds.params.scenes), None)}
+
+
+@endpoint()
+def scene_summary(request, wb, body):
+    view = wb.scene(request.path_params["scene"])
+    if not view.has("recon"):
+        raise HTTPError(404, f"scene {view.name} has no recon.zarr (build it: zipon run -s {view.name})", "recon")
+    return view.summary()
+
+
+@endpoint()
+def layer(request, wb, body):
+    return _png(wb.scene(request.path_params["scene"]).layer_png(request.path_params["name"]))
+
+
+@endpoint()
+def seen(request, wb, body):
+    return wb.scene(request.path_params["scene"]).seen(_number(request, "x"), _number(request, "y"))
+
+
+@endpoint()
+def frame(request, wb, body):
+    view = wb.scene(request.path_params["scene"])
+    pixel = None
+    if "u" in request.query_params or "v" in request.query_params:
+        pixel = (int(_number(request, "u")), int(_number(request, "v")))
+    return _png(view.ego_png(int(request.path_params["index"]), pixel))
+
+
+@endpoint()
+def propose(request, wb, body):
+    view = wb.scene(request.path_params["scene"])
+    which = request.query_params.get("map", "vlmap")
+    if which not in ("vlmap", "cfmap"):
+        raise HTTPError(400, f"map {which!r}: choose vlmap or cfmap", "map")
+    if not view.has(which):
+        raise HTTPError(404, f"scene {view.name} has no {which}.zarr (build it: zipon run -s {view.name} --stage "
+                             f"{which})", "map")
+    text = (request.query_params.get("text") or "").strip()
+    if not text or len(text) > 200:
+        raise HTTPError(400, "give the class or phrase to look for (1 to 200 characters)", "text")
+    return view.propose(which, text)
+
+
+@endpoint()
+def route(request, wb, body):
+    view = wb.scene(request.path_params["scene"])
+    keys = [k for k in (request.query_params.get("objects") or "").split(",") if k]
+    start = (_number(request, "x"), _number(request, "y"), math.radians(_number(request, "yaw_deg", 0.0)))
+    return view.route(start, keys)
+
+
+# ----------------------------------------------------------------------------- goals: read, validate, save, history
+
+def _current(view) -> tuple[object, str]:
+    from pipeline.goals.schema import document_digest
+
+    goals = view.goals
+    if goals is None:
+        raise HTTPError(404, f"scene {view.name} has no goals.zarr (build it: zipon run -s {view.name} --stage goals)",
+                        "goals")
+    return goals.document, document_digest(goals.document)
+
+
+@endpoint()
+def goals_get(request, wb, body):
+    from pipeline.goals.schema import document_dict
+
+    doc, digest = _current(wb.scene(request.path_params["scene"]))
+    return JSONResponse({"document": document_dict(doc), "digest": digest}, headers={"ETag": f'"{digest}"'})
+
+
+def _validated(view, body: dict):
+    """The body's ``document`` through ``zipon goals import``'s checks (schema, then the scene's objects)."""
+    from pipeline.goals.edits import check_document
+    from pipeline.goals.schema import document_from_data
+
+    _current(view)
+    if "document" not in body:
+        raise HTTPError(400, "the body needs a 'document' (the goals document)", "document")
+    origin = "the edited goals"
+    try:
+        return check_document(document_from_data(body["document"], origin), view.goals.path, origin=origin)
+    except InputDataError as err:
+        raise HTTPError(422, str(err), err.field, ok=False) from None
+
+
+@endpoint(write=True)
+def goals_validate(request, wb, body):
+    from pipeline.goals.schema import document_digest
+
+    view = wb.scene(request.path_params["scene"])
+    doc = _validated(view, body)
+    return {"ok": True, "digest": document_digest(doc), "warnings": descriptive_warnings(doc, view.goals)}
+
+
+def descriptive_warnings(doc, goals) -> list[dict]:
+    """Descriptive feedback that names a colour or material the goal's object does not have."""
+    colours = {o.color_name.lower() for o in goals.objects.values() if o.color_name}
+    materials = {o.material.lower() for o in goals.objects.values() if o.material}
+    found = []
+    for i, g in enumerate(doc.goals):
+        obj = goals.objects.get(g.objects[0])
+        text = g.feedback.descriptive.lower()
+        if obj is None or not text:
+            continue
+        for kind, words, has in (("colour", colours, obj.color_name.lower()), ("material", materials,
+                                                                                obj.material.lower())):
+            said = sorted(w for w in words if re.search(rf"\b{re.escape(w)}\b", text))
+            if has and said and not re.search(rf"\b{re.escape(has)}\b", text):
+                found.append({"field": f"goals[{i}].feedback.descriptive",
+                              "message": f"says {', '.join(said)} but {obj.key}'s {kind} is {has}"})
+    return found
+
+
+def _if_match(request: Request, digest: str) -> None:
+    given = request.headers.get("if-match")
+    if not given:
+        raise HTTPError(428, "If-Match is required: send the ETag of the goals you edited", "If-Match")
+    if given.strip().strip('"') != digest:
+        raise HTTPError(412, "the goals changed since you opened them; download your edit, reload and apply it "
+                             "again", "If-Match", current=digest)
+
+
+def _save(request, wb, doc) -> dict:
+    from pipeline.goals.edits import EditNotSaved, save_goals_edit
+    from stages import STAGES
+
+    scene = request.path_params["scene"]
+    view = wb.scene(scene)
+    with wb._save:
+        _, digest = _current(view)
+        _if_match(request, digest)
+        wb.refuse_if_locked(scene)
+        try:
+            saved = save_goals_edit(wb.workspace, scene, doc, STAGES, overrides=wb.overrides)
+        except EditNotSaved as err:
+            raise HTTPError(422, f"not saved: {err}", "rebuild", restored=list(err.restored),
+                            outcomes=[_outcome(o) for o in err.outcomes]) from None
+        finally:
+            wb.forget(scene)
+    _, etag = _current(wb.scene(scene))
+    return {"saved": saved.path, "digest": saved.digest, "etag": etag, "dvc": saved.dvc_note,
+            "outcomes": [_outcome(o) for o in saved.outcomes]}
+
+
+def _outcome(o) -> dict:
+    return {"stage": o.stage, "status": o.status, "seconds": round(o.seconds, 2), "note": o.reason or o.error}
+
+
+@endpoint(write=True)
+def goals_save(request, wb, body):
+    result = _save(request, wb, _validated(wb.scene(request.path_params["scene"]), body))
+    return JSONResponse(result, headers={"ETag": f'"{result["etag"]}"'})
+
+
+def _edits(wb, scene: str) -> list[Path]:
+    from pipeline.goals.edits import EDITS_DIR
+
+    folder = wb.workspace.root / EDITS_DIR
+    return sorted(folder.glob(f"{scene}-*.yaml"), key=lambda p: p.stat().st_mtime) if folder.is_dir() else []
+
+
+@endpoint()
+def history(request, wb, body):
+    import datetime
+
+    from pipeline.goals.edits import EDITS_DIR
+
+    scene = request.path_params["scene"]
+    wb.scene(scene)
+    current = wb.dataset().params.goals.edits.get(scene)
+    return {"edits": [{"digest": p.stem.removeprefix(f"{scene}-"), "path": f"{EDITS_DIR}/{p.name}",
+                       "time": datetime.datetime.fromtimestamp(p.stat().st_mtime, datetime.timezone.utc)
+                       .isoformat(timespec="seconds"), "current": f"{EDITS_DIR}/{p.name}" == current}
+                      for p in reversed(_edits(wb, scene))]}
+
+
+def _stored(wb, scene: str, digest: str):
+    from pipeline.goals.schema import load_document
+
+    if not re.fullmatch(r"[0-9a-f]{6,64}", digest):
+        raise HTTPError(400, f"{digest!r} is not an edit digest (hex)", "digest")
+    for p in _edits(wb, scene):
+        if p.stem == f"{scene}-{digest}":
+            return p, load_document(p)
+    raise HTTPError(404, f"no stored edit {digest} of scene {scene}", "digest")
+
+
+@endpoint()
+def history_show(request, wb, body):
+    from pipeline.goals.schema import document_dict, dump_document
+
+    scene, digest = request.path_params["scene"], request.path_params["digest"]
+    current, _ = _current(wb.scene(scene))
+    path, doc = _stored(wb, scene, digest)
+    diff = difflib.unified_diff(dump_document(current, ".yaml").splitlines(), dump_document(doc, ".yaml").splitlines(),
+                                "current", path.name, lineterm="")
+    return {"digest": digest, "document": document_dict(doc), "diff": "\n".join(diff)}
+
+
+@endpoint(write=True)
+def history_restore(request, wb, body):
+    scene, digest = request.path_params["scene"], request.path_params["digest"]
+    view = wb.scene(scene)
+    _current(view)
+    _, doc = _stored(wb, scene, digest)
+    from pipeline.goals.edits import check_document
+
+    check_document(doc, view.goals.path, origin=f"stored edit {digest}")
+    result = _save(request, wb, doc)
+    return JSONResponse(result, headers={"ETag": f'"{result["etag"]}"'})
+
+
+# ----------------------------------------------------------------------------- objects files
+
+@endpoint()
+def objects_get(request, wb, body):
+    """The scene's objects file when it has one, else its built objects (and room outlines) to start from."""
+    view = wb.scene(request.path_params["scene"])
+    rel = wb.dataset().params.goals.objects_files.get(view.name)
+    objset = view.objects_file()
+    source = "file"
+    if objset is None and view.goals is not None:
+        objset, source = view.goals.object_set(), "goals"
+    data = {"objects": [], "rooms": []} if objset is None else objset.model_dump(mode="json",
+                                                                                   include={"objects", "rooms"})
+    if objset is not None and not data["rooms"]:
+        data["rooms"] = [{"id": r["id"], "type": r["type"], "polygon": r["polygon"]} for r in view._rooms()]
+    return {"path": rel or f"objects/{view.name}.yaml", "source": source if objset is not None else "empty", **data}
+
+
+def _objects(view, body: dict):
+    from pipeline.goals.objects import objects_from_data
+
+    return objects_from_data({"rooms": body.get("rooms", []), "objects": body.get("objects")}, view.name,
+                             "the edited objects")
+
+
+@endpoint(write=True)
+def objects_validate(request, wb, body):
+    view = wb.scene(request.path_params["scene"])
+    try:
+        objset = _objects(view, body)
+    except InputDataError as err:
+        return JSONResponse({"ok": False, "error": str(err), "field": err.field}, status_code=422)
+    return {"ok": True, "objects": len(objset.objects), "rooms": len(objset.rooms)}
+
+
+@endpoint(write=True)
+def objects_save(request, wb, body):
+    import yaml
+
+    from pipeline.store import write_text_atomic
+
+    view = wb.scene(request.path_params["scene"])
+    path = wb.workspace_path(body.get("path"), "path")
+    try:
+        objset = _objects(view, body)
+    except InputDataError as err:
+        raise HTTPError(422, str(err), err.field) from None
+    data = objset.model_dump(mode="json", include={"rooms", "objects"})
+    text = (f"# objects of scene {view.name}, written by zipon annotate (the layout zipon goals template starts)\n"
+            + (yaml.safe_dump(data, sort_keys=False, allow_unicode=True, width=100) if path.suffix != ".json"
+               else json.dumps(data, indent=2)))
+    write_text_atomic(path, text)
+    wb.forget(view.name)
+    rel = path.relative_to(wb.workspace.root.resolve()).as_posix()
+    return {"path": rel, "objects": len(objset.objects), "rooms": len(objset.rooms),
+            "next": f"in params.yaml: goals: {{objects: file, objects_files: {{{view.name}: {rel}}}}}"}
+
+
+# ----------------------------------------------------------------------------- play as the user
+
+MAX_PLAYS = 8  # episodes kept per server (the oldest finished one is dropped first)
+
+
+@endpoint()
+def agents(request, wb, body):
+    from orion_eval.agents import AGENTS
+
+    return {"agents": [{"name": name, "label": getattr(cls, "label", name)} for name, cls in AGENTS.items()]}
+
+
+@endpoint(write=True)
+def play_start(request, wb, body):
+    from orion_eval.agents import AGENTS
+    from zipon.annotate.play import PlaySession
+
+    scene = request.path_params["scene"]
+    view = wb.scene(scene)
+    method, goal, seed = body.get("method"), body.get("goal"), body.get("seed", 0)
+    if method not in AGENTS:
+        raise HTTPError(400, f"unknown agent {method!r}; choose from {list(AGENTS)}", "method")
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+        raise HTTPError(400, f"seed {seed!r} is not a non-negative integer", "seed")
+    if not isinstance(goal, str):
+        raise HTTPError(400, "give the goal id to play", "goal")
+    wb.refuse_if_locked(scene)
+    if len(wb._plays) >= MAX_PLAYS:
+        done = [k for k, p in wb._plays.items() if p.result is not None or p.error is not None]
+        if not done:
+            raise HTTPError(429, f"{MAX_PLAYS} episodes are running; finish one first", "method")
+        wb._plays.pop(done[0])
+    session = PlaySession(wb.workspace, view.scene.dataset.params, scene, method, goal, seed)
+    wb._plays[session.id] = session
+    session.wait(20.0)
+    return session.state()
+
+
+def _play(request, wb):
+    session = wb._plays.get(request.path_params["play"])
+    if session is None or session.scene != request.path_params["scene"]:
+        raise HTTPError(404, f"no episode {request.path_params['play']!r} is being played here", "play")
+    return session
+
+
+@endpoint()
+def play_state(request, wb, body):
+    return _play(request, wb).state()
+
+
+@endpoint(write=True)
+def play_reply(request, wb, body):
+    session = _play(request, wb)
+    text = body.get("text")
+    if not isinstance(text, str) or not text.strip() or len(text) > 2000:
+        raise HTTPError(400, "the reply must be text of 1 to 2000 characters", "text")
+    session.reply(text.strip())
+    session.wait(20.0)
+    return session.state()
+
+
+@endpoint()
+def play_ego(request, wb, body):
+    return _png(_play(request, wb).ego_png())
+
+
+# ----------------------------------------------------------------------------- the app
+
+def create_app(params=None, data_dir=None, manifests_dir=None, *, scene=None, overrides=(), token=None,
+               allowed_hosts=LOOPBACK, max_body=MAX_BODY) -> Starlette:
+    """The ASGI app of ``zipon annotate`` over the workspace of ``params`` (default ./params.yaml).
+
+    ``token``: when set, every request must carry it (``?token=`` once, then a cookie). ``allowed_hosts``: Host
+    header values served (None: any; the default guards against DNS rebinding on 127.0.0.1)."""
+    s = "/api/scenes/{scene}"
+    routes = [
+        Route("/", index),
+        Route("/api/scenes", scenes),
+        Route(s, scene_summary),
+        Route(s + "/layers/{name}.png", layer),
+        Route(s + "/seen", seen),
+        Route(s + "/frames/{index:int}.png", frame),
+        Route(s + "/propose", propose),
+        Route(s + "/route", route),
+        Route(s + "/goals", goals_get, methods=["GET"]),
+        Route(s + "/goals", goals_save, methods=["PUT"]),
+        Route(s + "/goals/validate", goals_validate, methods=["POST"]),
+        Route(s + "/history", history),
+        Route(s + "/history/{digest}", history_show),
+        Route(s + "/history/{digest}/restore", history_restore, methods=["POST"]),
+        Route(s + "/objects", objects_get, methods=["GET"]),
+        Route(s + "/objects", objects_save, methods=["PUT"]),
+        Route(s + "/objects/validate", objects_validate, methods=["POST"]),
+        Route("/api/agents", agents),
+        Route(s + "/play", play_start, methods=["POST"]),
+        Route(s + "/play/{play}", play_state),
+        Route(s + "/play/{play}/reply", play_reply, methods=["POST"]),
+        Route(s + "/play/{play}/ego.png", play_ego),
+        Mount("/static", StaticFiles(directory=STATIC), name="static"),
+    ]
+    app = Starlette(routes=routes)
+    app.state.workbench = Workbench(params, data_dir, manifests_dir, overrides=overrides, scene=scene, token=token,
+                                    allowed_hosts=allowed_hosts, max_body=max_body)
+    return app

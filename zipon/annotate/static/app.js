@@ -1,0 +1,597 @@
+// zipon annotate: the page. Plain JS, no dependencies; user text is only ever set with textContent.
+"use strict";
+
+const $ = (id) => document.getElementById(id);
+const S = {
+  scene: null, data: null, layers: {}, layer: "color",
+  view: { s: 40, ox: 0, oy: 0 },
+  doc: null, etag: null, goal: -1, selectedObject: null,
+  objects: null, object: -1, proposals: [], heatmap: null,
+  drawing: null, mode: null, play: null, route: null, routeFor: -1, clicked: null,
+};
+
+function el(tag, text, cls) {
+  const e = document.createElement(tag);
+  if (text !== undefined && text !== null) e.textContent = String(text);
+  if (cls) e.className = cls;
+  return e;
+}
+function status(text) { $("status").textContent = text; }
+
+async function api(path, opts = {}) {
+  const init = { method: opts.method || "GET", headers: {} };
+  if (opts.body !== undefined) { init.body = JSON.stringify(opts.body); init.headers["Content-Type"] = "application/json"; }
+  if (opts.ifMatch) init.headers["If-Match"] = '"' + opts.ifMatch + '"';
+  const r = await fetch(path, init);
+  const type = r.headers.get("content-type") || "";
+  const body = type.includes("json") ? await r.json() : null;
+  return { ok: r.ok, status: r.status, body, etag: (r.headers.get("etag") || "").replace(/"/g, "") };
+}
+const scenePath = (rest) => `/api/scenes/${encodeURIComponent(S.scene)}${rest || ""}`;
+
+// ------------------------------------------------------------------ the map: world metres <-> screen pixels
+
+const canvas = $("map");
+const ctx = canvas.getContext("2d");
+const toScreen = (x, y) => [S.view.ox + x * S.view.s, S.view.oy - y * S.view.s];
+const toWorld = (px, py) => [(px - S.view.ox) / S.view.s, (S.view.oy - py) / S.view.s];
+
+function fit() {
+  const [x0, x1, y0, y1] = S.data.grid.observed_xy;
+  const w = canvas.clientWidth, h = canvas.clientHeight;
+  S.view.s = 0.95 * Math.min(w / (x1 - x0), h / (y1 - y0));
+  S.view.ox = w / 2 - S.view.s * (x0 + x1) / 2;
+  S.view.oy = h / 2 + S.view.s * (y0 + y1) / 2;
+}
+
+function hue(i, n) { return `hsl(${Math.round(360 * i / Math.max(n, 1))} 75% 45%)`; }
+
+function poly(points, close = true) {
+  ctx.beginPath();
+  points.forEach(([x, y], i) => { const [u, v] = toScreen(x, y); i ? ctx.lineTo(u, v) : ctx.moveTo(u, v); });
+  if (close) ctx.closePath();
+}
+
+function draw() {
+  const dpr = window.devicePixelRatio || 1;
+  canvas.width = canvas.clientWidth * dpr; canvas.height = canvas.clientHeight * dpr;
+  ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+  ctx.clearRect(0, 0, canvas.clientWidth, canvas.clientHeight);
+  if (!S.data) return;
+  const g = S.data.grid, [x0, x1, y0, y1] = g.extent_xy;
+  const img = S.layers[S.layer];
+  const [u0, v0] = toScreen(x0, y1), [u1, v1] = toScreen(x1, y0);
+  ctx.imageSmoothingEnabled = false;
+  if (img && img.complete) ctx.drawImage(img, u0, v0, u1 - u0, v1 - v0);
+  if (S.heatmap && S.heatmap.complete) {
+    const [hx0, hx1, hy0, hy1] = S.heatmapExtent, [a0, b0] = toScreen(hx0, hy1), [a1, b1] = toScreen(hx1, hy0);
+    ctx.drawImage(S.heatmap, a0, b0, a1 - a0, b1 - b0);
+  }
+  if ($("show-rooms").checked) {
+    S.data.rooms.forEach((r, i) => { if (r.polygon.length < 3) return; poly(r.polygon); ctx.strokeStyle = hue(i, S.data.rooms.length); ctx.lineWidth = 2; ctx.setLineDash([6, 4]); ctx.stroke(); ctx.setLineDash([]);
+      const c = centroid(r.polygon), [u, v] = toScreen(c[0], c[1]); ctx.fillStyle = "#333"; ctx.font = "12px sans-serif"; ctx.fillText(r.name || r.id, u - 20, v); });
+  }
+  if ($("show-trajectory").checked && S.data.trajectory.length) {
+    poly(S.data.trajectory.map((p) => [p[0], p[1]]), false); ctx.strokeStyle = "#7a3db8"; ctx.lineWidth = 1.5; ctx.stroke();
+  }
+  const goalOf = {};
+  if (S.doc) S.doc.goals.forEach((gl, i) => gl.objects.forEach((k) => { goalOf[k] = i; }));
+  const objects = objectShapes();
+  if ($("show-objects").checked) {
+    objects.forEach((o) => {
+      poly(o.footprint);
+      const gi = goalOf[o.key];
+      if ($("show-goals").checked && gi !== undefined) { ctx.fillStyle = hue(gi, S.doc.goals.length); ctx.globalAlpha = 0.45; ctx.fill(); ctx.globalAlpha = 1; }
+      ctx.strokeStyle = o.key === S.selectedObject ? "#1d6fd8" : "#555"; ctx.lineWidth = o.key === S.selectedObject ? 3 : 1; ctx.stroke();
+      if (S.view.s > 25) { const [u, v] = toScreen(o.mass_center[0], o.mass_center[1]); label(o.key, u + 6, v + 12); }
+    });
+  }
+  if ($("show-routes").checked) {
+    S.data.routes.forEach((r) => { poly(r.path, false); ctx.strokeStyle = "#d2691e"; ctx.lineWidth = 2; ctx.stroke(); startMark(r.start, "#d2691e"); });
+  }
+  if (S.goal >= 0 && S.doc) highlightLandmarks();
+  if (S.route && S.route.path.length) { poly(S.route.path, false); ctx.strokeStyle = "#0a7d2c"; ctx.lineWidth = 3; ctx.stroke(); startMark(S.route.start, "#0a7d2c"); }
+  if ($("show-goals").checked && S.doc) {
+    const byKey = Object.fromEntries(objects.map((o) => [o.key, o]));
+    S.doc.goals.forEach((gl, i) => { const o = byKey[gl.objects[0]]; if (!o) return; marker(String(i + 1), o.mass_center, i === S.goal); });
+  }
+  S.proposals.forEach((p) => { poly(p.footprint); ctx.strokeStyle = "#ff7f00"; ctx.lineWidth = 2; ctx.setLineDash([5, 3]); ctx.stroke(); ctx.setLineDash([]);
+    const [u, v] = toScreen(p.center_xy[0], p.center_xy[1]); ctx.fillStyle = "#ff7f00"; ctx.font = "bold 12px sans-serif"; ctx.fillText(`#${p.rank} ${p.score.toFixed(2)}`, u + 4, v - 4); });
+  if (S.drawing && S.drawing.points.length) { poly(S.drawing.points, false); ctx.strokeStyle = "#1d6fd8"; ctx.lineWidth = 2; ctx.stroke();
+    S.drawing.points.forEach(([x, y]) => { const [u, v] = toScreen(x, y); ctx.fillStyle = "#1d6fd8"; ctx.fillRect(u - 3, v - 3, 6, 6); }); }
+  if (S.play && S.play.poses.length) {
+    poly(S.play.poses.map((p) => [p[0], p[1]]), false); ctx.strokeStyle = "#0057b8"; ctx.lineWidth = 3; ctx.stroke();
+    startMark(S.play.pose, "#0057b8");
+  }
+  if (S.clicked) { const [u, v] = toScreen(S.clicked[0], S.clicked[1]); ctx.strokeStyle = "#e00"; ctx.lineWidth = 2; ctx.beginPath(); ctx.arc(u, v, 7, 0, 2 * Math.PI); ctx.stroke(); }
+  axes();
+  scaleBar();
+}
+
+function axes() {
+  // metre ticks along the left and bottom edges
+  const w = canvas.clientWidth, h = canvas.clientHeight;
+  const step = [0.5, 1, 2, 5, 10, 20].find((v) => v * S.view.s > 60) || 50;
+  const [xa, ya] = toWorld(0, h), [xb, yb] = toWorld(w, 0);
+  ctx.fillStyle = "#fffd"; ctx.fillRect(0, h - 16, w, 16); ctx.fillRect(0, 0, 30, h);
+  ctx.fillStyle = "#333"; ctx.font = "10px sans-serif"; ctx.strokeStyle = "#333"; ctx.lineWidth = 1;
+  for (let x = Math.ceil(xa / step) * step; x <= xb; x += step) {
+    const [u] = toScreen(x, 0); ctx.beginPath(); ctx.moveTo(u, h - 16); ctx.lineTo(u, h - 11); ctx.stroke(); ctx.fillText(`${+x.toFixed(1)}`, u - 6, h - 2);
+  }
+  for (let y = Math.ceil(ya / step) * step; y <= yb; y += step) {
+    const [, v] = toScreen(0, y); ctx.beginPath(); ctx.moveTo(30, v); ctx.lineTo(25, v); ctx.stroke(); ctx.fillText(`${+y.toFixed(1)}`, 2, v + 3);
+  }
+  ctx.fillText("x, y in metres", 34, h - 20);
+}
+
+function label(text, u, v) {
+  ctx.font = "10px sans-serif"; ctx.lineWidth = 3; ctx.strokeStyle = "#fff"; ctx.strokeText(text, u, v);
+  ctx.fillStyle = "#222"; ctx.fillText(text, u, v);
+}
+
+function startMark(start, colour) {
+  const [u, v] = toScreen(start[0], start[1]);
+  ctx.fillStyle = colour; ctx.beginPath(); ctx.arc(u, v, 5, 0, 2 * Math.PI); ctx.fill();
+  ctx.strokeStyle = "#000"; ctx.lineWidth = 2; ctx.beginPath(); ctx.moveTo(u, v);
+  ctx.lineTo(u + 14 * Math.cos(start[2]), v - 14 * Math.sin(start[2])); ctx.stroke();
+}
+
+function marker(text, xy, selected) {
+  const [u, v] = toScreen(xy[0], xy[1]);
+  ctx.fillStyle = selected ? "#1d6fd8" : "#fff"; ctx.strokeStyle = "#000"; ctx.lineWidth = 1.5;
+  ctx.beginPath(); ctx.arc(u, v, 9, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
+  ctx.fillStyle = selected ? "#fff" : "#000"; ctx.font = "bold 11px sans-serif"; ctx.textAlign = "center"; ctx.fillText(text, u, v + 4); ctx.textAlign = "start";
+}
+
+function highlightLandmarks() {
+  // objects the landmark feedback names (by key, or by class word) are outlined in magenta and linked to the goal
+  const gl = S.doc.goals[S.goal], objects = objectShapes(), byKey = Object.fromEntries(objects.map((o) => [o.key, o]));
+  const text = (gl.feedback.landmark || "").toLowerCase(), first = byKey[gl.objects[0]];
+  if (!first || !text) return;
+  // an object named by its key, else the nearest object of each class the text names
+  const others = objects.filter((o) => !gl.objects.includes(o.key))
+    .sort((a, b) => dist(a.mass_center, first.mass_center) - dist(b.mass_center, first.mass_center));
+  const near = others.filter((o) => text.includes(o.key.toLowerCase()));
+  new Set(others.map((o) => o.cls)).forEach((cls) => {
+    if (new RegExp(`\\b${cls.toLowerCase()}\\b`).test(text)) near.push(others.find((o) => o.cls === cls));
+  });
+  near.forEach((o) => { poly(o.footprint); ctx.strokeStyle = "#d0008f"; ctx.lineWidth = 3; ctx.stroke();
+    const [a, b] = [toScreen(...first.mass_center), toScreen(...o.mass_center)]; ctx.setLineDash([4, 4]); ctx.beginPath(); ctx.moveTo(...a); ctx.lineTo(...b); ctx.stroke(); ctx.setLineDash([]); });
+}
+
+const dist = (a, b) => Math.hypot(a[0] - b[0], a[1] - b[1]);
+function centroid(p) { let x = 0, y = 0; p.forEach((q) => { x += q[0]; y += q[1]; }); return [x / p.length, y / p.length]; }
+
+function scaleBar() {
+  const w = canvas.clientWidth, h = canvas.clientHeight;
+  const nice = [0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50, 100];
+  const m = nice.find((v) => v * S.view.s > 80) || 100;
+  const px = m * S.view.s, x = w - px - 16, y = h - 28;
+  ctx.fillStyle = "#fffc"; ctx.fillRect(x - 6, y - 18, px + 12, 24);
+  ctx.fillStyle = "#000"; ctx.fillRect(x, y, px, 4); ctx.font = "11px sans-serif"; ctx.fillText(`${m} m`, x + px / 2 - 10, y - 4);
+  ctx.fillText("N ↑", w - 34, 18);
+}
+
+function objectShapes() {
+  // the objects drawn: the objects file being edited when it is open, else the built ones
+  if (S.objects) return S.objects.objects.filter((o) => o.footprint && o.footprint.length >= 3).map((o) => ({ ...o, mass_center: o.mass_center || centroid(o.footprint) }));
+  return S.data ? S.data.objects : [];
+}
+
+function inside(pt, polygon) {
+  let c = false;
+  for (let i = 0, j = polygon.length - 1; i < polygon.length; j = i++) {
+    const [xi, yi] = polygon[i], [xj, yj] = polygon[j];
+    if ((yi > pt[1]) !== (yj > pt[1]) && pt[0] < (xj - xi) * (pt[1] - yi) / (yj - yi) + xi) c = !c;
+  }
+  return c;
+}
+
+let drag = null;
+canvas.addEventListener("mousedown", (e) => {
+  drag = { x: e.offsetX, y: e.offsetY, moved: false, object: null };
+  // shift + drag on the selected object of the objects file moves its footprint
+  const o = S.objects && S.object >= 0 ? S.objects.objects[S.object] : null;
+  if (e.shiftKey && o && inside(toWorld(e.offsetX, e.offsetY), o.footprint)) drag.object = o;
+});
+canvas.addEventListener("mousemove", (e) => {
+  const [x, y] = toWorld(e.offsetX, e.offsetY);
+  $("cursor").textContent = `x ${x.toFixed(2)} m, y ${y.toFixed(2)} m`;
+  if (!drag) return;
+  const dx = e.offsetX - drag.x, dy = e.offsetY - drag.y;
+  if (Math.abs(dx) + Math.abs(dy) > 3) drag.moved = true;
+  if (drag.moved && drag.object) {
+    const mx = dx / S.view.s, my = -dy / S.view.s, r3 = (v) => Math.round(v * 1000) / 1000;
+    drag.object.footprint = drag.object.footprint.map(([x, y]) => [r3(x + mx), r3(y + my)]);
+    drag.object.mass_center = centroid(drag.object.footprint);
+    drag.x = e.offsetX; drag.y = e.offsetY; draw();
+  } else if (drag.moved) { S.view.ox += dx; S.view.oy += dy; drag.x = e.offsetX; drag.y = e.offsetY; draw(); }
+});
+canvas.addEventListener("mouseup", (e) => {
+  const d = drag; drag = null;
+  if (d && d.object && d.moved) { selectObject(S.object); validateObjects(); return; }
+  if (d && !d.moved) click(toWorld(e.offsetX, e.offsetY));
+});
+canvas.addEventListener("wheel", (e) => {
+  e.preventDefault();
+  const k = Math.exp(-e.deltaY * 0.0015), [x, y] = toWorld(e.offsetX, e.offsetY);
+  S.view.s *= k; S.view.ox = e.offsetX - x * S.view.s; S.view.oy = e.offsetY + y * S.view.s; draw();
+}, { passive: false });
+
+function setMode(text, kind) { S.mode = text ? kind || "draw" : null; $("mode").textContent = text || ""; $("mode").style.display = text ? "block" : "none"; }
+
+async function click(pt) {
+  const r3 = (v) => Math.round(v * 1000) / 1000;
+  pt = [r3(pt[0]), r3(pt[1])];
+  if (S.drawing) { S.drawing.points.push(pt); draw(); return; }
+  if (S.mode === "route") { setMode(null); await routePreview([pt[0], pt[1], 0]); return; }
+  const hit = objectShapes().find((o) => inside(pt, o.footprint));
+  S.selectedObject = hit ? hit.key : null;
+  if (hit && S.doc) { const gi = S.doc.goals.findIndex((gl) => gl.objects.includes(hit.key)); if (gi >= 0) selectGoal(gi); }
+  if (hit && S.objects) { const oi = S.objects.objects.findIndex((o) => o.key === hit.key); if (oi >= 0) selectObject(oi); }
+  S.clicked = pt; draw();
+  await showViews(pt);
+}
+
+// ------------------------------------------------------------------ frames that saw a place
+
+async function showViews(pt) {
+  const box = $("views"); box.replaceChildren(el("p", `frames that saw (${pt[0]}, ${pt[1]}) …`));
+  const r = await api(scenePath(`/seen?x=${pt[0]}&y=${pt[1]}`));
+  box.replaceChildren();
+  if (!r.ok) { box.append(el("p", r.body.error, "error")); return; }
+  box.append(el("p", `${r.body.frames.length} of ${r.body.candidates} frames facing it saw (${pt[0]}, ${pt[1]}); nearest first`, "note"));
+  r.body.frames.forEach((f) => {
+    const fig = el("figure"), img = el("img");
+    img.alt = `frame ${f.frame}`;
+    img.src = scenePath(`/frames/${f.frame}.png?u=${f.pixel[0]}&v=${f.pixel[1]}`);
+    fig.append(img, el("figcaption", `frame ${f.frame}: ${f.distance_m} m away, camera at (${f.pose[0]}, ${f.pose[1]}) heading ${Math.round(f.pose[2] * 180 / Math.PI)}°`));
+    box.append(fig);
+  });
+}
+
+// ------------------------------------------------------------------ goals
+
+function goalRow(gl, i) {
+  const li = el("li", `${gl.name} (${gl.type})`);
+  li.dataset.index = i;
+  if (i === S.goal) li.className = "selected";
+  li.addEventListener("click", () => selectGoal(i));
+  return li;
+}
+
+function renderGoals() {
+  $("goal-list").replaceChildren(...(S.doc ? S.doc.goals.map(goalRow) : []));
+}
+
+function selectGoal(i) {
+  S.goal = i; S.route = null; $("route-text").textContent = ""; $("route-use").hidden = true;
+  const f = $("goal-form"), gl = S.doc.goals[i];
+  f.hidden = false;
+  f.name.value = gl.name; f.type.value = gl.type;
+  f.room_id.replaceChildren(el("option", "(none)"), ...Object.entries(S.doc.rooms).map(([id, r]) => { const o = el("option", `${r.name} (${id})`); o.value = id; return o; }));
+  f.room_id.options[0].value = "";
+  f.room_id.value = gl.room_id || "";
+  f.objects.value = gl.objects.join(", ");
+  f.corrective.value = Object.entries(gl.feedback.corrective || {}).map(([k, t]) => `${k}: ${t}`).join("\n");
+  f.descriptive.value = gl.feedback.descriptive || "";
+  f.landmark.value = gl.feedback.landmark || "";
+  f.procedural.value = gl.feedback.procedural || "";
+  renderGoals(); draw();
+}
+
+function readGoalForm() {
+  const f = $("goal-form"), gl = S.doc.goals[S.goal];
+  const corrective = {};
+  f.corrective.value.split("\n").map((l) => l.trim()).filter(Boolean).forEach((l) => {
+    const at = l.indexOf(":"); if (at > 0) corrective[l.slice(0, at).trim()] = l.slice(at + 1).trim(); else corrective[l] = "";
+  });
+  gl.name = f.name.value; gl.type = f.type.value;
+  gl.room_id = f.room_id.value || null;
+  gl.room = gl.room_id && S.doc.rooms[gl.room_id] ? S.doc.rooms[gl.room_id].name : null;
+  gl.objects = f.objects.value.split(",").map((k) => k.trim()).filter(Boolean);
+  gl.feedback = { corrective, descriptive: f.descriptive.value, landmark: f.landmark.value, procedural: f.procedural.value.trim() ? f.procedural.value : null };
+}
+
+let validateTimer = null;
+$("goal-form").addEventListener("input", () => {
+  if (S.goal < 0) return;
+  readGoalForm(); renderGoals(); draw();
+  clearTimeout(validateTimer); validateTimer = setTimeout(validateGoals, 250);
+});
+
+async function validateGoals() {
+  const r = await api(scenePath("/goals/validate"), { method: "POST", body: { document: S.doc } });
+  $("goal-error").textContent = r.ok ? "" : (r.body.field ? `${r.body.field}: ` : "") + r.body.error;
+  $("goal-warnings").replaceChildren(...((r.ok && r.body.warnings) || []).map((w) => el("li", `${w.field}: ${w.message}`)));
+  $("goals-save").disabled = !r.ok;
+  return r.ok;
+}
+
+$("goal-new").addEventListener("click", () => {
+  const key = S.selectedObject;
+  if (!key || !S.doc.objects[key]) { $("goal-error").textContent = "select an object on the map first (click inside its outline)"; return; }
+  const o = S.doc.objects[key];
+  let name = o.identity, n = 2;
+  while (S.doc.goals.some((gl) => gl.name.toLowerCase() === name.toLowerCase())) name = `${o.identity} ${n++}`;
+  let id = key; n = 2;
+  while (S.doc.goals.some((gl) => gl.id === id)) id = `${key}#${n++}`;
+  const room = o.room && S.doc.rooms[o.room] ? o.room : null;
+  S.doc.goals.push({ id, name, type: "big", room: room ? S.doc.rooms[room].name : null, room_id: room, objects: [key],
+    feedback: { corrective: {}, descriptive: `It is a ${o.class}.`, landmark: "", procedural: null } });
+  selectGoal(S.doc.goals.length - 1); validateGoals();
+});
+
+$("goal-delete").addEventListener("click", () => {
+  if (S.goal < 0) return;
+  S.doc.goals.splice(S.goal, 1); S.goal = -1; $("goal-form").hidden = true; renderGoals(); draw(); validateGoals();
+});
+
+$("route-pick").addEventListener("click", () => { setMode("click the route's start on the map", "route"); });
+$("route-use").addEventListener("click", () => {
+  if (!S.route || !S.route.text) return;
+  $("goal-form").procedural.value = S.route.text; readGoalForm(); validateGoals();
+});
+
+async function routePreview(start) {
+  const gl = S.doc.goals[S.goal];
+  const r = await api(scenePath(`/route?x=${start[0]}&y=${start[1]}&yaw_deg=0&objects=${encodeURIComponent(gl.objects.join(","))}`));
+  if (!r.ok) { $("route-text").textContent = r.body.error; return; }
+  S.route = { ...r.body, start };
+  $("route-text").textContent = r.body.reachable ? `from (${start[0]}, ${start[1]}), facing east, ${r.body.length_m} m: ${r.body.text}` : "the goal cannot be reached from there";
+  $("route-use").hidden = !r.body.reachable;
+  draw();
+}
+
+$("goals-save").addEventListener("click", async () => {
+  if (S.goal >= 0) readGoalForm();
+  if (!(await validateGoals())) return;
+  $("save-result").textContent = "saving: rebuilding goals and routes …";
+  const r = await api(scenePath("/goals"), { method: "PUT", body: { document: S.doc }, ifMatch: S.etag });
+  if (r.ok) {
+    $("save-result").textContent = `saved ${r.body.saved} (digest ${r.body.digest}); ` + r.body.outcomes.map((o) => `${o.stage} ${o.status} ${o.seconds} s`).join(", ");
+    $("download").hidden = true;
+    const keep = S.goal; await loadScene(S.scene, true); if (keep >= 0 && keep < S.doc.goals.length) selectGoal(keep);
+    return;
+  }
+  $("save-result").textContent = "";
+  $("goal-error").textContent = r.body.error;
+  const a = $("download");
+  a.href = URL.createObjectURL(new Blob([JSON.stringify(S.doc, null, 2)], { type: "application/json" }));
+  a.hidden = false;
+});
+
+// ------------------------------------------------------------------ history
+
+async function loadHistory() {
+  const r = await api(scenePath("/history"));
+  const list = $("history"); list.replaceChildren();
+  if (!r.ok) { list.append(el("li", r.body.error, "error")); return; }
+  if (!r.body.edits.length) list.append(el("li", "no saved edits yet"));
+  r.body.edits.forEach((e) => {
+    const li = el("li", `${e.digest}  ${e.time}${e.current ? "  (current)" : ""}  `);
+    const show = el("button", "diff"), restore = el("button", "restore");
+    show.addEventListener("click", async (ev) => { ev.stopPropagation(); const d = await api(scenePath(`/history/${e.digest}`)); showDiff(d.ok ? d.body.diff : d.body.error); });
+    restore.addEventListener("click", async (ev) => {
+      ev.stopPropagation(); status("restoring: rebuilding goals and routes …");
+      const d = await api(scenePath(`/history/${e.digest}/restore`), { method: "POST", body: {}, ifMatch: S.etag });
+      status(d.ok ? `restored ${e.digest}` : d.body.error); if (d.ok) await loadScene(S.scene, true);
+    });
+    li.append(show, restore); list.append(li);
+  });
+}
+
+function showDiff(text) {
+  const pre = $("diff"); pre.replaceChildren();
+  (text || "(no difference)").split("\n").forEach((line) => pre.append(el("div", line, line.startsWith("+") ? "add" : line.startsWith("-") ? "del" : "")));
+}
+
+// ------------------------------------------------------------------ objects file: draw, edit, proposals
+
+function renderObjects() {
+  const list = $("object-list"); list.replaceChildren();
+  if (!S.objects) return;
+  S.objects.objects.forEach((o, i) => {
+    const li = el("li", `${o.key} (${o.cls})`); if (i === S.object) li.className = "selected";
+    li.addEventListener("click", () => selectObject(i)); list.append(li);
+  });
+}
+
+function selectObject(i) {
+  S.object = i; S.selectedObject = S.objects.objects[i].key;
+  const f = $("object-form"), o = S.objects.objects[i];
+  f.hidden = false;
+  ["key", "cls", "color_name", "material", "size"].forEach((k) => { f[k].value = o[k] || ""; });
+  f.room.value = o.room || "";
+  f.description.value = (o.description || []).join("\n");
+  f.footprint.value = o.footprint.map((p) => `${p[0]}, ${p[1]}`).join("\n");
+  renderObjects(); draw();
+}
+
+$("object-form").addEventListener("input", () => {
+  if (S.object < 0) return;
+  const f = $("object-form"), o = S.objects.objects[S.object];
+  ["key", "cls", "color_name", "material", "size"].forEach((k) => { o[k] = f[k].value; });
+  o.room = f.room.value || null;
+  o.description = f.description.value.split("\n").filter((l) => l.trim());
+  o.footprint = f.footprint.value.split("\n").filter((l) => l.trim()).map((l) => l.split(",").map((v) => Number(v.trim())));
+  if (o.footprint.length >= 3 && o.footprint.every((p) => p.length === 2 && p.every(Number.isFinite))) o.mass_center = centroid(o.footprint);
+  S.selectedObject = o.key; renderObjects(); draw(); validateObjects();
+});
+
+$("object-delete").addEventListener("click", () => {
+  if (S.object < 0) return; S.objects.objects.splice(S.object, 1); S.object = -1; $("object-form").hidden = true; renderObjects(); draw(); validateObjects();
+});
+
+function newKey(cls) {
+  let n = 0; const keys = new Set(S.objects.objects.map((o) => o.key));
+  while (keys.has(`${cls}_${n}`)) n++;
+  return `${cls}_${n}`;
+}
+
+function addObject(cls, footprint) {
+  const c = centroid(footprint);
+  S.objects.objects.push({ key: newKey(cls), cls, instance_id: 0, room: roomAt(c), footprint, mass_center: c, z_range: [0, 1], size: "big", color_name: "", material: "", description: [] });
+  selectObject(S.objects.objects.length - 1); validateObjects();
+}
+
+function roomAt(pt) { const r = (S.objects.rooms || []).find((q) => q.polygon.length >= 3 && inside(pt, q.polygon)); return r ? r.id : null; }
+
+$("draw").addEventListener("click", () => { S.drawing = { kind: "object", points: [] }; setMode("click the footprint's corners, then Finish polygon"); $("draw-done").hidden = false; });
+$("room-draw").addEventListener("click", () => { S.drawing = { kind: "room", points: [] }; setMode("click the room's corners, then Finish polygon"); $("draw-done").hidden = false; });
+$("draw-done").addEventListener("click", () => {
+  const d = S.drawing; S.drawing = null; setMode(null); $("draw-done").hidden = true;
+  if (!d || d.points.length < 3) { $("objects-error").textContent = "a polygon needs at least 3 corners"; draw(); return; }
+  if (d.kind === "room") {
+    let n = 1; const ids = new Set(S.objects.rooms.map((r) => r.id)); while (ids.has(`room_${n}`)) n++;
+    S.objects.rooms.push({ id: `room_${n}`, type: "room", polygon: d.points }); draw(); validateObjects(); return;
+  }
+  addObject(($("propose-text").value.trim() || "object").split(/\s+/).pop(), d.points);
+});
+
+$("propose").addEventListener("click", async () => {
+  const text = $("propose-text").value.trim();
+  status(`asking the ${$("propose-map").value} for "${text}" …`);
+  const r = await api(scenePath(`/propose?map=${$("propose-map").value}&text=${encodeURIComponent(text)}`));
+  if (!r.ok) { $("objects-error").textContent = r.body.error; status(""); return; }
+  $("objects-error").textContent = "";
+  S.proposals = r.body.proposals;
+  S.heatmapExtent = r.body.heatmap_extent_xy;
+  S.heatmap = new Image(); S.heatmap.onload = draw; S.heatmap.src = r.body.heatmap;
+  status(`${r.body.proposals.length} proposals for "${r.body.text}" (${r.body.seconds} s)`);
+  renderProposals();
+});
+
+function renderProposals() {
+  const list = $("proposals"); list.replaceChildren();
+  S.proposals.forEach((p, i) => {
+    const li = el("li", `#${p.rank} score ${p.score.toFixed(2)}, ${p.area_m2} m²  `);
+    const ok = el("button", "accept"), no = el("button", "reject");
+    ok.addEventListener("click", (e) => { e.stopPropagation(); S.proposals.splice(i, 1); addObject($("propose-text").value.trim().split(/\s+/).pop() || "object", p.footprint); renderProposals(); if (!S.proposals.length) S.heatmap = null; draw(); });
+    no.addEventListener("click", (e) => { e.stopPropagation(); S.proposals.splice(i, 1); renderProposals(); if (!S.proposals.length) S.heatmap = null; draw(); });
+    li.append(ok, no); list.append(li);
+  });
+}
+
+function objectsBody() { return { path: $("objects-path").value, rooms: S.objects.rooms, objects: S.objects.objects }; }
+
+let objectsTimer = null;
+function validateObjects() {
+  clearTimeout(objectsTimer);
+  objectsTimer = setTimeout(async () => {
+    const r = await api(scenePath("/objects/validate"), { method: "POST", body: objectsBody() });
+    $("objects-error").textContent = r.ok ? "" : r.body.error;
+    $("objects-save").disabled = !r.ok;
+  }, 200);
+}
+
+$("objects-save").addEventListener("click", async () => {
+  const r = await api(scenePath("/objects"), { method: "PUT", body: objectsBody() });
+  $("objects-error").textContent = r.ok ? "" : r.body.error;
+  $("objects-result").textContent = r.ok ? `wrote ${r.body.path}: ${r.body.objects} objects, ${r.body.rooms} rooms\nthen ${r.body.next}` : "";
+});
+
+async function loadObjects() {
+  const r = await api(scenePath("/objects"));
+  if (!r.ok) { $("objects-error").textContent = r.body.error; return; }
+  S.objects = { rooms: r.body.rooms, objects: r.body.objects };
+  $("objects-path").value = r.body.path;
+  renderObjects(); draw();
+}
+
+// ------------------------------------------------------------------ play as the user
+
+async function loadAgents() {
+  if ($("play-agent").options.length) return;
+  const r = await api("/api/agents");
+  if (!r.ok) { $("play-error").textContent = r.body.error; return; }
+  $("play-agent").replaceChildren(...r.body.agents.map((a) => { const o = el("option", a.label); o.value = a.name; return o; }));
+  $("play-goal").replaceChildren(...S.data.goals.map((g) => { const o = el("option", `${g.number}. ${g.name}`); o.value = g.id; return o; }));
+}
+
+function showPlay(st) {
+  S.play = st;
+  $("play-error").textContent = st.error || "";
+  const ego = $("play-ego"); ego.hidden = false; ego.src = scenePath(`/play/${st.id}/ego.png?step=${st.steps}`);
+  const res = st.result;
+  $("play-status").textContent = res
+    ? `episode over (${res.end}): ${res.success ? "success" : "failure"}, SPL ${res.spl.toFixed(2)}, SIT ${res.sit.toFixed(2)}, ${res.steps} steps, ${res.talk_turns} questions; stored with the human-answered episodes`
+    : `${st.instruction} · step ${st.steps} · ${st.status}`;
+  $("play-question").hidden = st.status !== "waiting";
+  if (st.question) { $("play-asks").textContent = st.question.text; $("play-suggestion").textContent = st.question.suggestion || "(none)"; }
+  $("play-dialogue").replaceChildren(...st.dialogue.map((d) => el("li", `${d.speaker} (step ${d.step}): ${d.text}`, d.speaker)));
+  draw();
+  if (st.status === "running") setTimeout(async () => { const r = await api(scenePath(`/play/${st.id}`)); if (r.ok) showPlay(r.body); }, 700);
+}
+
+$("play-start").addEventListener("click", async () => {
+  $("play-status").textContent = "the agent is walking …";
+  const r = await api(scenePath("/play"), { method: "POST", body: { method: $("play-agent").value, goal: $("play-goal").value, seed: Number($("play-seed").value) } });
+  if (!r.ok) { $("play-error").textContent = r.body.error; $("play-status").textContent = ""; return; }
+  $("play-reply").value = ""; showPlay(r.body);
+});
+$("play-suggest").addEventListener("click", () => { $("play-reply").value = $("play-suggestion").textContent; });
+$("play-send").addEventListener("click", async () => {
+  const text = $("play-reply").value;
+  $("play-status").textContent = "the agent is walking …";
+  $("play-question").hidden = true; S.play.status = "sent";
+  const r = await api(scenePath(`/play/${S.play.id}/reply`), { method: "POST", body: { text } });
+  if (!r.ok) { $("play-error").textContent = r.body.error; return; }
+  $("play-reply").value = ""; showPlay(r.body);
+});
+
+// ------------------------------------------------------------------ tabs, scenes, start
+
+document.querySelectorAll("nav button").forEach((b) => b.addEventListener("click", async () => {
+  document.querySelectorAll("nav button").forEach((x) => x.classList.toggle("active", x === b));
+  ["goals", "objects", "views", "history", "play"].forEach((t) => { $(`tab-${t}`).hidden = t !== b.dataset.tab; });
+  if (b.dataset.tab === "objects" && !S.objects) await loadObjects();
+  if (b.dataset.tab === "history") await loadHistory();
+  if (b.dataset.tab === "play") await loadAgents();
+  if (b.dataset.tab !== "objects") { S.objects = null; S.object = -1; $("object-form").hidden = true; S.proposals = []; S.heatmap = null; }
+  draw();
+}));
+["show-objects", "show-goals", "show-routes", "show-trajectory", "show-rooms"].forEach((id) => $(id).addEventListener("change", draw));
+$("layer").addEventListener("change", async () => { S.layer = $("layer").value; await loadLayer(S.layer); draw(); });
+$("scene").addEventListener("change", () => { location.hash = $("scene").value; loadScene($("scene").value); });
+window.addEventListener("resize", draw);
+
+function loadLayer(name) {
+  return new Promise((done) => {
+    if (S.layers[name]) { done(); return; }
+    const img = new Image(); img.onload = () => { draw(); done(); }; img.onerror = done;
+    img.src = scenePath(`/layers/${name}.png`); S.layers[name] = img;
+  });
+}
+
+async function loadScene(name, keepView) {
+  S.scene = name; status(`loading ${name} …`); delete document.body.dataset.ready;
+  const goalsAsked = api(scenePath("/goals"));  // in parallel with the summary
+  const r = await api(scenePath());
+  if (!r.ok) { status(r.body.error); S.data = null; draw(); return; }
+  S.data = r.body;
+  $("layer").replaceChildren(...S.data.layers.map((l) => { const o = el("option", l); o.value = l; return o; }));
+  if (!S.data.layers.includes(S.layer)) S.layer = S.data.layers[0];
+  $("layer").value = S.layer;
+  $("propose-map").replaceChildren(...S.data.maps.map((m) => el("option", m)));
+  S.layers = {};
+  const first = loadLayer(S.layer);  // the others are fetched when chosen
+  const g = await goalsAsked;
+  S.doc = g.ok ? g.body.document : null; S.etag = g.ok ? g.body.digest : null; S.goal = -1;
+  $("goal-form").hidden = true; $("goal-error").textContent = g.ok ? "" : g.body.error; $("goal-warnings").replaceChildren();
+  $("goals-save").disabled = !g.ok;
+  renderGoals();
+  if (!keepView) fit();
+  await first;
+  draw();
+  status(`${name}: ${S.data.objects.length} objects, ${S.data.goals.length} goals, ${S.data.routes.length} routes` + (S.data.ground_truth ? " (ground truth)" : ""));
+  document.body.dataset.ready = name;
+}
+
+(async function start() {
+  const r = await api("/api/scenes");
+  if (!r.ok) { status(r.body.error); return; }
+  $("scene").replaceChildren(...r.body.scenes.map((s) => { const o = el("option", s.name + (s.locked ? " (being rebuilt)" : "")); o.value = s.name; return o; }));
+  const wanted = decodeURIComponent(location.hash.slice(1)) || r.body.default;
+  if (wanted) { $("scene").value = wanted; await loadScene(wanted); }
+})();
