@@ -8,7 +8,9 @@ from __future__ import annotations
 
 from importlib.metadata import EntryPoint, entry_points
 
+#: the entry-point groups installed packages register their extensions in (their one home)
 ENCODERS_GROUP = "zipon.encoders"
+AGENTS_GROUP = "zipon.agents"
 
 
 def names(group: str) -> list[str]:

@@ -71,7 +71,6 @@ def agent_names(agents: Sequence | None) -> tuple[list[str] | None, dict[str, ty
     return names, classes
 
 
-ENTRY_POINT_GROUP = "zipon.agents"
 
 
 def plugin_agent(name: str) -> type | None:
@@ -79,11 +78,11 @@ def plugin_agent(name: str) -> type | None:
     from orion_eval.agents import Agent
     from pipeline import plugins
 
-    return plugins.load_class(ENTRY_POINT_GROUP, name, Agent, "orion_eval.agents.Agent", "agent")
+    return plugins.load_class(plugins.AGENTS_GROUP, name, Agent, "orion_eval.agents.Agent", "agent")
 
 
 def plugin_agent_names() -> list[str]:
     """Names registered in the ``zipon.agents`` entry-point group (installed packages)."""
     from pipeline import plugins
 
-    return plugins.names(ENTRY_POINT_GROUP)
+    return plugins.names(plugins.AGENTS_GROUP)

@@ -28,16 +28,15 @@ MODULES: dict[str, str] = {
 
 
 #: entry-point group through which installed packages add encoders: ``name = "module:Class"``
-PLUGIN_GROUP = plugins.ENCODERS_GROUP
 
 
 def plugin_names() -> list[str]:
     """Encoder names installed packages register in the ``zipon.encoders`` entry-point group."""
-    return plugins.names(PLUGIN_GROUP)
+    return plugins.names(plugins.ENCODERS_GROUP)
 
 
 def _plugin_entry(name: str):
-    return plugins.entry(PLUGIN_GROUP, name)
+    return plugins.entry(plugins.ENCODERS_GROUP, name)
 
 
 def plugin_source(name: str) -> str | None:
@@ -50,7 +49,7 @@ def plugin_source(name: str) -> str | None:
         return None
     spec = importlib.util.find_spec(ep.value.split(":")[0].split(".")[0])
     if spec is None or spec.origin is None:
-        raise ConfigError(f"encoder {name!r}: entry point {ep.value!r} ({PLUGIN_GROUP}) names a module that is "
+        raise ConfigError(f"encoder {name!r}: entry point {ep.value!r} ({plugins.ENCODERS_GROUP}) names a module that is "
                           "not installed")
     origin = Path(spec.origin)
     return str(origin.parent if origin.name == "__init__.py" else origin)
@@ -60,7 +59,7 @@ def _load_plugin(name: str) -> bool:
     """Register plugin encoder ``name`` from its entry point; False when no package provides it."""
     from pipeline.encoders.base import ENCODERS, Encoder
 
-    cls = plugins.load_class(PLUGIN_GROUP, name, Encoder, "pipeline.encoders.base.Encoder", "encoder")
+    cls = plugins.load_class(plugins.ENCODERS_GROUP, name, Encoder, "pipeline.encoders.base.Encoder", "encoder")
     if cls is None:
         return False
     ENCODERS[name] = cls
