@@ -11,7 +11,6 @@ Stamps are synthesised as ``N / ingest.folder_fps``. Poses are re-orthonormalise
 
 from __future__ import annotations
 
-import json
 import re
 from pathlib import Path
 from typing import Iterator
@@ -23,6 +22,7 @@ from pipeline.errors import InputDataError
 from pipeline.geometry import Intrinsics, nearest_rigid
 from pipeline.readers.base import (DEPTH, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, frame_stamps_ns,
                                    read_depth16, read_image, register)
+from pipeline.userfiles import load_user_file
 
 # NICE-SLAM configs/Replica/replica.yaml
 REPLICA_CAMERA = {"w": 1200, "h": 680, "fx": 600.0, "fy": 600.0, "cx": 599.5, "cy": 339.5, "scale": 6553.5}
@@ -32,8 +32,9 @@ _FRAME = re.compile(r"^frame(\d+)\.(jpg|png)$")
 def _camera(folder: Path) -> tuple[dict, str]:
     for f in (folder / "cam_params.json", folder.parent / "cam_params.json"):
         if f.is_file():
+            doc = load_user_file(f, fmt="json")
             try:
-                cam = json.loads(f.read_text())["camera"]
+                cam = doc["camera"]
                 return {k: float(cam[k]) for k in REPLICA_CAMERA}, str(f)
             except (KeyError, TypeError, ValueError) as err:
                 raise InputDataError(f"camera parameters unreadable ({err})", path=f, field="camera",
