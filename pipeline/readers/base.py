@@ -25,6 +25,7 @@ import numpy as np
 from pipeline.config import IngestParams
 from pipeline.errors import InputDataError, MissingInputError
 from pipeline.geometry import Intrinsics, nearest_rigid, pose_from_tq
+from pipeline.imagecodec import read_image_file
 
 # Stream names of samples.
 RGB, DEPTH, INSTANCE, POSE = "rgb", "depth", "instance", "pose"
@@ -197,23 +198,21 @@ def native_intrinsics(fx: float, fy: float, cx: float, cy: float, first_image: P
 
 
 def read_depth16(path: Path, frame: int, expected: str) -> np.ndarray:
-    """A single-channel 16-bit depth PNG as stored (no unit conversion); anything else raises :class:`InputDataError`."""
+    """A single-channel 16-bit depth PNG as stored (no unit conversion), decoded strictly; anything else raises
+    :class:`InputDataError` naming the file and frame."""
     import cv2
 
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None or img.dtype != np.uint16 or img.ndim != 2:
+    img = read_image_file(path, cv2.IMREAD_UNCHANGED, frame=frame, what="depth")
+    if img.dtype != np.uint16 or img.ndim != 2:
         raise InputDataError("depth image is not a single-channel 16-bit PNG", path=path, frame=frame,
                              expected=expected)
     return img
 
 
 def read_image(path: Path, *, flags: int, frame: int, what: str) -> np.ndarray:
-    """Load an image file with OpenCV; unreadable files raise :class:`InputDataError`."""
-    import cv2
-
-    img = cv2.imread(str(path), flags)
-    if img is None:
-        raise InputDataError(f"{what} image could not be read", path=path, frame=frame, expected="a PNG/JPEG image")
+    """Load an image file (strictly: :mod:`pipeline.imagecodec`); unreadable, truncated or corrupt files raise
+    :class:`InputDataError` naming the file and frame. Colour comes back RGB."""
+    img = read_image_file(path, flags, frame=frame, what=what)
     if img.ndim == 3:
         img = np.ascontiguousarray(img[..., [2, 1, 0]])
     return img
