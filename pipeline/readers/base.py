@@ -42,7 +42,9 @@ class Sample:
     frame is matched): colour ``(H,W,3)`` uint8 RGB, depth ``(H,W)`` uint16 mm or float32 metres
     (NaN/inf/0 = invalid), instance ``(H,W)`` uint16; for poses a ``(4,4)`` float64 transform of
     pose link ``key`` (parent -> child, see :class:`PoseLink`).
-    ``index`` is the 0-based message index within its stream (the "frame" errors name).
+    ``index`` is the 0-based message index within its stream (the "frame" errors name). ``origin``: the file
+    an image comes from (folder formats), named by errors about its pixels; messages of a log leave it None
+    (the topic and index name them).
     """
 
     stream: str
@@ -51,6 +53,7 @@ class Sample:
     payload: Any
     key: str = ""
     rigid: bool = False  # a pose known rigid by construction (from a checked quaternion): skip the matrix check
+    origin: Path | None = None
 
     def array(self) -> np.ndarray:
         if callable(self.payload):

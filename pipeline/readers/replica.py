@@ -104,8 +104,9 @@ class ReplicaReader(Reader):
     def samples(self) -> Iterator[Sample]:
         for k, ((i, rgb, depth), stamp) in enumerate(zip(self.frames, self.stamps.tolist())):
             yield Sample(POSE, stamp, k, self._pose(k, i), key="world->camera", rigid=True)
-            yield Sample(RGB, stamp, k, lambda f=rgb, k=k: read_image(f, flags=cv2.IMREAD_COLOR, frame=k, what="colour"))
-            yield Sample(DEPTH, stamp, k, lambda f=depth, k=k: self._depth(f, k))
+            yield Sample(RGB, stamp, k, lambda f=rgb, k=k: read_image(f, flags=cv2.IMREAD_COLOR, frame=k, what="colour"),
+                         origin=rgb)
+            yield Sample(DEPTH, stamp, k, lambda f=depth, k=k: self._depth(f, k), origin=depth)
 
     def _depth(self, file: Path, k: int) -> np.ndarray:
         raw = read_depth16(file, k, f"uint16 depth at {self.scale} per metre")

@@ -79,8 +79,12 @@ class TumReader(Reader):
                                          field=f"{name} line {no}", frame=k, expected="the image file to exist")
             self.rows[stream] = rows
         self.rows[POSE] = _table(self.path / "groundtruth.txt", 8)
-        if not self.rows[RGB]:
-            raise InputDataError("no frames listed", path=self.path / "rgb.txt", expected="timestamp filename lines")
+        for stream, name, expected in ((RGB, "rgb.txt", "timestamp filename lines"),
+                                       (DEPTH, "depth.txt", "timestamp filename lines"),
+                                       (POSE, "groundtruth.txt", "timestamp tx ty tz qx qy qz qw lines")):
+            if not self.rows[stream]:
+                raise InputDataError(f"no {'poses' if stream == POSE else 'frames'} listed: every line is blank or a "
+                                     "comment", path=self.path / name, expected=expected)
         intr, how = self._intrinsics()
         self.intrinsics = intr
         return SourceInfo(
@@ -105,7 +109,7 @@ class TumReader(Reader):
                     load = (lambda f=file, k=k: read_image(f, flags=cv2.IMREAD_COLOR, frame=k, what="colour"))
                 else:
                     load = (lambda f=file, k=k: tum_depth_to_mm(self._depth(f, k)))
-                yield Sample(stream, stamp, k, load)
+                yield Sample(stream, stamp, k, load, origin=file)
 
         def poses():
             for k, (no, stamp, rest) in enumerate(self.rows[POSE]):
