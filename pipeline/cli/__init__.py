@@ -32,7 +32,8 @@ def main(argv: list[str] | None = None) -> int:
         console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False, soft_wrap=True)
         return 1
     except OSError as err:  # after ZiponError: MissingInputError is a FileNotFoundError too
-        console.print(f"[red]error:[/red] {escape(os_error_message(err))}", highlight=False, soft_wrap=True)
+        console.print(f"[red]error:[/red] {escape(os_error_message(err, output=_outside_workspace(err)))}",
+                      highlight=False, soft_wrap=True)
         return 1
     except typer.Exit as e:
         return e.exit_code
@@ -43,6 +44,22 @@ def main(argv: list[str] | None = None) -> int:
         e.show()
         return e.exit_code
     return code if isinstance(code, int) else 0
+
+
+def _outside_workspace(err: OSError) -> bool:
+    """Whether the path of ``err`` lies outside the data and manifests roots (an output the user named)."""
+    from pathlib import Path
+
+    from pipeline.cli.common import G
+
+    if err.filename is None:
+        return False
+    try:
+        ws = G.workspace()
+        path = Path(err.filename).resolve()
+    except (ZiponError, OSError, ValueError):
+        return False
+    return not any(path.is_relative_to(root) for root in (ws.data_dir, ws.manifests_dir))
 
 
 def entry() -> None:
