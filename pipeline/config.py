@@ -17,7 +17,7 @@ import yaml
 from pydantic import (BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator,
                       model_serializer, model_validator)
 
-from pipeline.errors import ConfigError, InputDataError
+from pipeline.errors import ConfigError, InputDataError, shown
 from pipeline.perception_params import DetectorParams, SimulatedCFParams, SimulatedLSegParams
 from pipeline.userfiles import parse_yaml, read_user_text
 
@@ -844,7 +844,7 @@ def _apply_override(raw: dict, assignment: str) -> None:
 def _format_errors(err: ValidationError, origin: str) -> str:
     lines = []
     for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"]) or "(top level)"
+        loc = ".".join(shown(p) for p in e["loc"]) or "(top level)"
         lines.append(f"{origin}: {loc}: {e['msg'].removeprefix('Value error, ')}")
     return "\n".join(lines)
 

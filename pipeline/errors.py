@@ -12,6 +12,13 @@ import errno
 from pathlib import Path
 
 
+def shown(key: object) -> str:
+    """A key or name as a message shows it: as written when printable, else quoted with its escapes, so a key
+    holding a newline or a control character cannot break a one-line message or pass unseen."""
+    text = str(key)
+    return text if text and text.isprintable() else repr(text)
+
+
 class ZiponError(Exception):
     """Root of every error zipon raises on purpose."""
 

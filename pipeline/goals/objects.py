@@ -18,7 +18,7 @@ import numpy as np
 import skimage.draw
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError
 
-from pipeline.errors import InputDataError
+from pipeline.errors import InputDataError, shown
 from pipeline.geometry import GridSpec
 from pipeline.scene_gt import GTScene
 from pipeline.userfiles import load_user_file
@@ -186,7 +186,7 @@ def read_structured(path: Path) -> object:
 def validation_error(err: ValidationError, path: Path | str | None, prefix: str = "") -> InputDataError:
     """The first pydantic error as an :class:`InputDataError` naming the field path and the reason."""
     def where(e: dict) -> str:
-        return prefix + "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in e["loc"]).lstrip(".")
+        return prefix + "".join(f"[{p}]" if isinstance(p, int) else f".{shown(p)}" for p in e["loc"]).lstrip(".")
 
     lines = []
     for e in err.errors():

@@ -158,6 +158,18 @@ def open_reader(path: Path, params: IngestParams, fmt: str = "auto") -> Reader:
 
 # ----------------------------------------------------------------------------- helpers for readers
 
+def read_text_lines(path: Path, expected: str) -> list[str]:
+    """The lines of a text file (UTF-8; ASCII in every format zipon reads); a byte that is not UTF-8 raises
+    :class:`InputDataError` naming the file and the line."""
+    data = Path(path).read_bytes()
+    try:
+        return data.decode("utf-8").splitlines()
+    except UnicodeDecodeError as err:
+        line = data[:err.start].count(b"\n") + 1
+        raise InputDataError(f"byte 0x{data[err.start]:02x} at offset {err.start} is not text ({err.reason})",
+                             path=path, field=f"line {line}", expected=expected) from None
+
+
 def parse_stamp_ns(text: str, *, path=None, line: int | None = None) -> int:
     """Seconds as decimal text ('1305031229.528748') -> int nanoseconds, without float rounding."""
     try:

@@ -21,7 +21,7 @@ import numpy as np
 from pipeline.errors import InputDataError
 from pipeline.geometry import Intrinsics, nearest_rigid
 from pipeline.readers.base import (DEPTH, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, frame_stamps_ns,
-                                   read_depth16, read_image, register)
+                                   read_depth16, read_image, read_text_lines, register)
 from pipeline.userfiles import load_user_file
 
 # NICE-SLAM configs/Replica/replica.yaml
@@ -59,7 +59,7 @@ class ReplicaReader(Reader):
         found = sorted((int(m.group(1)), p.name, m.group(1)) for p in res.iterdir() if (m := _FRAME.match(p.name)))
         if not found:
             raise InputDataError("no frameNNNNNN.jpg files", path=res, expected="results/frameNNNNNN.jpg")
-        rows = [ln.split() for ln in (self.path / "traj.txt").read_text().splitlines() if ln.strip()]
+        rows = [ln.split() for ln in read_text_lines(self.path / "traj.txt", "16 numbers a line") if ln.strip()]
         if len(rows) < len(found):
             raise InputDataError(f"traj.txt has {len(rows)} poses for {len(found)} frames", path=self.path / "traj.txt",
                                  expected="one 4x4 pose (16 numbers) per frame")
