@@ -36,20 +36,16 @@ _LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 def read_user_text(path: str | Path, *, limits: Limits = DEFAULT_LIMITS, what: str = "YAML/JSON") -> str:
-    """The UTF-8 text of ``path``, refused beyond ``limits.max_bytes`` before any of it is read."""
+    """The UTF-8 text of ``path``, refused beyond ``limits.max_bytes`` (at most that many bytes plus one are read)."""
     path = Path(path)
     try:
-        size = path.stat().st_size
-        if size > limits.max_bytes:
-            raise InputDataError(f"file is {size} bytes", path=path,
-                                 expected=f"a {what} file of at most {limits.max_bytes} bytes")
         with open(path, "rb") as f:
-            data = f.read(limits.max_bytes + 1)
+            data = f.read(limits.max_bytes + 1)  # never more: a bigger file (or a pipe that never ends) is refused
     except FileNotFoundError:
         raise InputDataError("file not found", path=path) from None
     except IsADirectoryError:
         raise InputDataError("is a folder", path=path, expected=f"a {what} file") from None
-    if len(data) > limits.max_bytes:  # grew while read (a pipe, a file being written)
+    if len(data) > limits.max_bytes:
         raise InputDataError(f"file holds more than {limits.max_bytes} bytes", path=path,
                              expected=f"a {what} file of at most {limits.max_bytes} bytes")
     try:

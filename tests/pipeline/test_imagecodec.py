@@ -96,3 +96,29 @@ def test_read_image_file_names_file_and_frame(tmp_path):
     assert cv2.imread(str(f), cv2.IMREAD_COLOR) is not None  # what the readers used to store: a partial image
     with pytest.raises(InputDataError, match="could not be read"):
         read_image_file(tmp_path / "absent.png", cv2.IMREAD_COLOR, frame=0, what="colour")
+
+
+def _chunk(kind: bytes, body: bytes) -> bytes:
+    return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+
+def test_structural_problems_are_named():
+    png = IMAGES["png-colour"]
+    assert png_problem(b"\x89PNG\r\n\x1a\n" + _chunk(b"tEXt", b"a\x00b") + png[8:]) == "first chunk is 'tEXt', not IHDR"
+    assert png_problem(png[:8] + struct.pack(">I", 0x80000000) + png[12:]).startswith("chunk 'IHDR' at byte 8 runs past")
+    jpg = IMAGES["jpeg-baseline"]
+    assert jpeg_problem(jpg[:2] + b"\x00" + jpg[3:]) == "byte 2: 0x00 where a marker was expected"
+    assert jpeg_problem(jpg[:2] + b"\xff\x00" + jpg[2:]) == "byte 3: a stuffed 0xff00 outside entropy-coded data"
+    assert "length 1" in jpeg_problem(jpg[:2] + b"\xff\xe0\x00\x01" + jpg[2:])
+    assert jpeg_problem(jpg[:3]).startswith("ends at byte 3")
+
+
+def test_a_whole_png_whose_pixels_do_not_decode_is_refused():
+    """Every CRC right, the compressed pixel data garbage: libpng fails, and the error names the file."""
+    png = IMAGES["png-colour"]
+    ihdr_end = 8 + 12 + 13
+    forged = png[:ihdr_end] + _chunk(b"IDAT", b"not zlib data at all") + _chunk(b"IEND", b"")
+    assert png_problem(forged) is None
+    with pytest.raises(InputDataError, match="could not be decoded") as e:
+        decode_image(forged, cv2.IMREAD_UNCHANGED, what="depth", path="d.png", frame=3)
+    assert str(e.value).startswith("file d.png; frame 3: depth image")

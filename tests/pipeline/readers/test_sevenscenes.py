@@ -203,6 +203,7 @@ def test_camera_override_wins_over_the_file(tmp_path):
     ("57 0 32\n0 57 24\n0 0 0\n", "not a pinhole"),
     ("-57 0 32\n0 57 24\n0 0 1\n", "do not fit"),
     ("inf 0 32\n0 57 24\n0 0 1\n", "NaN or inf"),
+    ("57 0 32\n0 57 24\n0 0 1\n" + "#" * 5000, "file is 5022 bytes"),
 ])
 def test_malformed_camera_intrinsics_file(tmp_path, text, says):
     root = write_7scenes(tmp_path, make_recording(2))
