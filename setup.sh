@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Set up zipon on a fresh machine: system packages, a venv in .venv, the project with its test extras.
+# Set up zipon on a fresh machine: system packages, a venv in .venv, the project with its test, bench and docs extras.
 # Usage: ./setup.sh            (then: .venv/bin/zipon demo)
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -23,7 +23,7 @@ export PATH="$PWD/.venv/bin:$PATH"
 # scikit-fmm builds from source and does not declare its numpy build dependency.
 .venv/bin/python -m pip install -q "numpy>=1.26,<3" meson-python meson ninja
 .venv/bin/python -m pip install -q --no-build-isolation scikit-fmm
-.venv/bin/python -m pip install -q -e ".[test,bench]"
+.venv/bin/python -m pip install -q -e ".[test,bench,docs]"
 # DVC: never phone home.
 export DVC_NO_ANALYTICS=1
 echo "zipon installed in .venv — try: .venv/bin/zipon --help"

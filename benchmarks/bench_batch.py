@@ -52,7 +52,7 @@ with each real encoder at its default size, from random weights saved to files (
 nothing is downloaded): open_clip ViT-B/32 MaskCLIP at 480x640 and the public-size LSeg (ViT-L/16, 480 px windows)
 for the vlmap, ConceptFusion for the cfmap with ``--encoders conceptfusion``. Per encoder it prints the stage's
 CPU seconds split into the encoder's forward passes, its model loads (fixed per chunk) and the rest, the ratio
-rest / encoder (issue 13's target: at most 0.10, encoder-bound), frames/s and CPU seconds per frame, and the CPU
+rest / encoder (target: at most 0.10, encoder-bound), frames/s and CPU seconds per frame, and the CPU
 hours the paper's 14,159 frames would take (divide by the cores or GPUs a user has).
 
     .venv/bin/python benchmarks/bench_batch.py --real-encoders --frames 16 --encoders maskclip lseg
@@ -90,7 +90,7 @@ def write_params(root: Path, scenes: int, frames: int, width: int, height: int) 
     return path
 
 
-ZIPON = ("import resource, sys; from pipeline.cli import main; code = main(sys.argv[1:]); "
+ZIPON = ("import resource, sys; from zipon.cli import main; code = main(sys.argv[1:]); "
          "kid = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss; me = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss; "
          "print('PEAK_RSS_KB', max(kid, me), file=sys.stderr); sys.exit(code)")
 
@@ -142,7 +142,7 @@ def kernel_zstd(logs: list[Path]) -> float:
 
 def kernel_integrate(params_path: Path, frames_zarr: Path, n: int) -> tuple[float, int]:
     """(seconds, frames) of open3d's integrate alone over the first ``n`` frames, prepared beforehand."""
-    from pipeline.config import load_params
+    from pipeline.paramsfile import load_params
     from pipeline.frames import FrameStore
     from pipeline.recon.tsdf import integrate, new_volume, prepare_block, strided
 
@@ -181,7 +181,7 @@ def encoder_share(params_path: Path, root: Path, scene: str, kind: str, params=N
     read, projection, fusion, the store written). ``params``: the Params to use instead of ``params_path``'s;
     ``frames``: map only the scene's first ``frames`` frames (copies of frames.zarr and recon.zarr cut short)."""
     import pipeline.encoders
-    from pipeline.config import load_params
+    from pipeline.paramsfile import load_params
     from pipeline.encoders.base import Encoder
     from pipeline.maps import fusion, store  # noqa: F401  (imported before timing: not the stage's work)
     from pipeline.maps.build import MAP_CONFIGS, build_map
@@ -233,7 +233,7 @@ def real_encoders(args) -> None:
     import open_clip
     import torch
 
-    from pipeline.config import load_params
+    from pipeline.paramsfile import load_params
     from pipeline.encoders.lseg_net import LSEG_VITL16_384, LSegNet
 
     root = args.keep or Path(tempfile.mkdtemp(prefix="zipon-encoders-"))
@@ -305,11 +305,11 @@ def incremental_rerun(params_path: Path, root: Path, scene: str, stage: str, app
     """Build ``stage`` in this process on the scene cut to ``n - append`` frames keeping its fold, then on all ``n``
     frames (timed); the second map must equal the one ``zipon run`` built from scratch (its digest)."""
     from pipeline.codedeps import code_digest
-    from pipeline.config import load_params
+    from pipeline.paramsfile import load_params
     from pipeline.frames import FrameStore
     from pipeline.maps.build import MAP_CONFIGS, build_map
     from pipeline.maps.store import FORMAT_VERSION
-    from pipeline.runner import limit_native_threads
+    from pipeline.process import limit_native_threads
     from pipeline.store import artifact_attrs, content_digest
 
     params = load_params(params_path)
@@ -438,7 +438,7 @@ def main() -> None:
         t_logs, _ = zipon(params, "run", "--stage", "simulate")
         emit(bench="batch", kind="logs_written", seconds=round(t_logs, 1), timed=False)
 
-    from pipeline.config import load_params
+    from pipeline.paramsfile import load_params
     from pipeline.paths import FOLD
 
     p = load_params(params)

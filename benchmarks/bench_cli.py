@@ -3,7 +3,7 @@
 Each command runs as its own process (``.venv/bin/zipon`` or ``python -m``-free entry: the console
 script of this environment), in a workspace folder holding ``params.yaml`` and, for the query, a built
 vlmap (``zipon demo`` makes one). Per command it prints the median and all wall times, the median
-CPU seconds (user + sys of the child), the target from issue 13 (``--help``/``status``/``params`` 1 s,
+CPU seconds (user + sys of the child), the target (``--help``/``status``/``params`` 1 s,
 ``query`` 1.5 s) and the machine's load average, which on a shared machine inflates wall times.
 With ``--importtime`` it also prints the slowest top-level imports of each command
 (``python -X importtime``). One JSON object per line on stdout.
@@ -25,7 +25,7 @@ from pathlib import Path
 from _common import ROOT, emit
 
 TARGETS_S = {"--help": 1.0, "status": 1.0, "params": 1.0, "query": 1.5}
-ENTRY = "import sys; from pipeline.cli import main; sys.exit(main(sys.argv[1:]))"
+ENTRY = "import sys; from zipon.cli import main; sys.exit(main(sys.argv[1:]))"
 
 
 def run_once(cmd: list[str], cwd: Path, extra: tuple[str, ...] = ()) -> tuple[float, float, subprocess.CompletedProcess]:

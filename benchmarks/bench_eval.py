@@ -37,7 +37,7 @@ from _common import emit
 from orion_eval.agents import AGENTS
 from orion_eval.run import run_eval
 from orion_eval.user import FEEDBACK_SETTINGS
-from pipeline.config import load_params
+from pipeline.paramsfile import load_params
 from pipeline.paths import Workspace
 
 METHODS = list(AGENTS)  # every registered agent, in the paper's table order
@@ -60,7 +60,8 @@ def build(root: Path, n_scenes: int, frames: int, rebuild: bool = False, stages:
     they are (any code change makes them stale to ``zipon run``, and rebuilding ten scenes takes long):
     ``rebuild`` runs the pipeline on them, which reruns what is stale; ``stages`` reruns only those stages (forced,
     e.g. goals and routes after their format changed)."""
-    from pipeline.runner import plan, run_many
+    from pipeline.stagegraph import plan
+    from pipeline.runner import run_many
     from stages import STAGES
 
     root.mkdir(parents=True, exist_ok=True)

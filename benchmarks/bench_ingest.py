@@ -38,11 +38,11 @@ def make_frames(out: Path, n_unique: int, synthetic: bool) -> str:
     if not synthetic:
         try:
             from pipeline.config import SimulateParams
-            from pipeline.sim import SceneRenderer, SimulatedRecording
+            from pipeline.sim import SceneRaycaster, SimulatedRecording
 
             p = SimulateParams(frames=n_unique, width=W, height=H)
             rec = SimulatedRecording("bench", p)
-            blocks = list(rec.blocks(SceneRenderer(rec.gt, rec.intrinsics)))
+            blocks = list(rec.blocks(SceneRaycaster(rec.gt, rec.intrinsics)))
             np.savez(out, rgb=np.concatenate([b[1] for b in blocks]), depth=np.concatenate([b[2] for b in blocks]),
                      instance=np.concatenate([b[3] for b in blocks]))
             return f"pipeline.sim ({n_unique} rendered frames, cycled)"

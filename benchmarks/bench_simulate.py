@@ -17,15 +17,15 @@ from pathlib import Path
 from _common import emit
 
 from pipeline.config import SimulateParams
-from pipeline.sim import SceneRenderer, SimulatedRecording, simulate_scene
+from pipeline.sim import SceneRaycaster, SimulatedRecording, simulate_scene
 
 
-def _render_fps(rec: SimulatedRecording, renderer: SceneRenderer, block: int, limit: int) -> float:
+def _render_fps(rec: SimulatedRecording, raycaster: SceneRaycaster, block: int, limit: int) -> float:
     poses = rec.frame_T[:limit]
-    renderer.render(poses[:1])  # warm-up (BVH build)
+    raycaster.raycast(poses[:1])  # warm-up (BVH build)
     t = time.perf_counter()
     for i in range(0, len(poses), block):
-        renderer.render(poses[i:i + block])
+        raycaster.raycast(poses[i:i + block])
     return len(poses) / (time.perf_counter() - t)
 
 
@@ -39,10 +39,10 @@ def main() -> None:
     t = time.perf_counter()
     rec = SimulatedRecording(args.scene, params)
     plan_s = time.perf_counter() - t
-    renderer = SceneRenderer(rec.gt, rec.intrinsics)
+    raycaster = SceneRaycaster(rec.gt, rec.intrinsics)
     n = min(frames, 48)
-    ref = _render_fps(rec, renderer, 1, n)
-    batched = _render_fps(rec, renderer, params.render_block_frames, n)
+    ref = _render_fps(rec, raycaster, 1, n)
+    batched = _render_fps(rec, raycaster, params.render_block_frames, n)
     emit(bench="render", frames=n, width=params.width, height=params.height,
          reference_one_cast_per_frame_fps=round(ref, 2), batched_fps=round(batched, 2),
          block_frames=params.render_block_frames, speedup=round(batched / ref, 2), plan_seconds=round(plan_s, 3),

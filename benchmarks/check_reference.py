@@ -1,8 +1,8 @@
-"""zipon's real encoders against their reference implementations, with the same random weights (issue 14 item 6).
+"""zipon's real encoders against their reference implementations, with the same random weights.
 
 No trained LSeg / CLIP weights can be had here, so exactness is shown the other way: one random-init model is
 saved to a file, loaded by zipon and by the reference's own code, both run on the same real TUM RGB-D frame
-(``../shared/data/real/tum_fr1_rpy_head30``, first frame, 480x640), and the largest absolute difference of the
+(``tests/data/tum_fr1_rpy_head30``, first frame, 480x640), and the largest absolute difference of the
 unit-norm features is printed, one JSON line per encoder (``max_abs_diff``, ``ok`` = within ``--tol``, 1e-4).
 
 - ``lseg``: isl-org/lang-seg (``modules/models/lseg_net.py`` ``LSegNet``, timm ``vit_large_patch16_384`` backbone,
@@ -69,7 +69,7 @@ from pathlib import Path
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_FRAMES = ROOT.parent / "shared" / "data" / "real" / "tum_fr1_rpy_head30"
+DEFAULT_FRAMES = ROOT / "tests" / "data" / "tum_fr1_rpy_head30"
 FP16_ROUNDINGS = 3  # conceptfusion: fp16 roundings on the reference's path of a cell's feature
 MERGED = 8  # conceptfusion: overlapping masks added (unions of pairs of proposer regions)
 REFERENCES = {  # name -> (reference repository, a file its clone must have)

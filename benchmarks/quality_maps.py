@@ -36,7 +36,7 @@ from scipy.ndimage import distance_transform_edt
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from pipeline.config import load_params, parse_params  # noqa: E402
+from pipeline.paramsfile import load_params, parse_params  # noqa: E402
 from pipeline.frames import FrameStore  # noqa: E402
 from pipeline.maps.build import MAP_CONFIGS, build_map  # noqa: E402
 from pipeline.maps.evaluate import class_masks, evaluate_map, sample_poses  # noqa: E402

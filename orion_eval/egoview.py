@@ -1,7 +1,7 @@
 """Ego views ray-cast from the RECONSTRUCTED mesh (``recon_mesh.ply``) at the agent's pose.
 
 open3d's ``RaycastingScene`` casts one ray per pixel centre (camera direction ``((u-cx)/fx,
-(v-cy)/fy, 1)``, so the hit distance is the z-depth, as in :mod:`pipeline.sim.render`); colour is
+(v-cy)/fy, 1)``, so the hit distance is the z-depth, as in :mod:`pipeline.sim.raycast`); colour is
 the barycentric mix of the hit triangle's vertex colours. For simulated scenes an instance image
 is added by looking up which ground-truth object part box contains each hit point (within
 ``tolerance_m``): only the diagnostic ``oracle`` encoder reads it. Line of sight is the routes

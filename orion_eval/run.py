@@ -54,7 +54,7 @@ def evaluate_scene(ws: Workspace, params: Params, scene: str, methods, feedback,
                    log_dir: Path | None = None, threads: int = 1, agent_classes: dict | None = None) -> list[dict]:
     """All episodes of one scene (the unit of work); writes ``log_dir/<scene>.episodes.jsonl.gz`` when given.
     ``agent_classes`` maps method names to user :class:`~orion_eval.agents.Agent` subclasses (beside the registry)."""
-    from pipeline.runner import limit_native_threads
+    from pipeline.process import limit_native_threads
 
     limit_native_threads(threads)
     arts = Artifacts(ws, params, scene)

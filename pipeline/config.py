@@ -1,58 +1,19 @@
 """Typed configuration: ``params.yaml`` validated at load, one section per stage.
 
-Every tunable lives here, documented once. A stage reads only its own section(s) (its
-``StageSpec.params``), and the digest of exactly those sections decides whether it is stale.
-Errors name the key: ``params.yaml: ingest.block_frames: Input should be greater than 0``.
+Every tunable lives here, documented once (the schema). A stage reads only its own section(s), and the digest of
+exactly those keys decides whether it is stale (:mod:`pipeline.stageconfig`). Reading a params file, ``-S``
+overrides, moved keys and writing ``params.yaml`` live in :mod:`pipeline.paramsfile`. Errors name the key:
+``params.yaml: ingest.block_frames: Input should be greater than 0``.
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
-from pathlib import Path
-from types import UnionType
-from typing import Annotated, Any, Literal, Union, get_args, get_origin
+from typing import Annotated, Any, Literal, get_args
 
-import yaml
-from pydantic import (BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator,
-                      model_serializer, model_validator)
+from pydantic import Field, field_validator, model_serializer, model_validator
 
-from pipeline.errors import ConfigError, InputDataError, shown
 from pipeline.perception_params import DetectorParams, SimulatedCFParams, SimulatedLSegParams
-from pipeline.userfiles import parse_yaml, read_user_text
-
-
-def _scalar_types(annotation: Any) -> set[type]:
-    """The plain types a field annotation admits (through Optional, unions, Annotated, Literal)."""
-    origin = get_origin(annotation)
-    if origin is Annotated:
-        return _scalar_types(get_args(annotation)[0])
-    if origin is Literal:
-        return {type(a) for a in get_args(annotation)}
-    if origin in (Union, UnionType):
-        return set().union(*(_scalar_types(a) for a in get_args(annotation)))
-    return {origin or annotation} if isinstance(origin or annotation, type) else {object}
-
-
-class Section(BaseModel):
-    """Base of every params section: unknown keys are errors, values are immutable, types are strict:
-    ``true`` is not an integer, ``"3"`` is not a number, NaN and infinity are not numbers."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-    @field_validator("*", mode="before")
-    @classmethod
-    def _strict_scalars(cls, value: Any, info: ValidationInfo) -> Any:
-        if not isinstance(value, (bool, str)):
-            return value
-        admits = _scalar_types(cls.model_fields[info.field_name].annotation)
-        if object in admits or type(value) in admits:
-            return value
-        if isinstance(value, bool) and admits & {int, float}:
-            raise ValueError(f"expected a number, got {str(value).lower()} (a boolean)")
-        if isinstance(value, str) and admits <= {int, float, type(None)}:
-            raise ValueError(f"expected a number, got the string {value!r}")
-        return value
+from pipeline.section import Section
 
 
 # ----------------------------------------------------------------------------- scenes
@@ -236,7 +197,7 @@ class IngestParams(DepthRange):
 
 
 class GridParams(Section):
-    """The top-down grid every map, route and evaluator reads (DESIGN.md)."""
+    """The top-down grid every map, route and evaluator reads (world <-> cell: pipeline.geometry, nowhere else)."""
 
     rows: int = Field(600, gt=0, description="grid rows (north-south)")
     cols: int = Field(600, gt=0, description="grid columns (west-east)")
@@ -461,10 +422,11 @@ class EncodersParams(Section):
                        "one an installed package registers in the zipon.encoders entry points")
     cfmap: str = Field("conceptfusion", description="encoder of the cfmap stage (built-in or plugin, as vlmap)")
     simulated: str | None = Field(
-        "oracle",
+        "perception",
         description="encoder used INSTEAD of vlmap/cfmap for simulated scenes: 'perception' = simulated perception "
-        "models (simulated_lseg for the vlmap, simulated_cf for the cfmap), 'oracle' = the ground-truth diagnostic; "
-        "None = simulated scenes use vlmap/cfmap like real ones",
+        "models (simulated_lseg for the vlmap, simulated_cf for the cfmap), 'oracle' = the ground-truth DIAGNOSTIC "
+        "(perfect features, an upper bound, labelled so in every result); None = simulated scenes use vlmap/cfmap "
+        "like real ones",
     )
     lseg: LSegParams = LSegParams()
     maskclip: MaskClipParams = MaskClipParams()
@@ -821,195 +783,3 @@ class Params(Section):
             if not name or any(ch in name for ch in "/\\ .") or name.startswith("-"):
                 raise ValueError(f"scene name {name!r} must be a plain identifier (letters, digits, _ -)")
         return scenes
-
-
-# ----------------------------------------------------------------------------- load
-
-def _apply_override(raw: dict, assignment: str) -> None:
-    if "=" not in assignment:
-        raise ConfigError(f"override {assignment!r}: expected KEY=VALUE, e.g. simulate.frames=100")
-    key, value = assignment.split("=", 1)
-    parts = key.strip().split(".")
-    node = raw
-    for part in parts[:-1]:
-        node = node.setdefault(part, {})
-        if not isinstance(node, dict):
-            raise ConfigError(f"override {assignment!r}: {part!r} is not a section")
-    try:
-        node[parts[-1]] = parse_yaml(value, origin=f"override {key.strip()}")
-    except InputDataError as err:
-        raise ConfigError(str(err)) from None
-
-
-def _format_errors(err: ValidationError, origin: str) -> str:
-    lines = []
-    for e in err.errors():
-        loc = ".".join(shown(p) for p in e["loc"]) or "(top level)"
-        lines.append(f"{origin}: {loc}: {e['msg'].removeprefix('Value error, ')}")
-    return "\n".join(lines)
-
-
-# Keys that moved: old -> new. Why, per new section (_MOVED_WHY).
-MOVED_KEYS: dict[str, str] = {
-    "maps.device": "run.fusion_device",
-    "encoders.device": "run.device",
-    "encoders.batch_size": "run.encoder_batch_size",
-    "encoders.threads": "run.torch_threads",
-    **{f"maps.{name}": f"query.{name}" for name in QueryParams.model_fields},
-    **{f"routes.{name}": f"task.{name}" for name in TaskParams.model_fields},
-    "eval.success_distance_m": "task.success_m",
-    "eval.hfov_deg": "task.hfov_deg",
-    "eval.clearance_m": "task.clearance_m",
-    "eval.stop_radius_m": "eval.goto_stop_radius_m",
-}
-_MOVED_WHY = {
-    "run": "settings that cannot change an artifact live outside the hashed sections",
-    "query": "settings that cannot change an artifact live outside the hashed sections",
-    "task": "the task's facts have one home, read by the goals and routes stages and the evaluator",
-    "eval": "the agents' own stop radius; task.stop_radius_m is where walks to a ground-truth goal aim",
-}
-
-
-def _moved_keys(raw: dict, origin: str) -> None:
-    found = [(old, new) for old, new in MOVED_KEYS.items()
-             if isinstance(raw.get(old.split(".")[0]), dict) and old.split(".")[1] in raw[old.split(".")[0]]]
-    if found:
-        raise ConfigError("\n".join(f"{origin}: {old}: moved to {new} ({_MOVED_WHY[new.split('.')[0]]})"
-                                     for old, new in found))
-
-
-def parse_params(raw: dict, *, origin: str = "params", overrides: list[str] | tuple[str, ...] = ()) -> Params:
-    """Validate a params mapping (after ``KEY=VALUE`` overrides); raises :class:`ConfigError`."""
-    try:
-        raw = json.loads(json.dumps(raw or {}, allow_nan=True))  # deep copy of plain data
-    except (TypeError, ValueError) as err:
-        raise ConfigError(f"{origin}: not plain data: {err}") from None
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{origin}: expected a mapping of sections at the top level")
-    for assignment in overrides:
-        _apply_override(raw, assignment)
-    _moved_keys(raw, origin)
-    try:
-        return Params.model_validate(raw)
-    except ValidationError as err:
-        raise ConfigError(_format_errors(err, origin)) from None
-
-
-def load_params(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> Params:
-    """Read and validate ``params.yaml`` (bounded: :mod:`pipeline.userfiles`)."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{path}: params file not found (run zipon from the project folder or pass --params)")
-    try:
-        raw = parse_yaml(read_user_text(path, what="params YAML"), origin=path) or {}
-    except InputDataError as err:
-        raise ConfigError(str(err)) from None
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{path}: expected a mapping of sections at the top level")
-    return parse_params(raw, origin=str(path), overrides=overrides)
-
-
-def canonical_json(value: Any) -> str:
-    """The JSON text digests are computed on: sorted keys, no whitespace, finite floats."""
-    return json.dumps(value, sort_keys=True, separators=(",", ":"), allow_nan=False)
-
-
-def digest_value(value: Any) -> str:
-    """Deterministic digest of plain data (params sections, attrs)."""
-    return "blake2b:" + hashlib.blake2b(canonical_json(value).encode(), digest_size=16).hexdigest()
-
-
-def params_yaml(params: Params) -> str:
-    """``params.yaml`` text for ``params``: every tunable, each preceded by its description as a comment."""
-    lines = ["# zipon params: every tunable, one section per stage (types and checks: pipeline/config.py).",
-             "# Regenerate a complete file with: zipon params --defaults"]
-
-    def emit(model: BaseModel, indent: int) -> None:
-        pad = "  " * indent
-        for name, info in type(model).model_fields.items():
-            value = getattr(model, name)
-            if info.description:
-                lines.append(f"{pad}# {info.description}")
-            if isinstance(value, BaseModel):
-                lines.append(f"{pad}{name}:")
-                emit(value, indent + 1)
-            elif isinstance(value, dict) and value and all(isinstance(v, BaseModel) for v in value.values()):
-                lines.append(f"{pad}{name}:")
-                for key, sub in value.items():
-                    flow = yaml.safe_dump(sub.model_dump(mode="json"), default_flow_style=True, width=1000).strip()
-                    lines.append(f"{pad}  {key}: {flow}")
-            else:
-                dumped = yaml.safe_dump({name: _plain_value(value)}, default_flow_style=True, width=1000).strip()
-                lines.append(f"{pad}{dumped[1:-1] if dumped.startswith('{') else dumped}")
-
-    for name, info in Params.model_fields.items():
-        value = getattr(params, name)
-        lines.append("")
-        if info.description or type(value).__doc__:
-            doc = info.description if name == "scenes" else (type(value).__doc__ or "").strip().splitlines()[0]
-            lines.append(f"# {doc}")
-        if isinstance(value, BaseModel):
-            lines.append(f"{name}:")
-            emit(value, 1)
-        else:
-            lines.append(f"{name}:")
-            for key, sub in value.items():
-                flow = yaml.safe_dump(sub.model_dump(mode="json"), default_flow_style=True, width=1000).strip()
-                lines.append(f"  {key}: {flow}")
-    return "\n".join(lines) + "\n"
-
-
-def _plain_value(value: Any) -> Any:
-    return value.model_dump(mode="json") if isinstance(value, BaseModel) else value
-
-
-# ----------------------------------------------------------------------------- stage configs
-
-def param_value(params: Params, key: str) -> Any:
-    """The plain (JSON) value of a dotted params key (a leaf or a whole section)."""
-    obj: Any = params
-    for part in key.split("."):
-        obj = obj[part] if isinstance(obj, dict) else getattr(obj, part)
-    return obj.model_dump(mode="json") if isinstance(obj, BaseModel) else json.loads(json.dumps(obj))
-
-
-def project(params: Params, keys: list[str] | tuple[str, ...]) -> dict[str, Any]:
-    """``{dotted key: value}`` of exactly ``keys`` (sorted): what a stage's params digest covers."""
-    return {key: param_value(params, key) for key in sorted(set(keys))}
-
-
-def section_keys(section: str, model: type[BaseModel], exclude: tuple[str, ...] = ()) -> list[str]:
-    """``section.field`` for every field of a section model except ``exclude``."""
-    return [f"{section}.{name}" for name in model.model_fields if name not in exclude]
-
-
-class StageConfig(Section):
-    """A stage's typed config, built from params: the stage receives only this (``ctx.config``).
-
-    Each stage module (``stages/<name>.py``) defines ``Config(StageConfig)``. :meth:`param_keys` names the
-    params keys it is built from; the stage's params digest covers exactly their values (recorded in the
-    manifest, compared key by key by ``zipon status``, and listed as ``params`` in ``dvc.yaml``). A test
-    perturbs every other key of the params and checks the config does not change.
-
-    The defaults serve a config whose fields are whole params sections, named as in ``params.yaml``
-    (``reconstruct: ReconstructParams``); a config that reads parts of sections or per-scene entries
-    overrides both.
-    """
-
-    @classmethod
-    def param_keys(cls, params: Params, scene: str) -> list[str]:
-        unknown = [name for name in cls.model_fields if name not in Params.model_fields]
-        if unknown:
-            raise TypeError(f"{cls.__qualname__}: fields {unknown} are not params sections; override param_keys "
-                            "and from_params")
-        return list(cls.model_fields)
-
-    @classmethod
-    def from_params(cls, params: Params, scene: str) -> "StageConfig":
-        return cls(**{name: getattr(params, name) for name in cls.param_keys(params, scene)})
-
-    @classmethod
-    def extra_inputs(cls, params: Params, scene: str) -> dict[str, str]:
-        """Files named by params that the stage reads (input name -> path relative to the params file); their
-        content digests are the stage's inputs beside its artifacts."""
-        return {}

@@ -30,7 +30,8 @@ from typing import Iterator
 
 from filelock import SoftFileLock, Timeout
 # filelock's owner identity (host name with its pid namespace, process start token, the staleness probe): the
-# records and the rule its SoftFileLock uses, shared by the object-store locks (pipeline.fsroot)
+# records and the rule its SoftFileLock uses, shared by the object-store locks (pipeline.fsroot). Not a public
+# module: filelock is pinned exactly in pyproject.toml for it (tests/pipeline/test_locks.py covers the probe).
 from filelock._identity import host_name, owner_is_stale, process_start_token
 
 from pipeline.errors import LockedError

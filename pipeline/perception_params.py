@@ -14,15 +14,13 @@ published figure pins down, its description says so.
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Optional
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
+
+from pipeline.section import Section
 
 CellSize = tuple[Annotated[int, Field(gt=0)], Annotated[int, Field(gt=0)]]  # (height, width)
-
-#: where the CLIP ViT-B/32 text embeddings of the LVIS names live (relative: to the working directory,
-#: else to the zipon checkout's parent, where ``shared/`` sits next to it)
-DEFAULT_EMBEDDINGS = "../shared/data/clip_text"
 
 # Published perception-level figures the defaults are calibrated to (3D open-vocabulary semantic
 # segmentation on Replica, ConceptFusion's protocol; ConceptGraphs, Gu et al., arXiv 2309.16650, Table I).
@@ -39,20 +37,13 @@ PUBLISHED = {
 }
 
 
-class _Section(BaseModel):
-    """Unknown keys are errors, values are immutable, no NaN / infinity (like :class:`pipeline.config.Section`,
-    which imports this module and so cannot be its base)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-
-class _PerceptionParams(_Section):
+class _PerceptionParams(Section):
     """What both simulated perception models share: the text space, the seed and the class confusions."""
 
-    embeddings: str = Field(
-        DEFAULT_EMBEDDINGS, description="folder with lvis_v1_clip_vitb32_a+cname.npy and lvis_v1_names.txt (real "
-        "CLIP ViT-B/32 text embeddings of the LVIS names); relative = to the working directory, else to the folder "
-        "holding the zipon checkout"
+    embeddings: Optional[str] = Field(
+        None, description="folder with lvis_v1_clip_vitb32_a+cname.npy and lvis_v1_names.txt (CLIP ViT-B/32 text "
+        "embeddings of the LVIS names, float (1203, D) and 1203 name lines); null = the ones shipped with zipon "
+        "(pipeline/data/clip_text, from Detic, Apache-2.0); a relative path is taken from the working directory"
     )
     seed: int = Field(0, description="seed of every draw (per object and per frame); the same seed gives the same map")
     out_size: CellSize = Field((120, 160), description="feature (height, width), cells (LSeg and ConceptFusion: 120x160)")
@@ -137,7 +128,7 @@ class SimulatedCFParams(_PerceptionParams):
     )
 
 
-class DetectorParams(_Section):
+class DetectorParams(Section):
     """Simulated open-vocabulary detector (GroundingDINO-like boxes + verification) on the ego view, used by
     the CoW and ORION agents instead of ground-truth visibility. Not a trained model."""
 

@@ -1,20 +1,15 @@
-"""The stage runner: a per-scene DAG of stages, staleness, atomic publication, dask scheduling.
+"""The stage runner: runs the (scene, stage) pairs :mod:`pipeline.stagegraph` plans, one unit of work for the
+serial path and every dask scheduler, with atomic publication.
 
 A stage is a pure function ``run(ctx: StageContext) -> dict`` (its summary figures). It reads its
 inputs from ``ctx.inputs``, its typed config from ``ctx.config`` (built from params by the stage's
 ``Config``; exactly what its params digest covers), and writes exactly the paths in ``ctx.outputs``
 (temporary locations); the runner digests and publishes them with the manifest. One unit of work,
-:func:`run_stage`, serves the serial path and every dask scheduler.
-
-A stage is stale when its manifest is missing, an output is missing, a file of its code changed (the
-import closure of its module, :mod:`pipeline.codedeps`), a params key of its config changed, or an
-input's digest changed; :func:`staleness` names which.
+:func:`run_stage`, serves the serial path and every dask scheduler; :func:`run_many` runs a plan on one.
 """
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
 import os
 import platform
 import socket
@@ -28,49 +23,18 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from pipeline import __version__
-from pipeline import codedeps
-from pipeline.config import Params, RunParams, StageConfig, canonical_json, digest_value, project
-from pipeline.errors import MissingInputError, StageError, ZiponError, os_error_message
+from pipeline import codedeps, logs
+from pipeline.config import Params, RunParams
+from pipeline.stageconfig import StageConfig, digest_value
+from pipeline.errors import StageError, ZiponError, os_error_message
 from pipeline.manifest import Manifest, OutputRecord
 from pipeline.paths import ARTIFACTS, Workspace
 from pipeline.locks import output_lock
 from pipeline.publication import check_inputs_unchanged, publish_outputs, recover
-from pipeline.store import ArrayDigests, content_digest, files_digest, new_tmp_dir, remove, sweep_tmp
-
-SOURCE = "source"  # the pseudo-input naming a scene's raw data (a log, a folder)
-
-
-@dataclass(frozen=True)
-class StageSpec:
-    """One stage of the DAG, declared once in :mod:`stages` (dvc.yaml is checked against it)."""
-
-    name: str
-    entry: str  # "module:function"; the module also defines the stage's Config (see config_class)
-    inputs: tuple[str, ...]  # artifact names, or SOURCE for the scene's raw data
-    outputs: tuple[str, ...]  # artifact names (see pipeline.paths.ARTIFACTS)
-    simulated_only: bool = False
-    description: str = ""
-    config: str = ""  # "module:Class" of the stage's StageConfig; default: "<entry module>:Config"
-
-    @property
-    def module(self) -> str:
-        return self.entry.split(":")[0]
-
-    def load(self) -> Callable[["StageContext"], dict]:
-        module, func = self.entry.split(":")
-        return getattr(importlib.import_module(module), func)
-
-    def config_class(self) -> type[StageConfig]:
-        module, cls = (self.config or f"{self.module}:Config").split(":")
-        return getattr(importlib.import_module(module), cls)
-
-    def build_config(self, params: Params, scene: str) -> tuple[StageConfig, dict[str, Any]]:
-        """(the typed config, its params projection ``{key: value}``) for ``scene``."""
-        cls = self.config_class()
-        return cls.from_params(params, scene), project(params, cls.param_keys(params, scene))
-
-    def applies_to(self, params: Params, scene: str) -> bool:
-        return params.scenes[scene].simulated or not self.simulated_only
+from pipeline.store import ArrayDigests, content_digest, new_tmp_dir, remove, sweep_tmp
+from pipeline.process import limit_native_threads, peak_rss_mb
+from pipeline.stagegraph import (SOURCE, StageSpec, code_digest, input_digests, source_key, source_paths, stage_levels,
+                                 staleness, upstream_stages)
 
 
 @dataclass
@@ -107,11 +71,11 @@ class StageContext:
         return self.known_digests.setdefault(output, ArrayDigests())
 
     def log(self, message: str) -> None:
+        """Keep ``message`` for the stage's outcome and log it (``zipon.stages``, info)."""
         self.messages.append(message)
         if self.show_progress:
-            from rich.console import Console
-
-            Console(stderr=True).print(f"[dim]{self.scene}/{self.stage}:[/dim] {message}")
+            logs.ensure_configured()  # a dask worker process: nothing configured its logging
+        logs.get_logger("stages").info("%s/%s: %s", self.scene, self.stage, message)
 
     def progress(self, iterable, total: int | None = None, description: str = ""):
         """Iterate with a progress bar (rich) when progress is shown."""
@@ -258,192 +222,6 @@ class Outcome:
     error: str = ""
 
 
-# ----------------------------------------------------------------------------- digests
-
-def code_digest(spec: StageSpec) -> str:
-    """Digest of the source of every project module the stage's module imports (transitively)."""
-    return codedeps.code_digest(spec.module)
-
-
-def source_paths(ws: Workspace, params: Params, scene: str) -> list[Path]:
-    """The raw data of a scene in reading order: the simulated log, or the configured paths (relative to
-    params.yaml; ``scenes.<scene>.source`` or ``.sources``)."""
-    src = params.scenes[scene]
-    if src.simulated:
-        return [ws.artifact("raw_log", scene)]
-    return [path if path.is_absolute() else (ws.root / path) for path in map(Path, src.paths)]
-
-
-def source_key(i: int) -> str:
-    """The input name of a scene's ``i``-th raw source (0-based): ``source``, ``source_2``, ``source_3``, ..."""
-    return SOURCE if i == 0 else f"{SOURCE}_{i + 1}"
-
-
-def scene_sources(inputs: dict[str, Path]) -> list[Path]:
-    """The raw sources among a stage's inputs (``source``, ``source_2``, ...), in reading order."""
-    return [inputs[source_key(i)] for i in range(len(inputs)) if source_key(i) in inputs]
-
-
-def producer(stages: dict[str, StageSpec], artifact: str) -> StageSpec:
-    for spec in stages.values():
-        if artifact in spec.outputs:
-            return spec
-    raise KeyError(f"no stage produces artifact {artifact!r}")
-
-
-def input_digests(ws: Workspace, params: Params, stages: dict[str, StageSpec], spec: StageSpec, scene: str,
-                  ) -> dict[str, str]:
-    """Current digests of a stage's inputs: upstream outputs (from their manifests), raw data and the files
-    its config names (hashed)."""
-    out = {}
-    for name in spec.inputs:
-        if name == SOURCE and not params.scenes[scene].simulated:
-            paths = source_paths(ws, params, scene)
-            key = "sources" if params.scenes[scene].sources is not None else "source"
-            for path in paths:
-                if not path.exists():
-                    raise MissingInputError(f"{path}: raw data of scene {scene!r} not found "
-                                            f"(params.yaml scenes.{scene}.{key})")
-            out[name] = files_digest(paths)  # every log's bytes, in order: appending a log is a new input
-            continue
-        artifact = "raw_log" if name == SOURCE else name
-        up = producer(stages, artifact)
-        man = Manifest.read(ws.manifest(scene, up.name))
-        if man is None or artifact not in man.outputs:
-            raise MissingInputError(f"scene {scene}: input {artifact!r} of stage {spec.name} is missing; run stage {up.name} first")
-        out[name] = man.outputs[artifact].digest
-    for name, rel in spec.config_class().extra_inputs(params, scene).items():
-        path = ws.root / rel
-        if not path.exists():
-            raise MissingInputError(f"{path}: {name} of scene {scene!r} not found")
-        out[name] = files_digest([path])
-    return out
-
-
-def _short(value: Any) -> str:
-    text = canonical_json(value) if not isinstance(value, str) else value
-    return text if len(text) <= 40 else text[:37] + "..."
-
-
-def params_changes(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
-    """``key old -> new`` for every params key whose value differs (added/removed keys included)."""
-    missing = object()
-    out = []
-    for key in sorted(set(old) | set(new)):
-        a, b = old.get(key, missing), new.get(key, missing)
-        if a == b:
-            continue
-        if isinstance(a, dict) and isinstance(b, dict):  # a whole section: name its leaves
-            out += [f"{key}.{change}" for change in params_changes(a, b)]
-        else:
-            out.append(f"{key} {'(none)' if a is missing else _short(a)} -> {'(none)' if b is missing else _short(b)}")
-    return out
-
-
-def staleness(ws: Workspace, params: Params, stages: dict[str, StageSpec], spec: StageSpec, scene: str,
-              current: dict[str, str] | None = None) -> str:
-    """Why the stage must run ('' when its outputs are up to date), naming what changed: the code files,
-    the params keys (``params: maps.level_height_m 0.1 -> 0.2``) or the inputs.
-
-    ``current``: the input digests when the caller already has them (raw logs are hashed once per run).
-    """
-    if ws.journal(scene, spec.name).exists():
-        return "publication interrupted (the next run finishes or undoes it)"
-    man = Manifest.read(ws.manifest(scene, spec.name))
-    if man is None:
-        return "never run"
-    for name in spec.outputs:
-        if not ws.artifact(name, scene).exists():
-            return f"output {name} missing"
-    reasons = []
-    if man.code_digest != code_digest(spec):
-        files = codedeps.changed_files(man.code_files, codedeps.file_digests(spec.module))
-        reasons.append("code changed" + (f": {', '.join(files)}" if files and man.code_files else ""))
-    _, projection = spec.build_config(params, scene)
-    if man.params_digest != digest_value(projection):
-        changes = params_changes(man.params, projection)
-        reasons.append("params: " + "; ".join(changes) if changes else "params changed")
-    if current is None:
-        try:
-            current = input_digests(ws, params, stages, spec, scene)
-        except MissingInputError:
-            reasons.append("input missing")
-            current = man.inputs
-    if current != man.inputs:
-        changed = sorted(k for k in set(current) | set(man.inputs) if current.get(k) != man.inputs.get(k))
-        reasons.append(f"input changed: {', '.join(changed)}")
-    return " | ".join(reasons)
-
-
-# ----------------------------------------------------------------------------- unit of work
-
-def peak_rss_mb() -> float:
-    """Peak resident memory of this (worker) process so far, MiB: ``VmHWM`` (per address space, so a worker forked
-    from a big parent does not report the parent's ``ru_maxrss``), else ``ru_maxrss`` where ``/proc`` is missing."""
-    import resource
-
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux, bytes on macOS
-    return peak / (1 << 20 if platform.system() == "Darwin" else 1 << 10)
-
-
-def restore_malloc_defaults() -> None:
-    """Give this process glibc's own malloc thresholds back when a dask nanny set ``MALLOC_TRIM_THRESHOLD_``.
-
-    distributed's nanny starts every worker with ``MALLOC_TRIM_THRESHOLD_=65536`` (config
-    ``distributed.nanny.pre-spawn-environ``) so that freed memory returns to the OS. Setting any trim threshold
-    also turns off glibc's dynamic mmap threshold, so every buffer over 128 KiB (a 640x480 frame, a block of
-    features) is mmapped and page-faulted afresh each time: a 1,416-frame scene's ingest took 82 CPU s in a worker
-    (38 of them in the kernel) against 36 with glibc's defaults. Here the thresholds are set to where glibc's
-    dynamic rule ends up (mmap above 32 MiB, trim above 64 MiB), on any worker: ours (``processes``) or a user's
-    ``dask worker`` (``tcp://``). Memory stays bounded by the stages' blocks, not by these thresholds. Linux/glibc
-    only; elsewhere, or without that variable, nothing is changed."""
-    global _MALLOC_RESTORED
-    if _MALLOC_RESTORED or "MALLOC_TRIM_THRESHOLD_" not in os.environ or platform.system() != "Linux":
-        return
-    _MALLOC_RESTORED = True
-    import ctypes
-
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-    except OSError:  # not glibc (musl, ...): its malloc does not read that variable either
-        return
-    m_trim_threshold, m_mmap_threshold = -1, -3  # <malloc.h>
-    libc.mallopt(m_mmap_threshold, 32 << 20)
-    libc.mallopt(m_trim_threshold, 64 << 20)
-
-
-_MALLOC_RESTORED = False
-
-
-def limit_native_threads(n: int) -> None:
-    """Cap BLAS/OpenMP/torch/open3d threads inside a worker (dask runs one task per worker thread), and restore
-    glibc's malloc thresholds there (:func:`restore_malloc_defaults`).
-
-    Speed only: outputs do not depend on thread counts (open3d's parallel reductions are made canonical or
-    run single-threaded where they would; see pipeline.recon)."""
-    restore_malloc_defaults()
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ[var] = str(n)
-    try:
-        import torch
-
-        torch.set_num_threads(n)
-    except ImportError:
-        pass
-    try:
-        import open3d as o3d  # 0.20 runs its kernels on TBB threads, which OMP_NUM_THREADS does not cap
-
-        o3d.utility.set_max_threads(n)
-    except (ImportError, AttributeError):
-        pass
-
-
 def run_stage(ws: Workspace, params: Params, stages: dict[str, StageSpec], scene: str, stage: str, **kw) -> Outcome:
     """:func:`_run_stage` holding the (scene, stage) lock (:mod:`pipeline.locks`; fails fast with
     :class:`~pipeline.errors.LockedError`), after finishing or undoing a publication a killed run
@@ -544,65 +322,6 @@ def _task(ws, params, stages, scene, stage, force, show_progress, threads, *upst
         return Outcome(scene, stage, "failed", error=os_error_message(err, where))
     except Exception as err:  # noqa: BLE001 - a bug, not bad input: keep the traceback for the report
         return Outcome(scene, stage, "failed", error=f"{type(err).__name__}: {err}\n{traceback.format_exc()}")
-
-
-# ----------------------------------------------------------------------------- the DAG
-
-def producers_of(stages: dict[str, StageSpec], name: str) -> set[str]:
-    """The stages whose outputs stage ``name`` reads in the stage graph (a raw log's ``SOURCE`` counts as the
-    raw log's producer, as for a simulated scene; :func:`upstream_stages` is the per-scene answer)."""
-    return {producer(stages, "raw_log" if i == SOURCE else i).name for i in stages[name].inputs}
-
-
-def stage_order(stages: dict[str, StageSpec]) -> list[str]:
-    """Stages in dependency order (stable: registry order breaks ties)."""
-    order: list[str] = []
-    pending = list(stages)
-    while pending:
-        for name in pending:
-            if producers_of(stages, name) <= set(order):
-                order.append(name)
-                pending.remove(name)
-                break
-        else:
-            raise ZiponError(f"stage graph has a cycle among {pending}")
-    return order
-
-
-def upstream_stages(stages: dict[str, StageSpec], params: Params, scene: str, stage: str) -> list[str]:
-    """Stages whose outputs this (scene, stage) reads; a recorded log's SOURCE has no producer."""
-    ups = []
-    for i in stages[stage].inputs:
-        if i != SOURCE:
-            ups.append(producer(stages, i).name)
-        elif params.scenes[scene].simulated:
-            ups.append(producer(stages, "raw_log").name)
-    return ups
-
-
-def stage_levels(stages: dict[str, StageSpec]) -> dict[str, int]:
-    """Each stage's level: the number of stages on the longest path from it to a stage nothing reads (0).
-
-    ``run_many`` gives a stage task its level as dask priority (highest first, the classic list-scheduling rule):
-    the long chains every scene must go through one after the other (ingest, reconstruct) run before the stages
-    whose work spreads over every worker (the maps' chunks), so the last scene's chain does not leave a worker
-    idle at the end of a batch."""
-    level: dict[str, int] = {}
-    for name in reversed(stage_order(stages)):
-        level[name] = 1 + max((level[r] for r in stages if name in producers_of(stages, r)), default=-1)
-    return level
-
-
-def plan(stages: dict[str, StageSpec], params: Params, scenes: list[str], only: list[str] | None = None
-         ) -> list[tuple[str, str]]:
-    """(scene, stage) pairs to consider, in an order that respects dependencies."""
-    wanted = set(only) if only else None
-    pairs = []
-    for scene in scenes:
-        for stage in stage_order(stages):
-            if stages[stage].applies_to(params, scene) and (wanted is None or stage in wanted):
-                pairs.append((scene, stage))
-    return pairs
 
 
 def run_many(

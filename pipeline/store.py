@@ -22,7 +22,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from pipeline import __version__
-from pipeline.config import canonical_json
+from pipeline.stageconfig import canonical_json
 from pipeline.errors import ArtifactError, MissingInputError
 from pipeline.geometry import GridSpec
 

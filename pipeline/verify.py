@@ -20,7 +20,7 @@ from pipeline.config import Params
 from pipeline.errors import ZiponError
 from pipeline.manifest import Manifest
 from pipeline.paths import ARTIFACTS, MANIFEST, Workspace
-from pipeline.runner import StageSpec, plan, stage_order
+from pipeline.stagegraph import StageSpec, plan, stage_order
 from pipeline.store import content_digest
 
 

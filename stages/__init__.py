@@ -8,7 +8,7 @@ checks they agree.
 
 from __future__ import annotations
 
-from pipeline.runner import SOURCE, StageSpec
+from pipeline.stagegraph import SOURCE, StageSpec
 
 STAGES: dict[str, StageSpec] = {
     spec.name: spec

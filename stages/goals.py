@@ -6,7 +6,8 @@ The work (objects, walls, goal regions, procedural feedback planned as the route
 
 from __future__ import annotations
 
-from pipeline.config import GoalsParams, Params, StageConfig, TaskParams, section_keys
+from pipeline.config import GoalsParams, Params, TaskParams
+from pipeline.stageconfig import StageConfig, section_keys
 from pipeline.runner import StageContext
 
 

@@ -6,8 +6,10 @@ The work (reader, time matching, depth range, z-up world, the matching report) i
 
 from __future__ import annotations
 
-from pipeline.config import IngestParams, Params, SceneFormat, StageConfig
-from pipeline.runner import StageContext, scene_sources
+from pipeline.config import IngestParams, Params, SceneFormat
+from pipeline.stageconfig import StageConfig
+from pipeline.stagegraph import scene_sources
+from pipeline.runner import StageContext
 
 
 class Config(StageConfig):

@@ -6,7 +6,8 @@ this module holds the stage's config and entry point.
 
 from __future__ import annotations
 
-from pipeline.config import GridParams, ReconstructParams, StageConfig
+from pipeline.config import GridParams, ReconstructParams
+from pipeline.stageconfig import StageConfig
 from pipeline.runner import StageContext
 
 

@@ -6,7 +6,8 @@ The work (seeded starts, FMM routes into the goals' stored regions, actions, tex
 
 from __future__ import annotations
 
-from pipeline.config import RoutesParams, StageConfig, TaskParams
+from pipeline.config import RoutesParams, TaskParams
+from pipeline.stageconfig import StageConfig
 from pipeline.runner import StageContext
 
 

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from pipeline.config import SimulateParams, StageConfig
+from pipeline.config import SimulateParams
+from pipeline.stageconfig import StageConfig
 from pipeline.runner import StageContext
 
 

@@ -7,8 +7,6 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("DVC_NO_ANALYTICS", "1")
 
 REPO = Path(__file__).resolve().parent.parent
-SHARED = REPO.parent / "shared"
-TUM_RPY = SHARED / "data" / "real" / "tum_fr1_rpy_head30"
 
 
 @pytest.fixture
@@ -39,8 +37,8 @@ def built_scene(tmp_path_factory):
 
     Returns ``(Workspace, Params)``; tests must not modify its artifacts.
     """
-    from pipeline.cli import main
-    from pipeline.config import load_params
+    from zipon.cli import main
+    from pipeline.paramsfile import load_params
     from pipeline.paths import Workspace
 
     root = tmp_path_factory.mktemp("smoke_ws")

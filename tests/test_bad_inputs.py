@@ -1,6 +1,6 @@
 """The bad-input corpus: broken logs, params, goal files, tampered stores, read-only and full disks.
 
-Every case runs the real ``zipon`` command (``pipeline.cli.main``) against a copy of the tiny scene the
+Every case runs the real ``zipon`` command (``zipon.cli.main``) against a copy of the tiny scene the
 smoke test builds, and asserts the exact exit code, a message naming the file / field / topic and what
 was expected, that no traceback reaches the user, and that nothing on disk changed (every file under
 the workspace byte-identical, nothing added or removed).
@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 import yaml
 
-from pipeline.cli import main
+from zipon.cli import main
 from tests.fixtures.raw_datasets import RawLog, make_recording, write_mcap, write_raw_log, write_tum
 
 SCENE = "tiny"
@@ -895,7 +895,7 @@ def test_corpus_is_large_enough():
 
 # ----------------------------------------------------------------------------- real read-only and full disks
 
-ZIPON = "import sys; from pipeline.cli import main; sys.exit(main(sys.argv[1:]))"
+ZIPON = "import sys; from zipon.cli import main; sys.exit(main(sys.argv[1:]))"
 
 
 def _namespaces_work() -> str:

@@ -35,7 +35,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pipeline.config import IngestParams, Params, load_params
+from pipeline.config import IngestParams, Params
+from pipeline.paramsfile import load_params
 from pipeline.errors import ConfigError, InputDataError, ZiponError
 from pipeline.frames import FrameStore
 from pipeline.goals.objects import objects_from_file

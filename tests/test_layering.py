@@ -1,8 +1,9 @@
 """The house's layering, read from the source with ``ast`` (nothing is imported):
 
-stages -> pipeline packages -> stores / geometry / config. The library (``pipeline``, ``orion_eval``,
-``zipon``) never imports ``stages``; each ``stages/<name>.py`` is its ``Config`` and a short ``run(ctx)``
-over one library function; no two project modules import each other at module level. The checks are
+zipon (API, CLI) -> stages, orion_eval -> pipeline packages -> stores / geometry / config. The library
+(``pipeline``) imports none of the layers above it, the evaluator neither ``stages`` nor ``zipon``; each
+``stages/<name>.py`` is its ``Config`` and a short ``run(ctx)`` over one library function; no two project
+modules import each other at module level. The checks are
 run on a small made-up tree first, so a check that finds nothing has been seen to find something.
 """
 
@@ -15,15 +16,12 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("pipeline", "stages", "orion_eval", "zipon")
-LIBRARY = ("pipeline", "orion_eval", "zipon")
 
-# Library files allowed to import `stages`, each with why (or the issue item that removes the exception).
-STAGES_IMPORT_ALLOWED = {
-    # The CLI runs the stage registry, so it is a client above the stages, not library code.
-    "pipeline/cli/common.py": "by design (the CLI is a client of the stages)",
-    "pipeline/cli/build.py": "by design (the CLI is a client of the stages)",
-    "pipeline/cli/inspect.py": "by design (the CLI is a client of the stages)",
-}
+# Which top-level packages each layer may import: pipeline is the library, stages the stage modules over it,
+# orion_eval the evaluator over the library, zipon what users touch (the API, the CLI, the annotation server), which
+# may import everything. No exceptions.
+MAY_IMPORT = {"pipeline": {"pipeline"}, "stages": {"pipeline", "stages"}, "orion_eval": {"pipeline", "orion_eval"},
+              "zipon": {"pipeline", "stages", "orion_eval", "zipon"}}
 # Module-level import cycles that exist today, each with the issue item that removes it.
 MODULE_LEVEL_CYCLES_ALLOWED: dict[frozenset[str], str] = {}
 # Cycles closed only by imports inside functions (they work, but a module still needs its importer).
@@ -137,12 +135,14 @@ def import_cycles(modules: dict[str, Path], *, module_level: bool) -> list[froze
     return groups
 
 
-def stage_imports(root: Path) -> list[str]:
-    """``file:line imports stages`` for every library file (any scope) that imports the ``stages`` package."""
+def layer_violations(root: Path) -> list[str]:
+    """``file:line imports NAME`` for every import (any scope) of a package its layer may not import
+    (:data:`MAY_IMPORT`)."""
     modules = project_modules(root)
     return [f"{path.relative_to(root).as_posix()}:{line} imports {name}"
-            for module, path in modules.items() if module.split(".")[0] in LIBRARY
-            for name, line in imports(path, module, modules, module_level=False) if name.split(".")[0] == "stages"]
+            for module, path in modules.items()
+            for name, line in imports(path, module, modules, module_level=False)
+            if name.split(".")[0] in MAY_IMPORT and name.split(".")[0] not in MAY_IMPORT[module.split(".")[0]]]
 
 
 def _outside(groups: list[frozenset[str]], allowed) -> list[list[str]]:
@@ -164,6 +164,7 @@ def toy_tree(tmp_path):
         "pipeline/sub/__init__.py": "from .leaf import X\n",
         "pipeline/sub/leaf.py": "X = 1\n",
         "pipeline/cli.py": "def main():\n    from stages import STAGES\n",
+        "orion_eval/run.py": "import zipon\n",
         "stages/__init__.py": "from pipeline import a\n",
         "orion_eval/__init__.py": "",
         "zipon/__init__.py": "import stages.x\n",
@@ -179,15 +180,14 @@ def test_the_checks_find_what_a_made_up_tree_holds(toy_tree):
     assert set(import_cycles(modules, module_level=True)) == {frozenset({"pipeline.a", "pipeline.b"})}
     assert set(import_cycles(modules, module_level=False)) == {frozenset({"pipeline.a", "pipeline.b"}),
                                                                frozenset({"pipeline.c", "pipeline.d"})}
-    assert stage_imports(toy_tree) == ["pipeline/cli.py:2 imports stages", "zipon/__init__.py:1 imports stages.x"]
+    assert layer_violations(toy_tree) == ["pipeline/cli.py:2 imports stages", "orion_eval/run.py:1 imports zipon"]
 
 
 # ----------------------------------------------------------------------------- the checks on the project
 
 
-def test_the_library_never_imports_stages():
-    found = [f for f in stage_imports(ROOT) if f.split(":")[0] not in STAGES_IMPORT_ALLOWED]
-    assert found == [], "the library imports the stages (stages -> pipeline, never back)"
+def test_no_layer_imports_a_layer_above_it():
+    assert layer_violations(ROOT) == [], "imports against the layering (zipon -> stages, orion_eval -> pipeline)"
 
 
 def test_no_import_cycles_at_module_level():
@@ -205,7 +205,7 @@ STAGE_MODULES = sorted(p for p in (ROOT / "stages").glob("*.py") if p.name != "_
 
 @pytest.mark.parametrize("path", STAGE_MODULES, ids=lambda p: p.stem)
 def test_a_stage_is_its_config_and_a_short_run_over_the_library(path):
-    """The stage rule (DESIGN.md): ``Config`` + ``run(ctx)`` of at most 40 lines and no loop of its own; it imports
+    """The stage rule (docs: architecture): ``Config`` + ``run(ctx)`` of at most 40 lines and no loop of its own; it imports
     the library, not another stage."""
     tree = ast.parse(path.read_text())
     defs = {n.name: n for n in tree.body if isinstance(n, (ast.FunctionDef, ast.ClassDef))}
@@ -227,7 +227,7 @@ def test_a_stage_is_its_config_and_a_short_run_over_the_library(path):
 # algorithms that fill it (any scope, ``if TYPE_CHECKING:`` included).
 STORE_MODULES = ("pipeline.store", "pipeline.frames", "pipeline.maps.store", "pipeline.recon.store",
                  "pipeline.routes.store", "pipeline.goals.store")
-STORE_MAY_IMPORT = {"pipeline", "pipeline.config", "pipeline.errors", "pipeline.geometry", "pipeline.store",
+STORE_MAY_IMPORT = {"pipeline", "pipeline.config", "pipeline.stageconfig", "pipeline.errors", "pipeline.geometry", "pipeline.store",
                     "pipeline.scene_gt", "pipeline.maps.scoring",
                     # the goal document and object record schemas (pydantic) the goals store holds
                     "pipeline.goals.objects", "pipeline.goals.schema"}
@@ -240,22 +240,24 @@ def test_stores_import_no_algorithm_that_fills_them():
     assert {m: names for m, names in found.items() if names} == {}
 
 
-# pipeline.config is read by every command, the fast ones (status, params, query) included: it stays a leaf
-# (the params sections live there, not beside their packages; README, "Where zipon departs from DESIGN.md").
-CONFIG_MAY_IMPORT = {"pipeline", "pipeline.errors", "pipeline.perception_params", "pipeline.plugins",
-                     # the bounded YAML/JSON loader params.yaml is read through (a leaf: errors, yaml, json)
+# pipeline.config (the schema), pipeline.paramsfile (reading it) and pipeline.stageconfig (digests) are read by every
+# command, the fast ones (status, params, query) included: they stay leaves (the params sections live in the schema,
+# not beside their packages; docs: architecture, design decisions).
+CONFIG_MAY_IMPORT = {"pipeline", "pipeline.errors", "pipeline.perception_params", "pipeline.plugins", "pipeline.section",
+                     "pipeline.config",
+                     # the bounded YAML/JSON loader params files are read through (a leaf: errors, yaml, json)
                      "pipeline.userfiles"}
 
 
-def test_config_and_what_it_imports_are_leaves():
+@pytest.mark.parametrize("start", ["pipeline.config", "pipeline.paramsfile", "pipeline.stageconfig"])
+def test_config_and_what_it_imports_are_leaves(start):
     modules = project_modules(ROOT)
-    seen, todo = set(), ["pipeline.config"]
+    seen, todo = set(), [start]
     while todo:
         name = todo.pop()
         seen.add(name)
         for dep, line in imports(modules[name], name, modules, module_level=False):
-            assert dep in CONFIG_MAY_IMPORT | {"pipeline.config"}, f"{modules[name]}:{line} imports {dep}"
+            assert dep in CONFIG_MAY_IMPORT | {start}, f"{modules[name]}:{line} imports {dep}"
             if dep not in seen and dep != "pipeline":
                 todo.append(dep)
-    assert seen == {"pipeline.config", "pipeline.errors", "pipeline.perception_params", "pipeline.plugins",
-                    "pipeline.userfiles"}
+    assert {"pipeline.config", "pipeline.section", "pipeline.perception_params"} <= seen | {start}

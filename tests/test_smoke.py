@@ -8,7 +8,7 @@ from pathlib import Path
 
 import zarr
 
-from pipeline.cli import main
+from zipon.cli import main
 from pipeline.manifest import Manifest
 from stages import STAGES
 

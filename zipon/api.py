@@ -37,7 +37,7 @@ def open(source: str | Path = ".", *, data_dir: str | Path | None = None, manife
     an artifact is then brought into the local mirror (:func:`pipeline.paths.cache_dir`) when it is first asked for
     (:meth:`Scene.path`; :meth:`Dataset.mirror` brings whole scenes), and read there.
     """
-    from pipeline.config import load_params, parse_params
+    from pipeline.paramsfile import load_params, parse_params
 
     path = Path(source).expanduser()
     if path.is_file():

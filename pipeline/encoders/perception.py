@@ -79,8 +79,8 @@ class SimulatedPerception(Encoder):
     def __init__(self, params: SimulatedLSegParams | SimulatedCFParams, *, batch_size: int = 4):
         super().__init__(device="cpu", batch_size=batch_size)  # table look-ups and small products
         self.p = params
-        folder = resolve_embeddings(params.embeddings, f"encoders.{self.name}.embeddings")
-        self.space: ClipTextSpace = load_text_space(folder)
+        param = f"encoders.{self.name}.embeddings"
+        self.space: ClipTextSpace = load_text_space(resolve_embeddings(params.embeddings, param), param)
         self.weights = self.space.path  # the embeddings file is this model's 'weights' (digest in identity)
         self.out_size = tuple(params.out_size)
         self._gt: GTScene | None = None

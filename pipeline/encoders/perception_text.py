@@ -1,6 +1,6 @@
 """The text side of the simulated perception models: real CLIP ViT-B/32 text embeddings of the LVIS names.
 
-``shared/data/clip_text/`` holds the CLIP ViT-B/32 text features of the prompt "a <name>" for the 1,203
+``pipeline/data/clip_text/`` (shipped with zipon) holds the CLIP ViT-B/32 text features of the prompt "a <name>" for the 1,203
 LVIS v1 class names (Detic's metadata; see its README). Classes therefore relate as in CLIP
 (chair-armchair 0.96, desk-table 0.93, cabinet-cupboard 0.93, mean pairwise 0.74).
 
@@ -29,12 +29,13 @@ import os
 import re
 from dataclasses import dataclass, field
 from functools import lru_cache
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.encoders.oracle_text import BACKGROUND_WORDS, COLOR_WORDS, MATERIAL_WORDS
-from pipeline.errors import MissingInputError
+from pipeline.errors import InputDataError, MissingInputError
 from pipeline.sim.catalog import COLOURS, MATERIALS
 
 EMBEDDINGS_FILE = "lvis_v1_clip_vitb32_a+cname.npy"
@@ -80,19 +81,30 @@ class ParsedText:
 class ClipTextSpace:
     """CLIP ViT-B/32 text features of LVIS names + the documented extensions (see the module docstring)."""
 
-    def __init__(self, folder: str | os.PathLike):
+    def __init__(self, folder: str | os.PathLike, param: str = "encoders.simulated_*.embeddings"):
         folder = Path(folder)
         emb_path, names_path = folder / EMBEDDINGS_FILE, folder / NAMES_FILE
         for p in (emb_path, names_path):
             if not p.is_file():
-                raise MissingInputError(f"{p}: CLIP text embeddings of the LVIS names not found (the simulated "
-                                        f"perception models need them; set encoders.simulated_*.embeddings)")
-        emb = np.load(emb_path).astype(np.float64)
-        lines = names_path.read_text().splitlines()
-        if emb.ndim != 2 or emb.shape[0] != len(lines):
-            raise MissingInputError(f"{emb_path}: shape {emb.shape} does not match the {len(lines)} names of {names_path}")
+                raise MissingInputError(f"{param}: {p} not found (CLIP text embeddings of the LVIS names: "
+                                        f"{EMBEDDINGS_FILE} and {NAMES_FILE})")
+        try:
+            emb = np.load(emb_path, allow_pickle=False)
+            lines = names_path.read_text(encoding="utf-8").splitlines()
+        except (ValueError, OSError, UnicodeDecodeError) as err:
+            raise InputDataError(f"{param}: {emb_path if isinstance(err, ValueError) else names_path} cannot be read "
+                                 f"({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}); expected "
+                                 f"a .npy float array (names, D) and a UTF-8 list of names") from None
+        if emb.ndim != 2 or emb.shape[0] != len(lines) or emb.shape[1] < 2 or emb.dtype.kind != "f":
+            raise InputDataError(f"{param}: {emb_path} holds a {emb.dtype} array of shape {emb.shape}; expected a "
+                                 f"float array ({len(lines)}, D): one row per name line of {names_path}")
+        emb = emb.astype(np.float64)
+        norms = np.linalg.norm(emb, axis=1)
+        if not np.all(np.isfinite(norms) & (norms > 0)):
+            raise InputDataError(f"{param}: {emb_path}: row {int(np.argmin(np.isfinite(norms) & (norms > 0)))} is zero "
+                                 f"or not finite; expected a text embedding in every row")
         self.path = emb_path
-        self.rows = emb / np.linalg.norm(emb, axis=1, keepdims=True)
+        self.rows = emb / norms[:, None]
         self.dim = int(self.rows.shape[1])
         self.names = [ln.split("\t")[0] for ln in lines]
         index: dict[str, int] = {}  # every LVIS name and synonym -> row
@@ -181,18 +193,22 @@ VERSIONS = {"simulated_lseg": "1", "simulated_cf": "1"}
 
 
 @lru_cache(maxsize=4)
-def load_text_space(folder: str) -> ClipTextSpace:
-    """One :class:`ClipTextSpace` per folder and process."""
-    return ClipTextSpace(folder)
+def load_text_space(folder: str, param: str = "encoders.simulated_*.embeddings") -> ClipTextSpace:
+    """One :class:`ClipTextSpace` per folder and process; errors name ``param``."""
+    return ClipTextSpace(folder, param)
 
 
-def resolve_embeddings(path: str, param: str) -> str:
-    """The embeddings folder ``path`` names: absolute, else under the working directory, else next to the
-    zipon checkout (``<checkout>/../shared/...`` for the default); a clear error naming ``param``."""
-    p = Path(os.path.expanduser(path))
-    tried = [p] if p.is_absolute() else [Path.cwd() / p, Path(__file__).resolve().parents[2] / p]
-    for t in tried:
-        if (t / EMBEDDINGS_FILE).is_file():
-            return str(t.resolve())
-    raise MissingInputError(f"{param}: no {EMBEDDINGS_FILE} in {' or '.join(str(t) for t in tried)} (the CLIP "
-                            f"ViT-B/32 text embeddings of the LVIS names, shared/data/clip_text)")
+def shipped_embeddings() -> Path:
+    """The folder of the CLIP ViT-B/32 LVIS text embeddings that ship with zipon (package data)."""
+    return Path(str(resources.files("pipeline.data") / "clip_text"))
+
+
+def resolve_embeddings(path: str | None, param: str) -> str:
+    """The embeddings folder ``path`` names: ``None`` = the shipped one (:func:`shipped_embeddings`), else
+    absolute or relative to the working directory; a one-line error naming ``param`` and the folder."""
+    folder = shipped_embeddings() if path is None else Path(os.path.expanduser(path))
+    folder = folder if folder.is_absolute() else Path.cwd() / folder
+    if not (folder / EMBEDDINGS_FILE).is_file():
+        raise MissingInputError(f"{param}: no {EMBEDDINGS_FILE} in {folder} (a folder of CLIP text embeddings of the "
+                                f"LVIS names, as shipped in {shipped_embeddings()}; null uses those)")
+    return str(folder.resolve())

@@ -56,7 +56,8 @@ def text_encoder(params: "EncodersParams", name: str) -> TextEncoder | None:
     if name in ("simulated_lseg", "simulated_cf"):
         from pipeline.encoders.perception_text import TEMPERATURE, VERSIONS, load_text_space, resolve_embeddings
 
-        space = load_text_space(resolve_embeddings(getattr(params, name).embeddings, f"encoders.{name}.embeddings"))
+        param = f"encoders.{name}.embeddings"
+        space = load_text_space(resolve_embeddings(getattr(params, name).embeddings, param), param)
         return TextEncoder(name, VERSIONS[name], space.dim, TEMPERATURE,
                            lambda texts: np.stack([space.encode(t) for t in texts]).astype(np.float32),
                            weights={"weights_file": Path(space.path).name, "weights_digest": file_digest(space.path)})

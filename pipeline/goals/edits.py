@@ -67,7 +67,7 @@ def record_goals_edit(params_path: Path, scene: str, rel_path: str) -> None:
     from ruamel.yaml import YAML
     from ruamel.yaml.comments import CommentedMap
 
-    from pipeline.config import parse_params
+    from pipeline.paramsfile import parse_params
 
     params_path = Path(params_path)
     rt = YAML()  # round-trip: keeps comments and layout

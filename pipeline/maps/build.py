@@ -28,7 +28,8 @@ from typing import TYPE_CHECKING, Callable, ClassVar, Iterable
 
 import numpy as np
 
-from pipeline.config import EncodersParams, MapsParams, Params, RunParams, StageConfig, digest_value, section_keys
+from pipeline.config import EncodersParams, MapsParams, Params, RunParams
+from pipeline.stageconfig import StageConfig, digest_value, section_keys
 from pipeline.errors import StageError
 from pipeline.frames import FrameStore
 from pipeline.store import DIGEST_ALGO, new_digest, update_array

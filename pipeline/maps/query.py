@@ -426,14 +426,21 @@ def query_map(map_path: str | Path, recon_path: str | Path | None, text: str,
     return open_query(map_path, params, recon_path=recon_path, frames_path=frames_path).query(text, pose)
 
 
-def parse_pose(text: str) -> tuple[float, float, float]:
-    """``"x,y,yaw"`` (metres, metres, radians) -> tuple; raises InputDataError naming the expected form."""
+def parse_pose(text: str, *, degrees: bool = False) -> tuple[float, float, float]:
+    """``"x,y,yaw"`` (metres, metres, radians; degrees when ``degrees``, as the CLI's ``--pose`` takes it) ->
+    ``(x, y, yaw radians)``; raises InputDataError naming ``--pose`` and the expected form."""
+    import math
+
     from pipeline.errors import InputDataError
 
     parts = [p for p in text.replace(" ", "").split(",") if p]
+    unit = "degrees" if degrees else "radians"
     try:
         if len(parts) != 3:
             raise ValueError
-        return tuple(float(p) for p in parts)  # type: ignore[return-value]
+        x, y, yaw = (float(p) for p in parts)
     except ValueError:
-        raise InputDataError(f"got {text!r}", field="--pose", expected="x,y,yaw in metres, metres, radians") from None
+        raise InputDataError(f"got {text!r}", field="--pose", expected=f"x,y,yaw in metres, metres, {unit}") from None
+    if not all(map(math.isfinite, (x, y, yaw))):
+        raise InputDataError(f"got {text!r}", field="--pose", expected=f"finite x,y,yaw in metres, metres, {unit}")
+    return x, y, math.radians(yaw) if degrees else yaw

@@ -17,7 +17,8 @@ from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
-from pipeline.config import IngestParams, digest_value
+from pipeline.config import IngestParams
+from pipeline.stageconfig import digest_value
 from pipeline.errors import InputDataError
 from pipeline.frames import ARTIFACT, FORMAT_VERSION, FrameBlock, FrameStoreWriter
 from pipeline.readers import FrameMatcher, open_reader

@@ -1,6 +1,6 @@
 """World up at ingest: every reader's world turned so that +z is up (``ingest.world_up``).
 
-zipon's world is z-up (DESIGN.md); datasets are not: 7-Scenes' world is the first Kinect frame
+zipon's world is z-up (docs: architecture, conventions); datasets are not: 7-Scenes' world is the first Kinect frame
 (y down), Habitat's is y up. ``ingest.world_up`` states the source world's up axis:
 
 - ``dataset`` (default): the reader's documented convention (:attr:`Reader.world_up`). Where that axis

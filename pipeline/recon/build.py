@@ -14,7 +14,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from pipeline.config import GridParams, ReconstructParams, digest_value
+from pipeline.config import GridParams, ReconstructParams
+from pipeline.stageconfig import digest_value
 from pipeline.errors import StageError
 from pipeline.frames import FrameStore
 from pipeline.recon import grids as grids_mod

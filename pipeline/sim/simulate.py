@@ -11,7 +11,7 @@ import numpy as np
 from pipeline.config import SimulateParams
 from pipeline.geometry import Intrinsics, interpolate_poses
 from pipeline.scene_gt import GTScene
-from pipeline.sim.render import SceneRenderer
+from pipeline.sim.raycast import SceneRaycaster
 from pipeline.sim.scene import STREAM_DEPTH_NOISE, STREAM_POSE_NOISE, generate_scene, scene_rng
 from pipeline.sim.trajectory import plan_actions, sample_trajectory
 
@@ -67,12 +67,12 @@ class SimulatedRecording:
         self.true_pose_T = interpolate_poses(key_ns, key_T, pose_ns)
         self.recorded_pose_T = jitter_poses(self.true_pose_T, params, self.gt.seed)
 
-    def blocks(self, renderer: SceneRenderer) -> Iterable[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+    def blocks(self, raycaster: SceneRaycaster) -> Iterable[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
         """``(first, rgb (B,H,W,3) uint8, depth_mm (B,H,W) uint16, instance (B,H,W) uint16)`` per block."""
         p = self.params
         for start in range(0, p.frames, p.render_block_frames):
             stop = min(start + p.render_block_frames, p.frames)
-            out = renderer.render(self.frame_T[start:stop])
+            out = raycaster.raycast(self.frame_T[start:stop])
             out.depth_m = add_depth_noise(out.depth_m, p.depth_noise_m, self.gt.seed, start)
             yield start, out.rgb, out.depth_mm(p.depth_min_m, p.depth_max_m), out.instance
 
@@ -88,14 +88,14 @@ def simulate_scene(scene: str, params: SimulateParams, out_path: Path, *,
 
     t0 = time.perf_counter()
     rec = SimulatedRecording(scene, params)
-    renderer = SceneRenderer(rec.gt, rec.intrinsics)
+    raycaster = SceneRaycaster(rec.gt, rec.intrinsics)
     gt = rec.gt
     metadata = {"generator": "zipon simulate", "scene": scene, "seed": str(gt.seed),
                 "params": params.model_dump_json()}
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     n_blocks = -(-params.frames // params.render_block_frames)
-    blocks = rec.blocks(renderer)
+    blocks = rec.blocks(raycaster)
     if progress is not None:
         blocks = progress(blocks, n_blocks)
     render_s = 0.0

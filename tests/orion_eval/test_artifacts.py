@@ -72,7 +72,7 @@ def test_goal_regions_are_read_from_goals_zarr(tiny_scene):
 
 
 def test_zipon_eval_refuses_another_step_size(tiny_scene, tmp_path, capsys):
-    from pipeline.cli import main
+    from zipon.cli import main
 
     ws, _ = tiny_scene
     text = ws.params_path.read_text() + "task: {step_m: 0.3}\n"

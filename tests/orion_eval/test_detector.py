@@ -19,7 +19,7 @@ H, W = 24, 32
 
 @pytest.fixture(scope="module")
 def space():
-    return load_text_space(resolve_embeddings("../shared/data/clip_text", "test"))
+    return load_text_space(resolve_embeddings(None, "test"))
 
 
 def gt(objects) -> GTScene:

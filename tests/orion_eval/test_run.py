@@ -117,7 +117,7 @@ def test_report_renders_in_headless_chromium(evaluated, tmp_path):
 
 
 def test_zipon_eval_refuses_a_method_no_registry_has(tiny_scene, tmp_path, capsys):
-    from pipeline.cli import main
+    from zipon.cli import main
 
     ws, _ = tiny_scene
     text = ws.params_path.read_text().replace("eval: {workers: 1,", "eval: {methods: [cow, gpt], workers: 1,")

@@ -6,11 +6,11 @@ from pathlib import Path
 import pytest
 import yaml
 
-from pipeline.config import load_params, params_yaml, parse_params
+from pipeline.paramsfile import load_params, params_yaml, parse_params
 from pipeline.dvcfile import render_dvc_yaml
 from pipeline.manifest import Manifest
 from pipeline.paths import Workspace
-from pipeline.runner import staleness
+from pipeline.stagegraph import staleness
 from stages import STAGES
 
 REPO = Path(__file__).resolve().parents[2]
@@ -66,7 +66,7 @@ def _dvc_stale(tmp_path, env) -> set[str]:
 
 
 def _zipon_stale(ws, params) -> set[str]:
-    from pipeline.runner import plan
+    from pipeline.stagegraph import plan
 
     return {f"{scene}/{stage}" for scene, stage in plan(STAGES, params, list(params.scenes))
             if staleness(ws, params, STAGES, STAGES[stage], scene)}
@@ -76,7 +76,7 @@ def _zipon_stale(ws, params) -> set[str]:
 def test_zipon_run_leaves_dvc_with_nothing_to_do_and_both_name_the_same_stale_stages(tmp_path):
     """After `zipon run`, `dvc status` is clean and `dvc repro` runs nothing; after a params change both name
     the same stale stages."""
-    from pipeline.cli import main
+    from zipon.cli import main
 
     ws, params, env = _dvc_project(tmp_path, {"t0": {"source": "simulate"}}, frames=60,
                                    reconstruct={"voxel_size_m": 0.05}, encoders={"oracle": {"out_size": [30, 40]}})
@@ -114,7 +114,7 @@ def test_dvc_repro_runs_the_same_stages_offline(tmp_path):
 def test_a_folder_dvc_cannot_open_builds_and_says_why_dvc_lock_was_left(tmp_path, capsys):
     """A .dvc/ folder outside git (and without core.no_scm) is not a DVC project DVC can run: the run succeeds,
     says why dvc.lock was not written, and writes no dvc.yaml there."""
-    from pipeline.cli import main
+    from zipon.cli import main
 
     (tmp_path / ".dvc").mkdir()
     (tmp_path / "params.yaml").write_text("scenes:\n  a: {source: simulate}\n"

@@ -13,13 +13,14 @@ import pytest
 import s3fs
 import zarr
 
-from pipeline.cli import main
-from pipeline.config import load_params
+from zipon.cli import main
+from pipeline.paramsfile import load_params
 from pipeline.errors import LockedError, StageError
 from pipeline.fsroot import MANIFEST_KEY, RemoteRoot, reclaim_guard, remote_stage, version_key
 from pipeline.manifest import Manifest
 from pipeline.paths import ARTIFACTS, Workspace, cache_dir, is_url
-from pipeline.runner import plan, run_many
+from pipeline.stagegraph import plan
+from pipeline.runner import run_many
 from pipeline.store import content_digest
 from tests.fixtures.toy_stages import TOY_STAGES
 
@@ -203,27 +204,23 @@ def test_commands_that_would_write_the_data_root_outside_the_stages_refuse_an_ob
 
 
 def test_a_command_not_classified_for_object_stores_is_refused(tmp_path):
-    from typer._click import Context
-    from typer.core import TyperCommand as Command
-
-    from pipeline.cli.common import remote_root_ready
+    from zipon.cli.common import remote_root_ready
     from pipeline.errors import ConfigError
 
     (tmp_path / "params.yaml").write_text(PARAMS)
     ws = Workspace.resolve(tmp_path / "params.yaml", data_dir="s3://bucket/x")
-    with Context(Command("newcmd"), parent=Context(Command("zipon"), info_name="zipon"), info_name="newcmd"):
-        with pytest.raises(ConfigError, match=r"--data-dir s3://bucket/x: zipon newcmd works on a local data "
-                           r"root only; on an object store zipon run, stage, .* work. After one of them the local "
-                           r"mirror is "):
-            remote_root_ready(ws, load_params(ws.params_path))
+    with pytest.raises(ConfigError, match=r"--data-dir s3://bucket/x: zipon newcmd works on a local data "
+                       r"root only; on an object store zipon run, stage, .* work. After one of them the local "
+                       r"mirror is "):
+        remote_root_ready(ws, load_params(ws.params_path), "newcmd")
 
 
 def test_every_command_says_what_it_does_on_an_object_store():
     """A new command must be classified (works there, or refused saying why) before it can meet an s3 root."""
     import typer
 
-    from pipeline.cli import app
-    from pipeline.cli.common import REMOTE_COMMANDS, REMOTE_REFUSED
+    from zipon.cli import app
+    from zipon.cli.common import REMOTE_COMMANDS, REMOTE_REFUSED
 
     root = typer.main.get_command(app)
     names = {f"{n} {sub}" if sub else n for n, cmd in root.commands.items()

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.cli import main
-from pipeline.config import load_params
+from zipon.cli import main
+from pipeline.paramsfile import load_params
 from pipeline.errors import LockedError
 from pipeline.locks import lock_holder, output_lock
 from pipeline.runner import run_stage

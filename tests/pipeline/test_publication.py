@@ -267,7 +267,7 @@ def test_run_stage_recovers_a_publication_killed_by_sigkill(workspace, tmp_path)
     import subprocess
     import sys
 
-    from pipeline.config import load_params
+    from pipeline.paramsfile import load_params
 
     params = load_params(workspace.params_path, ["simulate.frames=8"])
     for stage in ("simulate", "ingest"):
@@ -300,7 +300,7 @@ def test_run_stage_recovers_a_publication_killed_by_sigkill(workspace, tmp_path)
 
 
 def test_inputs_republished_during_a_stage_are_refused(workspace):
-    from pipeline.config import load_params
+    from pipeline.paramsfile import load_params
 
     params = load_params(workspace.params_path, ["simulate.frames=8"])
     run_stage(workspace, params, TOY_STAGES, "s0", "simulate", show_progress=False)

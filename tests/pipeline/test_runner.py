@@ -8,10 +8,11 @@ import time
 import pytest
 import zarr
 
-from pipeline.config import load_params
+from pipeline.paramsfile import load_params
 from pipeline.errors import ConfigError
 from pipeline.manifest import Manifest
-from pipeline.runner import plan, run_many, run_stage, staleness
+from pipeline.stagegraph import plan, staleness
+from pipeline.runner import run_many, run_stage
 from pipeline.store import content_digest
 from pipeline.verify import verify_all
 from tests.fixtures.toy_stages import TOY_STAGES
@@ -205,16 +206,6 @@ def test_ordered_tasks_run_on_every_worker_and_yield_in_item_order():
             client.submit(_ordered_in_a_worker, [1, 99, 2]).result()
 
 
-def test_stage_levels_put_the_long_chains_first():
-    """Each stage's level (its dask priority) is the longest path to a stage nothing reads: the raw chain
-    (simulate, ingest, reconstruct) before goals, goals before the stages whose work spreads over the workers."""
-    from pipeline.runner import stage_levels
-    from stages import STAGES
-
-    assert stage_levels(STAGES) == {"simulate": 4, "ingest": 3, "reconstruct": 2, "goals": 1, "routes": 0,
-                                    "vlmap": 0, "cfmap": 0}
-
-
 def _consume(items):
     """A stage task folding its items' results: (time of its first result, of its last, the results)."""
     from pipeline.runner import ordered_tasks
@@ -239,30 +230,3 @@ def test_a_worker_folds_one_stage_at_a_time_while_the_others_wait():
     assert all(a_last < b_first for (_, a_last), (b_first, _) in zip(spans, spans[1:]))
     waits = [waited for *_, waited in runs]  # recorded for the manifest: the time a stage stood in line
     assert min(waits) >= 0 and max(waits) > 0.05  # the last in line waited for at least one 50 ms call
-
-
-FAULTS_SCRIPT = """
-import resource, sys
-import numpy as np
-from pipeline.runner import restore_malloc_defaults
-if sys.argv[1] == "restore":
-    restore_malloc_defaults()
-x = np.ones(1 << 18)  # 2 MiB, as a frame buffer
-del x
-before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-for _ in range(100):
-    x = np.ones(1 << 18)  # allocated, touched, freed: from the heap, or mmapped and faulted in afresh
-    del x
-print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
-"""
-
-
-@pytest.mark.skipif(sys.platform != "linux", reason="glibc's malloc thresholds")
-def test_a_dask_nanny_malloc_setting_is_undone_in_workers():
-    """distributed's nanny sets MALLOC_TRIM_THRESHOLD_, which makes glibc mmap every 2 MiB buffer afresh (a page fault
-    per 4 KiB touched); restore_malloc_defaults gives the heap back to such buffers."""
-    env = {**os.environ, "MALLOC_TRIM_THRESHOLD_": "65536"}
-    faults = {mode: int(subprocess.run([sys.executable, "-c", FAULTS_SCRIPT, mode], env=env, capture_output=True,
-                                       text=True, check=True).stdout) for mode in ("as-set", "restore")}
-    assert faults["as-set"] > 100 * 400  # ~512 faults per buffer
-    assert faults["restore"] < faults["as-set"] / 20

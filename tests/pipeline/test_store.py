@@ -97,7 +97,7 @@ def test_sweep_removes_only_dead_local_owners(tmp_path):
 READ_EVERY_ARTIFACT = """
 import json, sys
 import numpy as np
-from pipeline.config import load_params
+from pipeline.paramsfile import load_params
 from pipeline.frames import FrameStore
 from pipeline.goals.store import Goals
 from pipeline.maps.query import open_query

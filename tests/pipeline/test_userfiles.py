@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from pipeline.config import load_params
+from pipeline.paramsfile import load_params
 from pipeline.errors import ConfigError, InputDataError
 from pipeline.userfiles import DEFAULT_LIMITS, Limits, load_user_file, parse_json, parse_yaml
 

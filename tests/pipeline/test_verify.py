@@ -2,8 +2,9 @@ import shutil
 
 import pytest
 
-from pipeline.config import load_params
-from pipeline.runner import plan, run_many
+from pipeline.paramsfile import load_params
+from pipeline.stagegraph import plan
+from pipeline.runner import run_many
 from pipeline.verify import content_staleness, locate_corruption, scenes_on_disk, verify_all
 from tests.fixtures.toy_stages import TOY_STAGES
 

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from pipeline.cli import main
+from zipon.cli import main
 
 pytest.importorskip("rerun")
 

@@ -2,15 +2,22 @@
 ``param_keys`` leaves its config unchanged, changing one inside changes the digest; settings in ``run`` and
 ``query`` are in no stage's keys; per-scene entries count only for their own scene."""
 
+from pathlib import Path
 from types import UnionType
 from typing import Any, Literal, Union, get_args, get_origin
 
 import pytest
 from pydantic import BaseModel, ValidationError
 
-from pipeline.config import Params, digest_value, parse_params, project
+import yaml
+
+from pipeline.config import GridParams, Params
+from pipeline.perception_params import DetectorParams, SimulatedCFParams, SimulatedLSegParams
+from pipeline.paramsfile import params_yaml, parse_params
+from pipeline.stageconfig import digest_value, project
 from stages import STAGES
 
+REPO = Path(__file__).resolve().parents[2]
 SCENES = {"s0": {"source": "simulate"}, "r0": {"source": "logs/r0.mcap", "format": "mcap"}}
 
 
@@ -125,10 +132,23 @@ def test_goal_edits_count_only_for_their_scene():
     assert spec.config_class().extra_inputs(edited, "r0") == {}
 
 
-def test_a_minimal_params_file_builds_simulated_scenes_with_the_oracle():
+def test_a_minimal_params_file_maps_simulated_scenes_with_simulated_perception():
     params = parse_params({"scenes": {"a": {"source": "simulate"}}})
-    config = STAGES["vlmap"].config_class().from_params(params, "a")
-    assert config.encoder == "oracle"
+    assert STAGES["vlmap"].config_class().from_params(params, "a").encoder == "simulated_lseg"
+    assert STAGES["cfmap"].config_class().from_params(params, "a").encoder == "simulated_cf"
+    oracle = parse_params({"scenes": {"a": {"source": "simulate"}}, "encoders": {"simulated": "oracle"}})
+    assert STAGES["vlmap"].config_class().from_params(oracle, "a").encoder == "oracle"  # only when chosen
+
+
+def test_the_shipped_params_file_is_the_defaults():
+    """``zipon params --defaults`` and the shipped params.yaml agree on every key but ``scenes``."""
+    shipped = yaml.safe_load((REPO / "params.yaml").read_text())
+    defaults = yaml.safe_load(params_yaml(parse_params({"scenes": {"sim_00": {"source": "simulate"}}})))
+    shipped.pop("scenes"), defaults.pop("scenes")
+    differ = {f"{section}.{key}" for section in shipped.keys() | defaults.keys()
+              for key in (shipped.get(section) or {}).keys() | (defaults.get(section) or {}).keys()
+              if (shipped.get(section) or {}).get(key, "absent") != (defaults.get(section) or {}).get(key, "absent")}
+    assert differ == set()
 
 
 def test_the_task_facts_have_one_home_read_by_goals_and_routes():
@@ -164,7 +184,7 @@ def test_the_task_facts_have_one_home_read_by_goals_and_routes():
                                     "radius; task.stop_radius_m is where walks to a ground-truth goal aim)"),
 ])
 def test_a_moved_task_key_is_an_error_naming_its_new_home(old, new, tmp_path, capsys):
-    from pipeline.cli import main
+    from zipon.cli import main
 
     p = tmp_path / "params.yaml"
     p.write_text("scenes:\n  a: {source: simulate}\n" + old + "\n")
@@ -175,7 +195,7 @@ def test_a_moved_task_key_is_an_error_naming_its_new_home(old, new, tmp_path, ca
 
 @pytest.mark.parametrize("section", ["simulate", "ingest", "reconstruct", "maps"])
 def test_every_depth_range_is_checked_once_the_same_way(section, tmp_path, capsys):
-    from pipeline.cli import main
+    from zipon.cli import main
     from pipeline.config import DepthRange
 
     base = _params()
@@ -188,3 +208,15 @@ def test_every_depth_range_is_checked_once_the_same_way(section, tmp_path, capsy
     assert main(["-p", str(p), "status"]) == 1
     err = " ".join(capsys.readouterr().err.split())
     assert f"{p}: {section}: depth_min_m (3) must be below depth_max_m (2)" in err
+
+
+@pytest.mark.parametrize("model", [DetectorParams, SimulatedLSegParams, SimulatedCFParams, GridParams])
+def test_every_params_model_is_equally_strict(model):
+    """One base class for every params model: a number given as a string or a boolean is refused everywhere."""
+    field = "seed" if "seed" in model.model_fields else "rows"
+    with pytest.raises(ValidationError, match="expected a number, got the string '3'"):
+        model(**{field: "3"})
+    with pytest.raises(ValidationError, match="expected a number, got true"):
+        model(**{field: True})
+    with pytest.raises(ValidationError, match="Extra inputs are not permitted"):
+        model(unknown_key=1)

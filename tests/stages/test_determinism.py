@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.cli import main
+from zipon.cli import main
 from pipeline.paths import Workspace
 from pipeline.store import content_digest
 from stages import STAGES

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from pipeline.config import parse_params
+from pipeline.paramsfile import parse_params
 from pipeline.errors import InputDataError
 from pipeline.goals.edits import export_goals, import_goals, record_goals_edit
 from pipeline.goals.store import Goals

@@ -8,13 +8,15 @@ import numpy as np
 import pytest
 import yaml
 
-from pipeline.config import param_value, parse_params
+from pipeline.paramsfile import parse_params
+from pipeline.stageconfig import param_value
 from pipeline.frames import FrameStore
 from pipeline.geometry import Intrinsics
 from pipeline.manifest import Manifest
 from pipeline.paths import Workspace
 from pipeline.ros2 import Ros2LogWriter
-from pipeline.runner import input_digests, run_stage
+from pipeline.stagegraph import input_digests
+from pipeline.runner import run_stage
 from stages import STAGES
 from tests.fixtures.recon_scenes import box_room_gt, box_room_poses, render_frames
 
@@ -135,7 +137,7 @@ def test_the_source_digest_covers_every_log_in_order(two_logs):
 # ----------------------------------------------------------------------------- errors through the CLI
 
 def _cli(tmp_path, scenes: dict, *args, capsys) -> tuple[int, str]:
-    from pipeline.cli import main
+    from zipon.cli import main
 
     raw = {"scenes": scenes, **PARAMS}
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw))

@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 
-from pipeline.config import parse_params
+from pipeline.paramsfile import parse_params
 from pipeline.frames import FrameStore
 from pipeline.paths import Workspace
 from pipeline.readers.ingest import ingest_path

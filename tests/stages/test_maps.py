@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from pipeline.config import digest_value, parse_params, project
+from pipeline.paramsfile import parse_params
+from pipeline.stageconfig import digest_value, project
 from pipeline.maps.build import MAP_CONFIGS, build_map
 from pipeline.maps.evaluate import evaluate_map, sample_poses
 from pipeline.maps.query import open_query, query_map

@@ -5,7 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.config import GridParams, ReconstructParams, parse_params
+from pipeline.config import GridParams, ReconstructParams
+from pipeline.paramsfile import parse_params
 from pipeline.errors import InputDataError, StageError
 from pipeline.paths import Workspace
 from pipeline.recon import Recon

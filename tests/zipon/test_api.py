@@ -1,4 +1,4 @@
-"""``import zipon`` on the session's tiny built scene: open, stores, queries, xarray views, run_eval, README example."""
+"""``import zipon`` on the session's tiny built scene: open, stores, queries, xarray views, run_eval, the docs' example."""
 
 import re
 from pathlib import Path
@@ -140,22 +140,23 @@ def test_run_eval_rejects_bad_agents_and_seeds(ds, tmp_path):
         zipon.run_eval(ds, tmp_path, agents=["gpt"])
 
 
-def readme_example() -> str:
-    text = (REPO / "README.md").read_text()
-    section = text.split("## Python API", 1)[1].split("\n## ", 1)[0]
+def docs_example() -> str:
+    """The Python block of the docs' Python API page (docs/reference/api.md, section "Example")."""
+    text = (REPO / "docs" / "reference" / "api.md").read_text()
+    section = text.split("## Example", 1)[1].split("\n## ", 1)[0]
     blocks = re.findall(r"```python\n(.*?)```", section, re.S)
-    assert blocks, "README's Python API section has no python block"
+    assert blocks, "the Python API page's Example section has no python block"
     return blocks[0]
 
 
-def test_readme_example_runs(built_scene, monkeypatch, tmp_path, capsys):
+def test_docs_example_runs(built_scene, monkeypatch, tmp_path, capsys):
     ws, _ = built_scene
     # the example opens "params.yaml" from the project folder: a copy beside the built data and manifests
     (tmp_path / "params.yaml").write_text(ws.params_path.read_text())
     (tmp_path / "data").symlink_to(ws.data_dir)
     (tmp_path / "manifests").symlink_to(ws.manifests_dir)
     monkeypatch.chdir(tmp_path)
-    exec(compile(readme_example(), "README.md", "exec"), {"__name__": "readme"})
+    exec(compile(docs_example(), "docs/reference/api.md", "exec"), {"__name__": "docs_example"})
     out = capsys.readouterr().out
     assert "Scene('tiny'" in out and " deg" in out and "'episodes'" in out
     assert (tmp_path / "eval_api" / "results.json").is_file()

@@ -5,7 +5,7 @@ import json
 import pytest
 
 import zipon
-from pipeline.cli import main
+from zipon.cli import main
 from pipeline.errors import ConfigError
 from tests.fixtures.user_agents import plugin_distribution
 from zipon.evaluate import plugin_agent, plugin_agent_names

@@ -147,7 +147,7 @@ def test_choice_per_stage_and_simulated_override(params):
     assert encoder_choice(params, "cfmap") == "conceptfusion"
     unset = params.model_copy(update={"simulated": None})
     assert encoder_choice(unset, "cfmap", simulated=True) == "conceptfusion"  # not overridden unless set
-    assert encoder_choice(params, "cfmap", simulated=True) == "oracle"  # the default for simulated scenes
+    assert encoder_choice(params, "cfmap", simulated=True) == "simulated_cf"  # the default for simulated scenes
     sim = params.model_copy(update={"simulated": "oracle"})
     assert encoder_choice(sim, "vlmap", simulated=True) == "oracle"
     assert encoder_choice(sim, "vlmap", simulated=False) == "lseg"
@@ -158,7 +158,7 @@ def test_choice_per_stage_and_simulated_override(params):
 
 
 def test_params_validation_names_the_key():
-    from pipeline.config import parse_params
+    from pipeline.paramsfile import parse_params
 
     with pytest.raises(ConfigError, match=r"encoders\.vlmap"):
         parse_params({"scenes": {}, "encoders": {"vlmap": "clipseg"}})

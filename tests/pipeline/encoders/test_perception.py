@@ -5,13 +5,18 @@
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
 
 from pipeline.config import EncodersParams
 from pipeline.encoders import build_encoder, encoder_choice
-from pipeline.encoders.perception_text import SIM_CLASS_LVIS, load_text_space, resolve_embeddings
+import pipeline
+from pipeline.encoders.perception_text import (EMBEDDINGS_FILE, NAMES_FILE, SIM_CLASS_LVIS, load_text_space,
+                                               resolve_embeddings, shipped_embeddings)
 from pipeline.errors import ConfigError, InputDataError, MissingInputError
 from pipeline.scene_gt import GTScene
 from pipeline.sim.catalog import TEMPLATES
@@ -22,7 +27,7 @@ H, W = 60, 80
 
 @pytest.fixture(scope="module")
 def space():
-    return load_text_space(resolve_embeddings("../shared/data/clip_text", "test"))
+    return load_text_space(resolve_embeddings(None, "test"))
 
 
 def scene(objects) -> GTScene:
@@ -75,10 +80,60 @@ def test_every_simulated_class_has_a_clip_feature(space):
     assert space.class_vector("nightstand") @ space.class_vector("cabinet") > 0.9
 
 
+def test_the_default_embeddings_ship_with_zipon():
+    folder = Path(resolve_embeddings(None, "encoders.simulated_lseg.embeddings"))
+    assert folder == shipped_embeddings().resolve() and folder.parent.parent == Path(pipeline.__file__).parent
+    space = load_text_space(str(folder))
+    assert space.rows.shape == (1203, 512) and space.names[0] == "aerosol_can"
+    assert (folder / "README.md").is_file() and (folder / "LICENSE-Apache-2.0").is_file()
+
+
 def test_missing_embeddings_name_the_param(tmp_path):
-    with pytest.raises(MissingInputError, match=r"encoders\.simulated_lseg\.embeddings"):
+    with pytest.raises(MissingInputError, match=r"encoders\.simulated_lseg\.embeddings: no "
+                                                r"lvis_v1_clip_vitb32_a\+cname\.npy in " + re.escape(str(tmp_path))):
         build_encoder(EncodersParams.model_validate({"simulated_lseg": {"embeddings": str(tmp_path)}}),
                       "simulated_lseg")
+
+
+def _embeddings_folder(tmp_path, array=None, raw: bytes | None = None):
+    """A copy of the shipped names with ``array`` (or ``raw`` bytes) as the embeddings file."""
+    folder = tmp_path / "emb"
+    folder.mkdir()
+    (folder / NAMES_FILE).write_bytes((shipped_embeddings() / NAMES_FILE).read_bytes())
+    if raw is not None:
+        (folder / EMBEDDINGS_FILE).write_bytes(raw)
+    else:
+        np.save(folder / EMBEDDINGS_FILE, array)
+    return folder
+
+
+@pytest.mark.parametrize("array, raw, expect", [
+    (np.ones((10, 512), np.float16), None, r"holds a float16 array of shape \(10, 512\); expected a float array "
+                                           r"\(1203, D\): one row per name line of .*lvis_v1_names\.txt"),
+    (np.ones(1203, np.float32), None, r"shape \(1203,\)"),
+    (np.ones((1203, 512), np.int64), None, r"holds a int64 array"),
+    (np.zeros((1203, 512), np.float32), None, r"row 0 is zero or not finite"),
+    (None, b"not an npy file at all", r"cannot be read \(ValueError"),
+])
+def test_wrong_embeddings_are_one_clear_error(tmp_path, array, raw, expect):
+    folder = _embeddings_folder(tmp_path, array, raw)
+    with pytest.raises(InputDataError, match=r"^encoders\.simulated_cf\.embeddings: .*" + expect):
+        build_encoder(EncodersParams.model_validate({"simulated_cf": {"embeddings": str(folder)}}), "simulated_cf")
+
+
+@pytest.mark.parametrize("broken", ["missing", "shape"])
+def test_cli_names_the_key_and_the_file_and_exits_1(tmp_path, capsys, broken):
+    from zipon.cli import main
+
+    folder = tmp_path / "nowhere" if broken == "missing" else _embeddings_folder(tmp_path, np.ones((3, 8), np.float32))
+    (tmp_path / "params.yaml").write_text("scenes: {a: {source: simulate}}\n"
+                                          f"encoders: {{simulated_lseg: {{embeddings: '{folder}'}}}}\n")
+    code = main(["-p", str(tmp_path / "params.yaml"), "encoders", "check", "--which", "simulated_lseg"])
+    err = capsys.readouterr().err
+    assert code == 1 and "Traceback" not in err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert lines[0].startswith("error: encoders.simulated_lseg.embeddings: ")
+    assert str(folder) in " ".join(err.split()), err
 
 
 def test_perception_choice_gives_each_map_its_model():

@@ -4,7 +4,7 @@ and code part of a map's digest, a map built with one answers queries; broken re
 import numpy as np
 import pytest
 
-from pipeline.config import parse_params
+from pipeline.paramsfile import parse_params
 from pipeline.encoders.choice import load, plugin_names
 from pipeline.errors import ConfigError
 from pipeline.maps.build import MAP_CONFIGS, build_map

@@ -180,7 +180,7 @@ def _house_navchat(tmp_path: Path, frames_path: Path) -> Path:
 
 
 def _goals_stage(tmp_path: Path, frames: Path, recon: Path, goals_params: dict):
-    from pipeline.config import parse_params
+    from pipeline.paramsfile import parse_params
     from pipeline.paths import Workspace
     from pipeline.runner import StageContext
     from stages import STAGES
@@ -213,7 +213,7 @@ def test_goals_stage_reads_navchat_files_in_navchats_frame(tmp_path):
     gt_bed = objects_from_gt(FrameStore(frames).ground_truth, "house").by_key()["bed_0"]
     assert np.abs(bed.mean(axis=0) - np.asarray(gt_bed.footprint).mean(axis=0)).max() < 0.08  # within ~1 cell
     # export-navchat from the built goals.zarr: the files come back as they were imported
-    from pipeline.config import parse_params
+    from pipeline.paramsfile import parse_params
     from pipeline.goals.navchat import export_scene
 
     params = parse_params({"scenes": {"house": {"source": "simulate"}}, "goals": settings})

@@ -113,8 +113,12 @@ def test_encoder_mismatch_is_refused(map_path):
 
 def test_parse_pose():
     assert parse_pose("1, 2.5,-0.5") == (1.0, 2.5, -0.5)
-    with pytest.raises(InputDataError, match="field --pose: got '1,2' \\(expected x,y,yaw"):
+    with pytest.raises(InputDataError, match="field --pose: got '1,2' \\(expected x,y,yaw in metres, metres, radians"):
         parse_pose("1,2")
+    x, y, yaw = parse_pose("1,2,90", degrees=True)
+    assert (x, y) == (1.0, 2.0) and abs(yaw - np.pi / 2) < 1e-12
+    with pytest.raises(InputDataError, match="expected finite x,y,yaw in metres, metres, degrees"):
+        parse_pose("1,nan,0", degrees=True)
 
 
 def test_pictures(map_path, tmp_path):

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.cli import main
+from zipon.cli import main
 from pipeline.config import IngestParams
 from pipeline.errors import InputDataError
 from pipeline.frames import FrameStore

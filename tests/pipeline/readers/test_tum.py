@@ -16,8 +16,8 @@ from pipeline.readers import open_reader
 from pipeline.readers.ingest import ingest_path
 from pipeline.readers.tum import tum_depth_to_mm
 from tests.fixtures.raw_datasets import make_recording, write_tum
+from tests.fixtures.real_data import TUM_RPY as REAL
 
-REAL = Path(__file__).resolve().parents[4] / "shared/data/real/tum_fr1_rpy_head30"
 QUIET = {"log": lambda m: None}
 
 
@@ -25,7 +25,6 @@ def _rows(path: Path) -> list[list[str]]:
     return [ln.split() for ln in path.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
 
 
-@pytest.mark.skipif(not REAL.is_dir(), reason="real TUM excerpt not present")
 def test_real_fr1_excerpt(tmp_path):
     s = ingest_path(REAL, tmp_path / "f.zarr", IngestParams(), **QUIET)
     fs = FrameStore(tmp_path / "f.zarr")
@@ -85,7 +84,6 @@ def test_non_unit_quaternion(tmp_path):
         ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
 
 
-@pytest.mark.skipif(not REAL.is_dir(), reason="real TUM excerpt not present")
 def test_real_excerpt_world_up_auto_finds_z_up(tmp_path):
     """The real fr1/rpy excerpt: the camera pitches ~45 deg down and rolls on purpose; auto still finds the
     level desk/floor and the mocap world's +z (a couple of degrees off: the mocap frame is not levelled)."""

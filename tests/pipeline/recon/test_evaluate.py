@@ -1,6 +1,5 @@
 """Held-out depth error on real TUM RGB-D data (fr1/rpy, first 30 frames)."""
 
-from pathlib import Path
 
 import pytest
 
@@ -8,8 +7,8 @@ from pipeline.config import ReconstructParams
 from pipeline.errors import InputDataError
 from pipeline.recon.evaluate import evaluate_grids, evaluate_holdout, holdout_indices
 from tests.fixtures.recon_scenes import write_tum_frames
+from tests.fixtures.real_data import TUM_RPY as TUM
 
-TUM = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real" / "tum_fr1_rpy_head30"
 
 
 def test_holdout_indices():
@@ -18,7 +17,6 @@ def test_holdout_indices():
         holdout_indices(30, 1)
 
 
-@pytest.mark.skipif(not TUM.is_dir(), reason="real data folder not present")
 def test_real_tum_holdout_depth_error_is_within_3cm(tmp_path):
     frames = write_tum_frames(tmp_path / "tum.zarr", TUM)
     result = evaluate_holdout(frames, ReconstructParams(), holdout_every=6)
@@ -28,7 +26,6 @@ def test_real_tum_holdout_depth_error_is_within_3cm(tmp_path):
     assert result["coverage"] > 0.7 and result["pixels"] > 500_000
 
 
-@pytest.mark.skipif(not TUM.is_dir(), reason="real data folder not present")
 def test_grid_scores_need_ground_truth(tmp_path):
     frames = write_tum_frames(tmp_path / "tum.zarr", TUM)
     with pytest.raises(InputDataError, match="carry no ground truth") as err:

@@ -1,9 +1,7 @@
 """Frame-to-model pose refinement on real TUM RGB-D frames."""
 
-from pathlib import Path
 
 import numpy as np
-import pytest
 from scipy.spatial.transform import Rotation
 
 from pipeline.config import ReconstructParams
@@ -11,8 +9,8 @@ from pipeline.frames import FrameStore
 from pipeline.recon import tsdf
 from pipeline.recon.refine import PoseRefiner
 from tests.fixtures.recon_scenes import write_tum_frames
+from tests.fixtures.real_data import TUM_RPY as TUM
 
-TUM = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real" / "tum_fr1_rpy_head30"
 
 
 def _err(T, T_ref):
@@ -20,7 +18,6 @@ def _err(T, T_ref):
     return float(np.linalg.norm(T[:3, 3] - T_ref[:3, 3])), float(np.degrees(rot))
 
 
-@pytest.mark.skipif(not TUM.is_dir(), reason="real data folder not present")
 def test_a_perturbed_pose_is_pulled_back_toward_the_model(tmp_path):
     store = FrameStore(write_tum_frames(tmp_path / "tum.zarr", TUM))
     p = ReconstructParams(refine_poses=True)
@@ -54,7 +51,6 @@ def test_refinement_off_keeps_recorded_poses_and_reports_it(tmp_path):
     assert np.array_equal(Recon(tmp_path / "r.zarr").poses, FrameStore(frames).poses())
 
 
-@pytest.mark.skipif(not TUM.is_dir(), reason="real data folder not present")
 def test_refined_poses_are_the_same_bits_for_any_number_of_open3d_threads(tmp_path):
     import open3d as o3d
 

@@ -6,7 +6,7 @@ from scipy import ndimage
 
 from pipeline.config import SimulateParams
 from pipeline.errors import ConfigError
-from pipeline.config import parse_params
+from pipeline.paramsfile import parse_params
 from pipeline.sim import generate_scene, render_scene_png, scene_seed
 from pipeline.sim.topdown import scene_grid
 

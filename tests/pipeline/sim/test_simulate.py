@@ -7,7 +7,7 @@ import pytest
 
 from pipeline.config import SimulateParams
 from pipeline.geometry import camera_yaw
-from pipeline.sim import SceneRenderer, SimulatedRecording, free_space, simulate_scene
+from pipeline.sim import SceneRaycaster, SimulatedRecording, free_space, simulate_scene
 
 SMALL = dict(frames=30, width=80, height=60, render_block_frames=7)
 
@@ -47,7 +47,7 @@ def test_frames_exact_and_stamped_at_fps(rec):
 
 
 def _render_all(rec):
-    r = SceneRenderer(rec.gt, rec.intrinsics)
+    r = SceneRaycaster(rec.gt, rec.intrinsics)
     blocks = list(rec.blocks(r))
     assert [b[0] for b in blocks] == [0, 7, 14, 21, 28]
     return [np.concatenate([b[k] for b in blocks]) for k in (1, 2, 3)]

@@ -1,0 +1,33 @@
+"""Process tuning of workers: glibc's malloc thresholds under a dask nanny."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+FAULTS_SCRIPT = """
+import resource, sys
+import numpy as np
+from pipeline.process import restore_malloc_defaults
+if sys.argv[1] == "restore":
+    restore_malloc_defaults()
+x = np.ones(1 << 18)  # 2 MiB, as a frame buffer
+del x
+before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+for _ in range(100):
+    x = np.ones(1 << 18)  # allocated, touched, freed: from the heap, or mmapped and faulted in afresh
+    del x
+print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+"""
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="glibc's malloc thresholds")
+def test_a_dask_nanny_malloc_setting_is_undone_in_workers():
+    """distributed's nanny sets MALLOC_TRIM_THRESHOLD_, which makes glibc mmap every 2 MiB buffer afresh (a page fault
+    per 4 KiB touched); restore_malloc_defaults gives the heap back to such buffers."""
+    env = {**os.environ, "MALLOC_TRIM_THRESHOLD_": "65536"}
+    faults = {mode: int(subprocess.run([sys.executable, "-c", FAULTS_SCRIPT, mode], env=env, capture_output=True,
+                                       text=True, check=True).stdout) for mode in ("as-set", "restore")}
+    assert faults["as-set"] > 100 * 400  # ~512 faults per buffer
+    assert faults["restore"] < faults["as-set"] / 20

@@ -1,0 +1,486 @@
+"""``zipon`` commands that look at built artifacts: render, query, goals, encoders, recon-eval, eval, view."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.table import Table
+
+from zipon.cli.common import G, app, console, out, print_eval, run_stages, subcommand
+from pipeline.errors import ZiponError
+
+
+RENDERS = {
+    "frames": "frame contact sheet (colour / depth / instances)",
+    "plan": "ground-truth floor plan of a simulated scene",
+    "obstacles": "occupancy grid (unknown / free / occupied)",
+    "navigable": "navigable cells for the robot radius",
+    "color": "top-surface colour map",
+    "height": "max height above the floor",
+    "goals": "goals, landmarks and names on the colour map",
+    "routes": "episodes' start poses and geodesic routes on the colour map",
+}
+
+
+@app.command()
+def render(
+    scene: str = typer.Argument(..., help="scene name"),
+    what: str = typer.Option("color", "--what", "-w", help=" | ".join(RENDERS)),
+    out_png: Optional[Path] = typer.Option(None, "--out", "-o", help="PNG path (default DATA/artifacts/SCENE/renders/WHAT.png)"),
+):
+    """Draw an artifact as a north-up PNG with a scale bar.
+
+    Examples: `zipon render sim_00 --what navigable` · `zipon render sim_00 --what routes -o routes.png`
+    """
+    from pipeline.errors import ConfigError
+
+    if what not in RENDERS:
+        raise ConfigError(f"--what {what!r}: choose one of {', '.join(RENDERS)}")
+    sc = _scene(scene)
+    target = Path(out_png) if out_png else sc.dataset.workspace.renders(scene) / f"{what}.png"
+    art = sc.path  # on an object store: the artifact's published version, mirrored on first use
+    if what == "frames":
+        from pipeline.pictures import frames_contact_sheet
+
+        frames_contact_sheet(art("frames"), target)
+    elif what == "plan":
+        from pipeline.frames import FrameStore
+        from pipeline.sim.topdown import render_scene_png
+
+        gt = FrameStore(art("frames")).ground_truth
+        if gt is None:
+            raise ConfigError(f"scene {scene}: --what plan needs ground truth (a simulated scene)")
+        render_scene_png(gt, target)
+    elif what in ("goals", "routes"):
+        from pipeline.goals.render import render_goals
+
+        render_goals(art("recon"), art("goals"), art("routes") if what == "routes" else None, what, target)
+    else:
+        from pipeline.recon.render import render_recon
+
+        render_recon(art("recon"), what, target)
+    out.print(str(target))
+
+
+goals_app = typer.Typer(help="Review and edit goals: export for people, import their edits, navchat layout. "
+                        "Example: `zipon goals export sim_00 -o goals.yaml`",
+                        no_args_is_help=True)
+app.add_typer(goals_app, name="goals")
+goals_app.callback()(subcommand)
+
+
+@goals_app.command("export")
+def goals_export(
+    scene: str = typer.Argument(..., help="scene name"),
+    out_file: Path = typer.Option(..., "--out", "-o", help="FILE.yaml or FILE.json"),
+):
+    """Write a scene's goals (name, type, room, feedback) as readable YAML/JSON.
+
+    Example: `zipon goals export sim_00 --out sim_00_goals.yaml`
+    """
+    from pipeline.goals.edits import export_goals
+
+    out.print(str(export_goals(_scene(scene).path("goals"), out_file)))
+
+
+@goals_app.command("import")
+def goals_import(
+    scene: str = typer.Argument(..., help="scene name"),
+    edit_file: Path = typer.Argument(..., help="an edited export (YAML/JSON)"),
+):
+    """Validate an edited goals file, rebuild goals and routes with it, then register it in params.yaml
+    (goals.edits). When the rebuild fails, params.yaml and the built goals and routes stay as they were.
+
+    Example: `zipon goals import sim_00 sim_00_goals.yaml`
+    """
+    from pipeline.dvcfile import sync_dvc_lock
+    from pipeline.goals.edits import edit_relpath, record_goals_edit, validate_edit
+    from pipeline.goals.schema import dump_document
+    from pipeline.store import remove, write_text_atomic
+    from stages import STAGES
+
+    sc = _scene(scene)
+    ws = sc.dataset.workspace
+    doc = validate_edit(edit_file, sc.path("goals"))  # on an object store: the published goals, mirrored first
+    rel = edit_relpath(doc)
+    stored = ws.root / rel
+    created = [p for p in (stored.parent, stored) if not p.exists()]  # removed again if the import fails
+    write_text_atomic(stored, dump_document(doc, ".yaml"))
+    manifests = {stage: ws.manifest(scene, stage) for stage in ("goals", "routes")}
+    published = {stage: path.read_bytes() if path.is_file() else None for stage, path in manifests.items()}
+    before = G.overrides
+    G.overrides = (*before, f"goals.edits.{scene}={rel}")  # the rebuild sees the edit; params.yaml not yet
+    failure: Exception | None = None
+    try:  # dvc.lock follows params.yaml, so it is recorded below once the edit is in params.yaml
+        ok = run_stages([scene], ["goals", "routes"], False, "sync", record_dvc=False)
+    except Exception as err:  # noqa: BLE001 - re-raised below, after undoing what this command wrote
+        ok, failure = False, err
+    finally:
+        G.overrides = before
+    if ok:
+        try:
+            record_goals_edit(ws.params_path, scene, rel)
+        except (OSError, ZiponError) as err:
+            ok, failure = False, err
+    if not ok:
+        for path in reversed(created):
+            remove(path)
+        console.print(f"goals import failed: {ws.params_path.name} unchanged")
+        # a stage published with the edit before a later one failed is rebuilt without it (the same inputs
+        # and params as before give the same content)
+        rebuilt = [stage for stage, path in manifests.items()
+                   if (path.read_bytes() if path.is_file() else None) != published[stage]]
+        if rebuilt:
+            console.print(f"rebuilding {scene}'s {' and '.join(rebuilt)} without the edit")
+            run_stages([scene], rebuilt, False, "sync")
+        if failure is not None:
+            raise failure
+        raise typer.Exit(1)
+    out.print(f"stored {rel}; {ws.params_path.name} goals.edits.{scene} updated")
+    ws, params = G.load()
+    note = sync_dvc_lock(ws, params, STAGES, [(scene, "goals"), (scene, "routes")], G.overrides)
+    if note:
+        console.print(f"[dim]{note}[/dim]")
+
+
+@goals_app.command("export-navchat")
+def goals_export_navchat(
+    scene: str = typer.Argument(..., help="scene name"),
+    folder: Path = typer.Option(..., "--out", "-o", help="folder for objects.json and final.json"),
+):
+    """Write objects.json / final.json in navchat's layout (cells on goals.navchat_grid; goals imported from
+    navchat come back as shipped where nothing was edited).
+
+    Example: `zipon goals export-navchat sim_00 -o navchat/sim_00`
+    """
+    from pipeline.frames import FrameStore
+    from pipeline.goals.navchat import export_scene, write_navchat
+    from pipeline.goals.store import Goals
+
+    sc = _scene(scene)  # on an object store its published goals and frames are mirrored on first use
+    ws, params = sc.dataset.workspace, sc.dataset.params
+    goals = Goals(sc.path("goals"))
+    frames = FrameStore(sc.path("frames")) if sc.path("frames").exists() else None
+    objects_json, final_json = export_scene(goals, params.goals, frames, scene, ws.root)
+    write_navchat(folder, objects_json, final_json)
+    out.print(f"{folder}/objects.json, {folder}/final.json")
+
+
+def _scene(name: str):
+    """The :class:`zipon.Scene` of ``name`` (a ConfigError naming the known scenes when there is none)."""
+    from zipon.api import Dataset
+
+    ws, params = G.load()
+    return Dataset(ws, params)[name]
+
+
+def _object_keys(scene) -> dict[int, str]:
+    """Ground-truth instance id -> object key (``chair_0``) from the scene's goals, when built."""
+    if not scene.path("goals").exists():
+        return {}
+    return {o.instance_id: o.key for o in scene.goals.objects.values() if o.instance_id}
+
+
+def no_candidates_reason(result, qp) -> str:
+    """Why a query found no candidates, with the number that fell short of its threshold (``qp`` = params.query)."""
+    import cv2
+    import numpy as np
+
+    heat = result.heatmap
+    what = f"no candidates for {result.text!r}"
+    if not np.isfinite(heat).any():
+        return f"{what}: the map has no observed cells"
+    if not result.wins.any():
+        best = float(np.nanmax(heat))
+        why = (f"best {best:.4f} < {qp.min_probability:g}" if best < qp.min_probability else
+               f"best {best:.4f}, but in no such cell does the query outscore every background prompt")
+        return (f"{what}: no cell beats the background prompts {list(result.background)} with probability "
+                f">= {qp.min_probability:g} ({why})")
+    n, lab = cv2.connectedComponents(result.wins.astype(np.uint8), connectivity=8)
+    cells = np.bincount(lab.ravel(), minlength=n)[1:]
+    score = np.bincount(lab.ravel(), weights=np.nan_to_num(heat).ravel(), minlength=n)[1:] / np.maximum(cells, 1)
+    area = cells * result.grid.cell_size_m ** 2
+    big = area >= qp.min_candidate_area_m2 - 1e-12
+    if not big.any():
+        return f"{what} (largest winning area {area.max():.3f} m² < min {qp.min_candidate_area_m2:g} m²)"
+    return f"{what} (best score {score[big].max():.2f} < min {qp.min_candidate_score:g})"
+
+
+@app.command()
+def query(
+    scene: str = typer.Argument(..., help="scene name"),
+    text: str = typer.Argument(..., help='what to look for, e.g. "chair" or "the red couch"'),
+    map_name: str = typer.Option("vlmap", "--map", help="vlmap | cfmap"),
+    pose: Optional[str] = typer.Option(None, "--pose", help="x,y,yaw (metres, metres, degrees) to measure "
+                                       "candidates from; yaw counter-clockwise from +x (east)"),
+    as_json: bool = typer.Option(False, "--json", metavar="", help="print the result as JSON"),
+    png: Optional[Path] = typer.Option(None, "--png", help="write the heatmap and candidates over the colour map"),
+    levels: Optional[str] = typer.Option(None, "--levels", help="top: score each cell by its top-down feature; "
+                                         "max: by its best height level (a cfmap's voxels: the chair under a "
+                                         "table); default: params query.levels"),
+):
+    """Query a semantic map with text: a similarity heatmap and object candidates (distance, angle in degrees,
+    score, and the ground-truth object key such as `chair_0` when the scene has one).
+
+    Examples: `zipon query sim_00 chair --pose 2,3,90` · `zipon query sim_00 "green plant" --map cfmap --png plant.png`
+    · `zipon query sim_00 chair --map cfmap --levels max`
+    """
+    import math
+
+    from pipeline.maps.query import parse_pose
+
+    if not text.strip():
+        raise typer.BadParameter("the text to look for is empty; give words such as chair or 'the red couch'",
+                                 param_hint="TEXT")
+    if levels is not None:  # checked like every params key (a ConfigError names query.levels and the choices)
+        G.overrides = (*G.overrides, f"query.levels={levels}")
+    sc = _scene(scene)
+    result = sc.map(map_name).query(text, parse_pose(pose, degrees=True) if pose else None)
+    keys = _object_keys(sc)
+    if png:
+        from pipeline.maps.render import render_query
+
+        render_query(result, png)
+    if as_json:
+        doc = result.to_json()
+        for c in doc["candidates"]:
+            c["angle_deg"] = None if c["angle_rad"] is None else round(math.degrees(c["angle_rad"]), 3)
+            c["gt_object"] = keys.get(c["gt_instance"]) if c.get("gt_instance") else None
+        if doc["pose"] is not None:
+            doc["pose_deg"] = [*doc["pose"][:2], round(math.degrees(doc["pose"][2]), 3)]
+        import json
+
+        out.print_json(json.dumps(doc))
+        return
+    if not result.candidates:
+        out.print(no_candidates_reason(result, sc.dataset.params.query))
+        if png:
+            out.print(str(png))
+        return
+    table = Table(title=f"{scene} {map_name}: {text!r}")
+    for col in ("candidate", "distance (m)", "angle (deg)", "score", "area (m²)", "ground truth"):
+        table.add_column(col)
+    for c in result.candidates:
+        angle = None if c.angle_rad is None else math.degrees(c.angle_rad)
+        gt = "" if not c.gt_instance else keys.get(c.gt_instance, f"{c.gt_class} (instance {c.gt_instance})")
+        table.add_row(str(c.obj_id), _fmt(c.distance_m), _fmt(angle), _fmt(c.score), _fmt(c.area_m2), gt)
+    out.print(table)
+    if png:
+        out.print(str(png))
+
+
+def _fmt(v) -> str:
+    return "" if v is None else f"{v:.2f}" if isinstance(v, float) else str(v)
+
+
+@app.command("recon-eval")
+def recon_eval(
+    frames: Path = typer.Argument(..., help="a frames.zarr (any sequence)"),
+    holdout_every: int = typer.Option(6, "--holdout-every", min=2, help="hold out every N-th frame"),
+    recon: Optional[Path] = typer.Option(None, "--recon", help="score this recon.zarr's grids against the ground "
+                                         "truth the frames carry (simulated scenes) instead"),
+):
+    """Fuse all but every N-th frame, ray-cast depth at the held-out poses, print the depth error as JSON.
+
+    With `--recon`, print the grids' IoU against the simulator's ground truth instead.
+    Examples: `zipon recon-eval data/artifacts/tum/frames.zarr --holdout-every 6`;
+    `zipon recon-eval data/artifacts/sim_00/frames.zarr --recon data/artifacts/sim_00/recon.zarr`
+    """
+    import json
+
+    from pipeline.recon.evaluate import evaluate_holdout
+
+    _, params = G.load()
+    if recon is None:
+        figures = evaluate_holdout(frames, params.reconstruct, holdout_every)
+    else:
+        from pipeline.recon.evaluate import evaluate_grids
+
+        figures = evaluate_grids(frames, recon, params.reconstruct)
+    out.print_json(json.dumps({"frames": str(frames), **figures}))
+
+
+encoders_app = typer.Typer(help="Open-vocabulary encoders: list them, check that one loads and runs. "
+                           "Example: `zipon encoders check --which vlmap`", no_args_is_help=True)
+app.add_typer(encoders_app, name="encoders")
+encoders_app.callback()(subcommand)
+
+
+@encoders_app.command("list")
+def encoders_list():
+    """List the encoders and which one each map stage uses. Example: `zipon encoders list`"""
+    from pipeline.encoders import ENCODERS
+
+    _, params = G.load()
+    enc = params.encoders
+    for name in sorted(ENCODERS):
+        uses = [w for w in ("vlmap", "cfmap") if getattr(enc, w) == name]
+        if enc.simulated == name:
+            uses.append("simulated scenes")
+        tag = " (diagnostic: ground truth)" if ENCODERS[name].diagnostic else ""
+        out.print(f"{name}{tag}" + (f"  <- {', '.join(uses)}" if uses else ""))
+
+
+@encoders_app.command("check")
+def encoders_check(
+    which: str = typer.Option("vlmap", "--which", help="vlmap | cfmap | an encoder name"),
+    simulated: bool = typer.Option(False, "--simulated", metavar="", help="resolve as for a simulated scene"),
+):
+    """Build the configured encoder from its local weights, run one frame and one query, print its identity.
+
+    Example: `zipon encoders check --which cfmap`
+    """
+    import json
+
+    from pipeline.encoders import check_encoder
+
+    _, params = G.load()
+    report = check_encoder(params.encoders, which, simulated=simulated, runtime=params.run)
+    out.print_json(json.dumps(report, default=str))
+
+
+@app.command("eval")
+def eval_cmd(
+    out_dir: Path = typer.Option(Path("eval_out"), "--out", "-o", help="folder for results.json, report.html, episode logs"),
+    scenes: list[str] = typer.Option([], "--scene", "-s", help="scenes (repeatable; default: params eval.scenes)"),
+    methods: list[str] = typer.Option([], "--method", "-m", help="human | cow | vlmap | cf | orion, a name an "
+                                      "installed package registers (entry points zipon.agents), or module:Class of "
+                                      "your own Agent subclass (repeatable; default: eval.methods)"),
+    feedback: list[str] = typer.Option([], "--feedback", "-f", help="feedback settings (repeatable; default: all)"),
+    seeds: Optional[int] = typer.Option(None, "--seeds", min=1, help="number of seeds: 0 .. N-1 (default: params "
+                                        "eval.seeds)"),
+    seed_list: list[int] = typer.Option([], "--seed-list", help="explicit seeds (repeatable) instead of --seeds"),
+):
+    """Run ORION-style agents on the built artifacts; write SR / SPL / SIT as JSON and an HTML report.
+
+    Examples: `zipon eval --out eval_out` · `zipon eval -s sim_00 -m orion -m vlmap -f descriptive --seeds 2` ·
+    `zipon eval -m mypkg.agents:Greedy --seed-list 3`
+    """
+    from pipeline.errors import ConfigError
+    from zipon.api import Dataset
+
+    if seeds is not None and seed_list:
+        raise ConfigError("--seeds N (a count) and --seed-list (explicit seeds) exclude each other")
+    negative = [s for s in seed_list if s < 0]
+    if negative:
+        raise typer.BadParameter(f"seeds {negative} are negative; seeds are whole numbers 0 or more",
+                                 param_hint="--seed-list")
+    if out_dir.exists() and not out_dir.is_dir():
+        raise typer.BadParameter(f"{out_dir} is a file; give a folder for results.json, report.html and the "
+                                 "episode logs", param_hint="--out")
+    agents = [_agent_class(m) if ":" in m else m for m in methods] or None
+    # Dataset.run_eval: on an object store the evaluated scenes are mirrored first
+    results = Dataset(*G.load()).run_eval(out_dir, scenes=scenes or None, agents=agents, feedback=feedback or None,
+                                          seeds=seed_list or seeds, progress=not G.quiet)
+    print_eval(results, out_dir)
+
+
+def _agent_class(spec: str):
+    """``module:Class`` -> the class (checked to be an Agent by zipon.run_eval); errors name the spec."""
+    import importlib
+
+    from pipeline.errors import ConfigError
+
+    module, _, name = spec.partition(":")
+    try:
+        obj = importlib.import_module(module)
+        for part in name.split("."):
+            obj = getattr(obj, part)
+    except (ImportError, AttributeError) as err:
+        raise ConfigError(f"--method {spec!r}: cannot import it ({err}); expected module:Class of an Agent "
+                          f"subclass importable from here") from None
+    return obj
+
+
+@app.command()
+def view(
+    scene: str = typer.Argument(..., help="scene name"),
+    out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="FILE.rrd (default DATA/artifacts/SCENE/"
+                                            "renders/SCENE.rrd)"),
+    episode: Optional[str] = typer.Option(None, "--episode", "-e", help="replay this evaluated episode (a routes "
+                                          "episode id, e.g. chair_0/1) step by step with its dialogue"),
+    eval_dir: Optional[Path] = typer.Option(None, "--eval", help="evaluation folder holding episodes/ (default: "
+                                            "DATA/eval/demo, what zipon demo writes)"),
+    method: Optional[str] = typer.Option(None, "--method", "-m", help="with --episode: the agent's run to replay"),
+    feedback: Optional[str] = typer.Option(None, "--feedback", "-f", help="with --episode: the feedback setting"),
+    seed: Optional[int] = typer.Option(None, "--seed", help="with --episode: the seed"),
+    text: Optional[str] = typer.Option(None, "--query", help="map query drawn as a heatmap (default: the class of "
+                                       "the first goal)"),
+    max_frames: int = typer.Option(240, "--max-frames", min=1, help="at most this many evenly spaced frames"),
+    mesh_voxel: float = typer.Option(0.04, "--mesh-voxel", min=0.0, help="merge mesh vertices within this size, "
+                                     "metres (0 = the full TSDF mesh)"),
+    mesh_top: float = typer.Option(2.2, "--mesh-top", help="leave out mesh triangles above this height over the "
+                                   "floor, metres (the ceiling hides the rooms from above); a negative value keeps all"),
+):
+    """Write a rerun recording of a scene: frames (colour, depth) on a timeline with the camera and trajectory,
+    the TSDF mesh, top-down grids and a query heatmap as textured planes, goals as labelled 3D boxes, routes,
+    and an evaluated episode replayed step by step with its dialogue. Open it with `rerun FILE.rrd`.
+
+    Examples: `zipon view sim_00` · `zipon view sim_00 --episode chair_0/0 -m orion -f mixed -o chair.rrd`
+    """
+    from pipeline.viewer import write_recording
+
+    sc = _scene(scene)
+    sc.dataset.mirror([scene])  # on an object store: the scene's published artifacts (the recording reads them all)
+    ws, params = sc.dataset.workspace, sc.dataset.params
+    target = out_file or ws.renders(scene) / f"{scene}.rrd"
+    s = write_recording(ws, params, scene, target, episode=episode, eval_dir=eval_dir, method=method,
+                        feedback=feedback, seed=seed, query=text, max_frames=max_frames, mesh_voxel_m=mesh_voxel,
+                        mesh_top_m=mesh_top if mesh_top >= 0 else None)
+    parts = [f"{s['frames']} frames", f"{s.get('mesh_vertices', 0):,} mesh vertices",
+             f"grids {', '.join(s.get('grids', [])) or 'none'}", f"{s.get('goal_boxes', 0)} goal boxes",
+             f"{s.get('routes', 0)} routes"]
+    if episode:
+        parts.append(f"episode {s['episode']}: {s['steps']} steps, {s['dialogue']} dialogue turns")
+    out.print(f"{target}  ({s['bytes'] / 1e6:.1f} MB: {'; '.join(parts)})\nopen it with: rerun {target}")
+
+
+@goals_app.command("template")
+def goals_template(
+    scene: str = typer.Argument(..., help="scene name (its built recon or goals give real coordinates)"),
+    out_file: Path = typer.Option(..., "--out", "-o", help="FILE.yaml: an objects file to edit"),
+):
+    """Write a commented objects file to start your own scene's goals from (then set goals.objects: file and
+    goals.objects_files.SCENE: FILE in params.yaml).
+
+    The file lists the scene's objects when goals were built, else one example object in the middle of the
+    reconstruction; every field is explained in a comment. Example: `zipon goals template lab -o lab_objects.yaml`
+    """
+    from pipeline.goals.template import objects_template
+
+    sc = _scene(scene)
+    text = objects_template(scene, goals_path=sc.path("goals"), recon_path=sc.path("recon"))
+    if out_file.suffix.lower() not in (".yaml", ".yml"):
+        from pipeline.errors import InputDataError
+
+        raise InputDataError(f"got {out_file}", field="--out", expected="a .yaml file (the template has comments)")
+    from pipeline.store import write_text_atomic
+
+    write_text_atomic(out_file, text)
+    out.print(f"{out_file}\nthen in params.yaml: goals: {{objects: file, objects_files: {{{scene}: {out_file}}}}}")
+
+
+@goals_app.command("schema")
+def goals_schema(
+    what: str = typer.Option("goals", "--what", "-w", help="goals (an exported/edited goals file) | objects "
+                             "(an objects file, goals.objects_files)"),
+    out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="write here instead of printing"),
+):
+    """Print the JSON Schema of the goals file or the objects file, for editors that validate YAML/JSON.
+
+    Examples: `zipon goals schema > goals.schema.json` · `zipon goals schema --what objects -o objects.schema.json`
+    """
+    import json
+
+    from pipeline.goals.template import json_schema
+
+    text = json.dumps(json_schema(what), indent=2) + "\n"
+    if out_file is None:
+        out.print(text, end="", markup=False, highlight=False, soft_wrap=True)
+        return
+    from pipeline.store import write_text_atomic
+
+    write_text_atomic(out_file, text)
+    out.print(str(out_file))
