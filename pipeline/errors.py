@@ -12,6 +12,13 @@ import errno
 from pathlib import Path
 
 
+def shown(key: object) -> str:
+    """A key or name as a message shows it: as written when printable, else quoted with its escapes, so a key
+    holding a newline or a control character cannot break a one-line message or pass unseen."""
+    text = str(key)
+    return text if text and text.isprintable() else repr(text)
+
+
 class ZiponError(Exception):
     """Root of every error zipon raises on purpose."""
 
@@ -81,15 +88,28 @@ _OS_ADVICE = {
     "EPERM": "make the folder writable for this user or point --data-dir elsewhere",
 }
 
+# The same for a file the user asked for outside the data root (--out, --png, -o): the data root is not the fix.
+_OS_ADVICE_OUTPUT = {
+    "ENOSPC": "free some space or write it to another disk",
+    "EDQUOT": "free some space or write it elsewhere",
+    "EROFS": "write it to a folder on a writable file system",
+    "EACCES": "make the folder writable for this user or write it elsewhere",
+    "EPERM": "make the folder writable for this user or write it elsewhere",
+    "ENOTDIR": "a part of the path is a file, not a folder: choose another path",
+    "EISDIR": "the path is a folder: give a file name",
+}
 
-def os_error_message(err: OSError, where: str | Path | None = None) -> str:
+
+def os_error_message(err: OSError, where: str | Path | None = None, *, output: bool = False) -> str:
     """One line for an operating-system error (disk full, read-only, permissions): the path, what
     happened, what to do. The CLI and the runner show this instead of a traceback.
 
     ``where``: the path to name when the error carries none (``write()`` on a full disk names no file).
+    ``output``: the path is a file the user named outside the data root (advice about the data root would not apply).
     """
     code = errno.errorcode.get(err.errno or 0, "")
     where = " -> ".join(str(p) for p in (err.filename, err.filename2) if p is not None) or where or "(no path given)"
     what = err.strerror or str(err)
     text = f"{where}: {what}" + (f" [{code}]" if code else "")
-    return f"{text}; {_OS_ADVICE[code]}" if code in _OS_ADVICE else text
+    advice = _OS_ADVICE_OUTPUT if output else _OS_ADVICE
+    return f"{text}; {advice[code]}" if code in advice else text

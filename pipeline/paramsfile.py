@@ -1,6 +1,6 @@
-"""Params files: reading ``params.yaml`` (libyaml), ``-S KEY=VALUE`` overrides, keys that moved (an error naming
-their new home), validation against the schema (:mod:`pipeline.config`) with errors naming the key, and writing
-a complete, commented ``params.yaml``."""
+"""Params files: reading ``params.yaml`` (libyaml, bounded: :mod:`pipeline.userfiles`), ``-S KEY=VALUE``
+overrides, keys that moved (an error naming their new home), validation against the schema (:mod:`pipeline.config`)
+with errors naming the key, and writing a complete, commented ``params.yaml``."""
 
 from __future__ import annotations
 
@@ -12,7 +12,8 @@ import yaml
 from pydantic import BaseModel, ValidationError
 
 from pipeline.config import Params, QueryParams, TaskParams
-from pipeline.errors import ConfigError
+from pipeline.errors import ConfigError, InputDataError, shown
+from pipeline.userfiles import parse_yaml, read_user_text
 
 
 def _apply_override(raw: dict, assignment: str) -> None:
@@ -25,13 +26,16 @@ def _apply_override(raw: dict, assignment: str) -> None:
         node = node.setdefault(part, {})
         if not isinstance(node, dict):
             raise ConfigError(f"override {assignment!r}: {part!r} is not a section")
-    node[parts[-1]] = yaml.safe_load(value)
+    try:
+        node[parts[-1]] = parse_yaml(value, origin=f"override {key.strip()}")
+    except InputDataError as err:
+        raise ConfigError(str(err)) from None
 
 
 def _format_errors(err: ValidationError, origin: str) -> str:
     lines = []
     for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"]) or "(top level)"
+        loc = ".".join(shown(p) for p in e["loc"]) or "(top level)"
         lines.append(f"{origin}: {loc}: {e['msg'].removeprefix('Value error, ')}")
     return "\n".join(lines)
 
@@ -82,24 +86,15 @@ def parse_params(raw: dict, *, origin: str = "params", overrides: list[str] | tu
         raise ConfigError(_format_errors(err, origin)) from None
 
 
-def yaml_load(text: str) -> Any:
-    """``yaml.safe_load`` through libyaml's parser when PyYAML has it (same documents, same objects; ~10x faster
-    on params.yaml, a quarter of a ``zipon status``)."""
-    return yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
-
-
 def load_params(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> Params:
-    """Read and validate ``params.yaml``."""
+    """Read and validate ``params.yaml`` (bounded: :mod:`pipeline.userfiles`)."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: params file not found (run zipon from the project folder or pass --params)")
     try:
-        raw = yaml_load(path.read_text(encoding="utf-8")) or {}
-    except UnicodeDecodeError as err:
-        raise ConfigError(f"{path}: not UTF-8 text (byte {err.start}: {err.object[err.start:err.start + 1]!r}); "
-                          f"save it as UTF-8") from None
-    except yaml.YAMLError as err:
-        raise ConfigError(f"{path}: not valid YAML: {err}") from None
+        raw = parse_yaml(read_user_text(path, what="params YAML"), origin=path) or {}
+    except InputDataError as err:
+        raise ConfigError(str(err)) from None
     if not isinstance(raw, dict):
         raise ConfigError(f"{path}: expected a mapping of sections at the top level")
     return parse_params(raw, origin=str(path), overrides=overrides)

@@ -101,6 +101,13 @@ class Workspace:
             remote, data = str(data).rstrip("/"), cache_dir(str(data), root)
         manifests = manifests_dir or os.environ.get(ENV_MANIFESTS) or (
             Path(data) / "manifests" if remote else root / "manifests")
+        for given, env, option, path in ((data_dir, ENV_DATA, "--data-dir", data),
+                                         (manifests_dir, ENV_MANIFESTS, "--manifests-dir", manifests)):
+            if Path(path).exists() and not Path(path).is_dir():
+                from pipeline.errors import ConfigError
+
+                how = option if given else env if os.environ.get(env) else f"{option} (default)"
+                raise ConfigError(f"{how} {path}: is a file, not a folder; point {option} at a folder")
         return cls(root=root, data_dir=Path(data).resolve(), manifests_dir=Path(manifests).resolve(),
                    params_file=params, remote=remote)
 

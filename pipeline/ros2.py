@@ -32,6 +32,7 @@ import numpy as np
 
 from pipeline.errors import InputDataError
 from pipeline.geometry import Intrinsics, invert_pose, pose_from_tq, pose_to_tq
+from pipeline.imagecodec import PNG_MAGIC, decode_image
 
 # ----------------------------------------------------------------------------- definitions
 
@@ -100,7 +101,6 @@ RAW_ENCODINGS: dict[str, tuple[str, int]] = {
     "rgb8": ("u1", 3), "bgr8": ("u1", 3), "rgba8": ("u1", 4), "bgra8": ("u1", 4), "mono8": ("u1", 1),
     "16UC1": ("u2", 1), "mono16": ("u2", 1), "32FC1": ("f4", 1),
 }
-PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
 def _t_link_optical() -> np.ndarray:
@@ -375,8 +375,8 @@ def compressed_image_to_array(msg: dict, *, where: dict) -> np.ndarray:
         if at < 0:
             raise InputDataError("compressedDepth image without a PNG payload", field="format", **where,
                                  expected="a ConfigHeader followed by PNG data ('16UC1; compressedDepth png')")
-        img = cv2.imdecode(np.frombuffer(data[at:], np.uint8), cv2.IMREAD_UNCHANGED)
-        if img is None or img.dtype != np.uint16:
+        img = decode_image(data[at:], cv2.IMREAD_UNCHANGED, what="compressedDepth", field="data", **where)
+        if img.dtype != np.uint16:
             raise InputDataError("compressedDepth PNG could not be decoded as 16-bit", field="data", **where)
         if low.startswith("32fc1"):
             # Inverse-depth quantisation: depth = A / (v - B), v = 0 invalid.
@@ -390,9 +390,7 @@ def compressed_image_to_array(msg: dict, *, where: dict) -> np.ndarray:
     if not any(k in low for k in ("png", "jpeg", "jpg")):
         raise InputDataError(f"unknown compressed image format {fmt!r}", field="format", **where,
                              expected="png or jpeg (image_transport 'compressed'), or '16UC1; compressedDepth'")
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputDataError(f"{fmt!r} data could not be decoded", field="data", **where)
+    img = decode_image(data, cv2.IMREAD_UNCHANGED, what=f"{fmt!r}", field="data", **where)
     if img.ndim == 2 and img.dtype == np.uint16:
         return img
     if img.ndim == 2:

@@ -375,7 +375,8 @@ def fsync_dir(path: Path) -> None:
 def write_text_atomic(path: Path, text: str) -> None:
     """Write ``path`` whole or not at all (temporary file, fsync, rename, fsync of the folder)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    if not path.parent.is_dir():
+        path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
     try:
         with open(tmp, "w", encoding="utf-8") as f:
@@ -385,8 +386,8 @@ def write_text_atomic(path: Path, text: str) -> None:
         os.replace(tmp, path)
     except OSError as err:
         remove(tmp)
-        if err.filename is None:  # write() and fsync() errors (a full disk) carry no path: name the file
-            raise OSError(err.errno, err.strerror, str(path)) from err
+        if err.filename is None or err.filename == str(tmp):  # write()/fsync() errors carry no path, and the
+            raise OSError(err.errno, err.strerror, str(path)) from err  # temporary file is ours: name the file
         raise
     except BaseException:
         remove(tmp)

@@ -164,14 +164,15 @@ class Case:
     says: tuple[str, ...]  # fragments of the message; "{root}" / "{scratch}" are filled in
     tampers: bool = False  # make() changes the workspace: the case gets its own copy
     xfail: str = ""
+    never: tuple[str, ...] = ()  # fragments the message must not hold (advice that does not apply, a temp file)
 
 
 CASES: dict[str, Case] = {}
 
 
-def case(name: str, code: int, *says: str, tampers: bool = False, xfail: str = ""):
+def case(name: str, code: int, *says: str, tampers: bool = False, xfail: str = "", never: tuple[str, ...] = ()):
     def register(make):
-        CASES[name] = Case(make, code, says, tampers, xfail)
+        CASES[name] = Case(make, code, says, tampers, xfail, never)
         return make
 
     return register
@@ -622,6 +623,207 @@ def _(c):
     return c.argv("run", "--stage", "goals", "--force", "--scheduler", "sync")
 
 
+# --- hostile documents: alias bombs, deep nesting, oversized files (bounded parsing, pipeline/userfiles.py)
+
+def alias_bomb(indent: str = "") -> str:
+    """'Billion laughs': nine anchors, each a list of nine aliases of the one before (9**9 leaves expanded)."""
+    lines = [f'{indent}a0: &a0 ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]']
+    lines += [f"{indent}a{i}: &a{i} [" + ",".join([f"*a{i - 1}"] * 9) + "]" for i in range(1, 10)]
+    return "\n".join(lines) + "\n"
+
+
+@case("params-alias-bomb", 1, "{scratch}/params.yaml", "aliases expanded")
+def _(c):
+    return with_params(c, BASE + alias_bomb())
+
+
+@case("params-alias-bomb-nested", 1, "{scratch}/params.yaml", "aliases expanded")
+def _(c):
+    return with_params(c, BASE + "ingest:\n  topics:\n" + alias_bomb("    "))
+
+
+@case("params-recursive-alias", 1, "{scratch}/params.yaml", "recursive")
+def _(c):
+    return with_params(c, BASE + "simulate: &s {frames: *s}\n")
+
+
+@case("params-deep-nesting", 1, "{scratch}/params.yaml", "nest")
+def _(c):
+    return with_params(c, BASE + "simulate: " + "[" * 200 + "]" * 200 + "\n")
+
+
+@case("params-too-large", 1, "{scratch}/params.yaml", "bytes")
+def _(c):
+    return with_params(c, BASE + "# " + "x" * (5 << 20) + "\n")
+
+
+@case("params-override-alias-bomb", 1, "override simulate.frames", "aliases expanded")
+def _(c):
+    return c.argv("-S", "simulate.frames=" + alias_bomb().replace("\n", ", ").join("{}"), "params")
+
+
+@case("goals-alias-bomb", 1, "{scratch}/edit.yaml", "aliases expanded")
+def _(c):
+    return goals_import(c, (yaml.safe_dump(c.goals_doc, sort_keys=False) + "extra:\n" + alias_bomb("  ")).encode())
+
+
+@case("goals-json-too-deep", 1, "{scratch}/edit.json", "nest")
+def _(c):
+    return c.argv("goals", "import", SCENE, str(c.file("edit.json", "[" * 100_000 + "]" * 100_000)))
+
+
+@case("objects-file-alias-bomb", 1, "{scratch}/objects.yaml", "aliases expanded")
+def _(c):
+    path = c.file("objects.yaml", "rooms: []\nobjects: []\nbomb:\n" + alias_bomb("  "))
+    return c.argv("-S", "goals.objects=file", "-S", f"goals.objects_files.{SCENE}={path}",
+                  "run", "--stage", "goals", "--force", "--scheduler", "sync")
+
+
+@case("rosbag2-metadata-alias-bomb", 1, "{scratch}/bag_sqlite/metadata.yaml", "aliases expanded")
+def _(c):
+    from tests.fixtures.raw_datasets import write_bag
+
+    bag = write_bag(c.scratch, REC, "ros2")
+    meta = bag / "metadata.yaml"
+    meta.write_text(meta.read_text() + "bomb:\n" + alias_bomb("  "))
+    return ingest(c, bag)
+
+
+# --- decoding faults: every image decoded strictly, every error names the file and frame
+
+def _cut(path: Path, fraction: float) -> None:
+    data = path.read_bytes()
+    path.write_bytes(data[: int(len(data) * fraction)])
+
+
+@case("replica-jpeg-truncated", 1, "{scratch}/Replica/room0/results/frame000002.jpg", "frame 2", "truncated")
+def _(c):
+    from tests.fixtures.raw_datasets import write_replica
+
+    root = write_replica(c.scratch, REC)
+    _cut(root / "results/frame000002.jpg", 0.4)
+    return ingest(c, root)
+
+
+@case("tum-png-cut", 1, "rgb/", "frame 4", "truncated")
+def _(c):
+    root = write_tum(c.scratch, REC)
+    _cut(root / "rgb" / sorted(p.name for p in (root / "rgb").iterdir())[4], 0.6)
+    return ingest(c, root)
+
+
+@case("tum-png-bad-crc", 1, "depth/", "frame 1", "fails its CRC")
+def _(c):
+    root = write_tum(c.scratch, REC)
+    f = root / "depth" / sorted(p.name for p in (root / "depth").iterdir())[1]
+    data = bytearray(f.read_bytes())
+    data[len(data) // 2] ^= 0x01  # inside IDAT: its CRC no longer matches
+    f.write_bytes(bytes(data))
+    return ingest(c, root)
+
+
+@case("tum-groundtruth-only-comments", 1, "groundtruth.txt", "no poses listed", "blank or a comment")
+def _(c):
+    root = write_tum(c.scratch, REC)
+    (root / "groundtruth.txt").write_text("# ground truth trajectory\n# timestamp tx ty tz qx qy qz qw\n")
+    return ingest(c, root)
+
+
+@case("ros1-compressed-jpeg-truncated", 1, "{scratch}/cut.bag", "/camera/color/image_raw/compressed", "frame 3",
+      "truncated")
+def _(c):
+    import cv2
+
+    from tests.fixtures.raw_datasets import BagLog
+
+    bag = BagLog(c.scratch / "cut.bag", "ros1")
+    for i in range(len(REC)):
+        s = int(REC.stamps[i])
+        jpg = cv2.imencode(".jpg", REC.rgb[i][..., ::-1])[1].tobytes()
+        bag.pose("/camera/pose", s, REC.poses[i])
+        bag.compressed("/camera/color/image_raw/compressed", s, "rgb8; jpeg compressed bgr8",
+                       jpg[: int(len(jpg) * 0.4)] if i == 3 else jpg)
+        bag.image("/camera/depth/image_raw", s, REC.depth_mm[i], "16UC1")
+        bag.camera_info("/camera/color/camera_info", s, REC.intrinsics)
+    return ingest(c, bag.close())
+
+
+def seven_scenes(c: Ctx, intrinsics: str | None = None) -> Path:
+    """A 7-Scenes sequence seq-01 under scratch, with ``camera-intrinsics.txt`` above it as 3DMatch ships it."""
+    from tests.fixtures.raw_datasets import write_7scenes
+
+    root = write_7scenes(c.scratch, REC)
+    if intrinsics is not None:
+        (c.scratch / "camera-intrinsics.txt").write_text(intrinsics)
+    return root
+
+
+@case("sevenscenes-intrinsics-garbage", 1, "{scratch}/camera-intrinsics.txt", "not numeric", "fx 0 cx")
+def _(c):
+    return ingest(c, seven_scenes(c, "fx = 585\nfy = 585\n"))
+
+
+@case("sevenscenes-intrinsics-skew", 1, "{scratch}/camera-intrinsics.txt", "not a pinhole camera matrix")
+def _(c):
+    return ingest(c, seven_scenes(c, "28 1 16\n0 28 12\n0 0 1\n"))
+
+
+@case("sevenscenes-intrinsics-outside-image", 1, "{scratch}/camera-intrinsics.txt", "do not fit", "32x24")
+def _(c):
+    return ingest(c, seven_scenes(c, "5.7034e+02 0 3.2e+02\n0 5.7034e+02 2.4e+02\n0 0 1\n"))
+
+
+@case("sevenscenes-depth-size", 1, "{scratch}/seq-01/frame-000003.depth.png", "{scratch}/seq-01/frame-000003.color.png",
+      "16x12", "32x24")
+def _(c):
+    import cv2
+
+    root = seven_scenes(c)
+    depth = root / "frame-000003.depth.png"
+    cv2.imwrite(str(depth), cv2.imread(str(depth), cv2.IMREAD_UNCHANGED)[::2, ::2])
+    return ingest(c, root)
+
+
+# --- paths and texts that are not what the option wants
+
+@case("status-manifests-dir-is-a-file", 1, "--manifests-dir", "{scratch}/manifests.txt", "not a folder")
+def _(c):
+    argv = c.argv("status")
+    argv[argv.index("--manifests-dir") + 1] = str(c.file("manifests.txt", "not a folder\n"))
+    return argv
+
+
+@case("status-data-dir-is-a-file", 1, "--data-dir", "{scratch}/data.txt", "not a folder")
+def _(c):
+    argv = c.argv("status")
+    argv[argv.index("--data-dir") + 1] = str(c.file("data.txt", "not a folder\n"))
+    return argv
+
+
+@case("read-only-goals-export-out", 1, "{scratch}/ro/goals.yaml", "Read-only file system", "writable file system",
+      never=(".tmp-", "--data-dir"))
+def _(c):
+    (c.scratch / "ro").mkdir()
+    c.fault = (errno.EROFS, c.scratch / "ro")
+    return c.argv("goals", "export", SCENE, "-o", str(c.scratch / "ro" / "goals.yaml"))
+
+
+@case("read-only-render-out", 1, "{scratch}/ro/", "Read-only file system", "writable file system",
+      never=("--data-dir",))
+def _(c):
+    (c.scratch / "ro").mkdir()
+    c.fault = (errno.EROFS, c.scratch / "ro")
+    return c.argv("render", SCENE, "--what", "navigable", "-o", str(c.scratch / "ro" / "nav.png"))
+
+
+@case("read-only-query-png", 1, "{scratch}/ro/", "Read-only file system", "writable file system",
+      never=("--data-dir",))
+def _(c):
+    (c.scratch / "ro").mkdir()
+    c.fault = (errno.EROFS, c.scratch / "ro")
+    return c.argv("query", SCENE, "chair", "--png", str(c.scratch / "ro" / "q.png"))
+
+
 # --- usage errors (click's exit code 2)
 
 @case("usage-unknown-option", 2, "--bogus")
@@ -632,6 +834,26 @@ def _(c):
 @case("usage-missing-scene", 2, "--scene")
 def _(c):
     return c.argv("ingest", str(c.scratch / "x.mcap"))
+
+
+@case("usage-query-empty-text", 2, "TEXT", "empty")
+def _(c):
+    return c.argv("query", SCENE, "")
+
+
+@case("usage-query-blank-text", 2, "TEXT", "empty")
+def _(c):
+    return c.argv("query", SCENE, "   ")
+
+
+@case("usage-eval-negative-seed", 2, "--seed-list", "negative")
+def _(c):
+    return c.argv("eval", "--seed-list", "-3", "--out", str(c.scratch / "eval"))
+
+
+@case("usage-eval-out-is-a-file", 2, "--out", "is a file")
+def _(c):
+    return c.argv("eval", "--out", str(c.file("params.yaml", BASE)))
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=CASES[n].xfail))
@@ -660,6 +882,8 @@ def test_bad_input(name, pristine, tmp_path, capsys, monkeypatch):
     for fragment in bad.says:
         fragment = fragment.format(root=ctx.root, scratch=ctx.scratch)
         assert fragment in text, f"{fragment!r} not in the output:\n{out}{err}"
+    for fragment in bad.never:
+        assert fragment not in text, f"{fragment!r} in the output:\n{out}{err}"
     after = tree_state(ctx.root)
     changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
     assert not changed, f"the failed command changed {changed}"

@@ -244,7 +244,9 @@ def test_stores_import_no_algorithm_that_fills_them():
 # command, the fast ones (status, params, query) included: they stay leaves (the params sections live in the schema,
 # not beside their packages; docs: architecture, design decisions).
 CONFIG_MAY_IMPORT = {"pipeline", "pipeline.errors", "pipeline.perception_params", "pipeline.plugins", "pipeline.section",
-                     "pipeline.config"}
+                     "pipeline.config",
+                     # the bounded YAML/JSON loader params files are read through (a leaf: errors, yaml, json)
+                     "pipeline.userfiles"}
 
 
 @pytest.mark.parametrize("start", ["pipeline.config", "pipeline.paramsfile", "pipeline.stageconfig"])

@@ -16,13 +16,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
-
 from pipeline.errors import InputDataError, StageError
 from pipeline.goals.schema import (GoalsDocument, check_against_objects, document_digest, dump_document,
                                    load_document)
 from pipeline.goals.store import Goals
 from pipeline.store import write_text_atomic
+from pipeline.userfiles import parse_yaml, read_user_text
 
 EDITS_DIR = "goals_edits"
 
@@ -82,7 +81,7 @@ def record_goals_edit(params_path: Path, scene: str, rel_path: str) -> None:
     params_path = Path(params_path)
     rt = YAML()  # round-trip: keeps comments and layout
     rt.width = 4096
-    doc = rt.load(params_path.read_text()) or CommentedMap()
+    doc = rt.load(read_user_text(params_path, what="params YAML")) or CommentedMap()
     goals = doc.get("goals")
     if goals is None:
         goals = doc["goals"] = CommentedMap()
@@ -95,7 +94,7 @@ def record_goals_edit(params_path: Path, scene: str, rel_path: str) -> None:
     buf = io.StringIO()
     rt.dump(doc, buf)
     text = buf.getvalue()
-    parse_params(yaml.safe_load(text), origin=str(params_path))
+    parse_params(parse_yaml(text, origin=params_path), origin=str(params_path))
     write_text_atomic(params_path, text)
 
 

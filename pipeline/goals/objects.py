@@ -10,19 +10,18 @@ range, room and appearance attributes.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated, Literal
 
 import cv2
 import numpy as np
 import skimage.draw
-import yaml
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError
 
-from pipeline.errors import InputDataError
+from pipeline.errors import InputDataError, shown
 from pipeline.geometry import GridSpec
 from pipeline.scene_gt import GTScene
+from pipeline.userfiles import load_user_file
 
 
 def strict_number(value: object) -> object:
@@ -180,28 +179,14 @@ def objects_from_gt(gt: GTScene | dict, scene: str | None = None) -> ObjectSet:
 
 
 def read_structured(path: Path) -> object:
-    """A YAML (.yaml/.yml) or JSON file as plain data; errors name the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputDataError("file not found", path=path)
-    data = path.read_bytes()
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as err:
-        raise InputDataError(f"not UTF-8 text: byte 0x{data[err.start]:02x} at offset {err.start} ({err.reason})",
-                             path=path, expected="a UTF-8 encoded YAML/JSON file") from None
-    try:
-        if path.suffix.lower() in (".yaml", ".yml"):
-            return yaml.safe_load(text)
-        return json.loads(text)
-    except (yaml.YAMLError, json.JSONDecodeError) as err:
-        raise InputDataError(f"not valid {path.suffix.lstrip('.').upper()}: {err}", path=path) from None
+    """A YAML (.yaml/.yml) or JSON file as plain data, within :mod:`pipeline.userfiles`' limits; errors name the file."""
+    return load_user_file(path)
 
 
 def validation_error(err: ValidationError, path: Path | str | None, prefix: str = "") -> InputDataError:
     """The first pydantic error as an :class:`InputDataError` naming the field path and the reason."""
     def where(e: dict) -> str:
-        return prefix + "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in e["loc"]).lstrip(".")
+        return prefix + "".join(f"[{p}]" if isinstance(p, int) else f".{shown(p)}" for p in e["loc"]).lstrip(".")
 
     lines = []
     for e in err.errors():

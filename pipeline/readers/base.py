@@ -25,6 +25,7 @@ import numpy as np
 from pipeline.config import IngestParams
 from pipeline.errors import InputDataError, MissingInputError
 from pipeline.geometry import Intrinsics, nearest_rigid, pose_from_tq
+from pipeline.imagecodec import read_image_file
 
 # Stream names of samples.
 RGB, DEPTH, INSTANCE, POSE = "rgb", "depth", "instance", "pose"
@@ -41,7 +42,9 @@ class Sample:
     frame is matched): colour ``(H,W,3)`` uint8 RGB, depth ``(H,W)`` uint16 mm or float32 metres
     (NaN/inf/0 = invalid), instance ``(H,W)`` uint16; for poses a ``(4,4)`` float64 transform of
     pose link ``key`` (parent -> child, see :class:`PoseLink`).
-    ``index`` is the 0-based message index within its stream (the "frame" errors name).
+    ``index`` is the 0-based message index within its stream (the "frame" errors name). ``origin``: the file
+    an image comes from (folder formats), named by errors about its pixels; messages of a log leave it None
+    (the topic and index name them).
     """
 
     stream: str
@@ -50,6 +53,7 @@ class Sample:
     payload: Any
     key: str = ""
     rigid: bool = False  # a pose known rigid by construction (from a checked quaternion): skip the matrix check
+    origin: Path | None = None
 
     def array(self) -> np.ndarray:
         if callable(self.payload):
@@ -154,6 +158,18 @@ def open_reader(path: Path, params: IngestParams, fmt: str = "auto") -> Reader:
 
 # ----------------------------------------------------------------------------- helpers for readers
 
+def read_text_lines(path: Path, expected: str) -> list[str]:
+    """The lines of a text file (UTF-8; ASCII in every format zipon reads); a byte that is not UTF-8 raises
+    :class:`InputDataError` naming the file and the line."""
+    data = Path(path).read_bytes()
+    try:
+        return data.decode("utf-8").splitlines()
+    except UnicodeDecodeError as err:
+        line = data[:err.start].count(b"\n") + 1
+        raise InputDataError(f"byte 0x{data[err.start]:02x} at offset {err.start} is not text ({err.reason})",
+                             path=path, field=f"line {line}", expected=expected) from None
+
+
 def parse_stamp_ns(text: str, *, path=None, line: int | None = None) -> int:
     """Seconds as decimal text ('1305031229.528748') -> int nanoseconds, without float rounding."""
     try:
@@ -197,23 +213,21 @@ def native_intrinsics(fx: float, fy: float, cx: float, cy: float, first_image: P
 
 
 def read_depth16(path: Path, frame: int, expected: str) -> np.ndarray:
-    """A single-channel 16-bit depth PNG as stored (no unit conversion); anything else raises :class:`InputDataError`."""
+    """A single-channel 16-bit depth PNG as stored (no unit conversion), decoded strictly; anything else raises
+    :class:`InputDataError` naming the file and frame."""
     import cv2
 
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None or img.dtype != np.uint16 or img.ndim != 2:
+    img = read_image_file(path, cv2.IMREAD_UNCHANGED, frame=frame, what="depth")
+    if img.dtype != np.uint16 or img.ndim != 2:
         raise InputDataError("depth image is not a single-channel 16-bit PNG", path=path, frame=frame,
                              expected=expected)
     return img
 
 
 def read_image(path: Path, *, flags: int, frame: int, what: str) -> np.ndarray:
-    """Load an image file with OpenCV; unreadable files raise :class:`InputDataError`."""
-    import cv2
-
-    img = cv2.imread(str(path), flags)
-    if img is None:
-        raise InputDataError(f"{what} image could not be read", path=path, frame=frame, expected="a PNG/JPEG image")
+    """Load an image file (strictly: :mod:`pipeline.imagecodec`); unreadable, truncated or corrupt files raise
+    :class:`InputDataError` naming the file and frame. Colour comes back RGB."""
+    img = read_image_file(path, flags, frame=frame, what=what)
     if img.ndim == 3:
         img = np.ascontiguousarray(img[..., [2, 1, 0]])
     return img

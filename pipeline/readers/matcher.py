@@ -201,14 +201,30 @@ class FrameMatcher:
             yield c, d, inst, T
 
     # ------------------------------------------------------------------ output
+    def _image_where(self, s: Sample) -> dict:
+        return {"path": s.origin} if s.origin is not None else self._where(s.stream)
+
     def _check_image(self, s: Sample, arr: np.ndarray, dtypes: tuple, channels: int | None) -> None:
         intr = self.info.intrinsics
         shape = (intr.height, intr.width) + ((channels,) if channels else ())
         if arr.shape != shape or arr.dtype not in dtypes:
             raise InputDataError(
-                f"{s.stream} image is {arr.dtype}{tuple(arr.shape)}", **self._where(s.stream), frame=s.index,
+                f"{s.stream} image is {arr.dtype}{tuple(arr.shape)}", **self._image_where(s), frame=s.index,
                 expected=f"{' or '.join(str(np.dtype(x)) for x in dtypes)}{shape} "
                          f"({intr.width}x{intr.height} as in the camera intrinsics)")
+
+    def _check_pair(self, c: Sample, rgb: np.ndarray, other: Sample, arr: np.ndarray) -> None:
+        """Colour and a matched depth/instance image of different sizes: the error names both images."""
+        if rgb.shape[:2] == arr.shape[:2]:
+            return
+
+        def name(s: Sample) -> str:
+            return str(s.origin) if s.origin is not None else f"{self.info.where.get(s.stream)} message {s.index}"
+
+        (hc, wc), (ho, wo) = rgb.shape[:2], arr.shape[:2]
+        raise InputDataError(f"{other.stream} image {name(other)} is {wo}x{ho} but its colour image {name(c)} is "
+                             f"{wc}x{hc}", path=self.source, frame=c.index,
+                             expected="colour and depth (and instance) images of one size per frame")
 
     def depth_to_mm(self, arr: np.ndarray) -> np.ndarray:
         """uint16 mm or float metres -> uint16 mm with values outside [depth_min_m, depth_max_m] set to 0."""
@@ -244,12 +260,14 @@ class FrameMatcher:
             nonlocal fill
             for c, d, inst, T in self._decide(final):
                 rgb, dep = c.array(), d.array()
+                self._check_pair(c, rgb, d, dep)
                 self._check_image(c, rgb, (np.dtype(np.uint8),), 3)
                 self._check_image(d, dep, (np.dtype(np.uint16), np.dtype(np.float32), np.dtype(np.float64)), None)
                 block.rgb[fill] = rgb
                 block.depth_mm[fill] = self.depth_to_mm(dep)
                 if inst is not None:
                     ins = inst.array()
+                    self._check_pair(c, rgb, inst, ins)
                     self._check_image(inst, ins, (np.dtype(np.uint16),), None)
                     block.instance[fill] = ins
                 block.T_world_camera[fill], block.stamp_ns[fill] = T, c.stamp_ns

@@ -91,12 +91,13 @@ class NavchatReader(Reader):
     def samples(self) -> Iterator[Sample]:
         for k, (i, stamp) in enumerate(zip(self.ids, self.stamps.tolist())):
             yield Sample(POSE, stamp, k, self._pose(self._file("pose", i, "txt"), k), key="world->camera", rigid=True)
-            yield Sample(RGB, stamp, k, lambda f=self._file("rgb", i, "png"), k=k:
-                         read_image(f, flags=cv2.IMREAD_COLOR, frame=k, what="colour"))
-            yield Sample(DEPTH, stamp, k, lambda f=self._file("depth", i, "npy"), k=k: self._npy(f, k, "depth"))
+            rgb, depth, semantic = (self._file(sub, i, ext) for sub, ext in
+                                    (("rgb", "png"), ("depth", "npy"), ("semantic", "npy")))
+            yield Sample(RGB, stamp, k, lambda f=rgb, k=k: read_image(f, flags=cv2.IMREAD_COLOR, frame=k, what="colour"),
+                         origin=rgb)
+            yield Sample(DEPTH, stamp, k, lambda f=depth, k=k: self._npy(f, k, "depth"), origin=depth)
             if self.has_instance:
-                yield Sample(INSTANCE, stamp, k, lambda f=self._file("semantic", i, "npy"), k=k:
-                             self._npy(f, k, "semantic"))
+                yield Sample(INSTANCE, stamp, k, lambda f=semantic, k=k: self._npy(f, k, "semantic"), origin=semantic)
 
     def _pose(self, file: Path, k: int) -> np.ndarray:
         try:
@@ -112,7 +113,11 @@ class NavchatReader(Reader):
 
     @staticmethod
     def _npy(file: Path, k: int, what: str) -> np.ndarray:
-        arr = np.load(file, allow_pickle=False)
+        try:
+            arr = np.load(file, allow_pickle=False)
+        except (OSError, EOFError, ValueError) as err:  # cut short, not a .npy, an object array
+            raise InputDataError(f"{what} array could not be read ({err})", path=file, frame=k,
+                                 expected="a whole .npy file of (H,W) integers") from None
         if arr.ndim == 3 and arr.shape[-1] == 1:
             arr = arr[..., 0]
         integral = np.issubdtype(arr.dtype, np.integer)

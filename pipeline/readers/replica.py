@@ -11,7 +11,6 @@ Stamps are synthesised as ``N / ingest.folder_fps``. Poses are re-orthonormalise
 
 from __future__ import annotations
 
-import json
 import re
 from pathlib import Path
 from typing import Iterator
@@ -22,7 +21,8 @@ import numpy as np
 from pipeline.errors import InputDataError
 from pipeline.geometry import Intrinsics, nearest_rigid
 from pipeline.readers.base import (DEPTH, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, frame_stamps_ns,
-                                   read_depth16, read_image, register)
+                                   read_depth16, read_image, read_text_lines, register)
+from pipeline.userfiles import load_user_file
 
 # NICE-SLAM configs/Replica/replica.yaml
 REPLICA_CAMERA = {"w": 1200, "h": 680, "fx": 600.0, "fy": 600.0, "cx": 599.5, "cy": 339.5, "scale": 6553.5}
@@ -32,8 +32,9 @@ _FRAME = re.compile(r"^frame(\d+)\.(jpg|png)$")
 def _camera(folder: Path) -> tuple[dict, str]:
     for f in (folder / "cam_params.json", folder.parent / "cam_params.json"):
         if f.is_file():
+            doc = load_user_file(f, fmt="json")
             try:
-                cam = json.loads(f.read_text())["camera"]
+                cam = doc["camera"]
                 return {k: float(cam[k]) for k in REPLICA_CAMERA}, str(f)
             except (KeyError, TypeError, ValueError) as err:
                 raise InputDataError(f"camera parameters unreadable ({err})", path=f, field="camera",
@@ -58,7 +59,7 @@ class ReplicaReader(Reader):
         found = sorted((int(m.group(1)), p.name, m.group(1)) for p in res.iterdir() if (m := _FRAME.match(p.name)))
         if not found:
             raise InputDataError("no frameNNNNNN.jpg files", path=res, expected="results/frameNNNNNN.jpg")
-        rows = [ln.split() for ln in (self.path / "traj.txt").read_text().splitlines() if ln.strip()]
+        rows = [ln.split() for ln in read_text_lines(self.path / "traj.txt", "16 numbers a line") if ln.strip()]
         if len(rows) < len(found):
             raise InputDataError(f"traj.txt has {len(rows)} poses for {len(found)} frames", path=self.path / "traj.txt",
                                  expected="one 4x4 pose (16 numbers) per frame")
@@ -103,8 +104,9 @@ class ReplicaReader(Reader):
     def samples(self) -> Iterator[Sample]:
         for k, ((i, rgb, depth), stamp) in enumerate(zip(self.frames, self.stamps.tolist())):
             yield Sample(POSE, stamp, k, self._pose(k, i), key="world->camera", rigid=True)
-            yield Sample(RGB, stamp, k, lambda f=rgb, k=k: read_image(f, flags=cv2.IMREAD_COLOR, frame=k, what="colour"))
-            yield Sample(DEPTH, stamp, k, lambda f=depth, k=k: self._depth(f, k))
+            yield Sample(RGB, stamp, k, lambda f=rgb, k=k: read_image(f, flags=cv2.IMREAD_COLOR, frame=k, what="colour"),
+                         origin=rgb)
+            yield Sample(DEPTH, stamp, k, lambda f=depth, k=k: self._depth(f, k), origin=depth)
 
     def _depth(self, file: Path, k: int) -> np.ndarray:
         raw = read_depth16(file, k, f"uint16 depth at {self.scale} per metre")

@@ -24,6 +24,7 @@ from pipeline.errors import InputDataError
 from pipeline.readers.base import register
 from pipeline.readers.roslog import MessageSource, RosLogReader
 from pipeline.ros2 import IMAGE, parse_compressed_cdr, parse_image_cdr
+from pipeline.userfiles import load_user_file
 
 ROS1_MAGIC = b"#ROSBAG V2.0"
 SQLITE_MAGIC = b"SQLite format 3\x00"
@@ -47,6 +48,9 @@ class RosbagsSource(MessageSource):
         from rosbags.typesys import Stores, get_typestore
 
         self.file = path
+        meta = (path if path.is_dir() else path.parent) / "metadata.yaml"
+        if meta.is_file():  # read bounded before rosbags reads it unbounded (aliases, size)
+            load_user_file(meta, fmt="yaml")
         try:
             # ROS 2 bags before Iron store no message definitions: the standard types are read with Humble's
             self._reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))

@@ -118,8 +118,9 @@ class ScanNetReader(Reader):
     def samples(self) -> Iterator[Sample]:
         for k, (i, stamp) in enumerate(zip(self.ids, self.stamps.tolist())):
             yield Sample(POSE, stamp, k, self.poses[i], key="world->camera", rigid=True)
-            yield Sample(RGB, stamp, k, lambda i=i, k=k: self._colour(i, k))
-            yield Sample(DEPTH, stamp, k, lambda i=i, k=k: self._depth(i, k))
+            yield Sample(RGB, stamp, k, lambda i=i, k=k: self._colour(i, k),
+                         origin=self.path / f"color/{i}.{self.color_ext}")
+            yield Sample(DEPTH, stamp, k, lambda i=i, k=k: self._depth(i, k), origin=self.path / f"depth/{i}.png")
 
     def _depth(self, i: int, k: int) -> np.ndarray:
         depth = read_depth16(self.path / f"depth/{i}.png", k, "uint16 millimetres")

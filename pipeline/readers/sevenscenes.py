@@ -2,8 +2,12 @@
 
 Layout: ``frame-NNNNNN.color.png`` (or ``.jpg``; 640x480 RGB), ``frame-NNNNNN.depth.png`` (uint16 mm,
 65535 = invalid), ``frame-NNNNNN.pose.txt`` (4x4 camera-to-world, whitespace separated). There are
-no timestamps: stamps are synthesised as ``N / ingest.folder_fps``. Intrinsics: the Kinect defaults
-(585, 585, 320, 240) unless ``ingest.camera_override``. Note the dataset's depth is not registered
+no timestamps: stamps are synthesised as ``N / ingest.folder_fps``. Intrinsics: ``camera-intrinsics.txt``
+where the layout ships one (3DMatch keeps its sequences in the 7-Scenes layout with the file in the scene
+folder above ``seq-XX``; the TSDF-fusion demo data beside the frames): three rows of three numbers, the
+pinhole matrix ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` for the images as stored, looked up in the
+sequence folder, then its parent; its values are recorded in the frames' attrs (``provenance``). Without
+the file: the Kinect defaults (585, 585, 320, 240). ``ingest.camera_override`` replaces either. Note the dataset's depth is not registered
 to colour (a known property of 7-Scenes); frames are stored as given.
 
 Poses as released are orthonormal only to their print precision (~2.5e-4 on real sequences): each
@@ -15,6 +19,7 @@ the file. The world is the first Kinect frame, so y points down, as far as that 
 from __future__ import annotations
 
 import re
+import warnings
 from pathlib import Path
 from typing import Iterator
 
@@ -22,12 +27,42 @@ import cv2
 import numpy as np
 
 from pipeline.errors import InputDataError
+from pipeline.geometry import Intrinsics
 from pipeline.readers.base import (DEPTH, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, frame_stamps_ns,
                                    native_intrinsics, read_depth16, read_image, read_pose_matrix, register)
 
 SEVEN_SCENES_INTRINSICS = (585.0, 585.0, 320.0, 240.0)
+INTRINSICS_FILE = "camera-intrinsics.txt"
+_K_EXPECTED = "3 rows of 3 numbers: fx 0 cx / 0 fy cy / 0 0 1, fx and fy > 0, (cx, cy) inside the image"
 INVALID_DEPTH = 65535
 _FRAME = re.compile(r"^frame-(\d+)\.color\.(png|jpg)$")
+
+
+def camera_intrinsics_file(file: Path, first_image: Path) -> tuple[Intrinsics, np.ndarray]:
+    """``camera-intrinsics.txt`` -> intrinsics at the size of ``first_image``, and the matrix as read.
+    Anything but a 3x3 pinhole matrix (finite, no skew, last row 0 0 1, positive focal lengths, principal
+    point inside the image) raises :class:`InputDataError` naming the file."""
+    if file.stat().st_size > 4096:
+        raise InputDataError(f"file is {file.stat().st_size} bytes", path=file, expected=_K_EXPECTED)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # an empty file: its shape says so below
+            K = np.loadtxt(file, dtype=np.float64, ndmin=2)
+    except ValueError as err:
+        raise InputDataError(f"camera matrix is not numeric ({err})", path=file, expected=_K_EXPECTED) from None
+    if K.shape != (3, 3):
+        raise InputDataError(f"camera matrix has shape {K.shape}", path=file, expected=_K_EXPECTED)
+    if not np.isfinite(K).all():
+        raise InputDataError("camera matrix holds NaN or inf", path=file, expected=_K_EXPECTED)
+    if K[0, 1] != 0 or K[1, 0] != 0 or K[2].tolist() != [0.0, 0.0, 1.0]:
+        raise InputDataError(f"not a pinhole camera matrix: {K.tolist()}", path=file, expected=_K_EXPECTED)
+    img = read_image(first_image, flags=cv2.IMREAD_COLOR, frame=0, what="colour")
+    h, w = img.shape[:2]
+    fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+    if fx <= 0 or fy <= 0 or not (0 < cx < w and 0 < cy < h):
+        raise InputDataError(f"fx {fx}, fy {fy}, cx {cx}, cy {cy} do not fit {first_image.name} ({w}x{h})",
+                             path=file, expected=_K_EXPECTED)
+    return Intrinsics(fx, fy, cx, cy, w, h), K
 
 
 @register("7scenes")
@@ -63,14 +98,24 @@ class SevenScenesReader(Reader):
                                          frame=k, expected="colour, depth and pose files for every frame")
         self.stamps = frame_stamps_ns(np.array(ids), self.params.folder_fps)
         o = self.params.camera_override
-        fx, fy, cx, cy = (o.fx, o.fy, o.cx, o.cy) if o else SEVEN_SCENES_INTRINSICS
-        intr, how = native_intrinsics(fx, fy, cx, cy, self.path / f"{self.names[0]}.color.{self.ext}",
-                                      "ingest.camera_override" if o else "7-Scenes Kinect defaults")
+        first = self.path / f"{self.names[0]}.color.{self.ext}"
+        k_file = next((f for f in (self.path / INTRINSICS_FILE, self.path.parent / INTRINSICS_FILE) if f.is_file()),
+                      None)
+        recorded = {}
+        if o is not None:
+            intr, how = native_intrinsics(o.fx, o.fy, o.cx, o.cy, first, "ingest.camera_override")
+        elif k_file is not None:
+            intr, K = camera_intrinsics_file(k_file, first)
+            rel = INTRINSICS_FILE if k_file.parent == self.path else f"../{INTRINSICS_FILE}"
+            how = f"{rel} (the images' own): {intr.to_dict()}"
+            recorded = {"camera_intrinsics_file": {"path": rel, "K": K.tolist()}}
+        else:
+            intr, how = native_intrinsics(*SEVEN_SCENES_INTRINSICS, first, "7-Scenes Kinect defaults")
         return SourceInfo(
             intrinsics=intr, has_instance=False, pose_chain=[PoseLink("world", "camera")],
             where={RGB: f"frame-*.color.{self.ext}", DEPTH: "frame-*.depth.png", "world->camera": "frame-*.pose.txt"},
             provenance={
-                "frames": len(ids),
+                "frames": len(ids), **recorded,
                 "conversions": [
                     f"intrinsics: {how}",
                     f"stamps: synthesised as frame number / ingest.folder_fps ({self.params.folder_fps} Hz)",
@@ -88,9 +133,10 @@ class SevenScenesReader(Reader):
             base = self.path / name
             yield Sample(POSE, stamp, k, self._pose(base.with_name(name + ".pose.txt"), k), key="world->camera",
                          rigid=True)
-            yield Sample(RGB, stamp, k, lambda f=base.with_name(f"{name}.color.{self.ext}"), k=k:
-                         read_image(f, flags=cv2.IMREAD_COLOR, frame=k, what="colour"))
-            yield Sample(DEPTH, stamp, k, lambda f=base.with_name(name + ".depth.png"), k=k: self._depth(f, k))
+            colour, depth = base.with_name(f"{name}.color.{self.ext}"), base.with_name(name + ".depth.png")
+            yield Sample(RGB, stamp, k, lambda f=colour, k=k: read_image(f, flags=cv2.IMREAD_COLOR, frame=k,
+                                                                          what="colour"), origin=colour)
+            yield Sample(DEPTH, stamp, k, lambda f=depth, k=k: self._depth(f, k), origin=depth)
 
     def _pose(self, file: Path, k: int) -> np.ndarray:
         return read_pose_matrix(file, k, self.params.pose_orthonormal_tol)

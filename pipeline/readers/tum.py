@@ -21,7 +21,7 @@ from pipeline.errors import InputDataError
 from pipeline.geometry import Intrinsics
 from pipeline.readers.base import (DEPTH, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, parse_stamp_ns,
                                    native_intrinsics, pose_from_tq_checked, read_depth16, read_image,
-                                   register)
+                                   read_text_lines, register)
 
 # (fx, fy, cx, cy) published for each Kinect of the benchmark, 640x480.
 TUM_INTRINSICS = {"fr1": (517.3, 516.5, 318.6, 255.3), "fr2": (520.9, 521.0, 325.1, 249.7),
@@ -33,7 +33,7 @@ def _table(path: Path, columns: int) -> list[tuple[int, int, list[str]]]:
     if not path.is_file():
         raise InputDataError("index file is missing", path=path, expected="the TUM RGB-D layout")
     rows = []
-    for no, line in enumerate(path.read_text().splitlines(), start=1):
+    for no, line in enumerate(read_text_lines(path, f"{columns} text columns a line"), start=1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
@@ -79,8 +79,12 @@ class TumReader(Reader):
                                          field=f"{name} line {no}", frame=k, expected="the image file to exist")
             self.rows[stream] = rows
         self.rows[POSE] = _table(self.path / "groundtruth.txt", 8)
-        if not self.rows[RGB]:
-            raise InputDataError("no frames listed", path=self.path / "rgb.txt", expected="timestamp filename lines")
+        for stream, name, expected in ((RGB, "rgb.txt", "timestamp filename lines"),
+                                       (DEPTH, "depth.txt", "timestamp filename lines"),
+                                       (POSE, "groundtruth.txt", "timestamp tx ty tz qx qy qz qw lines")):
+            if not self.rows[stream]:
+                raise InputDataError(f"no {'poses' if stream == POSE else 'frames'} listed: every line is blank or a "
+                                     "comment", path=self.path / name, expected=expected)
         intr, how = self._intrinsics()
         self.intrinsics = intr
         return SourceInfo(
@@ -105,12 +109,16 @@ class TumReader(Reader):
                     load = (lambda f=file, k=k: read_image(f, flags=cv2.IMREAD_COLOR, frame=k, what="colour"))
                 else:
                     load = (lambda f=file, k=k: tum_depth_to_mm(self._depth(f, k)))
-                yield Sample(stream, stamp, k, load)
+                yield Sample(stream, stamp, k, load, origin=file)
 
         def poses():
             for k, (no, stamp, rest) in enumerate(self.rows[POSE]):
-                T = pose_from_tq_checked([float(x) for x in rest], path=self.path / "groundtruth.txt",
-                                         field=f"line {no}", frame=k)
+                try:
+                    values = [float(x) for x in rest]
+                except ValueError as err:
+                    raise InputDataError(f"pose is not numeric ({err})", path=self.path / "groundtruth.txt",
+                                         field=f"line {no}", frame=k, expected="tx ty tz qx qy qz qw") from None
+                T = pose_from_tq_checked(values, path=self.path / "groundtruth.txt", field=f"line {no}", frame=k)
                 yield Sample(POSE, stamp, k, T, key="world->camera", rigid=True)
 
         yield from heapq.merge(images(RGB, "rgb.txt"), images(DEPTH, "depth.txt"), poses(), key=lambda s: s.stamp_ns)

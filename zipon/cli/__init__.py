@@ -11,7 +11,7 @@ import sys
 from rich.markup import escape
 
 from zipon.cli import build, inspect
-from zipon.cli.common import app, console
+from zipon.cli.common import G, app, console
 from pipeline.errors import ZiponError
 
 __all__ = ["app", "build", "entry", "inspect", "main"]
@@ -31,9 +31,24 @@ def main(argv: list[str] | None = None) -> int:
         console.print(f"[red]error:[/red] {escape(str(err))}", highlight=False, soft_wrap=True)
         return 1
     except OSError as err:  # after ZiponError: MissingInputError is a FileNotFoundError too
-        console.print(f"[red]error:[/red] {escape(os_error_message(err))}", highlight=False, soft_wrap=True)
+        console.print(f"[red]error:[/red] {escape(os_error_message(err, output=_outside_workspace(err)))}",
+                      highlight=False, soft_wrap=True)
         return 1
     return 0
+
+
+def _outside_workspace(err: OSError) -> bool:
+    """Whether the path of ``err`` lies outside the data and manifests roots (an output the user named)."""
+    from pathlib import Path
+
+    if err.filename is None:
+        return False
+    try:
+        ws = G.workspace()
+        path = Path(err.filename).resolve()
+    except (ZiponError, OSError, ValueError):
+        return False
+    return not any(path.is_relative_to(root) for root in (ws.data_dir, ws.manifests_dir))
 
 
 def entry() -> None:

@@ -240,6 +240,9 @@ def query(
 
     from pipeline.maps.query import parse_pose
 
+    if not text.strip():
+        raise typer.BadParameter("the text to look for is empty; give words such as chair or 'the red couch'",
+                                 param_hint="TEXT")
     if levels is not None:  # checked like every params key (a ConfigError names query.levels and the choices)
         G.overrides = (*G.overrides, f"query.levels={levels}")
     sc = _scene(scene)
@@ -369,6 +372,13 @@ def eval_cmd(
 
     if seeds is not None and seed_list:
         raise ConfigError("--seeds N (a count) and --seed-list (explicit seeds) exclude each other")
+    negative = [s for s in seed_list if s < 0]
+    if negative:
+        raise typer.BadParameter(f"seeds {negative} are negative; seeds are whole numbers 0 or more",
+                                 param_hint="--seed-list")
+    if out_dir.exists() and not out_dir.is_dir():
+        raise typer.BadParameter(f"{out_dir} is a file; give a folder for results.json, report.html and the "
+                                 "episode logs", param_hint="--out")
     agents = [_agent_class(m) if ":" in m else m for m in methods] or None
     # Dataset.run_eval: on an object store the evaluated scenes are mirrored first
     results = Dataset(*G.load()).run_eval(out_dir, scenes=scenes or None, agents=agents, feedback=feedback or None,

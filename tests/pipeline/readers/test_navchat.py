@@ -66,3 +66,12 @@ def test_folder_without_rgb_is_a_clear_error(tmp_path, capsys):
         ingest_path(root, tmp_path / "f.zarr", IngestParams(), fmt="navchat", **QUIET)
     code, err = cli_ingest(tmp_path, root, "n", "--format", "navchat", capsys=capsys)
     assert code == 1 and "no rgb/ folder" in err and "Traceback" not in err
+
+
+def test_depth_array_cut_short_names_file_and_frame(tmp_path):
+    root = write_navchat(tmp_path, make_recording(3))
+    depth = sorted((root / "depth").glob("*.npy"))[1]
+    depth.write_bytes(depth.read_bytes()[:-10])
+    with pytest.raises(InputDataError, match="depth array could not be read") as e:
+        ingest_path(root, tmp_path / "f.zarr", IngestParams(), log=lambda m: None)
+    assert str(e.value).startswith(f"file {depth}; frame 1:")

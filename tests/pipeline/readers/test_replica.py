@@ -44,3 +44,12 @@ def test_bad_pose_line_names_the_line(tmp_path):
     (root / "traj.txt").write_text("\n".join(lines) + "\n")
     with pytest.raises(InputDataError, match=r"traj\.txt; frame 1: pose contains NaN/inf"):
         ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
+
+
+def test_trajectory_that_is_not_text_and_truncated_jpeg(tmp_path):
+    root = write_replica(tmp_path, make_recording(3))
+    traj = root / "traj.txt"
+    traj.write_bytes(b"\xb0" + traj.read_bytes()[1:])
+    with pytest.raises(InputDataError, match="is not text") as e:
+        ingest_path(root, tmp_path / "f.zarr", IngestParams(), log=lambda m: None)
+    assert str(e.value).startswith(f"file {traj}; field line 1:")

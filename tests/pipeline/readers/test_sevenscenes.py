@@ -164,3 +164,65 @@ def test_released_sequence_ingest_reconstruct_render(tilted, tmp_path, capsys):
     recon = Recon(tmp_path / "data" / "artifacts" / "kitchen" / "recon.zarr")
     assert abs(recon.floor_z - gt.floor_z) < 0.03
     assert recon.navigable.sum() * recon.grid.cell_size_m ** 2 > 3.0  # m^2 of the 18 m^2 box room
+
+
+# ----------------------------------------------------------------------------- camera-intrinsics.txt (3DMatch layout)
+
+# As the 3DMatch / TSDF-fusion data ship it: three rows of three numbers, tab or space separated
+K_TEXT = " 5.7034e+01\t 0.0000e+00\t 3.2000e+01\t\n 0.0000e+00\t 5.7034e+01\t 2.4000e+01\t\n 0\t 0\t 1\t\n"
+
+
+@pytest.mark.parametrize("where", ["scene folder above seq-01", "sequence folder"])
+def test_camera_intrinsics_file_is_read_and_recorded(tmp_path, where):
+    """fx = 570.34 at 640x480 (3DMatch), here 57.034 at 64x48: stored as the file says, not 7-Scenes' 585."""
+    root = write_7scenes(tmp_path, make_recording(4))
+    (tmp_path if where.startswith("scene") else root).joinpath("camera-intrinsics.txt").write_text(K_TEXT)
+    ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
+    fs = FrameStore(tmp_path / "f.zarr")
+    k = fs.intrinsics
+    assert (k.fx, k.fy, k.cx, k.cy, k.width, k.height) == (57.034, 57.034, 32.0, 24.0, 64, 48)
+    rel = "camera-intrinsics.txt" if where == "sequence folder" else "../camera-intrinsics.txt"
+    assert fs.attrs["provenance"]["camera_intrinsics_file"] == {
+        "path": rel, "K": [[57.034, 0.0, 32.0], [0.0, 57.034, 24.0], [0.0, 0.0, 1.0]]}
+    assert any(c.startswith(f"intrinsics: {rel}") for c in fs.attrs["provenance"]["conversions"])
+
+
+def test_camera_override_wins_over_the_file(tmp_path):
+    root = write_7scenes(tmp_path, make_recording(3))
+    (tmp_path / "camera-intrinsics.txt").write_text("not a matrix\n")
+    params = IngestParams(camera_override={"fx": 50.0, "fy": 50.0, "cx": 32.0, "cy": 24.0})
+    ingest_path(root, tmp_path / "f.zarr", params, **QUIET)
+    assert FrameStore(tmp_path / "f.zarr").intrinsics.fx == pytest.approx(50.0 * 64 / 640)
+
+
+@pytest.mark.parametrize("text, says", [
+    ("", r"shape \(0, 1\)"),
+    ("570 0 320\n0 570 240\n", r"shape \(2, 3\)"),
+    ("57 0 32\n0 57 24\n0 0 1\n0 0 1\n", r"shape \(4, 3\)"),
+    ("57 0 32\n0 57\n0 0 1\n", "not numeric"),
+    ("57 0 32\n0 57 24\n0 0 0\n", "not a pinhole"),
+    ("-57 0 32\n0 57 24\n0 0 1\n", "do not fit"),
+    ("inf 0 32\n0 57 24\n0 0 1\n", "NaN or inf"),
+    ("57 0 32\n0 57 24\n0 0 1\n" + "#" * 5000, "file is 5022 bytes"),
+])
+def test_malformed_camera_intrinsics_file(tmp_path, text, says):
+    root = write_7scenes(tmp_path, make_recording(2))
+    (root / "camera-intrinsics.txt").write_text(text)
+    with pytest.raises(InputDataError, match=says) as e:
+        ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
+    assert str(root / "camera-intrinsics.txt") in str(e.value)
+
+
+def test_truncated_colour_and_depth_of_other_size_name_their_files(tmp_path):
+    root = write_7scenes(tmp_path, make_recording(4))
+    colour = root / "frame-000002.color.png"
+    colour.write_bytes(colour.read_bytes()[:-20])
+    with pytest.raises(InputDataError, match="truncated") as e:
+        ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
+    assert str(e.value).startswith(f"file {colour}; frame 2:")
+    root = write_7scenes(tmp_path / "b", make_recording(4))
+    depth = root / "frame-000001.depth.png"
+    cv2.imwrite(str(depth), cv2.imread(str(depth), cv2.IMREAD_UNCHANGED)[:, :32])
+    with pytest.raises(InputDataError) as e:
+        ingest_path(root, tmp_path / "g.zarr", IngestParams(), **QUIET)
+    assert f"depth image {depth} is 32x48 but its colour image {root / 'frame-000001.color.png'} is 64x48" in str(e.value)

@@ -92,3 +92,21 @@ def test_real_excerpt_world_up_auto_finds_z_up(tmp_path):
     est = FrameStore(tmp_path / "f.zarr").attrs["world_up"]["estimate"]
     assert est["nearest_axis"] == "+z" and est["tilt_deg"] < 5.0 and est["plane_points"] > 10_000
     assert any(m.startswith("world_up auto:") for m in logs)
+
+
+def test_text_that_is_not_utf8_or_not_numeric_names_file_and_line(tmp_path):
+    """Both were Python exceptions (UnicodeDecodeError, ValueError) until the fuzzers found them."""
+    root = write_tum(tmp_path, make_recording(4))
+    gt = root / "groundtruth.txt"
+    lines = gt.read_text().splitlines()
+    parts = lines[2].split()
+    lines[2] = " ".join(parts[:2] + ["-0.00;999"] + parts[3:])
+    gt.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputDataError, match="pose is not numeric") as e:
+        ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
+    assert str(e.value).startswith(f"file {gt}; field line 3; frame 1:")
+    rgb = root / "rgb.txt"
+    rgb.write_bytes(rgb.read_bytes().replace(b"# timestamp", b"# \xb0timestamp"))
+    with pytest.raises(InputDataError, match="byte 0xb0 at offset") as e:
+        ingest_path(root, tmp_path / "g.zarr", IngestParams(), **QUIET)
+    assert str(e.value).startswith(f"file {rgb}; field line 2:")

@@ -162,3 +162,17 @@ def test_a_stage_message_is_logged_and_shown_unless_quiet(capsys):
     logs.get_logger("stages").info("not shown with -q")
     logs.get_logger("stages").warning("shown")
     assert capsys.readouterr().err == "warning: shown\n"
+
+
+def test_data_and_manifests_roots_that_are_files(tmp_path, capsys, monkeypatch):
+    """Given by environment or by default (a file named manifests beside params.yaml): named, exit 1."""
+    (tmp_path / "params.yaml").write_text("scenes:\n  s0: {source: simulate}\n")
+    (tmp_path / "manifests").write_text("not a folder\n")
+    assert main(["--params", str(tmp_path / "params.yaml"), "status"]) == 1
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"--manifests-dir (default) {tmp_path / 'manifests'}: is a file, not a folder" in err
+    monkeypatch.setenv("ZIPON_DATA", str(tmp_path / "params.yaml"))
+    assert main(["--params", str(tmp_path / "params.yaml"), "--manifests-dir", str(tmp_path), "status"]) == 1
+    err = " ".join(capsys.readouterr().err.split())
+    # typer reads ZIPON_DATA as the option's value
+    assert f"--data-dir {tmp_path / 'params.yaml'}: is a file, not a folder; point --data-dir at a folder" in err
