@@ -140,6 +140,9 @@ def sync_dvc_lock(ws: Workspace, params: Params, stages: dict[str, StageSpec], p
 
     from dvc.repo import Repo
 
+    from pipeline import logs
+
+    logs.tame_driven()  # importing dvc set its own logger to info: one summary line below instead of one per stage
     try:
         repo = Repo(str(ws.root))
     except Exception as err:  # noqa: BLE001 - not a usable DVC project (e.g. .dvc/ without git or core.no_scm): DVC cannot run here

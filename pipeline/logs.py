@@ -49,14 +49,25 @@ class ConsoleHandler(logging.Handler):
             self.handleError(record)
 
 
+_verbosity = 0  # as configure() last set it
+
+
 def configure(verbosity: int = 0, console: Console | None = None) -> None:
     """Set the ``zipon`` logger's level and its one console handler, and the driven libraries' levels."""
+    global _verbosity
+    _verbosity = verbosity
     logger = get_logger()
     logger.setLevel(level_of(verbosity))
     logger.handlers = [ConsoleHandler(console)]
     logger.propagate = False
+    tame_driven()
+
+
+def tame_driven() -> None:
+    """(Re)apply the driven libraries' levels: DVC sets its own logger to info with its own handlers when it is
+    first imported, so whoever imports it calls this afterwards."""
     for name in DRIVEN:
-        logging.getLogger(name).setLevel(logging.INFO if verbosity >= 2 else logging.WARNING)
+        logging.getLogger(name).setLevel(logging.INFO if _verbosity >= 2 else logging.WARNING)
 
 
 def ensure_configured(verbosity: int = 0) -> None:

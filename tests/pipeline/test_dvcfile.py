@@ -73,7 +73,7 @@ def _zipon_stale(ws, params) -> set[str]:
 
 
 @pytest.mark.slow
-def test_zipon_run_leaves_dvc_with_nothing_to_do_and_both_name_the_same_stale_stages(tmp_path):
+def test_zipon_run_leaves_dvc_with_nothing_to_do_and_both_name_the_same_stale_stages(tmp_path, capsys):
     """After `zipon run`, `dvc status` is clean and `dvc repro` runs nothing; after a params change both name
     the same stale stages."""
     from zipon.cli import main
@@ -81,8 +81,11 @@ def test_zipon_run_leaves_dvc_with_nothing_to_do_and_both_name_the_same_stale_st
     ws, params, env = _dvc_project(tmp_path, {"t0": {"source": "simulate"}}, frames=60,
                                    reconstruct={"voxel_size_m": 0.05}, encoders={"oracle": {"out_size": [30, 40]}})
     maps = [a for s in ("simulate", "ingest", "reconstruct", "vlmap", "cfmap") for a in ("--stage", s)]
-    assert main(["-q", "-p", str(ws.params_path), "run", *maps]) == 0
+    assert main(["-p", str(ws.params_path), "run", *maps]) == 0
     assert (tmp_path / "dvc.lock").is_file()
+    shown = capsys.readouterr()
+    assert "Updating lock file" not in shown.out + shown.err  # DVC's own line per stage: kept to -vv
+    assert "dvc.lock: recorded 5 stage(s)" in " ".join((shown.out + shown.err).split())
     assert _dvc_stale(tmp_path, env) == {"t0/goals", "t0/routes"} == _zipon_stale(ws, params)  # never run
     repro = _dvc(tmp_path, env, "repro", "cfmap@t0", "vlmap@t0")
     assert "Running stage" not in repro, repro
