@@ -6,7 +6,8 @@ One :class:`Modules` per episode, on top of the scene's shared :class:`~orion_ev
   grid), ``goto_object(obj_id)``;
 - semantic map: ``retrieve_map(obj_str) -> [(obj_id, distance_m, angle_rad)]`` (VLMap or CF map);
 - detection: ``detect_object(obj_str) -> [(obj_id, distance_m, angle_rad)]`` on the ego view
-  ray-cast from the reconstructed mesh; ``double_check(obj_id) -> bool``;
+  ray-cast from the reconstructed mesh, with the agent's detector (:attr:`Modules.detector`: ORION's grounded
+  one or CoW's CLIP saliency); ``double_check(obj_id) -> bool``;
 - exploration: ``search_object(obj_str) -> obj_id | None`` (spin first, then frontiers);
 - memory: ``update_memory(obj_id, pos_str, neg_str)``, ``retrieve_memory(obj_str) -> [(obj_id, d, a)]``;
 - interaction: ``talk(content) -> str`` (the user's reply).
@@ -58,6 +59,9 @@ class Modules:
         # a memory carried across the goals of a scene (evaluate_scene), else a fresh one
         self.memory = memory if memory is not None else new_memory(self.ctx)
         self._explored = None
+        # which ego-view detector detect_object runs: 'grounded' (ORION's) or 'saliency' (CoW's CLIP Grad-CAM);
+        # the agent sets it from its module set
+        self.detector = "grounded"
 
     # ------------------------------------------------------------------ registry
     @property
@@ -144,7 +148,7 @@ class Modules:
     # ------------------------------------------------------------------ detection
     def detect_object(self, obj_str: str) -> list[tuple[int, float, float]]:
         self.run.log_event("detect", obj_str)
-        ids = [self.register(d.center_xy, d.cells, "detect", d.score, obj_str) for d in self.ctx.detect(self.pose, obj_str)]
+        ids = [self.register(d.center_xy, d.cells, "detect", d.score, obj_str) for d in self.ctx.detect(self.pose, obj_str, self.detector)]
         return self._triples(ids)
 
     def double_check(self, obj_id: int) -> bool:
@@ -154,7 +158,7 @@ class Modules:
         self.rotate(a)
         texts = sorted(e.texts) or [""]
         for text in texts:
-            for det in self.ctx.detect(self.pose, text):
+            for det in self.ctx.detect(self.pose, text, self.detector):
                 if np.linalg.norm(det.center_xy - e.center_xy) <= 1.0 or np.isin(det.cells, e.cells).any():
                     return True
         return False
