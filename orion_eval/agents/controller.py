@@ -155,8 +155,6 @@ class ModularAgent(Agent):
         if fb.description:
             st.query = fb.description
             st.spotted = []
-        if fb.landmarks:
-            self.locate_landmarks(m, st, fb.landmarks)
         if fb.route or fb.destination:
             if fb.route:
                 self.follow_route(m, fb.route)
@@ -169,31 +167,35 @@ class ModularAgent(Agent):
             st.focus = [end[None]]
             st.spin_at = end if self.modules.detector else None
             st.spotted = []
+        if fb.landmarks:  # located from where the route ended, if one came with them
+            hints = self.locate_landmarks(m, fb.landmarks)
+            if hints:
+                st.focus = (st.focus if fb.route or fb.destination else []) + hints
+                st.spotted = []
+                if self.modules.detector and not self.map_name():
+                    # no map: look around at the landmark seen nearest the other hints
+                    here = np.asarray(m.pose[:2])
+                    st.spin_at = np.asarray(min(hints[0], key=lambda p: (st.focus_distance(p),
+                                                                         float(np.hypot(*(p - here))))), np.float64)
 
-    def locate_landmarks(self, m, st: SearchState, phrases: list[str]) -> None:
+    def locate_landmarks(self, m, phrases: list[str]) -> list[np.ndarray]:
         """Find the landmarks with the method's modules: the map's candidates of each phrase, else the detector (a
-        spin here, then exploration for the first phrase when the method explores)."""
+        spin here, then exploration for the first phrase when the method explores). One ``(K,2)`` array of
+        places per landmark found."""
         which = self.map_name()
-        focus = []
+        hints = []
         if which:
             for phrase in phrases:
                 pts = [m.objects[t[0]].center_xy for t in m.retrieve_map(phrase, which)]
                 if pts:
-                    focus.append(np.asarray(pts, np.float64))
+                    hints.append(np.asarray(pts, np.float64))
         elif self.modules.detector:
             for phrase in phrases:
                 pts = [m.objects[t[0]].center_xy for t in m.look_around(phrase)]
                 if pts:
-                    focus.append(np.asarray(pts, np.float64))
-            if not focus and self.modules.explore:
+                    hints.append(np.asarray(pts, np.float64))
+            if not hints and self.modules.explore:
                 oid = m.search_object(phrases[0])
                 if oid is not None:
-                    focus.append(np.asarray([m.objects[oid].center_xy], np.float64))
-        if not focus:
-            return
-        st.focus = focus
-        st.spotted = []
-        if self.modules.detector and not which:
-            # look around at the landmark seen nearest the others (the first hint's points, ranked)
-            first = min(focus[0], key=lambda p: (st.focus_distance(p), float(np.hypot(*(p - np.asarray(m.pose[:2]))))))
-            st.spin_at = np.asarray(first, np.float64)
+                    hints.append(np.asarray([m.objects[oid].center_xy], np.float64))
+        return hints

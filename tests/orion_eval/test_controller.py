@@ -99,17 +99,23 @@ def test_landmarks_are_located_with_the_methods_own_modules(ctx):
     goal, run, agent = episode(ctx, "vlmap")
     m = run.modules
     phrase = next(o for o in ("bed", "table", "couch", "chair", "cabinet") if m.retrieve_map(o, "vlmap"))
+    hints = agent.locate_landmarks(m, [phrase])
+    assert len(hints) == 1 and len(hints[0]) == len(m.retrieve_map(phrase, "vlmap"))
+    assert run.body.steps == 0  # the map answers without moving
     st = SearchState(query=goal.name)
-    agent.locate_landmarks(m, st, [phrase])
-    assert len(st.focus) == 1 and len(st.focus[0]) == len(m.retrieve_map(phrase, "vlmap"))
-    assert st.spin_at is None and run.body.steps == 0  # the map answers without moving
+    oid = m.retrieve_map(goal.name, "vlmap")[0][0]
+    agent.update(m, st, Feedback(landmarks=[phrase]), oid, goal.name)
+    assert len(st.focus) == 1 and st.spin_at is None
     goal, run, cow = episode(ctx, "cow")
-    st = SearchState(query=goal.name)
     run.modules.detector = "saliency"
-    cow.locate_landmarks(run.modules, st, [phrase])
-    assert run.body.steps > 0  # the detector has to look (a spin, exploration when unseen)
-    if st.focus:
-        assert st.spin_at is not None
+    hints = cow.locate_landmarks(run.modules, [phrase])
+    assert run.body.steps >= 24  # the detector has to look: a spin, exploration when unseen
+    st = SearchState(query=goal.name)
+    m = run.modules
+    oid = m.register(m.pose[:2], np.array([0]), "detect")
+    cow.update(m, st, Feedback(landmarks=[phrase], route=[("forward", 0.5)]), oid, goal.name)
+    if hints:  # with a route as well, both are hints; the detector looks around at the landmark
+        assert len(st.focus) == 2 and st.spin_at is not None
 
 
 def test_a_description_becomes_the_query(ctx):
