@@ -184,7 +184,7 @@ def print_report(res: dict, cells: Cells, draws: int) -> dict:
         out.append({"finding": text, "holds": holds, "detail": detail})
     keys = [k for k in f if k.startswith(("gain ", "mixed - ", "procedural - ", "descriptive:", "corrective - ",
                                           "CoW - "))]
-    print("\n95 % intervals (bootstrap over goals, %d draws):" % draws)
+    print(f"\n95 % intervals (bootstrap over goals, {draws} draws):")
     for k in keys:
         print(f"  {k}: {f[k]:+.1f} {iv(k)}")
     return {"tables": {m: t[m].round(2).tolist() for m in METRICS}, "figures": f, "intervals": ci, "findings": out,
@@ -200,7 +200,15 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=1, help="eval.workers (processes)")
     ap.add_argument("--boot", type=int, default=1000, help="bootstrap draws for the 95 %% intervals")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    ap.add_argument("--results", type=Path, default=None,
+                    help="report on an earlier run's results.json instead of building and evaluating")
     args = ap.parse_args()
+    if args.results:
+        res = json.loads(args.results.read_text())
+        doc = print_report(res, Cells(res["episodes"]), args.boot)
+        if args.json:
+            args.json.write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
+        return
     ws = build(args.workspace, args.scenes, args.frames, prefix="findings", seed=2027, bench="findings")
     params = load_params(ws.params_path)
     params = params.model_copy(update={"eval": params.eval.model_copy(update={"workers": args.workers})})

@@ -182,15 +182,20 @@ class Modules:
 
     def look_around(self, obj_str: str) -> list[tuple[int, float, float]]:
         """Spin 360 deg in turn steps, detecting every 90 deg (the ego view is 90 deg wide)."""
-        found: list[int] = []
+        return self.look_around_for([obj_str])[obj_str]
+
+    def look_around_for(self, obj_strs: list[str]) -> dict[str, list[tuple[int, float, float]]]:
+        """One 360 deg spin detecting each of ``obj_strs`` in every view: ``{obj_str: [(obj_id, d, a)]}``."""
+        found: dict[str, list[int]] = {s: [] for s in obj_strs}
         per_view = max(1, int(round(90.0 / self.ctx.turn_deg)))
         views = int(round(360.0 / self.ctx.turn_deg)) // per_view
         for _ in range(views):
-            found += [t[0] for t in self.detect_object(obj_str)]
+            for s in obj_strs:
+                found[s] += [t[0] for t in self.detect_object(s)]
             for _ in range(per_view):
                 self.run.act(LEFT)
         self._mark_explored()
-        return self._triples(found)
+        return {s: self._triples(ids) for s, ids in found.items()}
 
     def frontier(self) -> np.ndarray | None:
         """World xy of the nearest frontier cell (navigable, unexplored, next to explored) at least 1 m away."""

@@ -13,12 +13,14 @@ searches for and where, through the same rules for every method:
 - *yes/no*: the place is rejected (and, with memory, remembered as not the goal);
 - *corrective* ("This is Bob's chair, not Alice's chair."): only memory can use it: the object is remembered
   as what the user called it, which helps when a later goal of the scene is that object;
-- *descriptive* ("It is a red chair made of wood."): the description becomes the query of the map and of
-  the detector; what it adds is what the method perceives (an ego-view detector sees colour and material;
-  a map keeps only what its fused features kept);
+- *descriptive* ("It is a red chair made of wood."): the description becomes the query of the detector,
+  and the map's candidates of the description are tried before those of the goal's name; what it adds is
+  what the method perceives (an ego-view detector sees colour and material; a map keeps only what its
+  fused features kept);
 - *landmark* ("It is next to the bed."): the landmarks are located with the method's own modules (map
-  retrieval, else a spin and exploration with the detector) and the goal is searched near them: map
-  candidates ranked by distance to the landmarks, and a detector's spin at the landmark it found;
+  retrieval, else a spin and exploration with the detector; each landmark once per episode) and the goal is
+  searched near them: map candidates ranked by distance to the landmarks, and, without a map, a
+  detector's spin at the landmark it found;
 - *procedural* (a route, or "It is about 4 meters to your left."): the route is walked to its end (the
   point is walked to) and the goal is searched there: map candidates nearest the end first, a
   detector's spin there first.
@@ -57,12 +59,24 @@ class ModuleSet:
 class SearchState:
     """What the controller knows mid-episode."""
 
-    query: str  # what it asks the map and the detector for (the goal's name, or the user's description)
+    name: str  # the goal's name
+    description: str | None = None  # the user's description of the goal, once given
     rejected: list = field(default_factory=list)  # centres of places the user said "No" to
     deferred: set = field(default_factory=set)  # map candidates whose double-check failed (tried last)
     focus: list = field(default_factory=list)  # per hint, the (K,2) points the goal is near (landmarks, route end)
     spin_at: np.ndarray | None = None  # where a detector should look around next (None: done or nowhere)
     spotted: list = field(default_factory=list)  # detections of the query from that look-around, nearest first
+    landmarks: dict = field(default_factory=dict)  # landmark phrase -> (K,2) places found (or None: not found)
+
+    @property
+    def query(self) -> str:
+        """What the detector and exploration look for: the description once given, else the name."""
+        return self.description or self.name
+
+    @property
+    def queries(self) -> list[str]:
+        """What the map is asked for, in order: the description's candidates first, then the name's."""
+        return [self.description, self.name] if self.description else [self.name]
 
     def focus_distance(self, xy) -> float:
         """Mean over the hints of the distance from ``xy`` to the hint's nearest point (0 without hints)."""
@@ -84,7 +98,7 @@ class ModularAgent(Agent):
     def run(self, m, instruction: str, goal_name: str) -> None:
         if self.modules.detector:
             m.detector = self.modules.detector
-        st = SearchState(query=goal_name)
+        st = SearchState(name=goal_name)
         while True:
             oid = self.next_candidate(m, st, goal_name)
             if oid is None:
@@ -116,7 +130,8 @@ class ModularAgent(Agent):
                 self.look_at_focus(m, st)
             todo += st.spotted
             if which:
-                todo += self.ranked(m, st, [t[0] for t in m.retrieve_map(st.query, which)])
+                for q in st.queries:
+                    todo += self.ranked(m, st, [t[0] for t in m.retrieve_map(q, which)])
             skip = self.skip(m, st, negatives)
             todo = list(dict.fromkeys(i for i in todo if not skip(i)))
             todo = [i for i in todo if i not in st.deferred] + [i for i in todo if i in st.deferred]
@@ -153,7 +168,7 @@ class ModularAgent(Agent):
             m.update_memory(oid, fb.corrected_as, goal_name)
         st.spotted = [i for i in st.spotted if i != oid]
         if fb.description:
-            st.query = fb.description
+            st.description = fb.description
             st.spotted = []
         if fb.route or fb.destination:
             if fb.route:
@@ -168,7 +183,7 @@ class ModularAgent(Agent):
             st.spin_at = end if self.modules.detector else None
             st.spotted = []
         if fb.landmarks:  # located from where the route ended, if one came with them
-            hints = self.locate_landmarks(m, fb.landmarks)
+            hints = self.locate_landmarks(m, st, fb.landmarks)
             if hints:
                 st.focus = (st.focus if fb.route or fb.destination else []) + hints
                 st.spotted = []
@@ -178,24 +193,24 @@ class ModularAgent(Agent):
                     st.spin_at = np.asarray(min(hints[0], key=lambda p: (st.focus_distance(p),
                                                                          float(np.hypot(*(p - here))))), np.float64)
 
-    def locate_landmarks(self, m, phrases: list[str]) -> list[np.ndarray]:
-        """Find the landmarks with the method's modules: the map's candidates of each phrase, else the detector (a
-        spin here, then exploration for the first phrase when the method explores). One ``(K,2)`` array of
+    def locate_landmarks(self, m, st: SearchState, phrases: list[str]) -> list[np.ndarray]:
+        """Find the landmarks with the method's modules: the map's candidates of each phrase, else the detector (one
+        spin here for all of them, then exploration for the first phrase when none was seen and the method
+        explores). Landmarks already looked for in this episode are not looked for again. One ``(K,2)`` array of
         places per landmark found."""
         which = self.map_name()
-        hints = []
-        if which:
-            for phrase in phrases:
+        new = [p for p in phrases if p not in st.landmarks]
+        if new and which:
+            for phrase in new:
                 pts = [m.objects[t[0]].center_xy for t in m.retrieve_map(phrase, which)]
-                if pts:
-                    hints.append(np.asarray(pts, np.float64))
-        elif self.modules.detector:
-            for phrase in phrases:
-                pts = [m.objects[t[0]].center_xy for t in m.look_around(phrase)]
-                if pts:
-                    hints.append(np.asarray(pts, np.float64))
-            if not hints and self.modules.explore:
+                st.landmarks[phrase] = np.asarray(pts, np.float64) if pts else None
+        elif new and self.modules.detector:
+            seen = m.look_around_for(new)
+            for phrase in new:
+                pts = [m.objects[t[0]].center_xy for t in seen[phrase]]
+                st.landmarks[phrase] = np.asarray(pts, np.float64) if pts else None
+            if all(st.landmarks[p] is None for p in phrases) and self.modules.explore:
                 oid = m.search_object(phrases[0])
                 if oid is not None:
-                    hints.append(np.asarray([m.objects[oid].center_xy], np.float64))
-        return hints
+                    st.landmarks[phrases[0]] = np.asarray([m.objects[oid].center_xy], np.float64)
+        return [st.landmarks[p] for p in phrases if st.landmarks.get(p) is not None]

@@ -56,7 +56,7 @@ def test_cow_detects_with_its_own_detector(ctx):
 def test_procedural_point_is_walked_to_and_searched_around(ctx):
     goal, run, agent = episode(ctx, "vlmap")
     m = run.modules
-    st = SearchState(query=goal.name)
+    st = SearchState(name=goal.name)
     oid = m.retrieve_map(goal.name, "vlmap")[0][0]
     x0, y0, yaw0 = m.pose
     agent.update(m, st, Feedback(destination=(90.0, 2.0)), oid, goal.name)
@@ -73,7 +73,7 @@ def test_procedural_point_is_walked_to_and_searched_around(ctx):
 def test_a_route_is_followed_to_its_end_and_a_detector_looks_there(ctx):
     goal, run, agent = episode(ctx, "orion")
     m = run.modules
-    st = SearchState(query=goal.name)
+    st = SearchState(name=goal.name)
     oid = m.retrieve_map(goal.name, ctx.params.eval.orion_map)[0][0]
     agent.update(m, st, Feedback(route=[("turn", 90.0), ("forward", 1.0)]), oid, goal.name)
     assert run.body.actions[:6] == [2] * 6  # six 15 deg left turns
@@ -86,7 +86,7 @@ def test_corrective_feedback_helps_only_through_memory(ctx):
         m = run.modules
         which = agent.map_name()
         oid = m.retrieve_map(goal.name, which)[0][0]
-        plain, corrected = SearchState(query=goal.name), SearchState(query=goal.name)
+        plain, corrected = SearchState(name=goal.name), SearchState(name=goal.name)
         agent.update(m, plain, Feedback(), oid, goal.name)
         before = {k: dict(v) for k, v in m.memory.maps.items()}
         agent.update(m, corrected, Feedback(corrected_as="Bob's chair"), oid, goal.name)
@@ -99,19 +99,24 @@ def test_landmarks_are_located_with_the_methods_own_modules(ctx):
     goal, run, agent = episode(ctx, "vlmap")
     m = run.modules
     phrase = next(o for o in ("bed", "table", "couch", "chair", "cabinet") if m.retrieve_map(o, "vlmap"))
-    hints = agent.locate_landmarks(m, [phrase])
+    st = SearchState(name=goal.name)
+    hints = agent.locate_landmarks(m, st, [phrase])
     assert len(hints) == 1 and len(hints[0]) == len(m.retrieve_map(phrase, "vlmap"))
     assert run.body.steps == 0  # the map answers without moving
-    st = SearchState(query=goal.name)
     oid = m.retrieve_map(goal.name, "vlmap")[0][0]
     agent.update(m, st, Feedback(landmarks=[phrase]), oid, goal.name)
     assert len(st.focus) == 1 and st.spin_at is None
     goal, run, cow = episode(ctx, "cow")
     run.modules.detector = "saliency"
-    hints = cow.locate_landmarks(run.modules, [phrase])
-    assert run.body.steps >= 24  # the detector has to look: a spin, exploration when unseen
-    st = SearchState(query=goal.name)
+    st = SearchState(name=goal.name)
     m = run.modules
+    hints = cow.locate_landmarks(m, st, [phrase, "bicycle"])
+    steps = run.body.steps
+    assert steps >= 24  # the detector has to look: one spin for both, exploration when neither is seen
+    again = cow.locate_landmarks(m, st, [phrase, "bicycle"])
+    assert run.body.steps == steps and len(again) == len(hints)  # each landmark is looked for once per episode
+    assert all(np.array_equal(a, b) for a, b in zip(again, hints)) and set(st.landmarks) == {phrase, "bicycle"}
+    st = SearchState(name=goal.name)
     oid = m.register(m.pose[:2], np.array([0]), "detect")
     cow.update(m, st, Feedback(landmarks=[phrase], route=[("forward", 0.5)]), oid, goal.name)
     if hints:  # with a route as well, both are hints; the detector looks around at the landmark
@@ -121,7 +126,8 @@ def test_landmarks_are_located_with_the_methods_own_modules(ctx):
 def test_a_description_becomes_the_query(ctx):
     goal, run, agent = episode(ctx, "cf")
     m = run.modules
-    st = SearchState(query=goal.name)
+    st = SearchState(name=goal.name)
     oid = m.retrieve_map(goal.name, "cfmap")[0][0]
     agent.update(m, st, Feedback(description="red chair made of wood"), oid, goal.name)
     assert st.query == "red chair made of wood" and run.body.steps == 0
+    assert st.queries == ["red chair made of wood", goal.name]  # the map: the description's candidates, then the name's
