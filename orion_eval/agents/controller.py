@@ -49,7 +49,8 @@ class ModuleSet:
     memory: bool = False  # ORION's positive / negative memory maps, carried across a scene's goals
 
     def describe(self) -> str:
-        parts = [f"map {self.map}" if self.map else "no map",
+        where = "eval.orion_map" if self.map == "orion" else self.map
+        parts = [f"map {where}" if self.map else "no map",
                  f"{self.detector} detection" if self.detector else "no detection",
                  "exploration" if self.explore else "no exploration", "memory" if self.memory else "no memory"]
         return ", ".join(parts)
