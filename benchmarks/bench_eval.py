@@ -44,18 +44,19 @@ METHODS = list(AGENTS)  # every registered agent, in the paper's table order
 BASELINES = ("cow", "vlmap", "cf")  # the methods issue 14's shape checks compare ORION against
 
 
-def build_params(n_scenes: int, frames: int) -> str:
-    """The bench workspace's params.yaml: ``n_scenes`` simulated apartments, lean frames (320x240)."""
-    scenes = "".join(f"  bench_{i:02d}: {{source: simulate}}\n" for i in range(n_scenes))
+def build_params(n_scenes: int, frames: int, prefix: str = "bench", seed: int = 0) -> str:
+    """The bench workspace's params.yaml: ``n_scenes`` simulated apartments ``<prefix>_00``..., lean frames
+    (320x240); ``seed`` is ``simulate.seed`` (each scene's seed derives from it and the scene's name)."""
+    scenes = "".join(f"  {prefix}_{i:02d}: {{source: simulate}}\n" for i in range(n_scenes))
     return (f"scenes:\n{scenes}"
             "run: {scheduler: processes, workers: 2}\n"
-            f"simulate: {{frames: {frames}, width: 320, height: 240}}\n"
+            f"simulate: {{frames: {frames}, width: 320, height: 240, seed: {seed}}}\n"
             "encoders: {simulated: perception}\n"
             "eval: {workers: 2}\n")
 
 
-def build(root: Path, n_scenes: int, frames: int, rebuild: bool = False, stages: list[str] | None = None
-          ) -> Workspace:
+def build(root: Path, n_scenes: int, frames: int, rebuild: bool = False, stages: list[str] | None = None,
+          *, prefix: str = "bench", seed: int = 0, bench: str = "eval") -> Workspace:
     """Write (or keep) ``root/params.yaml`` and build its scenes. Scenes whose artifacts all exist are reused as
     they are (any code change makes them stale to ``zipon run``, and rebuilding ten scenes takes long):
     ``rebuild`` runs the pipeline on them, which reruns what is stale; ``stages`` reruns only those stages (forced,
@@ -65,7 +66,7 @@ def build(root: Path, n_scenes: int, frames: int, rebuild: bool = False, stages:
     from stages import STAGES
 
     root.mkdir(parents=True, exist_ok=True)
-    text = build_params(n_scenes, frames)
+    text = build_params(n_scenes, frames, prefix, seed)
     path = root / "params.yaml"
     if not path.exists() or path.read_text() != text:
         path.write_text(text)
@@ -73,7 +74,7 @@ def build(root: Path, n_scenes: int, frames: int, rebuild: bool = False, stages:
     params = load_params(ws.params_path)
     names = ("frames", "recon", "vlmap", "cfmap", "goals", "routes")
     if not rebuild and not stages and all(ws.artifact(n, s).exists() for s in params.scenes for n in names):
-        emit(bench="eval", figure="build", scenes=list(params.scenes), reused="all artifacts (--rebuild to rerun "
+        emit(bench=bench, figure="build", scenes=list(params.scenes), reused="all artifacts (--rebuild to rerun "
              "stale stages)", seconds_untimed=0.0)
         return ws
     t = time.perf_counter()
@@ -82,7 +83,7 @@ def build(root: Path, n_scenes: int, frames: int, rebuild: bool = False, stages:
     bad = [o for o in out if o.status not in ("ran", "skipped")]
     if bad:
         raise SystemExit(f"building {bad[0].scene} failed: {bad[0].stage}: {(bad[0].error or '')[:500]}")
-    emit(bench="eval", figure="build", scenes=list(params.scenes), ran=sum(o.status == "ran" for o in out),
+    emit(bench=bench, figure="build", scenes=list(params.scenes), ran=sum(o.status == "ran" for o in out),
          reused=sum(o.status == "skipped" for o in out), seconds_untimed=round(time.perf_counter() - t, 1))
     return ws
 

@@ -6,7 +6,8 @@ One :class:`Modules` per episode, on top of the scene's shared :class:`~orion_ev
   grid), ``goto_object(obj_id)``;
 - semantic map: ``retrieve_map(obj_str) -> [(obj_id, distance_m, angle_rad)]`` (VLMap or CF map);
 - detection: ``detect_object(obj_str) -> [(obj_id, distance_m, angle_rad)]`` on the ego view
-  ray-cast from the reconstructed mesh; ``double_check(obj_id) -> bool``;
+  ray-cast from the reconstructed mesh, with the agent's detector (:attr:`Modules.detector`: ORION's grounded
+  one or CoW's CLIP saliency); ``double_check(obj_id) -> bool``;
 - exploration: ``search_object(obj_str) -> obj_id | None`` (spin first, then frontiers);
 - memory: ``update_memory(obj_id, pos_str, neg_str)``, ``retrieve_memory(obj_str) -> [(obj_id, d, a)]``;
 - interaction: ``talk(content) -> str`` (the user's reply).
@@ -58,6 +59,9 @@ class Modules:
         # a memory carried across the goals of a scene (evaluate_scene), else a fresh one
         self.memory = memory if memory is not None else new_memory(self.ctx)
         self._explored = None
+        # which ego-view detector detect_object runs: 'grounded' (ORION's) or 'saliency' (CoW's CLIP Grad-CAM);
+        # the agent sets it from its module set
+        self.detector = "grounded"
 
     # ------------------------------------------------------------------ registry
     @property
@@ -144,7 +148,7 @@ class Modules:
     # ------------------------------------------------------------------ detection
     def detect_object(self, obj_str: str) -> list[tuple[int, float, float]]:
         self.run.log_event("detect", obj_str)
-        ids = [self.register(d.center_xy, d.cells, "detect", d.score, obj_str) for d in self.ctx.detect(self.pose, obj_str)]
+        ids = [self.register(d.center_xy, d.cells, "detect", d.score, obj_str) for d in self.ctx.detect(self.pose, obj_str, self.detector)]
         return self._triples(ids)
 
     def double_check(self, obj_id: int) -> bool:
@@ -154,7 +158,7 @@ class Modules:
         self.rotate(a)
         texts = sorted(e.texts) or [""]
         for text in texts:
-            for det in self.ctx.detect(self.pose, text):
+            for det in self.ctx.detect(self.pose, text, self.detector):
                 if np.linalg.norm(det.center_xy - e.center_xy) <= 1.0 or np.isin(det.cells, e.cells).any():
                     return True
         return False
@@ -178,15 +182,20 @@ class Modules:
 
     def look_around(self, obj_str: str) -> list[tuple[int, float, float]]:
         """Spin 360 deg in turn steps, detecting every 90 deg (the ego view is 90 deg wide)."""
-        found: list[int] = []
+        return self.look_around_for([obj_str])[obj_str]
+
+    def look_around_for(self, obj_strs: list[str]) -> dict[str, list[tuple[int, float, float]]]:
+        """One 360 deg spin detecting each of ``obj_strs`` in every view: ``{obj_str: [(obj_id, d, a)]}``."""
+        found: dict[str, list[int]] = {s: [] for s in obj_strs}
         per_view = max(1, int(round(90.0 / self.ctx.turn_deg)))
         views = int(round(360.0 / self.ctx.turn_deg)) // per_view
         for _ in range(views):
-            found += [t[0] for t in self.detect_object(obj_str)]
+            for s in obj_strs:
+                found[s] += [t[0] for t in self.detect_object(s)]
             for _ in range(per_view):
                 self.run.act(LEFT)
         self._mark_explored()
-        return self._triples(found)
+        return {s: self._triples(ids) for s, ids in found.items()}
 
     def frontier(self) -> np.ndarray | None:
         """World xy of the nearest frontier cell (navigable, unexplored, next to explored) at least 1 m away."""

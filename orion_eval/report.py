@@ -237,6 +237,13 @@ def run_notes(run: dict) -> list[str]:
              if v.get("kind") and not v.get("diagnostic")}
     notes += [f"{which} built with {kind}." for which, kind in sorted(kinds)]
     notes += [f"Detection (cow, orion): {kind}." for kind in sorted(set(run.get("detection", {}).values()))]
+    from orion_eval.agents import AGENTS
+
+    mods = [f"{AGENTS[m].label}: {AGENTS[m].modules.describe()}" for m in run.get("methods", [])
+            if m in AGENTS and getattr(AGENTS[m], "modules", None) is not None]
+    if mods:
+        notes.append("One controller for every method, each with its own modules (" + "; ".join(mods) + "); the "
+                     "modules' error profiles come from published figures, none was set from these results.")
     return notes
 
 

@@ -175,8 +175,9 @@ def run_eval(ws: Workspace, params: Params, out_dir: Path, scenes=None, methods=
 
 
 #: what the CoW and ORION agents detect with when the maps come from simulated perception (orion_eval.detector)
-DETECTOR_KIND = ("simulated open-vocabulary detector (Grounding-DINO-like recall vs size / occlusion, CLIP-similar "
-                 "false positives; orion_eval.detector) - not a trained model")
+DETECTOR_KIND = ("simulated detectors (orion_eval.detector), not trained models: ORION's open-vocabulary detector "
+                 "(Grounding-DINO-like recall vs size / occlusion, CLIP-similar false positives) and CoW's CLIP "
+                 "Grad-CAM saliency localiser (lower recall, 7x7-patch boxes, wider CLIP confusions)")
 
 
 def _encoder_names(ws, params, scene) -> dict:

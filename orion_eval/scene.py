@@ -225,12 +225,22 @@ class SceneContext:
         """The simulated open-vocabulary detector (:mod:`orion_eval.detector`) when the maps come from simulated
         perception (the detection encoder has its CLIP text space) on a simulated scene; None otherwise: the
         oracle diagnostic and real encoders detect with the encoder's own features (:meth:`detect`)."""
+        return self._simulated_detector("grounded")
+
+    @cached_property
+    def saliency_detector(self):
+        """CoW's simulated CLIP-saliency localiser (:class:`orion_eval.detector.SaliencyDetector`), where
+        :attr:`detector` exists; None otherwise."""
+        return self._simulated_detector("saliency")
+
+    def _simulated_detector(self, kind: str):
         space = getattr(self.encoder, "space", None)
         if space is None or self.arts.gt is None or self.renderer.boxes is None:
             return None
-        from orion_eval.detector import SimulatedDetector
+        from orion_eval.detector import SaliencyDetector, SimulatedDetector
 
-        return SimulatedDetector(self.params.eval.detector, space, self.arts.gt, self.renderer.boxes)
+        cls = SaliencyDetector if kind == "saliency" else SimulatedDetector
+        return cls(self.params.eval.detector, space, self.arts.gt, self.renderer.boxes)
 
     def _detection(self, xy: np.ndarray, score: float, pixels: int) -> Detection:
         """A detection from the world ``(N,2)`` points of its pixels."""
@@ -239,18 +249,20 @@ class SceneContext:
         rc = rc[g.inside(rc)]
         return Detection(np.median(xy, axis=0), np.unique(rc[:, 0] * g.cols + rc[:, 1]), score, pixels)
 
-    def detect(self, pose, text: str) -> list[Detection]:
-        """Objects matching ``text`` in the ego view at ``pose`` (cached per pose and text): the simulated
-        detector's sightings (:attr:`detector`), else the cells whose encoder features beat the background."""
-        key = (self.pose_key(pose), text)
+    def detect(self, pose, text: str, kind: str = "grounded") -> list[Detection]:
+        """Objects matching ``text`` in the ego view at ``pose`` (cached per pose, text and kind): the simulated
+        detector's sightings (``kind`` 'grounded': :attr:`detector`, 'saliency': :attr:`saliency_detector`), else
+        (real encoders, the oracle) the cells whose encoder features beat the background, for either kind."""
+        key = (self.pose_key(pose), text, kind)
         if key in self._det_cache:
             return self._det_cache[key]
         ep, mp = self.params.eval, self.params.query
         v = self.view(pose)
-        if self.detector is not None:
+        detector = self.saliency_detector if kind == "saliency" else self.detector
+        if detector is not None:
             T = self.renderer.T_world_camera(pose)
             dirs = self.renderer.dirs_cam.reshape(-1, 3).astype(np.float64) @ T[:3, :3].T
-            found = self.detector.detect(v, text, T[:3, 3], dirs, ep.detect_max_range_m, key=key[0])
+            found = detector.detect(v, text, T[:3, 3], dirs, ep.detect_max_range_m, key=key[0])
             out = [self._detection(v.points[s.mask][:, :2].astype(np.float64), s.score, int(s.mask.sum()))
                    for s in found]
             out.sort(key=lambda d: -d.pixels)

@@ -9,10 +9,14 @@ feedback kind of :data:`pipeline.goals.feedback.FEEDBACK_KINDS`, mixed):
   object the goal's corrective FB names (else "No.");
 - ``descriptive``: "No. It is a red chair made of wood. ..." (the goal's descriptive FB);
 - ``landmark``: "No. It is next to Alice's bed." (landmark FB; "No." when the goal has none);
-- ``procedural``: "No. Follow this route: turn left, go forward 5 meters." computed from the agent's
-  CURRENT pose with the routes planner, sent under navchat's rule (goal in another room, at most
-  3 parts; else "No.");
-- ``mixed``: each turn one of the kinds available at that moment, drawn with the episode's seed.
+- ``procedural``: spoken as a person gives directions (:meth:`SimulatedUser.procedural`), from the agent's
+  CURRENT pose with the routes planner: "No. Follow this route: turn left, go forward 5 meters." when
+  navchat's rule allows a route (goal in another room, at most 3 parts), else a destination point
+  "No. It is about 4 meters ahead on your left." (the goal's mass centre in one of 8 directions); distances
+  are misjudged (a seeded factor ``exp(N(0, SPEECH_NOISE))``) and said in whole metres, turns only as
+  left / right / around: approximate, "not precise" as the paper says;
+- ``mixed``: every kind available at that moment in one reply (corrective, descriptive, landmark,
+  procedural, in that order), as the paper's user-LLM received all of them at once.
 
 "The object the agent looks at" is the object whose mass centre is in the ego view and in line of
 sight, nearest first (within 2.5 m), by the same geometry as the success rule.
@@ -28,6 +32,11 @@ from pipeline.routes.actions import procedural_allowed
 FEEDBACK_KIND_NAMES = tuple(sorted(FEEDBACK_KINDS))  # the goals' feedback kinds (their registry's names)
 FEEDBACK_SETTINGS = ("none", "yesno", *FEEDBACK_KIND_NAMES, "mixed")
 LOOK_RANGE_M = 2.5
+#: sigma of the log-normal factor a spoken distance is misjudged by (modelling choice: about a fifth either way)
+SPEECH_NOISE = 0.2
+#: the 8 directions a person points in, counter-clockwise from ahead (the agent's parser reads the same words)
+POINTING = ("ahead", "ahead on your left", "to your left", "behind you on the left", "behind you",
+            "behind you on the right", "to your right", "ahead on your right")
 
 
 class SimulatedUser:
@@ -55,16 +64,27 @@ class SimulatedUser:
                 best, best_d = key, r["distance_m"]
         return best
 
+    def say_metres(self, metres: float) -> str:
+        """A distance as a person says it: misjudged by a seeded factor, in whole metres (at least 1)."""
+        v = max(1, int(round(metres * float(np.exp(self.rng.normal(0.0, SPEECH_NOISE))))))
+        return f"{v} meter" if v == 1 else f"{v} meters"
+
     def procedural(self, pose) -> str | None:
-        """The route in words from ``pose`` when navchat's rule allows sending it, else None."""
+        """Directions from ``pose``: "Follow this route: ..." when navchat's rule allows a route, else "It is about N
+        meters <direction>." (see the module docstring); None when the goal cannot be reached from ``pose``."""
         ctx, g = self.ctx, self.goal
         # into the routes stage's goal region: the route never ends behind a wall
         route = ctx.route_to_goal(ctx.user_planner, pose, g, key="user", face_xy=g.mass_center)
-        if route is None:
+        if route is None or not route.parts:
             return None
-        if not procedural_allowed(route.parts, ctx.arts.room_at(pose[:2]), g.room_id):
-            return None
-        return route.text
+        if procedural_allowed(route.parts, ctx.arts.room_at(pose[:2]), g.room_id):
+            said = [p.kind if p.kind != "go forward" else f"go forward {self.say_metres(p.value)}" for p in route.parts]
+            return f"Follow this route: {', '.join(said)}."
+        x, y, yaw = (float(v) for v in pose)
+        dx, dy = np.asarray(g.mass_center, np.float64) - (x, y)
+        bearing = float(np.degrees(np.arctan2(dy, dx) - yaw))
+        sector = int(round(bearing / 45.0)) % 8
+        return f"It is about {self.say_metres(float(np.hypot(dx, dy)))} {POINTING[sector]}."
 
     def feedback(self, kind: str, pose) -> str | None:
         fb = self.goal.feedback
@@ -76,8 +96,7 @@ class SimulatedUser:
         if kind == "landmark":
             return fb.get("landmark") or None
         if kind == "procedural":
-            text = self.procedural(pose)
-            return f"Follow this route: {text}." if text else None
+            return self.procedural(pose)
         return None
 
     llm = None  # an orion_eval.llm.LLMUser phrasing the replies (eval.llm.roles 'user' / 'both'); None = templates
@@ -94,13 +113,11 @@ class SimulatedUser:
         if self.setting == "yesno":
             return False, "No.", "no"
         if self.setting == "mixed":
-            kinds = FEEDBACK_KIND_NAMES
-            texts = {k: self.feedback(k, pose) for k in kinds}
-            avail = [k for k in kinds if texts[k]]
+            texts = {k: self.feedback(k, pose) for k in FEEDBACK_KIND_NAMES}  # procedural last: a route ends a reply
+            avail = [k for k in FEEDBACK_KIND_NAMES if texts[k]]
             if not avail:
                 return False, "No.", "no"
-            k = avail[int(self.rng.integers(len(avail)))]
-            return False, f"No. {texts[k]}", k
+            return False, "No. " + " ".join(texts[k] for k in avail), "+".join(avail)
         text = self.feedback(self.setting, pose)
         return (False, f"No. {text}", self.setting) if text else (False, "No.", "no")
 

@@ -7,7 +7,8 @@ instruction and the goal's name, and acts until the episode ends (the modules ra
 :func:`parse_feedback` reads the simulated user's templates (the same a person would type):
 "Yes ...", "No.", "No. This is X, not Y." (corrective), "No. It is a red chair made of wood. ..."
 (descriptive), "No. It is next to X and near Y." (landmark), "No. Follow this route: turn left,
-go forward 5 meters." (procedural).
+go forward 5 meters." or "No. It is about 4 meters ahead on your left." (procedural: a route, or a
+destination point); in the mixed setting one reply may hold several of them.
 """
 
 from __future__ import annotations
@@ -18,6 +19,10 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 
 RELATIONS = ("next to", "near", "on", "under")
+#: how the user points at a destination, and its bearing (degrees, counter-clockwise from ahead)
+DIRECTIONS = {"ahead on your left": 45.0, "ahead on your right": -45.0, "ahead": 0.0, "to your left": 90.0,
+              "to your right": -90.0, "behind you on the left": 135.0, "behind you on the right": -135.0,
+              "behind you": 180.0}
 
 
 @dataclass
@@ -27,6 +32,7 @@ class Feedback:
     description: str | None = None  # descriptive: "red chair made of wood"
     landmarks: list[str] = field(default_factory=list)  # landmark phrases: ["Alice's bed"]
     route: list[tuple[str, float]] = field(default_factory=list)  # procedural: [("turn", deg), ("forward", m)]
+    destination: tuple[float, float] | None = None  # procedural point: (bearing deg, left positive; distance m)
 
 
 def parse_route(text: str) -> list[tuple[str, float]]:
@@ -58,6 +64,10 @@ def parse_feedback(reply: str) -> Feedback:
     m = re.search(r"Follow this route: (.+?)\.?$", text)
     if m:
         fb.route = parse_route(m.group(1))
+    ways = "|".join(re.escape(d) for d in DIRECTIONS)  # longest first: "ahead on your left" before "ahead"
+    m = re.search(rf"It is about ([\d.]+) meters? ({ways})\.", text)
+    if m:
+        fb.destination = (DIRECTIONS[m.group(2)], float(m.group(1)))
     m = re.search(r"It is (?:a|an) (.+?)\.", text)
     if m:
         fb.description = m.group(1)

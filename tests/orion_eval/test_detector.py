@@ -138,3 +138,33 @@ def test_scene_context_detects_with_the_simulated_detector(tiny_scene):
             unrelated += bool(ctx.detect(body.pose, "bicycle"))
             trials += 1
     assert found >= 0.6 * trials and unrelated <= 1, (found, unrelated, trials)
+
+
+def test_saliency_detector_is_weaker_and_coarser(space):
+    """CoW's CLIP-saliency localiser: lower recall than the grounded detector on the same view, more confusion with
+    CLIP neighbours, and masks made of whole 7x7 saliency patches (background included)."""
+    from orion_eval.detector import SALIENCY_PATCHES, SaliencyDetector
+
+    scene = gt([(1, "chair", "red", (2.0, -0.3, -0.6), (2.5, 0.3, 0.2)), (2, "couch", "blue", (2.0, 0.5, -0.6),
+                                                                           (2.6, 1.2, 0.0))])
+    grounded = SimulatedDetector(DetectorParams(), space, scene, _boxes(scene))
+    saliency = SaliencyDetector(DetectorParams(), space, scene, _boxes(scene))
+    view, origin, dirs = view_of(grounded, [1, 2])
+    assert rate(saliency, view, origin, dirs, "chair", 1) < rate(grounded, view, origin, dirs, "chair", 1) - 0.2
+    assert saliency.grounding("couch", np.array([1]))[0] > grounded.grounding("couch", np.array([1]))[0]
+    for k in range(50):
+        for s in saliency.detect(view, "chair", origin, dirs, 10.0, key=(k,)):
+            rows, cols = np.nonzero(s.mask)
+            own = view.instance == s.instance_id
+            assert (s.mask >= own).all() and s.mask.sum() > own.sum()  # the object's pixels and more
+            patch = (rows * SALIENCY_PATCHES // H) * SALIENCY_PATCHES + cols * SALIENCY_PATCHES // W
+            whole = np.isin((np.arange(H)[:, None] * SALIENCY_PATCHES // H) * SALIENCY_PATCHES
+                            + np.arange(W)[None, :] * SALIENCY_PATCHES // W, np.unique(patch))
+            assert (s.mask == whole).all()  # whole patches
+            break
+    # a small object (below one patch of the image) is seldom localised by saliency, often by the grounded detector
+    small = gt([(1, "chair", "red", (3.0, -0.15, -0.6), (3.2, 0.15, -0.3))])
+    g2 = SimulatedDetector(DetectorParams(), space, small, _boxes(small))
+    s2 = SaliencyDetector(DetectorParams(), space, small, _boxes(small))
+    v2, o2, d2 = view_of(g2, [1])
+    assert rate(s2, v2, o2, d2, "chair", 1) < 0.5 * rate(g2, v2, o2, d2, "chair", 1)

@@ -64,6 +64,10 @@ def test_bold_goes_to_the_best_method_that_is_not_an_upper_bound(tmp_path):
     for term in ("SR</dt>", "SPL</dt>", "SIT</dt>", "95 % CI</dt>"):
         assert term in html
     assert run_notes(_results({"orion": 0.5})["run"])[0].startswith("Maps built with the diagnostic oracle")
+    assert run_notes({"methods": ["human", "cow", "orion"]}) == [
+        "One controller for every method, each with its own modules (CoW: no map, saliency detection, exploration, "
+        "no memory; ORION: map eval.orion_map, grounded detection, exploration, memory); the modules' error profiles come "
+        "from published figures, none was set from these results."]
     assert (tmp_path / "scenes" / "s0.html").is_file() and 'href="scenes/s0.html"' in html
 
 

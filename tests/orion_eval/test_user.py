@@ -19,6 +19,13 @@ def test_parse_feedback_templates():
     fb = parse_feedback("No. Follow this route: turn left, go forward 2.5 meters, turn around.")
     assert fb.route == [("turn", 90.0), ("forward", 2.5), ("turn", 180.0)]
     assert parse_route("turn right, go forward 1 meter") == [("turn", -90.0), ("forward", 1.0)]
+    assert parse_feedback("No. It is about 4 meters ahead on your left.").destination == (45.0, 4.0)
+    assert parse_feedback("No. It is about 1 meter behind you.").destination == (180.0, 1.0)
+    both = parse_feedback("No. This is Bob's chair, not Alice's chair. It is a red chair made of wood. It stands on "
+                          "the floor and is about 0.9 meters tall. It is next to the bed. Follow this route: turn "
+                          "left, go forward 3 meters.")
+    assert (both.corrected_as, both.description, both.landmarks, both.route, both.destination) == (
+        "Bob's chair", "red chair made of wood", ["the bed"], [("turn", 90.0), ("forward", 3.0)], None)
 
 
 def test_replies_per_setting_are_deterministic(tiny_scene):
@@ -38,3 +45,46 @@ def test_replies_per_setting_are_deterministic(tiny_scene):
     assert replies["landmark"][0] in ("No.", "No. " + goal.feedback["landmark"])
     again = SimulatedUser(ctx, goal, "mixed", np.random.default_rng(3)).respond(far)
     assert again[1:] == replies["mixed"]
+    # mixed: every kind available at that pose in one reply, in the kinds' order
+    from orion_eval.user import FEEDBACK_KIND_NAMES
+
+    text, kind = replies["mixed"]
+    kinds = kind.split("+")
+    assert "descriptive" in kinds and kinds == [k for k in FEEDBACK_KIND_NAMES if k in kinds]
+    singles = [SimulatedUser(ctx, goal, k, np.random.default_rng(3)).respond(far)[1] for k in kinds]
+    assert text == "No. " + " ".join(t.removeprefix("No. ") for t in singles)
+
+
+def test_procedural_is_spoken_like_a_person(tiny_scene):
+    """Whole metres, misjudged by a seeded factor; a route in another room (at most 3 parts), else a point."""
+    import re
+
+    from orion_eval.user import POINTING
+
+    ws, params = tiny_scene
+    ctx = SceneContext(Artifacts(ws, params, "tiny"))
+    said = []
+    for goal in ctx.arts.goals.goals:
+        for ep in ctx.arts.routes.for_goal(goal.id):
+            text = SimulatedUser(ctx, goal, "procedural", np.random.default_rng(0)).procedural(ep.start)
+            if text is None:
+                continue
+            said.append(text)
+            route = re.fullmatch(r"Follow this route: (.+)\.", text)
+            if route:
+                parts = route.group(1).split(", ")
+                assert 0 < len(parts) <= 3
+                for p in parts:
+                    assert p in ("turn left", "turn right", "turn around") or re.fullmatch(r"go forward \d+ meters?", p)
+            else:
+                m = re.fullmatch(r"It is about (\d+) meters? (.+)\.", text)
+                assert m and m.group(2) in POINTING and int(m.group(1)) >= 1
+                fb = parse_feedback("No. " + text)
+                assert fb.destination is not None and fb.destination[1] == int(m.group(1))
+    assert said
+    goal = ctx.arts.goals.goals[0]
+    u = SimulatedUser(ctx, goal, "procedural", np.random.default_rng(0))
+    noisy = [u.say_metres(5.0) for _ in range(200)]
+    assert {"4 meters", "5 meters", "6 meters"} <= set(noisy) and all(re.fullmatch(r"\d+ meters?", t) for t in noisy)
+    again = SimulatedUser(ctx, goal, "procedural", np.random.default_rng(0))
+    assert [again.say_metres(5.0) for _ in range(200)] == noisy  # seeded

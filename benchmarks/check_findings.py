@@ -1,0 +1,224 @@
+"""Does the evaluator reproduce the ORION paper's findings about feedback? (A check, not a timed test.)
+
+    .venv/bin/python benchmarks/check_findings.py --workspace /tmp/findings --scenes 3   # builds, then evaluates
+    .venv/bin/python benchmarks/check_findings.py --workspace /tmp/findings --scenes 10 --seeds 5
+
+The scenes ``findings_00``... are fresh procedural apartments that no test, demo or other benchmark uses
+(their own names and ``simulate.seed`` 2027), built once with the batch pipeline (untimed; a second call
+reuses them), their maps from the simulated perception models, the CoW and ORION detectors simulated
+(:mod:`orion_eval.detector`). Every method runs the same controller with its own modules
+(:mod:`orion_eval.agents.controller`); nothing in it or in the perception models is set from these results.
+
+Prints the SR / SPL / SIT tables next to the paper's Table I (single feedback) and Table II (mixed), the
+Spearman rank correlation and the mean absolute difference over the 28 method x setting cells, and the
+paper's findings (1)-(6) as holds / does not hold with the figures. Every figure has a 95 % interval from a
+bootstrap over goals (a goal's episodes, all seeds and settings, resampled together; ``--boot`` draws).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+from _common import emit
+from benchmarks.bench_eval import build
+from scipy.stats import spearmanr
+
+from orion_eval.run import run_eval
+from orion_eval.user import FEEDBACK_SETTINGS
+from pipeline.config import load_params
+
+METHODS = ("cow", "vlmap", "cf", "orion")
+NAMES = {"cow": "CoW", "vlmap": "VLMap", "cf": "CF", "orion": "ORION"}
+KINDS = ("corrective", "descriptive", "landmark", "procedural")  # the single feedback kinds, Table I's order
+SETTINGS = ("none", "yesno", *KINDS, "mixed")
+METRICS = ("SR", "SPL", "SIT")
+_KEY = {"SR": "success", "SPL": "spl", "SIT": "sit"}
+
+#: the ORION paper, Table I (none ... procedural) and Table II (mixed): (SR, SPL, SIT) percent
+PAPER = {
+    "cow": {"none": (15.4, 8.4, 15.4), "yesno": (36.8, 24.2, 35.8), "corrective": (38.5, 21.6, 29.0),
+            "descriptive": (53.5, 22.4, 33.2), "landmark": (43.9, 21.3, 30.2), "procedural": (59.0, 22.5, 32.8),
+            "mixed": (62.4, 33.7, 36.2)},
+    "vlmap": {"none": (23.9, 20.3, 23.9), "yesno": (41.8, 30.8, 31.2), "corrective": (43.6, 32.6, 35.2),
+              "descriptive": (44.4, 31.5, 35.8), "landmark": (53.3, 35.8, 39.0), "procedural": (67.5, 52.7, 44.1),
+              "mixed": (71.8, 54.8, 48.0)},
+    "cf": {"none": (21.3, 13.7, 21.3), "yesno": (47.9, 25.6, 31.1), "corrective": (52.1, 37.5, 36.5),
+           "descriptive": (47.0, 33.5, 34.1), "landmark": (59.9, 40.1, 40.6), "procedural": (68.4, 49.4, 39.3),
+           "mixed": (73.5, 52.3, 44.2)},
+    "orion": {"none": (28.2, 24.9, 28.2), "yesno": (54.2, 35.5, 37.8), "corrective": (59.0, 34.2, 39.1),
+              "descriptive": (63.7, 37.4, 44.2), "landmark": (69.5, 40.1, 46.8), "procedural": (80.3, 51.1, 52.8),
+              "mixed": (83.8, 56.6, 53.5)},
+}
+
+
+def paper_tables() -> dict[str, np.ndarray]:
+    """metric -> (4 methods, 7 settings) array of the paper's values."""
+    return {m: np.array([[PAPER[meth][s][k] for s in SETTINGS] for meth in METHODS]) for k, m in enumerate(METRICS)}
+
+
+class Cells:
+    """Per (scene, goal) sums and counts of each metric in each (method, setting) cell, for bootstrap draws."""
+
+    def __init__(self, episodes: list[dict]):
+        self.goals = sorted({(e["scene"], e["goal"]) for e in episodes})
+        gi = {g: i for i, g in enumerate(self.goals)}
+        shape = (len(self.goals), len(METHODS), len(SETTINGS))
+        self.sums = {m: np.zeros(shape) for m in METRICS}
+        self.counts = np.zeros(shape)
+        for e in episodes:
+            if e["method"] not in METHODS:
+                continue
+            idx = (gi[(e["scene"], e["goal"])], METHODS.index(e["method"]), SETTINGS.index(e["feedback"]))
+            self.counts[idx] += 1
+            for m in METRICS:
+                self.sums[m][idx] += float(e[_KEY[m]])
+
+    def tables(self, weights: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """metric -> (methods, settings) percent, goals weighted by ``weights`` (None: each once)."""
+        w = np.ones(len(self.goals)) if weights is None else weights
+        n = np.tensordot(w, self.counts, axes=1)
+        return {m: 100.0 * np.tensordot(w, self.sums[m], axes=1) / np.maximum(n, 1) for m in METRICS}
+
+
+def figures(t: dict[str, np.ndarray], paper: dict[str, np.ndarray]) -> dict[str, float]:
+    """Every number the check reports, from one set of tables ``t`` (so each gets a bootstrap interval)."""
+    sr = t["SR"]
+    col = {s: sr[:, SETTINGS.index(s)] for s in SETTINGS}
+    gain = {k: col[k] - col["yesno"] for k in KINDS}
+    out: dict[str, float] = {}
+    for m in METRICS:
+        out[f"{m} spearman"] = float(spearmanr(t[m].ravel(), paper[m].ravel())[0])
+        out[f"{m} mean |d|"] = float(np.mean(np.abs(t[m] - paper[m])))
+    for i, meth in enumerate(METHODS):
+        for k in KINDS:
+            out[f"gain {k} {meth}"] = float(gain[k][i])
+        best_single = max(col[k][i] for k in KINDS)
+        out[f"mixed - best single {meth}"] = float(col["mixed"][i] - best_single)
+        out[f"procedural - next best {meth}"] = float(gain["procedural"][i] - max(gain[k][i] for k in KINDS[:3]))
+        out[f"mean SR with feedback {meth}"] = float(np.mean([col[s][i] for s in SETTINGS[1:]]))
+    det = [METHODS.index(x) for x in ("cow", "orion")]
+    maps = [METHODS.index(x) for x in ("vlmap", "cf")]
+    out["descriptive: detection min - map max"] = float(min(gain["descriptive"][det]) - max(gain["descriptive"][maps]))
+    mean_gain = {k: float(np.mean(gain[k])) for k in KINDS}
+    for k in KINDS:
+        out[f"mean gain {k}"] = mean_gain[k]
+    out["corrective - next least (mean gains)"] = mean_gain["corrective"] - min(mean_gain[k] for k in KINDS[1:])
+    others = [float(np.mean([col[s][i] for s in SETTINGS[1:]])) for i in range(1, len(METHODS))]
+    out["CoW - weakest other (mean SR with feedback)"] = out["mean SR with feedback cow"] - min(others)
+    o, v = METHODS.index("orion"), METHODS.index("vlmap")
+    out["ORION - VLMap SR (mean over settings)"] = float(np.mean(sr[o] - sr[v]))
+    out["ORION - VLMap SPL (mean over settings)"] = float(np.mean(t["SPL"][o] - t["SPL"][v]))
+    return out
+
+
+def findings(f: dict[str, float]) -> list[tuple[str, bool, str]]:
+    """The paper's findings (1)-(6) as (statement, holds, figures) on point estimates ``f``."""
+    g = lambda k, m: f[f"gain {k} {m}"]  # noqa: E731
+    per = lambda k: ", ".join(f"{NAMES[m]} {g(k, m):+.1f}" for m in METHODS)  # noqa: E731
+    return [
+        ("(1) procedural feedback brings the largest gain over yes/no for every method",
+         all(f[f"procedural - next best {m}"] > 0 for m in METHODS),
+         f"procedural gains {per('procedural')}; margin over the next kind "
+         + ", ".join(f"{NAMES[m]} {f[f'procedural - next best {m}']:+.1f}" for m in METHODS)),
+        ("(2) landmark feedback boosts every method (gain over yes/no > 0)",
+         all(g("landmark", m) > 0 for m in METHODS), f"landmark gains {per('landmark')}"),
+        ("(3) descriptive feedback helps the ego-view detection methods (CoW, ORION) more than the map-based ones",
+         f["descriptive: detection min - map max"] > 0,
+         f"descriptive gains {per('descriptive')}; min(CoW, ORION) - max(VLMap, CF) "
+         f"{f['descriptive: detection min - map max']:+.1f}"),
+        ("(4) corrective feedback brings the least improvement (mean gain over methods)",
+         f["corrective - next least (mean gains)"] < 0,
+         "mean gains " + ", ".join(f"{k} {f[f'mean gain {k}']:+.1f}" for k in KINDS)),
+        ("(5) mixed feedback beats every single feedback, for every method",
+         all(f[f"mixed - best single {m}"] > 0 for m in METHODS),
+         "mixed - best single " + ", ".join(f"{NAMES[m]} {f[f'mixed - best single {m}']:+.1f}" for m in METHODS)),
+        ("(6) CoW is the weakest method with feedback (mean SR over the settings with interaction)",
+         f["CoW - weakest other (mean SR with feedback)"] < 0,
+         ", ".join(f"{NAMES[m]} {f[f'mean SR with feedback {m}']:.1f}" for m in METHODS)),
+    ]
+
+
+def bootstrap(cells: Cells, paper: dict[str, np.ndarray], draws: int, seed: int = 0) -> dict[str, tuple[float, float]]:
+    """95 % percentile intervals of every figure, goals resampled with replacement."""
+    rng = np.random.default_rng(seed)
+    n = len(cells.goals)
+    samples: dict[str, list[float]] = {}
+    for _ in range(draws):
+        w = np.bincount(rng.integers(0, n, n), minlength=n).astype(np.float64)
+        for k, v in figures(cells.tables(w), paper).items():
+            samples.setdefault(k, []).append(v)
+    return {k: (float(np.nanpercentile(v, 2.5)), float(np.nanpercentile(v, 97.5))) for k, v in samples.items()}
+
+
+def print_report(res: dict, cells: Cells, draws: int) -> dict:
+    paper = paper_tables()
+    t = cells.tables()
+    f = figures(t, paper)
+    ci = bootstrap(cells, paper, draws)
+    run = res["run"]
+    print(f"scenes {len(run['scenes'])} ({', '.join(run['scenes'])}), goals {len(cells.goals)}, seeds "
+          f"{len(run['seeds'])}, episodes per cell {int(cells.counts.sum(axis=0).min())}")
+    maps = sorted({v["kind"] for enc in run["encoders"].values() for v in enc.values()})
+    print("maps: " + " | ".join(maps))
+    print("detection: " + " | ".join(sorted(set(run["detection"].values()))))
+    for m in METRICS:
+        print(f"\n{m} %  (ours / paper)")
+        print(f"{'':6}" + "".join(f"{s:>14}" for s in SETTINGS))
+        for i, meth in enumerate(METHODS):
+            print(f"{NAMES[meth]:6}" + "".join(f"{t[m][i, j]:7.1f}/{paper[m][i, j]:<6.1f}" for j in range(len(SETTINGS))))
+    print()
+    iv = lambda k: f"[{ci[k][0]:.2f}, {ci[k][1]:.2f}]"  # noqa: E731
+    for m in METRICS:
+        print(f"{m}: Spearman rho {f[f'{m} spearman']:.2f} {iv(f'{m} spearman')}, mean |d| "
+              f"{f[f'{m} mean |d|']:.1f} points {iv(f'{m} mean |d|')}  (targets for SR: rho >= 0.8, mean |d| <= 8)")
+    print(f"ORION - VLMap, mean over settings: SR {f['ORION - VLMap SR (mean over settings)']:+.1f} "
+          f"{iv('ORION - VLMap SR (mean over settings)')}, SPL {f['ORION - VLMap SPL (mean over settings)']:+.1f} "
+          f"{iv('ORION - VLMap SPL (mean over settings)')}  (paper: SR +11.5, SPL +2.0)")
+    print()
+    out = []
+    for text, holds, detail in findings(f):
+        print(f"{'HOLDS   ' if holds else 'DOES NOT'} {text}\n         {detail}")
+        out.append({"finding": text, "holds": holds, "detail": detail})
+    keys = [k for k in f if k.startswith(("gain ", "mixed - ", "procedural - ", "descriptive:", "corrective - ",
+                                          "CoW - "))]
+    print(f"\n95 % intervals (bootstrap over goals, {draws} draws):")
+    for k in keys:
+        print(f"  {k}: {f[k]:+.1f} {iv(k)}")
+    return {"tables": {m: t[m].round(2).tolist() for m in METRICS}, "figures": f, "intervals": ci, "findings": out,
+            "methods": list(METHODS), "settings": list(SETTINGS)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--workspace", type=Path, default=Path("/tmp/findings"), help="folder for the fresh scenes")
+    ap.add_argument("--scenes", type=int, default=3)
+    ap.add_argument("--frames", type=int, default=240, help="simulate.frames of the scenes")
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--workers", type=int, default=1, help="eval.workers (processes)")
+    ap.add_argument("--boot", type=int, default=1000, help="bootstrap draws for the 95 %% intervals")
+    ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    ap.add_argument("--results", type=Path, default=None,
+                    help="report on an earlier run's results.json instead of building and evaluating")
+    args = ap.parse_args()
+    if args.results:
+        res = json.loads(args.results.read_text())
+        doc = print_report(res, Cells(res["episodes"]), args.boot)
+        if args.json:
+            args.json.write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
+        return
+    ws = build(args.workspace, args.scenes, args.frames, prefix="findings", seed=2027, bench="findings")
+    params = load_params(ws.params_path)
+    params = params.model_copy(update={"eval": params.eval.model_copy(update={"workers": args.workers})})
+    res = run_eval(ws, params, args.workspace / "eval", scenes=list(params.scenes), methods=list(METHODS),
+                   feedback=list(FEEDBACK_SETTINGS), seeds=list(range(args.seeds)), progress=False, report=False)
+    emit(bench="findings", figure="run", episodes=res["run"]["episodes"], seconds=res["run"]["seconds"])
+    doc = print_report(res, Cells(res["episodes"]), args.boot)
+    if args.json:
+        args.json.write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
+
+
+if __name__ == "__main__":
+    main()

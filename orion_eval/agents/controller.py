@@ -1,0 +1,217 @@
+"""One think-act-ask controller over the ORION modules; every method is a set of modules it may use.
+
+As in the paper, the baselines are the ORION framework with the same controller and fewer modules
+(:class:`ModuleSet`): CoW explores and localises with CLIP saliency (no map, no memory); VLMap and CF
+retrieve from their map (no detection, exploration or memory); ORION has the map, exploration, the
+grounded detector and memory. The controller is scripted and deterministic (the LLM agent of
+:mod:`orion_eval.llm` stays an option); it never asks which method it is, only which modules it has.
+
+Each turn it **thinks** (ranks candidates), **acts** (walks to the best one; a method with a detector
+double-checks a map candidate before asking) and **asks** ("Is this X?"). The user's reply changes what it
+searches for and where, through the same rules for every method:
+
+- *yes/no*: the place is rejected (and, with memory, remembered as not the goal);
+- *corrective* ("This is Bob's chair, not Alice's chair."): only memory can use it: the object is remembered
+  as what the user called it, which helps when a later goal of the scene is that object;
+- *descriptive* ("It is a red chair made of wood."): the description becomes the query of the detector,
+  and the map's candidates of the description are tried before those of the goal's name; what it adds is
+  what the method perceives (an ego-view detector sees colour and material; a map keeps only what its
+  fused features kept);
+- *landmark* ("It is next to the bed."): the landmarks are located with the method's own modules (map
+  retrieval, else a spin and exploration with the detector; each landmark once per episode) and the goal is
+  searched near them: map candidates ranked by distance to the landmarks, and, without a map, a
+  detector's spin at the landmark it found;
+- *procedural* (a route, or "It is about 4 meters to your left."): the route is walked to its end (the
+  point is walked to) and the goal is searched there: map candidates nearest the end first, a
+  detector's spin there first.
+
+Without anything left to try, a method that explores searches the frontiers with its detector; one that
+cannot gives up.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from orion_eval.agents.base import Agent, Feedback, parse_feedback
+
+
+@dataclass(frozen=True)
+class ModuleSet:
+    """Which ORION modules a method has (the paper's baselines section)."""
+
+    map: str | None = None  # semantic map retrieved from: 'vlmap' | 'cfmap' | 'orion' (eval.orion_map) | None
+    detector: str | None = None  # ego-view detection: 'grounded' (ORION's) | 'saliency' (CoW's CLIP Grad-CAM) | None
+    explore: bool = False  # frontier-based exploration
+    memory: bool = False  # ORION's positive / negative memory maps, carried across a scene's goals
+
+    def describe(self) -> str:
+        where = "eval.orion_map" if self.map == "orion" else self.map
+        parts = [f"map {where}" if self.map else "no map",
+                 f"{self.detector} detection" if self.detector else "no detection",
+                 "exploration" if self.explore else "no exploration", "memory" if self.memory else "no memory"]
+        return ", ".join(parts)
+
+
+@dataclass
+class SearchState:
+    """What the controller knows mid-episode."""
+
+    name: str  # the goal's name
+    description: str | None = None  # the user's description of the goal, once given
+    rejected: list = field(default_factory=list)  # centres of places the user said "No" to
+    deferred: set = field(default_factory=set)  # map candidates whose double-check failed (tried last)
+    focus: list = field(default_factory=list)  # per hint, the (K,2) points the goal is near (landmarks, route end)
+    spin_at: np.ndarray | None = None  # where a detector should look around next (None: done or nowhere)
+    spotted: list = field(default_factory=list)  # detections of the query from that look-around, nearest first
+    landmarks: dict = field(default_factory=dict)  # landmark phrase -> (K,2) places found (or None: not found)
+
+    @property
+    def query(self) -> str:
+        """What the detector and exploration look for: the description once given, else the name."""
+        return self.description or self.name
+
+    @property
+    def queries(self) -> list[str]:
+        """What the map is asked for, in order: the description's candidates first, then the name's."""
+        return [self.description, self.name] if self.description else [self.name]
+
+    def focus_distance(self, xy) -> float:
+        """Mean over the hints of the distance from ``xy`` to the hint's nearest point (0 without hints)."""
+        if not self.focus:
+            return 0.0
+        p = np.asarray(xy, np.float64)
+        return float(np.mean([np.min(np.hypot(*(pts - p).T)) for pts in self.focus]))
+
+
+class ModularAgent(Agent):
+    """The one controller (see the module docstring); a subclass declares its :attr:`modules`."""
+
+    modules: ModuleSet = ModuleSet()
+
+    def map_name(self) -> str | None:
+        which = self.modules.map
+        return self.params.eval.orion_map if which == "orion" else which
+
+    def run(self, m, instruction: str, goal_name: str) -> None:
+        if self.modules.detector:
+            m.detector = self.modules.detector
+        st = SearchState(name=goal_name)
+        while True:
+            oid = self.next_candidate(m, st, goal_name)
+            if oid is None:
+                return
+            st.rejected.append(m.objects[oid].center_xy)
+            fb = parse_feedback(m.talk(f"Is this {goal_name}?"))
+            self.update(m, st, fb, oid, goal_name)
+
+    # ------------------------------------------------------------------ think and act
+    def skip(self, m, st: SearchState, negatives: set):
+        radius = self.params.eval.reject_radius_m
+        return lambda i: self.near_any(m, i, st.rejected, radius) or i in negatives
+
+    def ranked(self, m, st: SearchState, ids: list[int]) -> list[int]:
+        """Nearest the hints first (the agent's distance breaks ties; without hints: nearest the agent)."""
+        return sorted(ids, key=lambda i: (round(st.focus_distance(m.objects[i].center_xy), 2), m.relative(i)[0], i))
+
+    def next_candidate(self, m, st: SearchState, goal_name: str) -> int | None:
+        """Walk to the next object worth asking about and return its id; None when nothing is left."""
+        mods, which = self.modules, self.map_name()
+        while True:
+            negatives: set = set()
+            todo: list[int] = []
+            if mods.memory:
+                positives, neg = m.retrieve_memory(goal_name)
+                negatives = set(neg)
+                todo += [t[0] for t in positives]
+            if mods.detector and st.spin_at is not None:
+                self.look_at_focus(m, st)
+            todo += st.spotted
+            if which:
+                for q in st.queries:
+                    todo += self.ranked(m, st, [t[0] for t in m.retrieve_map(q, which)])
+            skip = self.skip(m, st, negatives)
+            todo = list(dict.fromkeys(i for i in todo if not skip(i)))
+            todo = [i for i in todo if i not in st.deferred] + [i for i in todo if i in st.deferred]
+            if not todo:
+                if not (mods.detector and mods.explore):
+                    return None
+                oid = m.search_object(st.query, skip=skip)
+                if oid is None:
+                    return None
+                m.goto_object(oid)
+                return oid
+            oid = todo[0]
+            if not m.goto_object(oid):
+                st.rejected.append(m.objects[oid].center_xy)
+                continue
+            from_map = m.objects[oid].source in ("vlmap", "cfmap")
+            if mods.detector and from_map and oid not in st.deferred and not m.double_check(oid):
+                st.deferred.add(oid)
+                continue
+            return oid
+
+    def look_at_focus(self, m, st: SearchState) -> None:
+        """Walk to the hinted place and look around for the query there (once per hint)."""
+        target, st.spin_at = st.spin_at, None
+        here = np.asarray(m.pose[:2])
+        if float(np.hypot(*(target - here))) > self.params.eval.reject_radius_m:
+            m.goto_point(target)
+        st.spotted = self.ranked(m, st, [t[0] for t in m.look_around(st.query)])
+
+    # ------------------------------------------------------------------ the user's reply
+    def update(self, m, st: SearchState, fb: Feedback, oid: int, goal_name: str) -> None:
+        """Change the search after a "No" (the same rules for every method; see the module docstring)."""
+        if self.modules.memory:
+            m.update_memory(oid, fb.corrected_as, goal_name)
+        st.spotted = [i for i in st.spotted if i != oid]
+        if fb.description:
+            st.description = fb.description
+            st.spotted = []
+        if fb.route or fb.destination:
+            if fb.route:
+                self.follow_route(m, fb.route)
+            else:
+                bearing, dist = fb.destination
+                x, y, yaw = m.pose
+                m.goto_point((x + dist * math.cos(yaw + math.radians(bearing)),
+                              y + dist * math.sin(yaw + math.radians(bearing))))
+            end = np.asarray(m.pose[:2], np.float64)
+            st.focus = [end[None]]
+            st.spin_at = end if self.modules.detector else None
+            st.spotted = []
+        if fb.landmarks:  # located from where the route ended, if one came with them
+            hints = self.locate_landmarks(m, st, fb.landmarks)
+            if hints:
+                st.focus = (st.focus if fb.route or fb.destination else []) + hints
+                st.spotted = []
+                if self.modules.detector and not self.map_name():
+                    # no map: look around at the landmark seen nearest the other hints
+                    here = np.asarray(m.pose[:2])
+                    st.spin_at = np.asarray(min(hints[0], key=lambda p: (st.focus_distance(p),
+                                                                         float(np.hypot(*(p - here))))), np.float64)
+
+    def locate_landmarks(self, m, st: SearchState, phrases: list[str]) -> list[np.ndarray]:
+        """Find the landmarks with the method's modules: the map's candidates of each phrase, else the detector (one
+        spin here for all of them, then exploration for the first phrase when none was seen and the method
+        explores). Landmarks already looked for in this episode are not looked for again. One ``(K,2)`` array of
+        places per landmark found."""
+        which = self.map_name()
+        new = [p for p in phrases if p not in st.landmarks]
+        if new and which:
+            for phrase in new:
+                pts = [m.objects[t[0]].center_xy for t in m.retrieve_map(phrase, which)]
+                st.landmarks[phrase] = np.asarray(pts, np.float64) if pts else None
+        elif new and self.modules.detector:
+            seen = m.look_around_for(new)
+            for phrase in new:
+                pts = [m.objects[t[0]].center_xy for t in seen[phrase]]
+                st.landmarks[phrase] = np.asarray(pts, np.float64) if pts else None
+            if all(st.landmarks[p] is None for p in phrases) and self.modules.explore:
+                oid = m.search_object(phrases[0])
+                if oid is not None:
+                    st.landmarks[phrases[0]] = np.asarray([m.objects[oid].center_xy], np.float64)
+        return [st.landmarks[p] for p in phrases if st.landmarks.get(p) is not None]

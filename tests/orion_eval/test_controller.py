@@ -1,0 +1,133 @@
+"""The one think-act-ask controller: baselines as module sets, and each kind of feedback acted on by the same
+rules, through the modules a method has."""
+
+import math
+
+import numpy as np
+import pytest
+
+from orion_eval.agents import AGENTS, build_agent
+from orion_eval.agents.base import Feedback
+from orion_eval.agents.controller import ModularAgent, ModuleSet, SearchState
+from orion_eval.artifacts import Artifacts
+from orion_eval.episode import EpisodeRun, Task
+from orion_eval.scene import SceneContext
+from orion_eval.user import SimulatedUser
+
+
+@pytest.fixture(scope="module")
+def ctx(tiny_scene):
+    ws, params = tiny_scene
+    return SceneContext(Artifacts(ws, params, "tiny"))
+
+
+def episode(ctx, method="orion", goal_index=0):
+    goal = [g for g in ctx.arts.goals.goals if ctx.arts.routes.for_goal(g.id)][goal_index]
+    ep = ctx.arts.routes.for_goal(goal.id)[0]
+    task = Task("tiny", method, "yesno", 0, goal.id, ep.id, ep.start, ep.geodesic_m)
+    run = EpisodeRun(ctx, task, SimulatedUser(ctx, goal, "yesno", np.random.default_rng(0)), 2000, 5)
+    return goal, run, build_agent(method, ctx.params)
+
+
+def test_baselines_are_module_subsets_of_one_controller():
+    mods = {name: cls.modules for name, cls in AGENTS.items() if issubclass(cls, ModularAgent)}
+    assert set(mods) == {"cow", "vlmap", "cf", "orion"}
+    assert all(AGENTS[n].run is ModularAgent.run for n in mods)  # one policy, no per-method override
+    assert mods["cow"] == ModuleSet(detector="saliency", explore=True)
+    assert mods["vlmap"] == ModuleSet(map="vlmap") and mods["cf"] == ModuleSet(map="cfmap")
+    assert mods["orion"] == ModuleSet(map="orion", detector="grounded", explore=True, memory=True)
+    assert mods["cow"].describe() == "no map, saliency detection, exploration, no memory"
+
+
+def test_cow_detects_with_its_own_detector(ctx):
+    goal, run, agent = episode(ctx, "cow")
+    from orion_eval.episode import EpisodeOver
+
+    try:
+        agent.run(run.modules, "", goal.name)
+    except EpisodeOver:
+        pass
+    assert run.modules.detector == "saliency"
+    assert any(k[2] == "saliency" for k in ctx._det_cache)
+    _, run2, orion = episode(ctx, "orion")
+    assert run2.modules.detector == "grounded"
+
+
+def test_procedural_point_is_walked_to_and_searched_around(ctx):
+    goal, run, agent = episode(ctx, "vlmap")
+    m = run.modules
+    st = SearchState(name=goal.name)
+    oid = m.retrieve_map(goal.name, "vlmap")[0][0]
+    x0, y0, yaw0 = m.pose
+    agent.update(m, st, Feedback(destination=(90.0, 2.0)), oid, goal.name)
+    moved = math.hypot(m.pose[0] - x0, m.pose[1] - y0)
+    assert run.body.steps > 0 and moved > 0.5
+    assert len(st.focus) == 1 and np.allclose(st.focus[0][0], m.pose[:2])
+    assert st.spin_at is None  # no detector: the map candidates are ranked by distance to the end point
+    ids = [t[0] for t in m.retrieve_map(goal.name, "vlmap")]
+    ranked = agent.ranked(m, st, ids)
+    d = [st.focus_distance(m.objects[i].center_xy) for i in ranked]
+    assert d == sorted(d) or np.allclose(np.round(d, 2), sorted(np.round(d, 2)))
+
+
+def test_a_route_is_followed_to_its_end_and_a_detector_looks_there(ctx):
+    goal, run, agent = episode(ctx, "orion")
+    m = run.modules
+    st = SearchState(name=goal.name)
+    oid = m.retrieve_map(goal.name, ctx.params.eval.orion_map)[0][0]
+    agent.update(m, st, Feedback(route=[("turn", 90.0), ("forward", 1.0)]), oid, goal.name)
+    assert run.body.actions[:6] == [2] * 6  # six 15 deg left turns
+    assert np.allclose(st.spin_at, m.pose[:2]) and np.allclose(st.focus[0][0], m.pose[:2])
+
+
+def test_corrective_feedback_helps_only_through_memory(ctx):
+    for method, remembered in (("vlmap", False), ("orion", True)):
+        goal, run, agent = episode(ctx, method)
+        m = run.modules
+        which = agent.map_name()
+        oid = m.retrieve_map(goal.name, which)[0][0]
+        plain, corrected = SearchState(name=goal.name), SearchState(name=goal.name)
+        agent.update(m, plain, Feedback(), oid, goal.name)
+        before = {k: dict(v) for k, v in m.memory.maps.items()}
+        agent.update(m, corrected, Feedback(corrected_as="Bob's chair"), oid, goal.name)
+        assert vars(plain) == vars(corrected)  # the search itself does not change
+        assert (m.memory.maps["pos"] != before["pos"]) == remembered
+        assert bool(m.retrieve_memory("Bob's chair")[0]) == remembered
+
+
+def test_landmarks_are_located_with_the_methods_own_modules(ctx):
+    goal, run, agent = episode(ctx, "vlmap")
+    m = run.modules
+    phrase = next(o for o in ("bed", "table", "couch", "chair", "cabinet") if m.retrieve_map(o, "vlmap"))
+    st = SearchState(name=goal.name)
+    hints = agent.locate_landmarks(m, st, [phrase])
+    assert len(hints) == 1 and len(hints[0]) == len(m.retrieve_map(phrase, "vlmap"))
+    assert run.body.steps == 0  # the map answers without moving
+    oid = m.retrieve_map(goal.name, "vlmap")[0][0]
+    agent.update(m, st, Feedback(landmarks=[phrase]), oid, goal.name)
+    assert len(st.focus) == 1 and st.spin_at is None
+    goal, run, cow = episode(ctx, "cow")
+    run.modules.detector = "saliency"
+    st = SearchState(name=goal.name)
+    m = run.modules
+    hints = cow.locate_landmarks(m, st, [phrase, "bicycle"])
+    steps = run.body.steps
+    assert steps >= 24  # the detector has to look: one spin for both, exploration when neither is seen
+    again = cow.locate_landmarks(m, st, [phrase, "bicycle"])
+    assert run.body.steps == steps and len(again) == len(hints)  # each landmark is looked for once per episode
+    assert all(np.array_equal(a, b) for a, b in zip(again, hints)) and set(st.landmarks) == {phrase, "bicycle"}
+    st = SearchState(name=goal.name)
+    oid = m.register(m.pose[:2], np.array([0]), "detect")
+    cow.update(m, st, Feedback(landmarks=[phrase], route=[("forward", 0.5)]), oid, goal.name)
+    if hints:  # with a route as well, both are hints; the detector looks around at the landmark
+        assert len(st.focus) == 2 and st.spin_at is not None
+
+
+def test_a_description_becomes_the_query(ctx):
+    goal, run, agent = episode(ctx, "cf")
+    m = run.modules
+    st = SearchState(name=goal.name)
+    oid = m.retrieve_map(goal.name, "cfmap")[0][0]
+    agent.update(m, st, Feedback(description="red chair made of wood"), oid, goal.name)
+    assert st.query == "red chair made of wood" and run.body.steps == 0
+    assert st.queries == ["red chair made of wood", goal.name]  # the map: the description's candidates, then the name's
