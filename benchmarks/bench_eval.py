@@ -20,7 +20,7 @@ Prints one JSON object per line:
   CPU seconds of the evaluation's processes and the wall time they make on ``--workers`` idle cores (the
   machine may be shared: the wall time then says more about the other jobs than about the evaluator);
 - ``table``: SR / SPL / SIT per method and feedback setting (percent, mean over seeds) and the cell's N;
-- ``shape``: the qualitative checks of issue 14 (no-interaction SR below every feedback setting, VLMap and
+- ``shape``: the qualitative checks (no-interaction SR below every feedback setting, VLMap and
   CF apart, CoW lowest, Wilcoxon p of ORION against each baseline per setting).
 """
 
@@ -41,7 +41,6 @@ from pipeline.paramsfile import load_params
 from pipeline.paths import Workspace
 
 METHODS = list(AGENTS)  # every registered agent, in the paper's table order
-BASELINES = ("cow", "vlmap", "cf")  # the methods issue 14's shape checks compare ORION against
 
 
 def build_params(n_scenes: int, frames: int, prefix: str = "bench", seed: int = 0) -> str:
@@ -95,7 +94,7 @@ def _cpu_seconds() -> float:
 
 
 def shape(results: dict, feedback: list[str]) -> dict:
-    """Issue 14's expected qualitative outcome, read off the results (True/False per check, with the figures)."""
+    """The expected qualitative outcome (the paper's), read off the results (True/False per check, with the figures)."""
     sr = {m: {f: results["overall"].get(m, {}).get(f, {}).get("SR") for f in feedback} for m in METHODS}
     with_fb = [f for f in feedback if f != "none"]
     out = {}

@@ -28,7 +28,7 @@ from scipy.stats import spearmanr
 
 from orion_eval.run import run_eval
 from orion_eval.user import FEEDBACK_SETTINGS
-from pipeline.config import load_params
+from pipeline.paramsfile import load_params
 
 METHODS = ("cow", "vlmap", "cf", "orion")
 NAMES = {"cow": "CoW", "vlmap": "VLMap", "cf": "CF", "orion": "ORION"}
