@@ -24,7 +24,7 @@ from orion_eval.agents import build_agent
 from orion_eval.artifacts import Artifacts
 from orion_eval.episode import Task, run_episode, start_pose
 from orion_eval.scene import SceneContext
-from orion_eval.user import FEEDBACK_SETTINGS
+from orion_eval.user import FEEDBACK_SETTINGS, HUMAN_FEEDBACK
 from pipeline.config import Params
 from pipeline.errors import ConfigError
 from pipeline.paths import Workspace
@@ -113,9 +113,9 @@ def _resolve(params: Params, scenes, methods, feedback, seeds, agent_classes=Non
                           f"(and 'llm' when eval.llm.base_url is set with roles agent/both)")
     source = "--feedback" if feedback else "eval.feedback"
     feedback = list(feedback or ep.feedback or FEEDBACK_SETTINGS)
-    bad = [f for f in feedback if f not in FEEDBACK_SETTINGS]
+    bad = [f for f in feedback if f not in (*FEEDBACK_SETTINGS, HUMAN_FEEDBACK)]
     if bad:
-        raise ConfigError(f"{source}: unknown setting(s) {bad}; choose from {list(FEEDBACK_SETTINGS)}")
+        raise ConfigError(f"{source}: unknown setting(s) {bad}; choose from {[*FEEDBACK_SETTINGS, HUMAN_FEEDBACK]}")
     seeds = [int(s) for s in (seeds if seeds is not None else ep.seeds)]
     return scenes, methods, feedback, seeds
 
@@ -137,13 +137,15 @@ def run_eval(ws: Workspace, params: Params, out_dir: Path, scenes=None, methods=
         from orion_eval.llm import check_llm_params
 
         check_llm_params(params.eval.llm)
+    human = human_episodes(ws, scenes, methods) if HUMAN_FEEDBACK in feedback else []
+    simulated = [f for f in feedback if f != HUMAN_FEEDBACK]
     t0 = time.perf_counter()
     log_dir = out_dir / "episodes"
     workers = min(params.eval.workers, len(scenes))
     if workers > 1:
         import dask
 
-        tasks = [dask.delayed(evaluate_scene, pure=False)(ws, params, s, methods, feedback, seeds, log_dir,
+        tasks = [dask.delayed(evaluate_scene, pure=False)(ws, params, s, methods, simulated, seeds, log_dir,
                                                           agent_classes=agent_classes) for s in scenes]
         per_scene = dask.compute(*tasks, scheduler="processes", num_workers=workers)
     else:
@@ -153,9 +155,9 @@ def run_eval(ws: Workspace, params: Params, out_dir: Path, scenes=None, methods=
                 from rich.console import Console
 
                 Console(stderr=True).print(f"[dim]eval:[/dim] scene {s}")
-            per_scene.append(evaluate_scene(ws, params, s, methods, feedback, seeds, log_dir,
+            per_scene.append(evaluate_scene(ws, params, s, methods, simulated, seeds, log_dir,
                                             agent_classes=agent_classes))
-    episodes = [r for rs in per_scene for r in rs]
+    episodes = [r for rs in per_scene for r in rs] + human
     seconds = time.perf_counter() - t0
     results = summarize(episodes, methods=methods, feedback=feedback, seeds=seeds, scenes=scenes,
                         max_turns=params.eval.max_talk_turns)
@@ -172,6 +174,38 @@ def run_eval(ws: Workspace, params: Params, out_dir: Path, scenes=None, methods=
 
         write_report(results, out_dir, ws=ws, params=params)
     return results
+
+
+def human_episodes_path(ws: Workspace, scene: str) -> Path:
+    """Where the episodes a person answered for ``scene`` are stored (one JSON record a line, appended)."""
+    return Path(ws.data_dir) / "eval" / HUMAN_FEEDBACK / f"{scene}.episodes.jsonl"
+
+
+def human_episodes(ws: Workspace, scenes: list[str], methods: list[str]) -> list[dict]:
+    """The stored human-answered episodes of ``scenes`` played with ``methods``, as the evaluator's own records;
+    a ConfigError when there are none (so ``-f human`` never reports an empty row)."""
+    found = []
+    for scene in scenes:
+        path = human_episodes_path(ws, scene)
+        if not path.is_file():
+            continue
+        with open(path, encoding="utf-8", errors="replace") as lines:  # streamed: the file grows with every play
+            for i, line in enumerate(lines, 1):
+                if not line.strip():
+                    continue
+                try:
+                    record = json.loads(line)
+                except ValueError as err:
+                    raise ConfigError(f"{path}: line {i}: not a JSON episode record ({err})") from None
+                if not isinstance(record, dict) or record.get("feedback") != HUMAN_FEEDBACK or "success" not in record:
+                    raise ConfigError(f"{path}: line {i}: not a human-answered episode record (feedback 'human')")
+                if record.get("method") in methods and record.get("scene") == scene:
+                    found.append(record)
+    if not found:
+        raise ConfigError(f"--feedback {HUMAN_FEEDBACK}: no human-answered episodes of {methods} stored for "
+                          f"{scenes} (play some in `zipon annotate`, tab Play; they are kept in "
+                          f"{human_episodes_path(ws, scenes[0]).parent})")
+    return found
 
 
 #: what the CoW and ORION agents detect with when the maps come from simulated perception (orion_eval.detector)

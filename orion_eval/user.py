@@ -31,6 +31,8 @@ from pipeline.routes.actions import procedural_allowed
 
 FEEDBACK_KIND_NAMES = tuple(sorted(FEEDBACK_KINDS))  # the goals' feedback kinds (their registry's names)
 FEEDBACK_SETTINGS = ("none", "yesno", *FEEDBACK_KIND_NAMES, "mixed")
+#: the setting of episodes a person answered (``zipon annotate``, Play): stored, never simulated, reported as their own
+HUMAN_FEEDBACK = "human"
 LOOK_RANGE_M = 2.5
 #: sigma of the log-normal factor a spoken distance is misjudged by (modelling choice: about a fifth either way)
 SPEECH_NOISE = 0.2

@@ -12,14 +12,14 @@ from __future__ import annotations
 import json
 import secrets
 import threading
-from pathlib import Path
 
 import numpy as np
 
-from orion_eval.user import SimulatedUser
+from orion_eval.run import human_episodes_path
+from orion_eval.user import HUMAN_FEEDBACK, SimulatedUser
 
 REPLY_TIMEOUT_S = 900.0  # an unanswered question ends the episode ("no reply")
-HUMAN = "human"  # the feedback setting of the stored episodes
+HUMAN = HUMAN_FEEDBACK  # the feedback setting of the stored episodes
 VIEW_SIZE = (120, 160)  # ego view shown to the person (height, width)
 
 
@@ -114,9 +114,9 @@ class PlaySession:
             return reply
 
     def _store(self, result: dict) -> None:
-        folder = Path(self.workspace.data_dir) / "eval" / HUMAN
-        folder.mkdir(parents=True, exist_ok=True)
-        with open(folder / f"{self.scene}.episodes.jsonl", "a", encoding="utf-8") as f:
+        path = human_episodes_path(self.workspace, self.scene)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(path, "a", encoding="utf-8") as f:
             f.write(json.dumps(result, sort_keys=True) + "\n")
 
     # ------------------------------------------------------------------------- the person's side (requests)

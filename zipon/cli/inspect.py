@@ -357,7 +357,8 @@ def eval_cmd(
     methods: list[str] = typer.Option([], "--method", "-m", help="human | cow | vlmap | cf | orion, a name an "
                                       "installed package registers (entry points zipon.agents), or module:Class of "
                                       "your own Agent subclass (repeatable; default: eval.methods)"),
-    feedback: list[str] = typer.Option([], "--feedback", "-f", help="feedback settings (repeatable; default: all)"),
+    feedback: list[str] = typer.Option([], "--feedback", "-f", help="feedback settings (repeatable; default: all simulated ones); 'human': the episodes a person "
+                                        "answered in `zipon annotate` (tab Play), reported as their own setting"),
     seeds: Optional[int] = typer.Option(None, "--seeds", min=1, help="number of seeds: 0 .. N-1 (default: params "
                                         "eval.seeds)"),
     seed_list: list[int] = typer.Option([], "--seed-list", help="explicit seeds (repeatable) instead of --seeds"),

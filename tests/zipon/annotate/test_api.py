@@ -481,6 +481,27 @@ def test_play_an_episode_answering_as_the_user(own_root, summary):
     said = [d["text"] for d in record["log"]["dialogue"] if d["speaker"] == "user"]
     assert said[:replies] == ["No, it is by the TV."] * replies
     assert state["result"]["talk_turns"] == record["talk_turns"] == replies + record["success"]
+    # zipon eval reports the person's episodes as their own feedback setting, beside simulated ones
+    from zipon.cli import main
+
+    args = ["-q", "-p", str(own_root / "params.yaml"), "eval", "-s", SCENE, "-m", "vlmap", "-f", "human",
+            "-f", "yesno", "--seeds", "1", "--out", str(own_root / "ev")]
+    assert main(args) == 0
+    results = json.loads((own_root / "ev" / "results.json").read_text())
+    assert results["overall"]["vlmap"]["human"]["episodes"] == 1
+    assert results["overall"]["vlmap"]["human"]["SR"] == 100.0 * record["success"]
+    assert results["overall"]["vlmap"]["yesno"]["episodes"] >= 1
+    assert "human" in (own_root / "ev" / "report.html").read_text()
+
+
+def test_eval_of_human_feedback_without_played_episodes_says_where_to_play(own_root, capsys):
+    from zipon.cli import main
+
+    code = main(["-p", str(own_root / "params.yaml"), "eval", "-s", SCENE, "-m", "cow", "-f", "human",
+                 "--out", str(own_root / "ev2")])
+    err = " ".join(capsys.readouterr().err.split())
+    assert code == 1 and "--feedback human: no human-answered episodes of ['cow'] stored for" in err
+    assert "zipon annotate" in err and not (own_root / "ev2").exists()
 
 
 def test_warm_reads_the_first_scene_before_the_page_asks(shared_root):
