@@ -117,6 +117,8 @@ REMOTE_REFUSED = {
            "record every published version (`zipon status`, `zipon verify`)",
     "demo": "builds, draws and evaluates in one local data root; on an object store run `zipon run`, then "
             "`zipon eval` or `zipon render`, which read the published artifacts",
+    "annotate": "serves a workbench over one local data root; on an object store review goals with "
+                "`zipon goals export` and save edits with `zipon goals import`, which republishes goals and routes",
 }
 
 
