@@ -49,7 +49,8 @@ def camera_intrinsics_file(file: Path, first_image: Path) -> tuple[Intrinsics, n
             warnings.simplefilter("ignore", UserWarning)  # an empty file: its shape says so below
             K = np.loadtxt(file, dtype=np.float64, ndmin=2)
     except ValueError as err:
-        raise InputDataError(f"camera matrix is not numeric ({err})", path=file, expected=_K_EXPECTED) from None
+        why = str(err).split(";")[0]  # numpy's own advice after the ';' (usecols) does not apply to this file
+        raise InputDataError(f"camera matrix is not numeric ({why})", path=file, expected=_K_EXPECTED) from None
     if K.shape != (3, 3):
         raise InputDataError(f"camera matrix has shape {K.shape}", path=file, expected=_K_EXPECTED)
     if not np.isfinite(K).all():
