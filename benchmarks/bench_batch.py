@@ -184,7 +184,8 @@ def encoder_share(params_path: Path, root: Path, scene: str, kind: str, params=N
     from pipeline.paramsfile import load_params
     from pipeline.encoders.base import Encoder
     from pipeline.maps import fusion, store  # noqa: F401  (imported before timing: not the stage's work)
-    from pipeline.maps.build import MAP_CONFIGS, build_map
+    from pipeline.maps.build import build_map
+    from pipeline.maps.config import MAP_CONFIGS
     from pipeline.recon import Recon  # noqa: F401
     from pipeline.scene_gt import GTScene  # noqa: F401
     from pipeline.store import artifact_attrs
@@ -307,7 +308,8 @@ def incremental_rerun(params_path: Path, root: Path, scene: str, stage: str, app
     from pipeline.codedeps import code_digest
     from pipeline.paramsfile import load_params
     from pipeline.frames import FrameStore
-    from pipeline.maps.build import MAP_CONFIGS, build_map
+    from pipeline.maps.build import build_map
+    from pipeline.maps.config import MAP_CONFIGS
     from pipeline.maps.store import FORMAT_VERSION
     from pipeline.process import limit_native_threads
     from pipeline.store import artifact_attrs, content_digest

@@ -52,7 +52,7 @@ def test_second_run_of_a_stage_fails_fast_and_the_data_root_stays_consistent(wor
     before = content_digest(frames)
     pause = tmp_path / "paused"
     first = _spawn(  # a forced rebuild that stops mid-write, holding the (s0, ingest) lock
-        "from pipeline.config import load_params; from pipeline.paths import Workspace;"
+        "from pipeline.paramsfile import load_params; from pipeline.paths import Workspace;"
         "from pipeline.runner import run_stage; from tests.fixtures.toy_stages import TOY_STAGES;"
         f"ws = Workspace.resolve({str(workspace.params_path)!r});"
         "run_stage(ws, load_params(ws.params_path, ['simulate.frames=8']), TOY_STAGES, 's0', 'ingest',"

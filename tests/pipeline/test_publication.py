@@ -274,7 +274,7 @@ def test_run_stage_recovers_a_publication_killed_by_sigkill(workspace, tmp_path)
         run_stage(workspace, params, TOY_STAGES, "s0", stage, show_progress=False)
     frames = workspace.artifact("frames", "s0")
     code = (
-        "import os, signal; from pipeline import publication; from pipeline.config import load_params;"
+        "import os, signal; from pipeline import publication; from pipeline.paramsfile import load_params;"
         "from pipeline.paths import Workspace; from pipeline.runner import run_stage;"
         "from tests.fixtures.toy_stages import TOY_STAGES;"
         "real = publication._replace; n = [0]\n"

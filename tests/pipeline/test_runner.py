@@ -72,7 +72,7 @@ def test_killed_run_leaves_no_finished_looking_store(workspace, tmp_path):
     before = content_digest(frames)
     pause = tmp_path / "paused"
     code = (
-        "from pipeline.config import load_params; from pipeline.paths import Workspace;"
+        "from pipeline.paramsfile import load_params; from pipeline.paths import Workspace;"
         "from pipeline.runner import run_stage; from tests.fixtures.toy_stages import TOY_STAGES;"
         f"ws = Workspace.resolve({str(workspace.params_path)!r});"
         "p = load_params(ws.params_path, ['simulate.frames=8']);"

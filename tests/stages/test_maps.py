@@ -5,7 +5,8 @@ import pytest
 
 from pipeline.paramsfile import parse_params
 from pipeline.stageconfig import digest_value, project
-from pipeline.maps.build import MAP_CONFIGS, build_map
+from pipeline.maps.build import build_map
+from pipeline.maps.config import MAP_CONFIGS
 from pipeline.maps.evaluate import evaluate_map, sample_poses
 from pipeline.maps.query import open_query, query_map
 from pipeline.maps.store import SemanticMap
