@@ -291,6 +291,31 @@ class ReconstructParams(DepthRange):
     refine_max_correction_m: float = Field(
         0.1, gt=0, description="a refinement moving a frame farther than this from its prediction is rejected, metres"
     )
+    keyframes: bool = Field(
+        False, description="fuse only keyframes: a frame whose camera moved or turned past the thresholds below since "
+        "the last keyframe, or that sees enough pixels the last keyframe did not; every frame stays in frames.zarr "
+        "and recon.zarr records which were fused (pipeline.recon.keyframes)"
+    )
+    keyframe_translation_m: float = Field(
+        0.1, gt=0, description="a frame is a keyframe when its camera moved farther than this since the last "
+        "keyframe, metres"
+    )
+    keyframe_rotation_deg: float = Field(
+        10.0, gt=0, le=180, description="a frame is a keyframe when its camera turned more than this since the last "
+        "keyframe, degrees"
+    )
+    keyframe_novel_fraction: float | None = Field(
+        0.2, gt=0, le=1, description="a frame is a keyframe when more than this fraction of its valid depth pixels "
+        "was not seen by the last keyframe (outside its image, no depth there, or a disocclusion); None = only "
+        "motion decides, fraction"
+    )
+    keyframe_pixel_stride: int = Field(
+        8, ge=1, description="the novel-pixel test samples every n-th depth pixel in each direction, pixels"
+    )
+    keyframe_depth_tolerance: float = Field(
+        0.05, gt=0, description="a pixel counts as seen by the last keyframe when their depths agree within this "
+        "fraction of the depth, fraction"
+    )
 
     @model_validator(mode="after")
     def _ranges(self) -> "ReconstructParams":
@@ -492,6 +517,10 @@ class MapsParams(DepthRange):
         "feature of the nearest observed cell within this distance; filled cells have count 0; 0 = no filling"
     )
     tile_cells: int = Field(64, gt=0, description="spatial tile edge (cells) of the stored map's chunks")
+    keyframes_only: bool = Field(
+        False, description="fuse only the frames reconstruct fused (its keyframes, with reconstruct.keyframes; "
+        "recon.zarr 'fused'); false = every frame with a pose, keyframe or not"
+    )
     @model_validator(mode="after")
     def _ranges(self) -> "MapsParams":
         if self.min_height_m >= self.max_height_m:

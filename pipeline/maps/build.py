@@ -79,7 +79,9 @@ def _open_inputs(frames_path: Path, recon_path: Path, p: MapsParams):
         raise StageError(f"{recon_path}: holds {len(recon.fused)} poses but {frames_path} has {fs.n_frames} frames "
                          f"(recon from another frame store? rerun: zipon run --force --stage reconstruct)")
     poses = recon.poses
-    usable = recon.fused & np.isfinite(poses).all(axis=(1, 2))
+    usable = np.isfinite(poses).all(axis=(1, 2))  # a pose: fused by reconstruct, or a frame it passed over
+    if p.keyframes_only:
+        usable &= recon.fused
     lattice = Lattice(recon.grid, recon.floor_z, p.min_height_m, p.max_height_m, p.level_height_m)
     return fs, recon, poses, usable, lattice
 
@@ -231,13 +233,14 @@ def build_map(
                          f"(check maps.depth_* / maps.*_height_m and the recon grid)")
     sigma = kind.weight_sigma_m(p)
     write_map(out_path, {**attrs, "encoder": identity, "weighting": {"sigma_m": sigma},
-                         "frames": {"n_frames": fs.n_frames, "fused": fused_frames},
+                         "frames": {"n_frames": fs.n_frames, "fused": fused_frames, "keyframes_only": p.keyframes_only},
                          "points_fused": state.points, "pixels_in_band": int(pixels),
                          "cells_observed": n_seen, "cells_filled": n_filled, "fill_radius_m": p.fill_radius_m},
               recon.grid, lattice, cells.to_store(), tile_cells=p.tile_cells,
               voxels=None if voxels is None else voxels.to_store(recon.grid))
     frames_reused = min(reused * p.chunk_frames, fs.n_frames)
-    return {"frames_fused": fused_frames, "frames_skipped": fs.n_frames - fused_frames, "cells": int(len(cells.cell)),
+    return {"frames_fused": fused_frames, "frames_skipped": fs.n_frames - fused_frames, "keyframes_only": p.keyframes_only,
+            "cells": int(len(cells.cell)),
             "cells_filled": n_filled, "voxels": 0 if voxels is None else int(len(voxels.cell)),
             "points_fused": state.points, "chunks": len(chunks), "chunks_reused": reused,
             "frames_reused": frames_reused, "frames_processed": fs.n_frames - frames_reused,
