@@ -8,6 +8,7 @@ overrides, moved keys and writing ``params.yaml`` live in :mod:`pipeline.paramsf
 
 from __future__ import annotations
 
+import re
 from typing import Annotated, Any, Literal, get_args
 
 from pydantic import Field, field_validator, model_serializer, model_validator
@@ -768,16 +769,41 @@ class RunParams(Section):
     )
     workers: int = Field(2, gt=0, description="local workers for 'threads' / 'processes'")
     threads_per_worker: int = Field(1, gt=0, description="native threads (BLAS/torch/open3d) inside a worker")
-    device: Literal["cpu", "cuda", "auto"] = Field(
-        "auto", description="torch device of the encoders ('auto' = cuda when available, else cpu)"
+    device: str = Field(
+        "auto", description="torch device of the encoders: cpu, cuda, cuda:N (the N-th GPU) or auto (cuda when "
+        "available, else cpu)"
     )
-    fusion_device: Literal["cpu", "cuda", "auto"] = Field("cpu", description="torch device of the map fusion")
+    fusion_device: str = Field("cpu", description="torch device of the map fusion (cpu, cuda, cuda:N or auto)")
+    precision: Literal["fp32", "bf16", "fp16"] = Field(
+        "fp32", description="the encoders' forward passes under torch autocast in this precision (bf16 / fp16 on a "
+        "GPU; fp32 = off, the default); features are handed on as float32 unit vectors either way"
+    )
+    encoder_resources: dict[str, float] = Field(
+        default_factory=dict, description="dask worker resources each map chunk task (encoder + fusion) asks for, "
+        "e.g. {GPU: 1}: those tasks then run only on workers started with them (dask worker --resources GPU=1) and "
+        "every other task anywhere; 'processes' gives its local workers these resources; {} = any worker"
+    )
     encoder_batch_size: int = Field(4, gt=0, description="images per encoder forward pass")
     torch_threads: int = Field(0, ge=0, description="torch CPU threads of the encoders (0 = leave torch's default)")
     map_fold_cache: bool = Field(
         True, description="keep each map's fold of its complete frame chunks beside it (data/artifacts/<scene>/"
         ".<stage>.fold, as big as the map's fp32 sums) so a rerun after frames were appended fuses only the new ones"
     )
+
+    @field_validator("device", "fusion_device")
+    @classmethod
+    def _device(cls, v: str) -> str:
+        if re.fullmatch(r"cpu|auto|cuda(:[0-9]+)?", v):
+            return v
+        raise ValueError(f"{v!r} is not a device: use cpu, cuda, cuda:N (N = 0, 1, ...) or auto")
+
+    @field_validator("encoder_resources")
+    @classmethod
+    def _resources(cls, v: dict[str, float]) -> dict[str, float]:
+        bad = {k: n for k, n in v.items() if not n > 0}
+        if bad:
+            raise ValueError(f"resource amounts must be positive, got {bad}")
+        return v
 
     @field_validator("scheduler")
     @classmethod

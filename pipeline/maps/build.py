@@ -21,9 +21,11 @@ so that frames appended to a scene are the only ones fused on the next run.
 from __future__ import annotations
 
 import functools
+import queue
+import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Iterable
+from typing import TYPE_CHECKING, Callable, Iterable, Iterator, TypeVar
 
 import numpy as np
 
@@ -36,6 +38,8 @@ from pipeline.store import DIGEST_ALGO, new_digest, update_array
 
 if TYPE_CHECKING:
     from pipeline.maps.fusion import FusionState
+
+T = TypeVar("T")
 
 
 FOLD_FORMAT = 2  # bump when the chunk digests or the fold's content change meaning
@@ -86,6 +90,44 @@ def _open_inputs(frames_path: Path, recon_path: Path, p: MapsParams):
     return fs, recon, poses, usable, lattice
 
 
+def prefetched(items: Iterable[T], depth: int = 1) -> Iterator[T]:
+    """The items of ``items`` in order, the next ``depth`` of them produced by a background thread meanwhile: a map
+    chunk's frame blocks are read and decoded (zarr, blosc and image codecs release the GIL) while the encoder runs
+    on the block before. An exception of ``items`` is raised here, in its turn; leaving the loop early stops the
+    thread."""
+    queue_: queue.Queue = queue.Queue(maxsize=depth)
+    done, stop = object(), threading.Event()
+
+    def produce() -> None:
+        try:
+            for item in items:
+                if stop.is_set():
+                    return
+                queue_.put((True, item))
+            queue_.put((True, done))
+        except BaseException as err:  # noqa: BLE001 (handed to the consumer, raised there)
+            queue_.put((False, err))
+
+    thread = threading.Thread(target=produce, name="map-read", daemon=True)
+    thread.start()
+    try:
+        while True:
+            ok, item = queue_.get()
+            if not ok:
+                raise item
+            if item is done:
+                return
+            yield item
+    finally:
+        stop.set()
+        while thread.is_alive():  # unblock a producer waiting on a full queue
+            try:
+                queue_.get(timeout=0.05)
+            except queue.Empty:
+                pass
+        thread.join()
+
+
 def fuse_chunk(job: MapJob, chunk: tuple[int, int, int], *, fuse: bool = True) -> ChunkResult:
     """The unit of work of a map stage: frames ``[start, stop)`` of ``chunk = (index, start, stop)`` streamed in
     blocks of ``maps.block_frames``, encoded and fused into a fresh accumulator; returns its state and the digest
@@ -107,13 +149,13 @@ def fuse_chunk(job: MapJob, chunk: tuple[int, int, int], *, fuse: bool = True) -
     if fuse and usable[start:stop].any():
         encoder = build_encoder(job.config.encoders, job.config.encoder, runtime=job.runtime)
         encoder.bind_scene(fs.ground_truth)
-        device = resolve_device(job.runtime.fusion_device)
+        device = resolve_device(job.runtime.fusion_device, "run.fusion_device")
         acc = (VoxelAccumulator if kind.fuses_voxels else TopDownAccumulator)(lattice, encoder.dim, device=device)
     sigma = kind.weight_sigma_m(p)
     fused_frames = pixels = 0
     with torch.inference_mode():
-        for block in fs.iter_blocks(p.block_frames, start=start, stop=stop, rgb=job.reads_rgb,
-                                    instance=fs.has_instance):
+        blocks = fs.iter_blocks(p.block_frames, start=start, stop=stop, rgb=job.reads_rgb, instance=fs.has_instance)
+        for block in prefetched(blocks):  # the next block is read and decoded while this one is encoded
             for array in (block.rgb if job.reads_rgb else None, block.depth_mm, block.instance):
                 if array is not None:
                     update_array(digest, array)
@@ -181,7 +223,7 @@ def build_map(
     run = map_ordered or (lambda fn, items: map(fn, items))
     chunks = chunk_ranges(fs.n_frames, p.chunk_frames)
     complete = fs.n_frames // p.chunk_frames
-    device = resolve_device(runtime.fusion_device)
+    device = resolve_device(runtime.fusion_device, "run.fusion_device")
     fold = (VoxelAccumulator if kind.fuses_voxels else TopDownAccumulator)(lattice, identity["dim"], device=device)
     key = digest_value({"format": FOLD_FORMAT, **(fold_key or {}), "encoder": identity, "lattice": lattice.to_attrs(),
                         "grid": [recon.grid.rows, recon.grid.cols, recon.grid.cell_size_m, list(recon.grid.origin_xy)],

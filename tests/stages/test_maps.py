@@ -60,7 +60,7 @@ def test_artifacts_describe_themselves(built):
         assert m.attrs["params_digest"] == digest_value(project(params, keys))
         assert m.encoder["name"] == "oracle" and m.encoder["diagnostic"] is True and m.dim == 512
         assert m.grid == Recon(tmp / "recon.zarr").grid
-        assert m.attrs["frames"] == {"n_frames": 48, "fused": 48}
+        assert m.attrs["frames"] == {"n_frames": 48, "fused": 48, "keyframes_only": False}
         assert summaries[name]["frames_fused"] == 48 and summaries[name]["cells"] == m.n_cells
     vl, cf = SemanticMap(out / "vlmap.zarr"), SemanticMap(out / "cfmap.zarr")
     assert vl.voxels() is None and len(cf.voxels()) == summaries["cfmap"]["voxels"] > cf.n_cells
