@@ -53,7 +53,10 @@ nothing is downloaded): open_clip ViT-B/32 MaskCLIP at 480x640 and the public-si
 for the vlmap, ConceptFusion for the cfmap with ``--encoders conceptfusion``. Per encoder it prints the stage's
 CPU seconds split into the encoder's forward passes, its model loads (fixed per chunk) and the rest, the ratio
 rest / encoder (target: at most 0.10, encoder-bound), frames/s and CPU seconds per frame, and the CPU
-hours the paper's 14,159 frames would take (divide by the cores or GPUs a user has).
+hours the paper's 14,159 frames would take (divide by the cores or GPUs a user has). ``--device cuda:0
+--precision bf16`` runs the encoders on a GPU under autocast; each row then also gives the encoder's wall
+seconds (the device synchronised after each forward pass), its frames/s, and the stage's wall share spent
+outside the encoder (``benchmarks/bench_gpu.sh`` runs the three encoders that way).
 
     .venv/bin/python benchmarks/bench_batch.py --real-encoders --frames 16 --encoders maskclip lseg
 """
@@ -184,21 +187,29 @@ def encoder_share(params_path: Path, root: Path, scene: str, kind: str, params=N
     from pipeline.paramsfile import load_params
     from pipeline.encoders.base import Encoder
     from pipeline.maps import fusion, store  # noqa: F401  (imported before timing: not the stage's work)
-    from pipeline.maps.build import MAP_CONFIGS, build_map
+    from pipeline.maps.build import build_map
+    from pipeline.maps.config import MAP_CONFIGS
     from pipeline.recon import Recon  # noqa: F401
     from pipeline.scene_gt import GTScene  # noqa: F401
     from pipeline.store import artifact_attrs
 
-    spent = {"encode": 0.0, "load": 0.0}
+    import torch
+
+    spent = {"encode": 0.0, "load": 0.0, "encode_wall": 0.0}
     encode, build = Encoder.encode_images, pipeline.encoders.build_encoder
+    gpu = torch.cuda.is_available()
 
     def clocked(fn, key):
         def wrapper(*a, **kw):
-            t0 = time.process_time()
+            t0, w0 = time.process_time(), time.perf_counter()
             try:
                 return fn(*a, **kw)
             finally:
+                if gpu:  # kernels run asynchronously: the forward pass ends when the device is done
+                    torch.cuda.synchronize()
                 spent[key] += time.process_time() - t0
+                if key == "encode":
+                    spent["encode_wall"] += time.perf_counter() - w0
         return wrapper
 
     params = params or load_params(params_path)
@@ -224,7 +235,10 @@ def encoder_share(params_path: Path, root: Path, scene: str, kind: str, params=N
             "stage_cpu_s": round(stage, 3), "encoder_cpu_s": round(spent["encode"], 3),
             "model_load_cpu_s": round(spent["load"], 3), "other_cpu_s": round(rest, 3),
             "encoder_share": round(spent["encode"] / stage, 4),
-            "other_over_encoder": round(rest / spent["encode"], 4) if spent["encode"] else None}
+            "other_over_encoder": round(rest / spent["encode"], 4) if spent["encode"] else None,
+            "encoder_wall_s": round(spent["encode_wall"], 3),
+            "outside_encoder_wall_share": round(1 - spent["encode_wall"] / wall, 4) if wall else None,
+            "device": params.run.device, "precision": params.run.precision}
 
 
 def real_encoders(args) -> None:
@@ -257,7 +271,8 @@ def real_encoders(args) -> None:
             kind = "cfmap" if name == "conceptfusion" else "vlmap"
             weights = getattr(base.encoders, name).model_copy(update={"weights": str(lseg if name == "lseg" else clip)})
             enc = base.encoders.model_copy(update={"simulated": None, kind: name, name: weights})
-            params = base.model_copy(update={"encoders": enc})
+            run = base.run.model_copy(update={"device": args.device, "precision": args.precision})
+            params = base.model_copy(update={"encoders": enc, "run": run})
             frames = min(args.lseg_frames, args.frames) if name == "lseg" else args.frames
             row = encoder_share(params_path, root, scene, kind, params=params,
                                 frames=frames if frames < args.frames else None)
@@ -265,6 +280,7 @@ def real_encoders(args) -> None:
                  frames_per_s=round(frames / row["stage_wall_s"], 3),
                  cpu_s_per_frame=round(row["stage_cpu_s"] / frames, 3),
                  encoder_cpu_s_per_frame=round(row["encoder_cpu_s"] / frames, 3),
+                 encoder_frames_per_s=round(frames / row["encoder_wall_s"], 3) if row["encoder_wall_s"] else None,
                  target_other_over_encoder=0.10,
                  projected_cpu_hours_for_target=round(args.target_frames * row["stage_cpu_s"] / frames / 3600, 1),
                  target_frames=args.target_frames)
@@ -307,7 +323,8 @@ def incremental_rerun(params_path: Path, root: Path, scene: str, stage: str, app
     from pipeline.codedeps import code_digest
     from pipeline.paramsfile import load_params
     from pipeline.frames import FrameStore
-    from pipeline.maps.build import MAP_CONFIGS, build_map
+    from pipeline.maps.build import build_map
+    from pipeline.maps.config import MAP_CONFIGS
     from pipeline.maps.store import FORMAT_VERSION
     from pipeline.process import limit_native_threads
     from pipeline.store import artifact_attrs, content_digest
@@ -410,6 +427,9 @@ def main() -> None:
                     "encoder's share and frames/s per encoder (see above)")
     ap.add_argument("--lseg-frames", type=int, default=4,
                     help="--real-encoders: frames LSeg maps (the public ViT-L/16 takes tens of CPU seconds a frame)")
+    ap.add_argument("--device", default="cpu", help="--real-encoders: run.device of the encoders (cpu, cuda, cuda:N)")
+    ap.add_argument("--precision", default="fp32", choices=("fp32", "bf16", "fp16"),
+                    help="--real-encoders: run.precision (autocast of the forward passes)")
     ap.add_argument("--encoders", nargs="+", default=["maskclip", "lseg"], choices=("maskclip", "lseg", "conceptfusion"),
                     help="--real-encoders: the encoders to measure")
     args = ap.parse_args()

@@ -5,8 +5,14 @@ script of this environment), in a workspace folder holding ``params.yaml`` and, 
 vlmap (``zipon demo`` makes one). Per command it prints the median and all wall times, the median
 CPU seconds (user + sys of the child), the target (``--help``/``status``/``params`` 1 s,
 ``query`` 1.5 s) and the machine's load average, which on a shared machine inflates wall times.
+In the same run it times two references the commands cannot beat, so a figure reads on a loaded machine
+too: the bare interpreter (``python -c pass``) and the third-party imports every command needs (typer,
+rich, pydantic, yaml); each command's row gives its CPU above the second (``cpu_over_imports_s``).
 With ``--importtime`` it also prints the slowest top-level imports of each command
 (``python -X importtime``). One JSON object per line on stdout.
+
+The children write and reuse bytecode (``__pycache__``) as an installed zipon does, whatever
+``PYTHONDONTWRITEBYTECODE`` says here (``--no-bytecode`` keeps it: every run then compiles each module).
 
     .venv/bin/python benchmarks/bench_cli.py --workspace . [--scene sim_00] [--text chair] [--repeats 5]
 """
@@ -26,14 +32,19 @@ from _common import ROOT, emit
 
 TARGETS_S = {"--help": 1.0, "status": 1.0, "params": 1.0, "query": 1.5}
 ENTRY = "import sys; from zipon.cli import main; sys.exit(main(sys.argv[1:]))"
+REFERENCES = {"python -c pass": "pass", "import typer, rich, pydantic, yaml": "import typer, rich.console, pydantic, yaml"}
+KEEP_BYTECODE_SETTING = False  # --no-bytecode sets it
 
 
-def run_once(cmd: list[str], cwd: Path, extra: tuple[str, ...] = ()) -> tuple[float, float, subprocess.CompletedProcess]:
-    """(wall seconds, child CPU seconds, the finished process) of ``zipon CMD``."""
+def run_once(cmd: list[str], cwd: Path, extra: tuple[str, ...] = (), code: str = ENTRY,
+             ) -> tuple[float, float, subprocess.CompletedProcess]:
+    """(wall seconds, child CPU seconds, the finished process) of ``zipon CMD`` (or of python running ``code``)."""
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "DVC_NO_ANALYTICS": "1", "PYTHONPATH": str(ROOT)}
+    if not KEEP_BYTECODE_SETTING:
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, *extra, "-c", ENTRY, *cmd], cwd=cwd, env=env, capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, *extra, "-c", code, *cmd], cwd=cwd, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -60,7 +71,10 @@ def main() -> None:
     ap.add_argument("--text", default="chair")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--importtime", action="store_true", help="also list the slowest imports of each command")
+    ap.add_argument("--no-bytecode", action="store_true", help="keep PYTHONDONTWRITEBYTECODE for the children")
     args = ap.parse_args()
+    global KEEP_BYTECODE_SETTING
+    KEEP_BYTECODE_SETTING = args.no_bytecode
     ws = args.workspace.resolve()
     if not (ws / "params.yaml").is_file():
         sys.exit(f"{ws}: no params.yaml (pass --workspace, e.g. the folder where you ran zipon demo)")
@@ -73,7 +87,15 @@ def main() -> None:
         commands["query"] = ["query", scene, args.text]
     else:
         emit(bench="cli", kind="skipped", command="query", why=f"no vlmap under {ws}/data/artifacts (run zipon demo)")
-    emit(bench="cli", kind="setup", workspace=str(ws), scene=scene, repeats=args.repeats)
+    emit(bench="cli", kind="setup", workspace=str(ws), scene=scene, repeats=args.repeats,
+         bytecode_cache=not (args.no_bytecode and os.environ.get("PYTHONDONTWRITEBYTECODE")))
+    run_once(["status"], ws)  # a first run writes the bytecode the timed ones read
+    floor_cpu = 0.0
+    for name, code in REFERENCES.items():
+        walls, cpus = zip(*(run_once([], ws, code=code)[:2] for _ in range(args.repeats)))
+        floor_cpu = round(statistics.median(cpus), 3)
+        emit(bench="cli", kind="reference", command=name, median_wall_s=round(statistics.median(walls), 3),
+             median_cpu_s=floor_cpu)
     for name, cmd in commands.items():
         walls, cpus = [], []
         for _ in range(args.repeats):
@@ -84,7 +106,8 @@ def main() -> None:
             cpus.append(cpu)
         row = {"bench": "cli", "kind": "command", "command": f"zipon {' '.join(cmd)}",
                "median_wall_s": round(statistics.median(walls), 3), "walls_s": [round(w, 3) for w in walls],
-               "median_cpu_s": round(statistics.median(cpus), 3), "target_s": TARGETS_S[name]}
+               "median_cpu_s": round(statistics.median(cpus), 3), "target_s": TARGETS_S[name],
+               "cpu_over_imports_s": round(statistics.median(cpus) - floor_cpu, 3)}
         if args.importtime:
             _, _, proc = run_once(cmd, ws, extra=("-X", "importtime"))
             row["slowest_imports_s"] = slowest_imports(proc.stderr, 8)

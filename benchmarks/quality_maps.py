@@ -38,7 +38,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from pipeline.paramsfile import load_params, parse_params  # noqa: E402
 from pipeline.frames import FrameStore  # noqa: E402
-from pipeline.maps.build import MAP_CONFIGS, build_map  # noqa: E402
+from pipeline.maps.build import build_map  # noqa: E402
+from pipeline.maps.config import MAP_CONFIGS  # noqa: E402
 from pipeline.maps.evaluate import class_masks, evaluate_map, sample_poses  # noqa: E402
 from pipeline.maps.query import MapQuery, open_query  # noqa: E402
 from pipeline.perception_params import PUBLISHED  # noqa: E402

@@ -49,11 +49,6 @@ def _is_project(module: str) -> bool:
     return module.split(".", 1)[0] in PROJECT_PACKAGES
 
 
-def _package_inits(module: str, root: Path) -> list[str]:
-    parts = module.split(".")
-    return [".".join(parts[:i]) for i in range(1, len(parts)) if module_file(".".join(parts[:i]), root)]
-
-
 def _imports_of(path: Path, module: str, root: Path) -> tuple[str, ...]:
     """Project modules named by every import statement in ``path`` (module ``module``)."""
     st = path.stat()
@@ -192,7 +187,14 @@ def _stamps(paths: list[Path]) -> tuple | None:
 
 
 def _closure(entry: str, root: Path) -> list[Path]:
-    if module_file(entry, root) is None:
+    files: dict[str, Path | None] = {}  # module -> its file, looked up once per closure (a closure is one snapshot)
+
+    def file_of(module: str) -> Path | None:
+        if module not in files:
+            files[module] = module_file(module, root)
+        return files[module]
+
+    if file_of(entry) is None:
         raise ZiponError(f"code module {entry!r} not found under {root}")
     seen: set[str] = set()
     todo = [entry]
@@ -201,10 +203,10 @@ def _closure(entry: str, root: Path) -> list[Path]:
         if mod in seen:
             continue
         seen.add(mod)
-        path = module_file(mod, root)
-        todo += _package_inits(mod, root)
-        todo += [m for m in _imports_of(path, mod, root) if m not in seen]
-    return sorted({module_file(m, root) for m in seen})
+        parts = mod.split(".")
+        todo += [pkg for pkg in (".".join(parts[:i]) for i in range(1, len(parts))) if pkg not in seen and file_of(pkg)]
+        todo += [m for m in _imports_of(file_of(mod), mod, root) if m not in seen]
+    return sorted({file_of(m) for m in seen})
 
 
 def _source(path: Path) -> bytes:
@@ -220,13 +222,26 @@ def _read(path: Path, stamp: tuple[int, int]) -> bytes:
 
 
 def code_digest(entry: str, root: Path = ROOT) -> str:
-    """Digest of the import closure of ``entry`` (file paths and bytes) plus zipon's version."""
+    """Digest of the import closure of ``entry`` (file paths and bytes) plus zipon's version.
+
+    Kept per process while no file of the closure changes (mtime, size), as the closure is: ``zipon status`` asks
+    once per scene and stage."""
+    files = import_closure(entry, root)
+    stamps = _stamps(files)
+    hit = _DIGESTS.get((entry, root))
+    if hit is not None and stamps is not None and hit[0] == stamps:
+        return hit[1]
     h = hashlib.blake2b(digest_size=16)
     h.update(__version__.encode())
-    for path in import_closure(entry, root):
+    for path in files:
         h.update(f"\0{path.relative_to(root).as_posix()}\0".encode())
         h.update(_source(path))
-    return f"blake2b:{h.hexdigest()}"
+    digest = f"blake2b:{h.hexdigest()}"
+    _DIGESTS[(entry, root)] = (stamps, digest)
+    return digest
+
+
+_DIGESTS: dict[tuple[str, Path], tuple[tuple | None, str]] = {}
 
 
 def changed_files(old: dict[str, str], new: dict[str, str]) -> list[str]:

@@ -8,6 +8,7 @@ overrides, moved keys and writing ``params.yaml`` live in :mod:`pipeline.paramsf
 
 from __future__ import annotations
 
+import re
 from typing import Annotated, Any, Literal, get_args
 
 from pydantic import Field, field_validator, model_serializer, model_validator
@@ -291,6 +292,31 @@ class ReconstructParams(DepthRange):
     refine_max_correction_m: float = Field(
         0.1, gt=0, description="a refinement moving a frame farther than this from its prediction is rejected, metres"
     )
+    keyframes: bool = Field(
+        False, description="fuse only keyframes: a frame whose camera moved or turned past the thresholds below since "
+        "the last keyframe, or that sees enough pixels the last keyframe did not; every frame stays in frames.zarr "
+        "and recon.zarr records which were fused (pipeline.recon.keyframes)"
+    )
+    keyframe_translation_m: float = Field(
+        0.1, gt=0, description="a frame is a keyframe when its camera moved farther than this since the last "
+        "keyframe, metres"
+    )
+    keyframe_rotation_deg: float = Field(
+        10.0, gt=0, le=180, description="a frame is a keyframe when its camera turned more than this since the last "
+        "keyframe, degrees"
+    )
+    keyframe_novel_fraction: float | None = Field(
+        0.2, gt=0, le=1, description="a frame is a keyframe when more than this fraction of its valid depth pixels "
+        "was not seen by the last keyframe (outside its image, no depth there, or a disocclusion); None = only "
+        "motion decides, fraction"
+    )
+    keyframe_pixel_stride: int = Field(
+        8, ge=1, description="the novel-pixel test samples every n-th depth pixel in each direction, pixels"
+    )
+    keyframe_depth_tolerance: float = Field(
+        0.05, gt=0, description="a pixel counts as seen by the last keyframe when their depths agree within this "
+        "fraction of the depth, fraction"
+    )
 
     @model_validator(mode="after")
     def _ranges(self) -> "ReconstructParams":
@@ -492,6 +518,10 @@ class MapsParams(DepthRange):
         "feature of the nearest observed cell within this distance; filled cells have count 0; 0 = no filling"
     )
     tile_cells: int = Field(64, gt=0, description="spatial tile edge (cells) of the stored map's chunks")
+    keyframes_only: bool = Field(
+        False, description="fuse only the frames reconstruct fused (its keyframes, with reconstruct.keyframes; "
+        "recon.zarr 'fused'); false = every frame with a pose, keyframe or not"
+    )
     @model_validator(mode="after")
     def _ranges(self) -> "MapsParams":
         if self.min_height_m >= self.max_height_m:
@@ -739,16 +769,41 @@ class RunParams(Section):
     )
     workers: int = Field(2, gt=0, description="local workers for 'threads' / 'processes'")
     threads_per_worker: int = Field(1, gt=0, description="native threads (BLAS/torch/open3d) inside a worker")
-    device: Literal["cpu", "cuda", "auto"] = Field(
-        "auto", description="torch device of the encoders ('auto' = cuda when available, else cpu)"
+    device: str = Field(
+        "auto", description="torch device of the encoders: cpu, cuda, cuda:N (the N-th GPU) or auto (cuda when "
+        "available, else cpu)"
     )
-    fusion_device: Literal["cpu", "cuda", "auto"] = Field("cpu", description="torch device of the map fusion")
+    fusion_device: str = Field("cpu", description="torch device of the map fusion (cpu, cuda, cuda:N or auto)")
+    precision: Literal["fp32", "bf16", "fp16"] = Field(
+        "fp32", description="the encoders' forward passes under torch autocast in this precision (bf16 / fp16 on a "
+        "GPU; fp32 = off, the default); features are handed on as float32 unit vectors either way"
+    )
+    encoder_resources: dict[str, float] = Field(
+        default_factory=dict, description="dask worker resources each map chunk task (encoder + fusion) asks for, "
+        "e.g. {GPU: 1}: those tasks then run only on workers started with them (dask worker --resources GPU=1) and "
+        "every other task anywhere; 'processes' gives its local workers these resources; {} = any worker"
+    )
     encoder_batch_size: int = Field(4, gt=0, description="images per encoder forward pass")
     torch_threads: int = Field(0, ge=0, description="torch CPU threads of the encoders (0 = leave torch's default)")
     map_fold_cache: bool = Field(
         True, description="keep each map's fold of its complete frame chunks beside it (data/artifacts/<scene>/"
         ".<stage>.fold, as big as the map's fp32 sums) so a rerun after frames were appended fuses only the new ones"
     )
+
+    @field_validator("device", "fusion_device")
+    @classmethod
+    def _device(cls, v: str) -> str:
+        if re.fullmatch(r"cpu|auto|cuda(:[0-9]+)?", v):
+            return v
+        raise ValueError(f"{v!r} is not a device: use cpu, cuda, cuda:N (N = 0, 1, ...) or auto")
+
+    @field_validator("encoder_resources")
+    @classmethod
+    def _resources(cls, v: dict[str, float]) -> dict[str, float]:
+        bad = {k: n for k, n in v.items() if not n > 0}
+        if bad:
+            raise ValueError(f"resource amounts must be positive, got {bad}")
+        return v
 
     @field_validator("scheduler")
     @classmethod

@@ -9,7 +9,6 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from pipeline.errors import ArtifactError
-from pipeline.store import write_text_atomic
 
 MANIFEST_FORMAT_VERSION = 1
 
@@ -48,6 +47,8 @@ class Manifest(BaseModel):
         return json.dumps(self.model_dump(mode="json"), indent=2, sort_keys=True) + "\n"
 
     def write(self, path: Path) -> None:
+        from pipeline.store import write_text_atomic  # here: reading a manifest (`zipon status`) needs no numpy
+
         write_text_atomic(path, self.text())
 
     @classmethod

@@ -88,13 +88,14 @@ class StageContext:
 
     def map_ordered(self, fn: Callable[[Any], Any], items: list) -> Iterator[Any]:
         """``fn(item)`` for each item, yielded in item order, as tasks on the workers that run the stages
-        (:func:`ordered_tasks`): within-stage parallelism, e.g. one long scene's map chunks."""
+        (:func:`ordered_tasks`): within-stage parallelism, e.g. one long scene's map chunks. The tasks ask for
+        ``run.encoder_resources`` (the map stages' chunks are its only callers: they run the encoders)."""
         return ordered_tasks(fn, items, name=f"{self.stage}-{self.scene}", threads=self.runtime.threads_per_worker,
-                             usage=self.elsewhere)
+                             usage=self.elsewhere, resources=self.runtime.encoder_resources or None)
 
 
 def ordered_tasks(fn: Callable[[Any], Any], items: list, *, name: str, threads: int = 1,
-                  usage: dict[str, float] | None = None) -> Iterator[Any]:
+                  usage: dict[str, float] | None = None, resources: dict[str, float] | None = None) -> Iterator[Any]:
     """Yield ``fn(item)`` for every item, in item order, running the calls on every dask worker when there is one.
 
     Inside a ``dask.distributed`` worker (``run.scheduler`` ``processes``, which starts a local cluster, or a
@@ -111,6 +112,10 @@ def ordered_tasks(fn: Callable[[Any], Any], items: list, *, name: str, threads: 
     the calls that ran in other processes (this process's own CPU time already counts the rest), so a stage's
     manifest counts every worker its tasks used.
 
+    ``resources`` (dask worker resources, e.g. ``{"GPU": 1}``): the calls run only on workers that offer them
+    (``dask worker --resources GPU=1``), one at a time per unit there; a cluster where no worker offers them is
+    an error naming ``run.encoder_resources``, not a wait forever. Outside a cluster they are not needed.
+
     Memory: what a caller folds (a map's accumulators) grows with the results it consumes, and a worker starts
     every ready stage while those already started wait, seceded. So in one worker process at most as many
     callers as it has threads consume results at a time (:func:`_consuming_slots`); the others wait for their
@@ -125,7 +130,7 @@ def ordered_tasks(fn: Callable[[Any], Any], items: list, *, name: str, threads: 
     from collections import deque
 
     with client_context as client, _consuming_turn(usage):
-        window = sum(client.nthreads().values()) + 1
+        window = _window(client, resources)
         token = uuid.uuid4().hex[:8]
         todo = iter(enumerate(items))
         pending: deque = deque()
@@ -133,7 +138,7 @@ def ordered_tasks(fn: Callable[[Any], Any], items: list, *, name: str, threads: 
         def submit() -> None:
             for i, item in todo:
                 pending.append(client.submit(_ordered_call, fn, threads, item, key=f"{name}-{i}-{token}", pure=False,
-                                             priority=CALL_PRIORITY))
+                                             priority=CALL_PRIORITY, resources=resources))
                 return
 
         for _ in range(window):
@@ -145,6 +150,18 @@ def ordered_tasks(fn: Callable[[Any], Any], items: list, *, name: str, threads: 
                 usage["cpu_seconds"] = usage.get("cpu_seconds", 0.0) + cpu_s
                 usage["peak_rss_mb"] = max(usage.get("peak_rss_mb", 0.0), rss_mb)
             yield result
+
+
+def _window(client, resources: dict[str, float] | None) -> int:
+    """Calls of :func:`ordered_tasks` kept in flight: one per worker thread that may run them, plus one."""
+    if not resources:
+        return sum(client.nthreads().values()) + 1
+    workers = client.scheduler_info()["workers"].values()
+    able = [w for w in workers if all(w.get("resources", {}).get(k, 0) >= n for k, n in resources.items())]
+    if not able:
+        raise ZiponError(f"run.encoder_resources {resources}: no dask worker offers them (start the encoder workers "
+                         "with e.g. `dask worker SCHEDULER --resources GPU=1`, or set run.encoder_resources: {})")
+    return sum(min(int(w.get("resources", {})[k] // n) for k, n in resources.items()) for w in able) + 1
 
 
 # dask priority of the calls of a running stage (ordered_tasks): above every stage task (run_many gives those
@@ -363,7 +380,8 @@ def run_many(
         # 'processes': a local dask.distributed cluster of single-threaded worker processes (not dask's
         # multiprocessing scheduler), so a stage can spread its own tasks over every worker (ordered_tasks)
         cluster = (LocalCluster(n_workers=params.run.workers, threads_per_worker=1, processes=True, memory_limit=0,
-                                dashboard_address=":0", silence_logs=logging.ERROR)
+                                dashboard_address=":0", silence_logs=logging.ERROR,
+                                resources=params.run.encoder_resources or None)
                    if scheduler == "processes" else None)
         try:
             with Client(cluster or scheduler) as client:

@@ -21,7 +21,6 @@ from pipeline.stageconfig import StageConfig, canonical_json, digest_value, proj
 from pipeline.errors import MissingInputError, ZiponError
 from pipeline.manifest import Manifest
 from pipeline.paths import Workspace
-from pipeline.store import files_digest
 
 SOURCE = "source"  # the pseudo-input naming a scene's raw data (a log, a folder)
 
@@ -89,6 +88,14 @@ def producer(stages: dict[str, StageSpec], artifact: str) -> StageSpec:
         if artifact in spec.outputs:
             return spec
     raise KeyError(f"no stage produces artifact {artifact!r}")
+
+
+def files_digest(paths: list[Path]) -> str:
+    """:func:`pipeline.store.files_digest`, imported when a raw file or a config's file is hashed: the stage graph of
+    a simulated scene (``zipon status``) then loads neither numpy nor the artifact stores."""
+    from pipeline.store import files_digest as digest
+
+    return digest(paths)
 
 
 def input_digests(ws: Workspace, params: Params, stages: dict[str, StageSpec], spec: StageSpec, scene: str,

@@ -7,17 +7,23 @@ top-down projection by the same height rule as the vlmap; format in :mod:`pipeli
 
 from __future__ import annotations
 
-from pipeline.codedeps import code_digest
-from pipeline.maps.build import CfmapConfig, build_map
-from pipeline.maps.store import FORMAT_VERSION
-from pipeline.runner import StageContext
-from pipeline.store import artifact_attrs
+from typing import TYPE_CHECKING
 
+from pipeline.maps.config import CfmapConfig
 
-Config = CfmapConfig  # the cfmap stage's config (pipeline.maps.build.MapConfig)
+if TYPE_CHECKING:
+    from pipeline.runner import StageContext
+
+Config = CfmapConfig  # the cfmap stage's config (pipeline.maps.config.MapConfig)
 
 
 def run(ctx: StageContext) -> dict:
+    # imported here: reading the stage's Config (`zipon status`) needs none of numpy, zarr or the frame store
+    from pipeline.codedeps import code_digest
+    from pipeline.maps.build import build_map
+    from pipeline.maps.store import FORMAT_VERSION
+    from pipeline.store import artifact_attrs
+
     cfg = ctx.config
     ctx.log(f"fusing {ctx.inputs['frames'].name} into a sparse voxel map on {ctx.inputs['recon'].name}'s grid "
             f"(encoder {cfg.encoder})")

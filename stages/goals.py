@@ -6,9 +6,13 @@ The work (objects, walls, goal regions, procedural feedback planned as the route
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from pipeline.config import GoalsParams, Params, TaskParams
 from pipeline.stageconfig import StageConfig, section_keys
-from pipeline.runner import StageContext
+
+if TYPE_CHECKING:
+    from pipeline.runner import StageContext
 
 
 # goals.* entries keyed by scene: a scene's config holds only its own entry

@@ -6,10 +6,14 @@ The work (reader, time matching, depth range, z-up world, the matching report) i
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from pipeline.config import IngestParams, Params, SceneFormat
 from pipeline.stageconfig import StageConfig
 from pipeline.stagegraph import scene_sources
-from pipeline.runner import StageContext
+
+if TYPE_CHECKING:
+    from pipeline.runner import StageContext
 
 
 class Config(StageConfig):

@@ -6,9 +6,13 @@ this module holds the stage's config and entry point.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from pipeline.config import GridParams, ReconstructParams
 from pipeline.stageconfig import StageConfig
-from pipeline.runner import StageContext
+
+if TYPE_CHECKING:
+    from pipeline.runner import StageContext
 
 
 class Config(StageConfig):

@@ -6,9 +6,13 @@ The work (seeded starts, FMM routes into the goals' stored regions, actions, tex
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from pipeline.config import RoutesParams, TaskParams
 from pipeline.stageconfig import StageConfig
-from pipeline.runner import StageContext
+
+if TYPE_CHECKING:
+    from pipeline.runner import StageContext
 
 
 class Config(StageConfig):

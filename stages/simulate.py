@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from pipeline.config import SimulateParams
 from pipeline.stageconfig import StageConfig
-from pipeline.runner import StageContext
+
+if TYPE_CHECKING:
+    from pipeline.runner import StageContext
 
 
 class Config(StageConfig):

@@ -35,6 +35,7 @@ the map stages store in their attrs. Encoders are chosen by name in ``params.yam
 
 from __future__ import annotations
 
+import contextlib
 import os
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
@@ -215,6 +216,7 @@ class Encoder(ABC):
             "diagnostic": self.diagnostic,
             **self.config_identity(),
             **self.weights_identity(),
+            **({"precision": self.precision} if self.precision != "fp32" else {}),
         }
 
     def encode_images(
@@ -230,14 +232,22 @@ class Encoder(ABC):
         with torch.inference_mode():
             for start in range(0, rgb.shape[0], self.batch_size):
                 sl = slice(start, start + self.batch_size)
-                parts.append(
-                    self._encode_batch(
+                with self._autocast():
+                    part = self._encode_batch(
                         rgb[sl],
                         None if depth_m is None else depth_m[sl],
                         None if instance is None else instance[sl],
                     )
-                )
+                parts.append(as_float32(part))
         return parts[0] if len(parts) == 1 else type(parts[0]).concat(parts)
+
+    #: ``run.precision``: 'fp32', or the autocast precision of the forward passes ('bf16', 'fp16')
+    precision: str = "fp32"
+
+    def _autocast(self):
+        if self.precision == "fp32":
+            return contextlib.nullcontext()
+        return torch.autocast(device_type=self.device.type, dtype=PRECISIONS[self.precision])
 
 
 class OpenClipText:
@@ -284,13 +294,21 @@ def check_images(
     return rgb, depth_m, instance
 
 
-def resolve_device(device: str) -> str:
-    """'auto' -> 'cuda' when available else 'cpu'; 'cuda' without a GPU is a :class:`ConfigError`."""
+def resolve_device(device: str, key: str = "run.device") -> str:
+    """'auto' -> 'cuda' when available else 'cpu'; 'cuda' / 'cuda:N' without that GPU is a :class:`ConfigError`
+    naming ``key``."""
     if device == "auto":
         return "cuda" if torch.cuda.is_available() else "cpu"
-    if device == "cuda" and not torch.cuda.is_available():
-        raise ConfigError("run.device: 'cuda' requested but torch sees no CUDA device (use 'cpu' or 'auto')")
+    if device.startswith("cuda"):
+        index = int(device.partition(":")[2] or 0)
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if index >= count:
+            raise ConfigError(f"{key}: {device!r} requested but torch sees {count} CUDA device(s) "
+                              "(use 'cpu', 'auto' or an index below that count)")
     return device
+
+
+PRECISIONS = {"bf16": torch.bfloat16, "fp16": torch.float16}  # run.precision -> autocast dtype ('fp32': off)
 
 
 def require_file(path: str | Path | None, param: str, what: str) -> Path:
@@ -323,6 +341,17 @@ def normalize(x: torch.Tensor, mean: tuple[float, ...], std: tuple[float, ...]) 
     m = torch.tensor(mean, dtype=x.dtype, device=x.device).view(1, -1, 1, 1)
     s = torch.tensor(std, dtype=x.dtype, device=x.device).view(1, -1, 1, 1)
     return (x - m) / s
+
+
+def as_float32(part: DenseFeatures) -> DenseFeatures:
+    """Features computed under autocast, back in the contract's float32 (unit rows where valid, 0 elsewhere)."""
+    if isinstance(part, PaletteFeatures):
+        if part.palette.dtype == torch.float32:
+            return part
+        return PaletteFeatures(l2_normalize(part.palette.float()), part.index, part.valid, part.image_size)
+    if part.features.dtype == torch.float32:
+        return part
+    return DenseFeatures(l2_normalize(part.features.float()) * part.valid[..., None], part.valid, part.image_size)
 
 
 def l2_normalize(x: torch.Tensor, dim: int = -1, eps: float = 1e-12) -> torch.Tensor:
@@ -375,7 +404,9 @@ def build_encoder(params: "EncodersParams", which: str | None = None, *, simulat
         torch.set_num_threads(runtime.torch_threads)
     device = resolve_device(runtime.device)
     cls = ENCODERS[name]
-    return cls.from_params(params, device=device, batch_size=runtime.encoder_batch_size)  # type: ignore[attr-defined]
+    encoder = cls.from_params(params, device=device, batch_size=runtime.encoder_batch_size)  # type: ignore[attr-defined]
+    encoder.precision = runtime.precision
+    return encoder
 
 
 def check_encoder(params: "EncodersParams", which: str | None = None, *, simulated: bool = False,

@@ -8,6 +8,14 @@ and the :class:`SemanticMap` reader), :mod:`~pipeline.maps.query` (heatmaps and 
 :mod:`~pipeline.maps.scoring` (numpy products of the fp16 features), :mod:`~pipeline.maps.render` (PNGs).
 """
 
-from pipeline.maps.store import FORMAT_VERSION, SemanticMap
-
 __all__ = ["FORMAT_VERSION", "SemanticMap"]
+
+
+def __getattr__(name: str):
+    """``FORMAT_VERSION`` and ``SemanticMap`` of :mod:`pipeline.maps.store`, imported on first use: a map stage's
+    config (:mod:`pipeline.maps.config`, read by ``zipon status``) needs neither numpy nor zarr."""
+    if name in __all__:
+        from pipeline.maps import store
+
+        return getattr(store, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -21,15 +21,17 @@ so that frames appended to a scene are the only ones fused on the next run.
 from __future__ import annotations
 
 import functools
+import queue
+import threading
 from dataclasses import dataclass
-from enum import Enum
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, ClassVar, Iterable
+from typing import TYPE_CHECKING, Callable, Iterable, Iterator, TypeVar
 
 import numpy as np
 
-from pipeline.config import EncodersParams, MapsParams, Params, RunParams
-from pipeline.stageconfig import StageConfig, digest_value, section_keys
+from pipeline.config import MapsParams, RunParams
+from pipeline.maps.config import MapConfig
+from pipeline.stageconfig import digest_value
 from pipeline.errors import StageError
 from pipeline.frames import FrameStore
 from pipeline.store import DIGEST_ALGO, new_digest, update_array
@@ -37,100 +39,7 @@ from pipeline.store import DIGEST_ALGO, new_digest, update_array
 if TYPE_CHECKING:
     from pipeline.maps.fusion import FusionState
 
-
-class MapKind(str, Enum):
-    """The two kinds of semantic map, one stage each; the value is the stage's (and params section's) name."""
-
-    VLMAP = "vlmap"  # pixel features fused straight into the top-down cells (VLMaps)
-    CFMAP = "cfmap"  # fused into sparse 3-D voxels, then projected top-down (ConceptFusion)
-
-    def __str__(self) -> str:
-        return self.value
-
-    @property
-    def fuses_voxels(self) -> bool:
-        """Whether the map is fused in 3-D voxels (then projected by the height rule) rather than in cells."""
-        return self is MapKind.CFMAP
-
-    @property
-    def own_fields(self) -> tuple[str, ...]:
-        """The ``maps.*`` fields only this kind of map reads."""
-        return KIND_FIELDS[self]
-
-    def weight_sigma_m(self, p: MapsParams) -> float:
-        """This kind's confidence-weight sigma (``maps.<kind>_weight_sigma_m``)."""
-        return p.cfmap_weight_sigma_m if self is MapKind.CFMAP else p.vlmap_weight_sigma_m
-
-
-# maps.* fields that only one kind of map reads
-KIND_FIELDS: dict[MapKind, tuple[str, ...]] = {MapKind.VLMAP: ("vlmap_weight_sigma_m",),
-                                               MapKind.CFMAP: ("cfmap_weight_sigma_m", "cfmap_voxels")}
-
-
-class MapConfig(StageConfig):
-    """Config of a map stage (``vlmap`` / ``cfmap``: set ``kind``): the ``maps`` fusion settings this kind reads,
-    and the encoder it uses with that encoder's own settings only (``encoders.lseg.crop_size`` is not part of a
-    ConceptFusion map). Query settings (``query``) and devices, batch sizes, threads (``run``) are in no digest."""
-
-    kind: ClassVar[MapKind]
-    maps: MapsParams
-    encoder: str
-    encoders: EncodersParams
-
-    @classmethod
-    def _other_fields(cls) -> tuple[str, ...]:
-        return tuple(f for k in MapKind if k is not cls.kind for f in k.own_fields)
-
-    @classmethod
-    def _encoder(cls, params: Params, scene: str) -> tuple[str, list[str]]:
-        """(encoder name, the params keys that choose it and configure it)."""
-        from pipeline.encoders.choice import encoder_choice
-
-        enc = params.encoders
-        simulated = params.scenes[scene].simulated
-        name = encoder_choice(enc, cls.kind.value, simulated=simulated)
-        keys = ["encoders.simulated"] if simulated else []
-        if not (simulated and enc.simulated is not None):
-            keys.append(f"encoders.{cls.kind.value}")
-        if name in EncodersParams.model_fields:
-            keys.append(f"encoders.{name}")
-        elif name in enc.plugins:
-            keys.append(f"encoders.plugins.{name}")
-        return name, keys
-
-    @classmethod
-    def param_keys(cls, params: Params, scene: str) -> list[str]:
-        return section_keys("maps", MapsParams, exclude=cls._other_fields()) + cls._encoder(params, scene)[1]
-
-    @classmethod
-    def from_params(cls, params: Params, scene: str) -> "MapConfig":
-        name, _ = cls._encoder(params, scene)
-        defaults = MapsParams()
-        maps = params.maps.model_copy(update={f: getattr(defaults, f) for f in cls._other_fields()})
-        enc = params.encoders
-        own = ({name: getattr(enc, name)} if name in EncodersParams.model_fields
-               else {"plugins": {name: enc.plugins[name]}} if name in enc.plugins else {})
-        return cls(maps=maps, encoder=name, encoders=EncodersParams(**own))
-
-    @classmethod
-    def extra_inputs(cls, params: Params, scene: str) -> dict[str, str]:
-        """A plugin encoder's source (package folder or module file): its code is outside zipon's import
-        closure, so its content is hashed as an input of the map."""
-        from pipeline.encoders.choice import plugin_source
-
-        source = plugin_source(cls._encoder(params, scene)[0])
-        return {"encoder_plugin": source} if source else {}
-
-
-class VlmapConfig(MapConfig):
-    kind = MapKind.VLMAP
-
-
-class CfmapConfig(MapConfig):
-    kind = MapKind.CFMAP
-
-
-MAP_CONFIGS: dict[str, type[MapConfig]] = {cfg.kind.value: cfg for cfg in (VlmapConfig, CfmapConfig)}
+T = TypeVar("T")
 
 
 FOLD_FORMAT = 2  # bump when the chunk digests or the fold's content change meaning
@@ -174,9 +83,49 @@ def _open_inputs(frames_path: Path, recon_path: Path, p: MapsParams):
         raise StageError(f"{recon_path}: holds {len(recon.fused)} poses but {frames_path} has {fs.n_frames} frames "
                          f"(recon from another frame store? rerun: zipon run --force --stage reconstruct)")
     poses = recon.poses
-    usable = recon.fused & np.isfinite(poses).all(axis=(1, 2))
+    usable = np.isfinite(poses).all(axis=(1, 2))  # a pose: fused by reconstruct, or a frame it passed over
+    if p.keyframes_only:
+        usable &= recon.fused
     lattice = Lattice(recon.grid, recon.floor_z, p.min_height_m, p.max_height_m, p.level_height_m)
     return fs, recon, poses, usable, lattice
+
+
+def prefetched(items: Iterable[T], depth: int = 1) -> Iterator[T]:
+    """The items of ``items`` in order, the next ``depth`` of them produced by a background thread meanwhile: a map
+    chunk's frame blocks are read and decoded (zarr, blosc and image codecs release the GIL) while the encoder runs
+    on the block before. An exception of ``items`` is raised here, in its turn; leaving the loop early stops the
+    thread."""
+    queue_: queue.Queue = queue.Queue(maxsize=depth)
+    done, stop = object(), threading.Event()
+
+    def produce() -> None:
+        try:
+            for item in items:
+                if stop.is_set():
+                    return
+                queue_.put((True, item))
+            queue_.put((True, done))
+        except BaseException as err:  # noqa: BLE001 (handed to the consumer, raised there)
+            queue_.put((False, err))
+
+    thread = threading.Thread(target=produce, name="map-read", daemon=True)
+    thread.start()
+    try:
+        while True:
+            ok, item = queue_.get()
+            if not ok:
+                raise item
+            if item is done:
+                return
+            yield item
+    finally:
+        stop.set()
+        while thread.is_alive():  # unblock a producer waiting on a full queue
+            try:
+                queue_.get(timeout=0.05)
+            except queue.Empty:
+                pass
+        thread.join()
 
 
 def fuse_chunk(job: MapJob, chunk: tuple[int, int, int], *, fuse: bool = True) -> ChunkResult:
@@ -200,13 +149,13 @@ def fuse_chunk(job: MapJob, chunk: tuple[int, int, int], *, fuse: bool = True) -
     if fuse and usable[start:stop].any():
         encoder = build_encoder(job.config.encoders, job.config.encoder, runtime=job.runtime)
         encoder.bind_scene(fs.ground_truth)
-        device = resolve_device(job.runtime.fusion_device)
+        device = resolve_device(job.runtime.fusion_device, "run.fusion_device")
         acc = (VoxelAccumulator if kind.fuses_voxels else TopDownAccumulator)(lattice, encoder.dim, device=device)
     sigma = kind.weight_sigma_m(p)
     fused_frames = pixels = 0
     with torch.inference_mode():
-        for block in fs.iter_blocks(p.block_frames, start=start, stop=stop, rgb=job.reads_rgb,
-                                    instance=fs.has_instance):
+        blocks = fs.iter_blocks(p.block_frames, start=start, stop=stop, rgb=job.reads_rgb, instance=fs.has_instance)
+        for block in prefetched(blocks):  # the next block is read and decoded while this one is encoded
             for array in (block.rgb if job.reads_rgb else None, block.depth_mm, block.instance):
                 if array is not None:
                     update_array(digest, array)
@@ -274,7 +223,7 @@ def build_map(
     run = map_ordered or (lambda fn, items: map(fn, items))
     chunks = chunk_ranges(fs.n_frames, p.chunk_frames)
     complete = fs.n_frames // p.chunk_frames
-    device = resolve_device(runtime.fusion_device)
+    device = resolve_device(runtime.fusion_device, "run.fusion_device")
     fold = (VoxelAccumulator if kind.fuses_voxels else TopDownAccumulator)(lattice, identity["dim"], device=device)
     key = digest_value({"format": FOLD_FORMAT, **(fold_key or {}), "encoder": identity, "lattice": lattice.to_attrs(),
                         "grid": [recon.grid.rows, recon.grid.cols, recon.grid.cell_size_m, list(recon.grid.origin_xy)],
@@ -326,13 +275,14 @@ def build_map(
                          f"(check maps.depth_* / maps.*_height_m and the recon grid)")
     sigma = kind.weight_sigma_m(p)
     write_map(out_path, {**attrs, "encoder": identity, "weighting": {"sigma_m": sigma},
-                         "frames": {"n_frames": fs.n_frames, "fused": fused_frames},
+                         "frames": {"n_frames": fs.n_frames, "fused": fused_frames, "keyframes_only": p.keyframes_only},
                          "points_fused": state.points, "pixels_in_band": int(pixels),
                          "cells_observed": n_seen, "cells_filled": n_filled, "fill_radius_m": p.fill_radius_m},
               recon.grid, lattice, cells.to_store(), tile_cells=p.tile_cells,
               voxels=None if voxels is None else voxels.to_store(recon.grid))
     frames_reused = min(reused * p.chunk_frames, fs.n_frames)
-    return {"frames_fused": fused_frames, "frames_skipped": fs.n_frames - fused_frames, "cells": int(len(cells.cell)),
+    return {"frames_fused": fused_frames, "frames_skipped": fs.n_frames - fused_frames, "keyframes_only": p.keyframes_only,
+            "cells": int(len(cells.cell)),
             "cells_filled": n_filled, "voxels": 0 if voxels is None else int(len(voxels.cell)),
             "points_fused": state.points, "chunks": len(chunks), "chunks_reused": reused,
             "frames_reused": frames_reused, "frames_processed": fs.n_frames - frames_reused,

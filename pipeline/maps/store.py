@@ -7,7 +7,7 @@ Format (version 1)::
     │                                     lattice {floor_z, min_height_m, max_height_m, level_height_m, levels, rule},
     │                                     encoder {name, version, dim, normalization, temperature, diagnostic, ...},
     │                                     weighting {sigma_m | null}, tile_cells, n_cells, n_voxels,
-    │                                     frames {n_frames, fused}, points_fused, cells_observed, cells_filled,
+    │                                     frames {n_frames, fused, keyframes_only}, points_fused, cells_observed, cells_filled,
     │                                     fill_radius_m, units
     ├── top/                       the top-down map: one row per OBSERVED cell (compact, no dense cube)
     │   ├── cell       (N,)   int32    flat cell index row * cols + col; rows are in TILE-MAJOR order
@@ -141,6 +141,7 @@ class EncoderAttrs(AttrsModel):
 class FrameCounts(AttrsModel):
     n_frames: int
     fused: int
+    keyframes_only: bool = False  # only recon's fused frames (its keyframes) were read (maps.keyframes_only)
 
 
 class Weighting(AttrsModel):

@@ -65,6 +65,9 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
     fused = np.zeros(store.n_frames, dtype=bool)
     for i, T in fusion.T_world_camera.items():
         poses[i], fused[i] = T, True
+    for i, T in fusion.not_keyframes.items():  # a pose, not fused: the maps may still read them
+        poses[i] = T
+    keyframes = keyframe_summary(p, fusion)
     recorded = store.poses().astype(np.float64)
     moved = np.linalg.norm(poses[fused, :3, 3] - recorded[fused, :3, 3], axis=1)
     refinement = {"enabled": p.refine_poses, "max_moved_m": round(float(moved.max()), 5),
@@ -88,6 +91,7 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
         "seconds_grids": round(t_grids, 3),
         "frames_per_s": round(len(fusion.frames_fused) / max(t_fuse, 1e-9), 2),
         "refinement": refinement,
+        "keyframes": keyframes,
     }
     attrs = artifact_attrs(
         ARTIFACT, FORMAT_VERSION, "reconstruct", params_digest or digest_value(p.model_dump(mode="json")),
@@ -100,8 +104,21 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
         mesh=mesh_info, points=points_info,
         frames={"n_frames": store.n_frames, "fused": len(fusion.frames_fused), "empty": fusion.empty_frames[:100]},
         refinement=refinement,
+        keyframes=keyframes,
         conventions={"world": "right-handed, z up, metres (as frames.zarr)", "grid": grids.grid.ORIENTATION},
         source_frames_attrs=store.meta.model_dump(include={"conventions", "provenance"}, exclude_unset=True),
     )
     write_recon(recon_path, grids, poses, fused, attrs)
     return figures
+
+
+def keyframe_summary(p: ReconstructParams, fusion) -> dict:
+    """The keyframe selection as recorded in recon.zarr's attrs and the stage summary: the rule, how many frames
+    with depth were kept and why (``fused`` in recon.zarr says which)."""
+    if not p.keyframes:
+        return {"enabled": False}
+    kept, offered = len(fusion.frames_fused), len(fusion.frames_fused) + len(fusion.not_keyframes)
+    return {"enabled": True, "translation_m": p.keyframe_translation_m, "rotation_deg": p.keyframe_rotation_deg,
+            "novel_fraction": p.keyframe_novel_fraction, "pixel_stride": p.keyframe_pixel_stride,
+            "depth_tolerance": p.keyframe_depth_tolerance, "keyframes": kept, "frames_with_depth": offered,
+            "kept_fraction": round(kept / max(offered, 1), 4), "reasons": fusion.keyframe_reasons}

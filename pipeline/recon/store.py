@@ -12,6 +12,8 @@ Format (version 1)::
     │                                   mesh {file, vertices, triangles, bounds_min, bounds_max},
     │                                   points {file, count}, frames {n_frames, fused, empty},
     │                                   refinement {enabled, max_moved_m, median_moved_m, frames_rejected, ...},
+    │                                   keyframes {enabled, translation_m, rotation_deg, novel_fraction, keyframes,
+    │                                              frames_with_depth, kept_fraction, reasons} (pipeline.recon.keyframes),
     │                                   stats {cells_*, points_outside_*, floor_points},
     │                                   units, conventions
     ├── occupancy  (rows, cols)    uint8    0 unknown, 1 free, 2 occupied (navchat's codes)
@@ -19,8 +21,9 @@ Format (version 1)::
     ├── color      (rows, cols, 3) uint8    RGB of the highest surface (ceilings excluded), 0 unknown
     ├── height     (rows, cols)    float32  metres above floor_z of the highest surface, NaN unknown
     ├── pose       (N, 4, 4)       float64  T_world_camera used for fusion (refined when refine_poses;
-    │                                       frames.zarr is never modified); NaN: frame not fused
-    └── fused      (N,)            bool     frame i went into the volume
+    │                                       frames.zarr is never modified); a frame that was not a keyframe has
+    │                                       the pose it would have been fused with; NaN: no valid depth
+    └── fused      (N,)            bool     frame i went into the volume (with keyframes on: i is a keyframe)
 
 Grids are chunked in 128x128-cell spatial tiles (the whole colour axis in a chunk). Meshes are
 binary PLY with vertex colours and normals, in world metres; vertices and triangles are stored
@@ -99,6 +102,7 @@ class ReconAttrs(ArtifactAttrs):
     points: PointsAttrs | None = None
     frames: dict[str, Any] | None = None
     refinement: dict[str, Any] | None = None
+    keyframes: dict[str, Any] | None = None
     stats: dict[str, Any] = {}
     units: dict[str, str] = {}
     conventions: dict[str, str] | None = None

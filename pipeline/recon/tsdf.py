@@ -28,6 +28,7 @@ from pipeline.config import ReconstructParams
 from pipeline.errors import InputDataError
 from pipeline.frames import FrameBlock, FrameStore
 from pipeline.geometry import Intrinsics, invert_pose
+from pipeline.recon.keyframes import KeyframeRule, KeyframeSelector
 from pipeline.recon.store import canonical_point_order
 
 o3c = o3d.core
@@ -43,6 +44,10 @@ class Fusion:
     frames_fused: list[int] = field(default_factory=list)  # store indices fused
     empty_frames: list[int] = field(default_factory=list)  # store indices with no valid depth in range
     T_world_camera: dict[int, np.ndarray] = field(default_factory=dict)  # store index -> pose fused with
+    # frames with depth that were not keyframes (reconstruct.keyframes): store index -> pose (the recorded one,
+    # moved by the last keyframe's refinement when poses are refined)
+    not_keyframes: dict[int, np.ndarray] = field(default_factory=dict)
+    keyframe_reasons: dict[str, int] = field(default_factory=dict)  # why each keyframe was kept (keyframes on)
 
     @property
     def n_blocks(self) -> int:
@@ -184,6 +189,8 @@ def fuse(store: FrameStore, p: ReconstructParams, *, frames: Iterable[int] | Non
         start, stop = int(idx.min()), int(idx.max()) + 1
     intr = strided(store.intrinsics, p.depth_stride)
     fusion = Fusion(volume=new_volume(p))
+    selector = KeyframeSelector(KeyframeRule.from_params(p), intr) if p.keyframes else None
+    correction = np.eye(4)  # the last keyframe's refinement: refined pose @ inverse(recorded pose)
     blocks = store.iter_blocks(p.block_frames, start=start, stop=stop)
     n_blocks = -(-(stop - start) // p.block_frames)
     prepared = prefetched(blocks, p)
@@ -196,12 +203,18 @@ def fuse(store: FrameStore, p: ReconstructParams, *, frames: Iterable[int] | Non
                 fusion.empty_frames.append(i)
                 continue
             depth, rgb, T = block.depth_mm[j], block.rgb[j], block.T_world_camera[j]
+            if selector is not None and not selector.offer(depth, correction @ T):
+                fusion.not_keyframes[i] = correction @ T
+                continue
             if refiner is not None:
-                T = refiner(fusion.volume, depth, rgb, T, intr, i)
+                recorded, T = T, refiner(fusion.volume, depth, rgb, T, intr, i)
+                correction = T @ invert_pose(recorded)
             integrate(fusion.volume, depth, rgb, T, intr, p)
             fusion.frames_fused.append(i)
             fusion.T_world_camera[i] = T
-    considered = len(fusion.frames_fused) + len(fusion.empty_frames)
+    if selector is not None:
+        fusion.keyframe_reasons = dict(selector.reasons)
+    considered = len(fusion.frames_fused) + len(fusion.not_keyframes) + len(fusion.empty_frames)
     if fusion.empty_frames and (not fusion.frames_fused or
                                 len(fusion.empty_frames) > p.max_invalid_frame_fraction * considered):
         raise InputDataError(

@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 
 from pipeline.frames import FrameStore
-from pipeline.maps.build import MAP_CONFIGS, build_map
+from pipeline.maps.build import build_map
+from pipeline.maps.config import MAP_CONFIGS
 from pipeline.maps.query import open_query
 from pipeline.store import artifact_attrs
 

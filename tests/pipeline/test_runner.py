@@ -9,7 +9,7 @@ import pytest
 import zarr
 
 from pipeline.paramsfile import load_params
-from pipeline.errors import ConfigError
+from pipeline.errors import ConfigError, ZiponError
 from pipeline.manifest import Manifest
 from pipeline.stagegraph import plan, staleness
 from pipeline.runner import run_many, run_stage
@@ -230,3 +230,26 @@ def test_a_worker_folds_one_stage_at_a_time_while_the_others_wait():
     assert all(a_last < b_first for (_, a_last), (b_first, _) in zip(spans, spans[1:]))
     waits = [waited for *_, waited in runs]  # recorded for the manifest: the time a stage stood in line
     assert min(waits) >= 0 and max(waits) > 0.05  # the last in line waited for at least one 50 ms call
+
+
+def _ordered_with_resources(items, resources):
+    from pipeline.runner import ordered_tasks
+
+    return list(ordered_tasks(_square_and_worker, items, name="square", resources=resources))
+
+
+def test_ordered_tasks_asking_for_a_resource_run_only_on_the_workers_that_offer_it():
+    """A map stage's chunk tasks with run.encoder_resources {GPU: 1}: one CPU worker and one 'GPU' worker; every
+    call lands on the GPU worker, the results come in order, and a resource nobody offers is an error."""
+    from distributed import Client, Scheduler, SpecCluster, Worker
+
+    spec = {"cpu": {"cls": Worker, "options": {"nthreads": 1}},
+            "gpu": {"cls": Worker, "options": {"nthreads": 1, "resources": {"GPU": 1}}}}
+    with SpecCluster(workers=spec, scheduler={"cls": Scheduler, "options": {"dashboard_address": ":0"}}) as cluster, \
+            Client(cluster) as client:
+        gpu = next(a for a, w in client.scheduler_info()["workers"].items() if w.get("resources"))
+        out = client.submit(_ordered_with_resources, list(range(6)), {"GPU": 1}).result()
+        assert [v for v, _ in out] == [x * x for x in range(6)]
+        assert {w for _, w in out} == {gpu}
+        with pytest.raises(ZiponError, match=r"run\.encoder_resources \{'TPU': 1\}: no dask worker offers them"):
+            client.submit(_ordered_with_resources, [1, 2], {"TPU": 1}).result()

@@ -220,3 +220,26 @@ def test_every_params_model_is_equally_strict(model):
         model(**{field: True})
     with pytest.raises(ValidationError, match="Extra inputs are not permitted"):
         model(unknown_key=1)
+
+
+def test_the_status_of_a_simulated_scene_loads_no_numpy_zarr_or_torch(tmp_path):
+    """``zipon status`` reads every stage's config, code digest and manifests; none of that needs the array
+    libraries (their import was most of its second), so a stage module imports its work inside ``run``."""
+    import subprocess
+    import sys
+
+    probe = (
+        "import sys\n"
+        "from pipeline.paramsfile import parse_params\n"
+        "from pipeline.paths import Workspace\n"
+        "from pipeline.stagegraph import plan, staleness\n"
+        "from stages import STAGES\n"
+        f"ws = Workspace.resolve(None, {str(tmp_path / 'data')!r}, None)\n"
+        "params = parse_params({'scenes': {'s0': {'source': 'simulate'}}})\n"
+        "reasons = {stage: staleness(ws, params, STAGES, STAGES[stage], scene) for scene, stage in plan(STAGES, params, ['s0'])}\n"
+        "assert set(reasons) == set(STAGES) and set(reasons.values()) == {'never run'}, reasons\n"
+        "print(sorted(m for m in ('numpy', 'zarr', 'torch', 'open3d', 'scipy') if m in sys.modules))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", probe], cwd=REPO, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "[]"

@@ -33,16 +33,17 @@ maps: {chunk_frames: 8}
 """
 
 
-def build(root: Path, *args: str) -> dict[str, str]:
+def build(root: Path, *args: str, params: str = PARAMS, scenes: tuple[str, ...] = SCENES) -> dict[str, str]:
     """``zipon run ARGS`` in the workspace at ``root``; the content digest of every artifact, by scene/name."""
     root.mkdir(exist_ok=True)
-    (root / "params.yaml").write_text(PARAMS)
+    (root / "params.yaml").write_text(params)
     ws = Workspace.resolve(root / "params.yaml", data_dir=root / "data", manifests_dir=root / "manifests")
     code = main(["-q", "-p", str(ws.params_path), "--data-dir", str(ws.data_dir),
                  "--manifests-dir", str(ws.manifests_dir), "run", *args])
     assert code == 0, f"zipon run {' '.join(args)} failed"
     names = sorted({name for spec in STAGES.values() for name in spec.outputs})
-    return {f"{scene}/{name}": content_digest(ws.artifact(name, scene)) for scene in SCENES for name in names}
+    return {f"{scene}/{name}": content_digest(ws.artifact(name, scene)) for scene in scenes for name in names
+            if ws.artifact(name, scene).exists()}
 
 
 @pytest.mark.slow
@@ -53,3 +54,30 @@ def test_every_artifact_has_the_same_digest_in_one_process_and_in_two_worker_pro
     assert {k: v for k, v in workers.items() if v != single[k]} == {}
     forced = build(tmp_path / "sync", "--stage", "reconstruct", "--force", "--scheduler", "threads")
     assert {k: v for k, v in forced.items() if v != single[k]} == {}
+
+
+# one scene, keyframes chosen by reconstruct and the only frames the maps fuse; thresholds wide enough that the
+# walk's small steps are passed over
+KEYFRAME_PARAMS = PARAMS.replace("  sim_01: {source: simulate}\n", "").replace(
+    "reconstruct: {voxel_size_m: 0.05}",
+    "reconstruct: {voxel_size_m: 0.05, keyframes: true, keyframe_translation_m: 1.0, keyframe_rotation_deg: 60.0,"
+    " keyframe_novel_fraction: 0.6}").replace("maps: {chunk_frames: 8}", "maps: {chunk_frames: 8, keyframes_only: true}")
+
+
+@pytest.mark.slow
+def test_keyframe_maps_have_the_same_digest_in_one_process_and_in_two_worker_processes(tmp_path):
+    from pipeline.maps.store import SemanticMap
+    from pipeline.recon import Recon
+
+    stages = [arg for stage in ("simulate", "ingest", "reconstruct", "vlmap", "cfmap") for arg in ("--stage", stage)]
+    single = build(tmp_path / "sync", *stages, params=KEYFRAME_PARAMS, scenes=("sim_00",))
+    assert set(single) == {f"sim_00/{name}" for name in ("raw_log", "frames", "recon", "recon_mesh", "recon_points",
+                                                           "vlmap", "cfmap")}
+    recon = Recon(tmp_path / "sync" / "data" / "artifacts" / "sim_00" / "recon.zarr")
+    assert 0 < recon.fused.sum() < len(recon.fused), "the rule kept every frame: the test would prove nothing"
+    for kind in ("vlmap", "cfmap"):  # the maps fused the keyframes only (each has depth in the band here)
+        frames = SemanticMap(tmp_path / "sync" / "data" / "artifacts" / "sim_00" / f"{kind}.zarr").meta.frames
+        assert (frames.fused, frames.keyframes_only) == (recon.fused.sum(), True)
+    workers = build(tmp_path / "processes", *stages, "--scheduler", "processes", params=KEYFRAME_PARAMS,
+                    scenes=("sim_00",))
+    assert {k: v for k, v in workers.items() if v != single[k]} == {}

@@ -5,7 +5,8 @@ import pytest
 
 from pipeline.paramsfile import parse_params
 from pipeline.stageconfig import digest_value, project
-from pipeline.maps.build import MAP_CONFIGS, build_map
+from pipeline.maps.build import build_map
+from pipeline.maps.config import MAP_CONFIGS
 from pipeline.maps.evaluate import evaluate_map, sample_poses
 from pipeline.maps.query import open_query, query_map
 from pipeline.maps.store import SemanticMap
@@ -59,7 +60,7 @@ def test_artifacts_describe_themselves(built):
         assert m.attrs["params_digest"] == digest_value(project(params, keys))
         assert m.encoder["name"] == "oracle" and m.encoder["diagnostic"] is True and m.dim == 512
         assert m.grid == Recon(tmp / "recon.zarr").grid
-        assert m.attrs["frames"] == {"n_frames": 48, "fused": 48}
+        assert m.attrs["frames"] == {"n_frames": 48, "fused": 48, "keyframes_only": False}
         assert summaries[name]["frames_fused"] == 48 and summaries[name]["cells"] == m.n_cells
     vl, cf = SemanticMap(out / "vlmap.zarr"), SemanticMap(out / "cfmap.zarr")
     assert vl.voxels() is None and len(cf.voxels()) == summaries["cfmap"]["voxels"] > cf.n_cells

@@ -26,7 +26,7 @@ def _modules_after(code: str) -> dict:
 def test_stage_configs_name_their_encoder_without_importing_torch():
     got = _modules_after(
         "from pipeline.config import Params\n"
-        "from pipeline.maps.build import VlmapConfig, CfmapConfig\n"
+        "from pipeline.maps.config import VlmapConfig, CfmapConfig\n"
         "import stages.vlmap, stages.cfmap, pipeline.maps\n"
         "p = Params.model_validate({'scenes': {'s': {'source': 'simulate'}}, 'encoders': {'simulated': 'oracle'}})\n"
         "assert VlmapConfig.from_params(p, 's').encoder == 'oracle'\n"

@@ -7,7 +7,8 @@ import pytest
 from pipeline.paramsfile import parse_params
 from pipeline.encoders.choice import load, plugin_names
 from pipeline.errors import ConfigError
-from pipeline.maps.build import MAP_CONFIGS, build_map
+from pipeline.maps.build import build_map
+from pipeline.maps.config import MAP_CONFIGS
 from pipeline.maps.store import SemanticMap
 from pipeline.recon import Recon
 from pipeline.recon.build import reconstruct
