@@ -19,9 +19,6 @@ from pipeline.section import Section
 
 # ----------------------------------------------------------------------------- scenes
 
-SceneFormat = Literal["auto", "mcap", "rosbag", "tum", "7scenes", "navchat", "replica", "scannet"]
-
-
 class SceneSource(Section):
     """Where one scene's raw data comes from."""
 
@@ -33,7 +30,8 @@ class SceneSource(Section):
         None, description="several raw logs / dataset folders of one scene, read in this order into one frames.zarr "
         "(instead of 'source'; appending a log to the list lets the map stages reuse their fold)"
     )
-    format: SceneFormat = Field("auto", description="reader to use; 'auto' detects it from each path")
+    format: str = Field("auto", description="reader to use: a built-in or installed reader's name (zipon ingest "
+                        "--help lists them); 'auto' detects it from each path")
 
     @model_validator(mode="after")
     def _one_source_key(self) -> "SceneSource":
@@ -46,6 +44,19 @@ class SceneSource(Section):
         if self.sources is not None and "simulate" in self.sources:
             raise ValueError("'sources' lists paths; a simulated scene is 'source: simulate'")
         return self
+
+    @field_validator("format")
+    @classmethod
+    def _known_format(cls, name: str) -> str:
+        from pipeline import plugins
+
+        if name == "auto" or name in plugins.BUILT_IN_READERS:  # known without reading the installed packages
+            return name
+        known = plugins.reader_names()
+        if name not in known:
+            raise ValueError(f"unknown format {name!r}: 'auto' or a reader, built-in or installed (zipon.readers "
+                             f"entry points): {known}")
+        return name
 
     @model_serializer(mode="wrap")
     def _without_unused_key(self, handler) -> dict:

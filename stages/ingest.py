@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from pipeline.config import IngestParams, Params, SceneFormat
+from pipeline.config import IngestParams, Params
 from pipeline.stageconfig import StageConfig
 from pipeline.stagegraph import scene_sources
 
@@ -21,7 +21,7 @@ class Config(StageConfig):
     of it: the source's content digest is the stage's input, so moving a dataset folder rebuilds nothing."""
 
     ingest: IngestParams
-    format: SceneFormat
+    format: str
 
     @classmethod
     def param_keys(cls, params: Params, scene: str) -> list[str]:

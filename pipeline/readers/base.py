@@ -8,8 +8,9 @@ A :class:`Reader` turns a raw log or dataset folder into
 
 The shared :mod:`pipeline.readers.matcher` consumes that stream whatever the format, so every
 reader gets the same timestamp matching, tolerance, interpolation and unmatched-frame report.
-Add a format by writing one file with a ``@register("name")`` subclass and importing it in
-``pipeline/readers/__init__.py``.
+A format is a :class:`Reader` subclass with a ``name`` and a ``layout``, declared by name: zipon's own in
+:data:`pipeline.plugins.BUILT_IN_READERS`, a third party's in the ``zipon.readers`` entry points of its package. The
+accepted ``scenes.<s>.format`` names, ``zipon ingest --format`` and the messages below all come from that registry.
 """
 
 from __future__ import annotations
@@ -18,10 +19,11 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
-from typing import Any, Callable, ClassVar, Iterator
+from typing import Any, ClassVar, Iterator
 
 import numpy as np
 
+from pipeline import plugins
 from pipeline.config import IngestParams
 from pipeline.errors import InputDataError, MissingInputError
 from pipeline.geometry import Intrinsics, nearest_rigid, pose_from_tq
@@ -92,9 +94,11 @@ class SourceInfo:
 
 
 class Reader(ABC):
-    """A raw format. Subclasses are registered with :func:`register` and built by :func:`open_reader`."""
+    """A raw format, found by its ``name`` in the reader registry (:func:`reader_class`) and built by
+    :func:`open_reader`. ``layout`` says what :meth:`detect` looks for, in the words of "cannot tell the format"."""
 
     name: ClassVar[str]
+    layout: ClassVar[str]
     # The up axis of the dataset's world as documented by the dataset (ingest.world_up 'dataset'), and whether
     # that axis is up only approximately (levelled on the floor when one is found, pipeline.readers.world_up).
     world_up: ClassVar[str] = "+z"
@@ -118,16 +122,24 @@ class Reader(ABC):
         """Every message, ordered by time; within a stream (pose link) stamps must strictly increase."""
 
 
+#: the readers loaded so far, by format name (filled by :func:`reader_class`)
 READERS: dict[str, type[Reader]] = {}
 
 
-def register(name: str) -> Callable[[type[Reader]], type[Reader]]:
-    def deco(cls: type[Reader]) -> type[Reader]:
-        cls.name = name
+def reader_class(name: str) -> type[Reader] | None:
+    """The reader of format ``name``, built in or registered by an installed package; None for a name neither
+    declares. Raises ConfigError naming the entry point when a registration does not load or does not fit."""
+    if name not in READERS:
+        cls = plugins.load_class(plugins.READERS_GROUP, name, Reader, "pipeline.readers.base.Reader", "reader")
+        if cls is None:
+            return None
         READERS[name] = cls
-        return cls
+    return READERS[name]
 
-    return deco
+
+def all_readers() -> dict[str, type[Reader]]:
+    """Every reader of the registry by format name (built-ins first)."""
+    return {name: reader_class(name) for name in plugins.reader_names()}
 
 
 def detect_format(path: Path) -> str:
@@ -135,25 +147,25 @@ def detect_format(path: Path) -> str:
     path = Path(path)
     if not path.exists():
         raise MissingInputError(f"{path}: raw data not found")
-    found = [name for name, cls in READERS.items() if cls.detect(path)]
+    readers = all_readers()
+    found = [name for name, cls in readers.items() if cls.detect(path)]
     if len(found) == 1:
         return found[0]
     if not found:
+        layouts = ", ".join(f"{getattr(cls, 'layout', f'a {name} source')} ({name})" for name, cls in readers.items())
         raise InputDataError("cannot tell the format of this path", path=path,
-                             expected="a ROS 2 .mcap file (or rosbag2 folder holding one), a ROS 1 .bag, a ROS 2 "
-                                      ".db3 (or rosbag2 folder), a TUM RGB-D folder (rgb.txt, depth.txt), a 7-Scenes "
-                                      "folder (frame-*.color.png), a navchat recording (rgb/, depth/*.npy, pose/), a "
-                                      "Replica sequence (results/, traj.txt), an exported ScanNet scene (color/, "
-                                      "depth/, pose/, intrinsic/); or set the scene's format (--format)")
+                             expected=f"{layouts}; or set the scene's format (--format)")
     raise InputDataError(f"path matches several formats {found}", path=path, expected="set the scene's format")
 
 
 def open_reader(path: Path, params: IngestParams, fmt: str = "auto") -> Reader:
     """The reader for ``path`` (``fmt`` a registry name or 'auto')."""
     name = detect_format(path) if fmt == "auto" else fmt
-    if name not in READERS:
-        raise InputDataError(f"unknown format {name!r}", path=path, expected=f"one of {sorted(READERS)} or 'auto'")
-    return READERS[name](Path(path), params)
+    cls = reader_class(name)
+    if cls is None:
+        raise InputDataError(f"unknown format {name!r}", path=path,
+                             expected=f"one of {plugins.reader_names()} or 'auto'")
+    return cls(Path(path), params)
 
 
 # ----------------------------------------------------------------------------- helpers for readers

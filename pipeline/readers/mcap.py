@@ -13,7 +13,6 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from pipeline.errors import InputDataError
-from pipeline.readers.base import register
 from pipeline.readers.roslog import MessageSource, RosLogReader
 from pipeline.ros2 import IMAGE, parse_compressed_cdr, parse_image_cdr
 
@@ -91,9 +90,11 @@ class McapSource(MessageSource):
         self._stream.close()
 
 
-@register("mcap")
 class McapReader(RosLogReader):
     """A ``.mcap`` file, or a rosbag2 folder holding exactly one (see the module doc)."""
+
+    name = "mcap"
+    layout = "a ROS 2 .mcap file (or rosbag2 folder holding one)"
 
     @classmethod
     def detect(cls, path: Path) -> bool:

@@ -24,15 +24,17 @@ import numpy as np
 from pipeline.errors import InputDataError
 from pipeline.geometry import Intrinsics, habitat_to_world
 from pipeline.readers.base import (DEPTH, INSTANCE, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, frame_stamps_ns,
-                                   pose_from_tq_checked, read_image, register)
+                                   pose_from_tq_checked, read_image)
 
 NAVCHAT_HFOV_DEG = 90.0
 _RGB = re.compile(r"^(.+)_(\d+)\.png$")
 
 
-@register("navchat")
 class NavchatReader(Reader):
     """See the module doc."""
+
+    name = "navchat"
+    layout = "a navchat recording (rgb/, depth/*.npy, pose/)"
 
     @classmethod
     def detect(cls, path: Path) -> bool:

@@ -21,7 +21,7 @@ import numpy as np
 from pipeline.errors import InputDataError
 from pipeline.geometry import Intrinsics, nearest_rigid
 from pipeline.readers.base import (DEPTH, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, frame_stamps_ns,
-                                   read_depth16, read_image, read_text_lines, register)
+                                   read_depth16, read_image, read_text_lines)
 from pipeline.userfiles import load_user_file
 
 # NICE-SLAM configs/Replica/replica.yaml
@@ -42,9 +42,11 @@ def _camera(folder: Path) -> tuple[dict, str]:
     return dict(REPLICA_CAMERA), "NICE-SLAM replica.yaml defaults"
 
 
-@register("replica")
 class ReplicaReader(Reader):
     """See the module doc."""
+
+    name = "replica"
+    layout = "a Replica sequence (results/, traj.txt)"
 
     @classmethod
     def detect(cls, path: Path) -> bool:

@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from pipeline.errors import InputDataError
-from pipeline.readers.base import register
 from pipeline.readers.roslog import MessageSource, RosLogReader
 from pipeline.ros2 import IMAGE, parse_compressed_cdr, parse_image_cdr
 from pipeline.userfiles import load_user_file
@@ -107,9 +106,11 @@ class RosbagsSource(MessageSource):
         self._reader.close()
 
 
-@register("rosbag")
 class RosbagReader(RosLogReader):
     """See the module doc."""
+
+    name = "rosbag"
+    layout = "a ROS 1 .bag or a ROS 2 .db3 (or rosbag2 folder holding one)"
 
     @classmethod
     def detect(cls, path: Path) -> bool:

@@ -25,7 +25,7 @@ import numpy as np
 from pipeline.errors import InputDataError
 from pipeline.geometry import Intrinsics, invert_pose, nearest_rigid
 from pipeline.readers.base import (DEPTH, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, frame_stamps_ns,
-                                   read_depth16, read_image, register)
+                                   read_depth16, read_image)
 from pipeline.readers.matcher import index_ranges
 from pipeline.readers.registration import DepthRegistration
 
@@ -42,9 +42,11 @@ def _matrix(file: Path, what: str) -> np.ndarray:
     return M
 
 
-@register("scannet")
 class ScanNetReader(Reader):
     """See the module doc."""
+
+    name = "scannet"
+    layout = "an exported ScanNet scene (color/, depth/, pose/, intrinsic/)"
 
     @classmethod
     def detect(cls, path: Path) -> bool:

@@ -29,7 +29,7 @@ import numpy as np
 from pipeline.errors import InputDataError
 from pipeline.geometry import Intrinsics
 from pipeline.readers.base import (DEPTH, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, frame_stamps_ns,
-                                   native_intrinsics, read_depth16, read_image, read_pose_matrix, register)
+                                   native_intrinsics, read_depth16, read_image, read_pose_matrix)
 
 SEVEN_SCENES_INTRINSICS = (585.0, 585.0, 320.0, 240.0)
 INTRINSICS_FILE = "camera-intrinsics.txt"
@@ -66,9 +66,11 @@ def camera_intrinsics_file(file: Path, first_image: Path) -> tuple[Intrinsics, n
     return Intrinsics(fx, fy, cx, cy, w, h), K
 
 
-@register("7scenes")
 class SevenScenesReader(Reader):
     """See the module doc."""
+
+    name = "7scenes"
+    layout = "a 7-Scenes folder (frame-*.color.png)"
 
     world_up = "-y"
     world_up_levelled = True  # the first Kinect frame is level only as far as the person held it level

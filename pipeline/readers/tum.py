@@ -21,7 +21,7 @@ from pipeline.errors import InputDataError
 from pipeline.geometry import Intrinsics
 from pipeline.readers.base import (DEPTH, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, parse_stamp_ns,
                                    native_intrinsics, pose_from_tq_checked, read_depth16, read_image,
-                                   read_text_lines, register)
+                                   read_text_lines)
 
 # (fx, fy, cx, cy) published for each Kinect of the benchmark, 640x480.
 TUM_INTRINSICS = {"fr1": (517.3, 516.5, 318.6, 255.3), "fr2": (520.9, 521.0, 325.1, 249.7),
@@ -50,9 +50,11 @@ def tum_depth_to_mm(raw: np.ndarray) -> np.ndarray:
     return ((raw.astype(np.uint32) + 2) // 5).astype(np.uint16)
 
 
-@register("tum")
 class TumReader(Reader):
     """See the module doc."""
+
+    name = "tum"
+    layout = "a TUM RGB-D folder (rgb.txt, depth.txt)"
 
     @classmethod
     def detect(cls, path: Path) -> bool:

@@ -10,6 +10,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
+from pipeline import plugins
 from zipon.cli.common import G, app, console, out, print_eval, print_outcomes, run_stages
 
 
@@ -147,9 +148,10 @@ def simulate(
 
 @app.command()
 def ingest(
-    path: Path = typer.Argument(..., exists=False, help="MCAP log, TUM / 7-Scenes / navchat folder"),
+    path: Path = typer.Argument(..., exists=False, help="raw log or dataset folder (see --format)"),
     scene: str = typer.Option(..., "--scene", "-s", help="scene name for the artifacts"),
-    fmt: str = typer.Option("auto", "--format", help="auto | mcap | rosbag | tum | 7scenes | navchat | replica | scannet"),
+    fmt: str = typer.Option("auto", "--format", help=f"auto | {' | '.join(plugins.BUILT_IN_READERS)} | a reader an "
+                            "installed package registers (zipon.readers entry points)"),
     force: bool = typer.Option(False, "--force", metavar="", help="rerun even when up to date"),
 ):
     """Ingest one raw log or dataset folder into DATA/artifacts/SCENE/frames.zarr (with its manifest).

@@ -9,12 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from typing import get_args
 
-from pipeline.config import IngestParams, SceneFormat
-from pipeline.errors import InputDataError, MissingInputError
+from pipeline import plugins
+from pipeline.config import IngestParams
+from pipeline.errors import ConfigError, InputDataError, MissingInputError
 from pipeline.frames import FrameStore
-from pipeline.readers import READERS, detect_format, open_reader
+from pipeline.paramsfile import parse_params
+from pipeline.readers import all_readers, detect_format, open_reader
 from pipeline.readers.ingest import ingest_path
 from tests.fixtures.raw_datasets import (decoded, make_recording, navchat_expected_poses, write_7scenes, write_bag,
                                          write_mcap, write_navchat, write_replica, write_scannet, write_tum)
@@ -79,9 +80,20 @@ def _navchat(tmp: Path) -> Case:
 FACTORIES = {"mcap": _mcap, "rosbag": _rosbag, "replica": _replica, "scannet": _scannet, "tum": _tum, "7scenes": _7scenes, "navchat": _navchat}
 
 
-def test_every_reader_has_a_contract_case():
-    assert set(FACTORIES) == set(READERS)
-    assert set(get_args(SceneFormat)) == set(READERS) | {"auto"}  # every reader can be named in params
+def test_every_reader_has_a_contract_case_a_layout_and_a_name_params_accept():
+    readers = all_readers()
+    assert set(FACTORIES) == set(readers) == set(plugins.BUILT_IN_READERS)
+    for name, cls in readers.items():
+        assert cls.name == name and cls.layout.startswith("a")
+        parsed = parse_params({"scenes": {"s": {"source": "x", "format": name}}})
+        assert parsed.scenes["s"].format == name
+    with pytest.raises(ConfigError, match=r"scenes.s.format: .*unknown format 'tumm'.*'mcap', 'rosbag', 'tum'"):
+        parse_params({"scenes": {"s": {"source": "x", "format": "tumm"}}})
+
+
+def test_unknown_format_named_to_open_reader(tmp_path):
+    with pytest.raises(InputDataError, match=r"unknown format 'tumm' \(expected one of \['mcap', .*'scannet'\] or 'auto'"):
+        open_reader(tmp_path, IngestParams(), "tumm")
 
 
 @pytest.mark.parametrize("fmt", sorted(FACTORIES))
@@ -114,8 +126,10 @@ class TestReaderContract:
 
 def test_detect_unknown_folder(tmp_path):
     (tmp_path / "notes.txt").write_text("hello")
-    with pytest.raises(InputDataError, match=r"file .*: cannot tell the format of this path \(expected a ROS 2"):
+    with pytest.raises(InputDataError, match=r"file .*: cannot tell the format of this path \(expected a ROS 2") as err:
         detect_format(tmp_path)
+    for name, cls in all_readers().items():  # the message is composed from the registry
+        assert f"{cls.layout} ({name})" in str(err.value)
     with pytest.raises(MissingInputError, match="raw data not found"):
         detect_format(tmp_path / "absent")
 
