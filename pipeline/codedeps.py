@@ -7,9 +7,9 @@ any scope (an import inside a function counts as much as one at the top), plus t
 of every package on the way (Python runs them on import). Nothing is imported to compute it, so
 ``zipon status`` stays fast and a syntax error in a stage is reported, not raised.
 
-Dynamic imports (``importlib.import_module(name)`` with a computed name) are not seen; the
-project uses none for its own modules (registries are filled by explicit imports in the package
-``__init__.py``).
+Dynamic imports (``importlib.import_module(name)`` with a computed name) are not seen. The project's one
+registry loaded by name, the built-in readers (:data:`pipeline.plugins.BUILT_IN_READERS`), is added from its
+declarations: code that imports :mod:`pipeline.readers.base` (which loads them) runs every built-in reader.
 
 Parsing every file of the project costs most of a ``zipon status`` (~0.8 s for ~100 files), so the
 imports read from a file are kept in a small cache keyed by the file's bytes and module name
@@ -28,7 +28,7 @@ import os
 from functools import lru_cache
 from pathlib import Path
 
-from pipeline import __version__
+from pipeline import __version__, plugins
 from pipeline.errors import ZiponError
 from pipeline.paths import ENV_CACHE
 
@@ -177,6 +177,8 @@ def import_closure(entry: str, root: Path = ROOT) -> list[Path]:
 
 
 _CLOSURES: dict[tuple[str, Path], tuple[tuple | None, list[Path]]] = {}
+#: modules that load project modules by name from a declaration: {loader: the modules it loads}
+LOADED_BY_NAME = {"pipeline.readers.base": sorted({v.split(":")[0] for v in plugins.BUILT_IN_READERS.values()})}
 
 
 def _stamps(paths: list[Path]) -> tuple | None:
@@ -206,6 +208,7 @@ def _closure(entry: str, root: Path) -> list[Path]:
         parts = mod.split(".")
         todo += [pkg for pkg in (".".join(parts[:i]) for i in range(1, len(parts))) if pkg not in seen and file_of(pkg)]
         todo += [m for m in _imports_of(file_of(mod), mod, root) if m not in seen]
+        todo += [m for m in LOADED_BY_NAME.get(mod, ()) if m not in seen and file_of(m)]
     return sorted({file_of(m) for m in seen})
 
 

@@ -162,3 +162,14 @@ def test_a_damaged_or_unwritable_cache_changes_nothing(checkout, fresh_cache, mo
     fresh_cache()
     assert _closure(checkout) == expected and not (blocker / "cache").exists()
 
+
+
+def test_the_ingest_stage_runs_every_built_in_reader_loaded_by_name():
+    """Built-in readers are loaded from their declarations, not imported by name: their files are still code of
+    the ingest stage (editing the TUM reader makes frames stale)."""
+    from pipeline import plugins
+
+    files = {p.relative_to(codedeps.ROOT).as_posix() for p in codedeps.import_closure("stages.ingest")}
+    modules = {v.split(":")[0] for v in plugins.BUILT_IN_READERS.values()}
+    assert {m.replace(".", "/") + ".py" for m in modules} <= files
+    assert "pipeline/readers/roslog.py" in files  # and what they import
