@@ -9,7 +9,8 @@ import pytest
 from orion_eval.agents import AGENTS, build_agent
 from orion_eval.agents.base import ParsedFeedback
 from orion_eval.agents.controller import ModularAgent, ModuleSet, SearchState
-from orion_eval.artifacts import Artifacts
+from pipeline.scene import Scene
+from stages import STAGES
 from orion_eval.episode import EpisodeRun, Task
 from orion_eval.scene import SceneContext
 from orion_eval.user import SimulatedUser
@@ -18,7 +19,7 @@ from orion_eval.user import SimulatedUser
 @pytest.fixture(scope="module")
 def ctx(tiny_scene):
     ws, params = tiny_scene
-    return SceneContext(Artifacts(ws, params, "tiny"))
+    return SceneContext(Scene(ws, params, "tiny", STAGES, check=True))
 
 
 def episode(ctx, method="orion", goal_index=0):
