@@ -9,7 +9,7 @@ Building the scenes' artifacts is the batch pipeline's job and is NOT timed: wit
 scenes ``bench_00``... (fresh procedural apartments, not the demo's) are written to ``DIR/params.yaml``
 and built with ``zipon run``'s runner (``run.scheduler: processes``); a second call finds them up to date and
 reuses them. Their maps come from the simulated perception models (``encoders.simulated: perception``), and
-the CoW / ORION agents detect with the simulated detector. The timed part is :func:`orion_eval.run.run_eval`
+the CoW / ORION agents detect with the simulated detector. The timed part is :func:`orion_eval.run.evaluate`
 (results.json and the HTML report included) into ``DIR/eval``.
 
 Prints one JSON object per line:
@@ -35,7 +35,8 @@ from pathlib import Path
 from _common import emit
 
 from orion_eval.agents import AGENTS
-from orion_eval.run import run_eval
+from orion_eval.run import evaluate
+from stages import STAGES
 from orion_eval.user import FEEDBACK_SETTINGS
 from pipeline.paramsfile import load_params
 from pipeline.paths import Workspace
@@ -62,7 +63,6 @@ def build(root: Path, n_scenes: int, frames: int, rebuild: bool = False, stages:
     e.g. goals and routes after their format changed)."""
     from pipeline.stagegraph import plan
     from pipeline.runner import run_many
-    from stages import STAGES
 
     root.mkdir(parents=True, exist_ok=True)
     text = build_params(n_scenes, frames, prefix, seed)
@@ -139,7 +139,7 @@ def main() -> None:
     load0 = os.getloadavg()[0]
     cpu0 = _cpu_seconds()
     t = time.perf_counter()
-    res = run_eval(ws, params, out, scenes=list(params.scenes), methods=METHODS, feedback=feedback,
+    res = evaluate(ws, params, STAGES, out, scenes=list(params.scenes), methods=METHODS, feedback=feedback,
                    seeds=list(range(args.seeds)), progress=False)
     seconds = time.perf_counter() - t
     cpu = _cpu_seconds() - cpu0

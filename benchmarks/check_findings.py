@@ -26,7 +26,8 @@ from _common import emit
 from benchmarks.bench_eval import build
 from scipy.stats import spearmanr
 
-from orion_eval.run import run_eval
+from orion_eval.run import evaluate
+from stages import STAGES
 from orion_eval.user import FEEDBACK_SETTINGS
 from pipeline.paramsfile import load_params
 
@@ -212,7 +213,7 @@ def main() -> None:
     ws = build(args.workspace, args.scenes, args.frames, prefix="findings", seed=2027, bench="findings")
     params = load_params(ws.params_path)
     params = params.model_copy(update={"eval": params.eval.model_copy(update={"workers": args.workers})})
-    res = run_eval(ws, params, args.workspace / "eval", scenes=list(params.scenes), methods=list(METHODS),
+    res = evaluate(ws, params, STAGES, args.workspace / "eval", scenes=list(params.scenes), methods=list(METHODS),
                    feedback=list(FEEDBACK_SETTINGS), seeds=list(range(args.seeds)), progress=False, report=False)
     emit(bench="findings", figure="run", episodes=res["run"]["episodes"], seconds=res["run"]["seconds"])
     doc = print_report(res, Cells(res["episodes"]), args.boot)

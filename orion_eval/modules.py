@@ -40,7 +40,9 @@ def new_memory(ctx) -> MemoryMaps:
 
 
 @dataclass
-class ObjectEntry:
+class FoundObject:
+    """An object the agent has found in this episode (from a map, a detection...); not a goals-document object."""
+
     obj_id: int
     center_xy: np.ndarray
     cells: np.ndarray  # flat cell ids
@@ -55,7 +57,7 @@ class Modules:
     def __init__(self, run, memory: MemoryMaps | None = None):
         self.run = run  # EpisodeRun: body, ctx, act(), talk()
         self.ctx = run.ctx
-        self.objects: dict[int, ObjectEntry] = {}
+        self.objects: dict[int, FoundObject] = {}
         # a memory carried across the goals of a scene (evaluate_scene), else a fresh one
         self.memory = memory if memory is not None else new_memory(self.ctx)
         self._explored = None
@@ -76,7 +78,7 @@ class Modules:
                     e.texts.add(text)
                 return e.obj_id
         oid = len(self.objects) + 1
-        self.objects[oid] = ObjectEntry(oid, c, np.asarray(cells, np.int64), source, score, {text} if text else set())
+        self.objects[oid] = FoundObject(oid, c, np.asarray(cells, np.int64), source, score, {text} if text else set())
         return oid
 
     def relative(self, obj_id: int) -> tuple[float, float]:

@@ -17,21 +17,22 @@ import gzip
 import json
 import time
 from pathlib import Path
+from typing import Mapping
 
 import numpy as np
 
 from orion_eval.agents import build_agent
-from orion_eval.artifacts import Artifacts
 from orion_eval.episode import Task, run_episode, start_pose
 from orion_eval.scene import SceneContext
 from orion_eval.user import FEEDBACK_SETTINGS, HUMAN_FEEDBACK
 from pipeline.config import Params
 from pipeline.errors import ConfigError
 from pipeline.paths import Workspace
+from pipeline.scene import Scene
 from pipeline.store import write_text_atomic
 
 
-def scene_tasks(arts: Artifacts, methods, feedback, seeds) -> list[tuple[Task, object]]:
+def scene_tasks(arts: Scene, methods, feedback, seeds) -> list[tuple[Task, object]]:
     """(task, goal view) pairs of one scene in a fixed order (seed, setting, method, goal): the goals of one
     (seed, setting, method) run are consecutive, in goals.zarr order (the order memory is carried in)."""
     out = []
@@ -45,19 +46,20 @@ def scene_tasks(arts: Artifacts, methods, feedback, seeds) -> list[tuple[Task, o
                         continue  # unreachable goal: reported by the routes stage, not an episode
                     e = eps[seed % len(eps)]
                     p0 = start_pose(e.start, seed, len(eps))
-                    out.append((Task(arts.scene, method, fb, int(seed), goal.id, e.id, p0, float(e.geodesic_m)),
+                    out.append((Task(arts.name, method, fb, int(seed), goal.id, e.id, p0, float(e.geodesic_m)),
                                 goal))
     return out
 
 
-def evaluate_scene(ws: Workspace, params: Params, scene: str, methods, feedback, seeds,
+def evaluate_scene(ws: Workspace, params: Params, stages: Mapping, scene: str, methods, feedback, seeds,
                    log_dir: Path | None = None, threads: int = 1, agent_classes: dict | None = None) -> list[dict]:
     """All episodes of one scene (the unit of work); writes ``log_dir/<scene>.episodes.jsonl.gz`` when given.
+    ``stages``: the stage registry (``stages.STAGES``: which stage produces which artifact).
     ``agent_classes`` maps method names to user :class:`~orion_eval.agents.Agent` subclasses (beside the registry)."""
     from pipeline.process import limit_native_threads
 
     limit_native_threads(threads)
-    arts = Artifacts(ws, params, scene)
+    arts = Scene(ws, params, scene, stages, check=True)
     ctx = SceneContext(arts)
     lp = params.eval.llm
     client = llm_user = None
@@ -120,9 +122,12 @@ def _resolve(params: Params, scenes, methods, feedback, seeds, agent_classes=Non
     return scenes, methods, feedback, seeds
 
 
-def run_eval(ws: Workspace, params: Params, out_dir: Path, scenes=None, methods=None, feedback=None, seeds=None,
-             *, progress: bool = True, report: bool = True, agent_classes: dict | None = None) -> dict:
-    """Evaluate, write ``out_dir/results.json`` (+ episode logs, + the HTML report) and return the results.
+def evaluate(ws: Workspace, params: Params, stages: Mapping, out_dir: Path, scenes=None, methods=None, feedback=None,
+             seeds=None, *, progress: bool = True, report: bool = True, agent_classes: dict | None = None) -> dict:
+    """Evaluate, write ``out_dir/results.json`` (+ episode logs, + the HTML report) and return the results: the
+    evaluator behind :func:`zipon.run_eval`, the one entry the CLI, the demo and the API call.
+
+    ``stages``: the stage registry (``stages.STAGES``), which says which stage produces which artifact.
 
     ``agent_classes`` {name: Agent subclass} adds user agents to the registry's for this run (``methods``
     names them); they must be importable by name when ``eval.workers`` > 1 (worker processes).
@@ -132,7 +137,7 @@ def run_eval(ws: Workspace, params: Params, out_dir: Path, scenes=None, methods=
     out_dir = Path(out_dir)
     scenes, methods, feedback, seeds = _resolve(params, scenes, methods, feedback, seeds, agent_classes)
     for s in scenes:  # fail early, before any worker starts, on missing or mismatched artifacts
-        Artifacts(ws, params, s)
+        Scene(ws, params, s, stages, check=True)
     if params.eval.llm.base_url:
         from orion_eval.llm import check_llm_params
 
@@ -145,7 +150,7 @@ def run_eval(ws: Workspace, params: Params, out_dir: Path, scenes=None, methods=
     if workers > 1:
         import dask
 
-        tasks = [dask.delayed(evaluate_scene, pure=False)(ws, params, s, methods, simulated, seeds, log_dir,
+        tasks = [dask.delayed(evaluate_scene, pure=False)(ws, params, stages, s, methods, simulated, seeds, log_dir,
                                                           agent_classes=agent_classes) for s in scenes]
         per_scene = dask.compute(*tasks, scheduler="processes", num_workers=workers)
     else:
@@ -155,7 +160,7 @@ def run_eval(ws: Workspace, params: Params, out_dir: Path, scenes=None, methods=
                 from rich.console import Console
 
                 Console(stderr=True).print(f"[dim]eval:[/dim] scene {s}")
-            per_scene.append(evaluate_scene(ws, params, s, methods, simulated, seeds, log_dir,
+            per_scene.append(evaluate_scene(ws, params, stages, s, methods, simulated, seeds, log_dir,
                                             agent_classes=agent_classes))
     episodes = [r for rs in per_scene for r in rs] + human
     seconds = time.perf_counter() - t0

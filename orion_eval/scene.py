@@ -20,11 +20,11 @@ import numpy as np
 import torch
 from scipy import ndimage
 
-from orion_eval.artifacts import Artifacts
 from orion_eval.nav import NavPlanner
 from orion_eval.world import SuccessRule, World
 from pipeline.encoders.base import cached_text_features
 from pipeline.routes.actions import RouteSettings
+from pipeline.scene import Scene
 
 
 @dataclass
@@ -51,12 +51,12 @@ class Detection:
 class SceneContext:
     """Per-scene state shared by all episodes (see the module docstring)."""
 
-    def __init__(self, arts: Artifacts):
+    def __init__(self, arts: Scene):
         self.arts, self.params = arts, arts.params
         ep, task = self.params.eval, self.params.task
         self.grid = arts.grid
         self.navigable = arts.navigable
-        # the action space and success radius routes.zarr was built with (Artifacts checks the params agree)
+        # the action space and success radius routes.zarr was built with (Scene checks the params agree)
         self.step_m, self.turn_deg, self.success_m = arts.action_space()
         self.world = World(self.navigable, self.grid, step_m=self.step_m, turn_deg=self.turn_deg)
         space = {"step_m": self.step_m, "turn_deg": self.turn_deg}

@@ -33,8 +33,8 @@ from pipeline.locks import output_lock
 from pipeline.publication import check_inputs_unchanged, publish_outputs, recover
 from pipeline.store import ArrayDigests, content_digest, new_tmp_dir, remove, sweep_tmp
 from pipeline.process import limit_native_threads, peak_rss_mb
-from pipeline.stagegraph import (SOURCE, StageSpec, code_digest, input_digests, source_key, source_paths, stage_levels,
-                                 staleness, upstream_stages)
+from pipeline.stagegraph import (SOURCE, StageSpec, input_digests, source_key, source_paths, stage_code_digest,
+                                 stage_levels, staleness, upstream_stages)
 
 
 @dataclass
@@ -306,7 +306,7 @@ def _run_stage(
             records[name] = OutputRecord(path=ws.relative(ws.artifact(name, scene)), digest=content_digest(path, known))
         seconds = time.perf_counter() - t0
         man = Manifest(
-            stage=stage, scene=scene, code_version=__version__, code_digest=code_digest(spec),
+            stage=stage, scene=scene, code_version=__version__, code_digest=stage_code_digest(spec),
             code_files=codedeps.file_digests(spec.module),
             params=projection, params_digest=ctx.params_digest, inputs=in_digests, outputs=records,
             summary=summary, layout=dict(ARTIFACTS),

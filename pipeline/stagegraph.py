@@ -59,7 +59,7 @@ class StageSpec:
         return params.scenes[scene].simulated or not self.simulated_only
 
 
-def code_digest(spec: StageSpec) -> str:
+def stage_code_digest(spec: StageSpec) -> str:
     """Digest of the source of every project module the stage's module imports (transitively)."""
     return codedeps.code_digest(spec.module)
 
@@ -163,7 +163,7 @@ def staleness(ws: Workspace, params: Params, stages: dict[str, StageSpec], spec:
         if not ws.artifact(name, scene).exists():
             return f"output {name} missing"
     reasons = []
-    if man.code_digest != code_digest(spec):
+    if man.code_digest != stage_code_digest(spec):
         files = codedeps.changed_files(man.code_files, codedeps.file_digests(spec.module))
         reasons.append("code changed" + (f": {', '.join(files)}" if files and man.code_files else ""))
     _, projection = spec.build_config(params, scene)

@@ -25,15 +25,7 @@ MAY_IMPORT = {"pipeline": {"pipeline"}, "stages": {"pipeline", "stages"}, "orion
 # Module-level import cycles that exist today, each with the issue item that removes it.
 MODULE_LEVEL_CYCLES_ALLOWED: dict[frozenset[str], str] = {}
 # Cycles closed only by imports inside functions (they work, but a module still needs its importer).
-DEFERRED_CYCLES_ALLOWED = {
-    **MODULE_LEVEL_CYCLES_ALLOWED,
-    # The encoder registry is filled on demand (pipeline.encoders.choice.load imports every implementation
-    # inside a function so that building a stage config imports no torch); each implementation imports base.
-    frozenset({"pipeline.encoders.base", "pipeline.encoders.choice", "pipeline.encoders.conceptfusion",
-               "pipeline.encoders.lseg", "pipeline.encoders.maskclip", "pipeline.encoders.oracle",
-               "pipeline.encoders.perception", "pipeline.encoders.perception_text",
-               "pipeline.encoders.torchscript"}): "by design (lazy registry, pipeline/encoders/choice.py)",
-}
+DEFERRED_CYCLES_ALLOWED = {**MODULE_LEVEL_CYCLES_ALLOWED}
 
 
 # ----------------------------------------------------------------------------- reading imports

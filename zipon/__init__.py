@@ -21,10 +21,11 @@ __all__ = ["Agent", "Dataset", "MapView", "Scene", "open", "run_eval"]
 
 if TYPE_CHECKING:  # pragma: no cover
     from orion_eval.agents import Agent
-    from zipon.api import Dataset, MapView, Scene, open, run_eval
+    from zipon.api import Dataset, MapView, Scene, open
+    from zipon.evaluate import run_eval
 
 _LAZY = {"Dataset": "zipon.api", "MapView": "zipon.api", "Scene": "zipon.api", "open": "zipon.api",
-         "run_eval": "zipon.api", "Agent": "orion_eval.agents"}
+         "run_eval": "zipon.evaluate", "Agent": "orion_eval.agents"}
 
 
 def __getattr__(name: str):

@@ -1,4 +1,5 @@
-"""``zipon.run_eval``: the evaluator (:func:`orion_eval.run.run_eval`) with user agent classes.
+"""``zipon.run_eval``: the one evaluation entry (the API, ``zipon eval`` and ``zipon demo`` call it): the evaluator
+(:func:`orion_eval.run.evaluate`) on a dataset's built scenes, with user agent classes.
 
 An agent is a subclass of :class:`orion_eval.agents.Agent` with a ``name`` and a
 ``run(m, instruction, goal_name)`` method acting through the ORION modules ``m``
@@ -18,25 +19,29 @@ from typing import Sequence
 from pipeline.errors import ConfigError
 
 
-def run_eval(workspace, params, out_dir: str | Path = "eval_out", *, agents: Sequence | None = None,
+def run_eval(dataset, out_dir: str | Path = "eval_out", *, agents: Sequence | None = None,
              scenes: Sequence[str] | None = None, feedback: Sequence[str] | None = None,
              seeds: int | Sequence[int] | None = None, report: bool = True, progress: bool = False) -> dict:
-    """Evaluate agents on the built scenes of ``workspace`` (a :class:`~pipeline.paths.Workspace`) with
-    ``params``; writes ``out_dir/results.json`` (+ report.html) and returns the results. :func:`zipon.run_eval`
-    (in :mod:`zipon.api`) opens a dataset first and calls this.
+    """Evaluate agents on built scenes; writes ``out_dir/results.json`` (+ report.html) and returns the results.
 
-    ``agents``: built-in names and/or :class:`~orion_eval.agents.Agent` subclasses (default: params
-    ``eval.methods``). ``seeds``: a count (``2`` = seeds 0 and 1) or explicit seeds (default: params ``eval.seeds``).
+    ``dataset``: a :class:`~zipon.api.Dataset` or anything :func:`zipon.open` takes; on an object-store data root
+    the evaluated scenes are mirrored first. ``agents``: built-in names and/or :class:`~orion_eval.agents.Agent`
+    subclasses (default: params ``eval.methods``). ``seeds``: a count (``2`` = seeds 0 and 1) or explicit seeds
+    (default: params ``eval.seeds``).
     """
-    from orion_eval.run import run_eval as _run_eval
+    from orion_eval.run import evaluate
+    from stages import STAGES
+    from zipon.api import Dataset, open
 
+    ds = dataset if isinstance(dataset, Dataset) else open(dataset)
     names, classes = agent_names(agents)
     if isinstance(seeds, bool) or (isinstance(seeds, int) and seeds < 1):
         raise ConfigError(f"seeds: expected a count >= 1 or a list of seeds, got {seeds!r}")
     seed_list = list(range(seeds)) if isinstance(seeds, int) else (None if seeds is None else [int(s) for s in seeds])
-    return _run_eval(workspace, params, Path(out_dir), scenes=list(scenes) if scenes else None,
-                     methods=names, feedback=list(feedback) if feedback else None, seeds=seed_list,
-                     progress=progress, report=report, agent_classes=classes or None)
+    ds.mirror(list(scenes or ds.params.eval.scenes or ds.params.scenes))  # what it evaluates
+    return evaluate(ds.workspace, ds.params, STAGES, Path(out_dir), scenes=list(scenes) if scenes else None,
+                    methods=names, feedback=list(feedback) if feedback else None, seeds=seed_list,
+                    progress=progress, report=report, agent_classes=classes or None)
 
 
 def agent_names(agents: Sequence | None) -> tuple[list[str] | None, dict[str, type]]:

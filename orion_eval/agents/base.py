@@ -26,7 +26,7 @@ DIRECTIONS = {"ahead on your left": 45.0, "ahead on your right": -45.0, "ahead":
 
 
 @dataclass
-class Feedback:
+class ParsedFeedback:
     yes: bool = False
     corrected_as: str | None = None  # corrective: what the agent found instead
     description: str | None = None  # descriptive: "red chair made of wood"
@@ -51,9 +51,9 @@ def parse_route(text: str) -> list[tuple[str, float]]:
     return out
 
 
-def parse_feedback(reply: str) -> Feedback:
+def parse_feedback(reply: str) -> ParsedFeedback:
     """Structured content of a user reply (see the module docstring)."""
-    fb = Feedback()
+    fb = ParsedFeedback()
     text = (reply or "").strip()
     if text.lower().startswith("yes"):
         fb.yes = True

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from orion_eval.agents.base import Agent, Feedback, parse_feedback
+from orion_eval.agents.base import Agent, ParsedFeedback, parse_feedback
 
 
 @dataclass(frozen=True)
@@ -163,7 +163,7 @@ class ModularAgent(Agent):
         st.spotted = self.ranked(m, st, [t[0] for t in m.look_around(st.query)])
 
     # ------------------------------------------------------------------ the user's reply
-    def update(self, m, st: SearchState, fb: Feedback, oid: int, goal_name: str) -> None:
+    def update(self, m, st: SearchState, fb: ParsedFeedback, oid: int, goal_name: str) -> None:
         """Change the search after a "No" (the same rules for every method; see the module docstring)."""
         if self.modules.memory:
             m.update_memory(oid, fb.corrected_as, goal_name)

@@ -1,5 +1,6 @@
 """Open-vocabulary dense encoders: the interface and registry in :mod:`pipeline.encoders.base`,
-one module per implementation (importing one registers it in :data:`ENCODERS`).
+one module per implementation (importing one registers it in :data:`ENCODERS`), building one in
+:mod:`pipeline.encoders.build`.
 
 Nothing heavy is imported with the package: :mod:`pipeline.encoders.choice` (which encoder a stage
 uses) needs no torch, and each implementation is imported when its name is first built
@@ -24,6 +25,10 @@ def __getattr__(name: str) -> Any:  # PEP 562: the names above, imported on firs
         from pipeline.encoders.choice import encoder_choice
 
         return encoder_choice
+    if name in ("build_encoder", "check_encoder"):
+        from pipeline.encoders import build
+
+        return getattr(build, name)
     if name in __all__:
         from pipeline.encoders import base
 

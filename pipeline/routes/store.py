@@ -93,8 +93,9 @@ class Verification(AttrsModel):
     rejected: list[dict[str, Any]]
 
 
-class GoalRegionAttrs(AttrsModel):
-    """``attrs.goal_region``: how episodes were aimed and replayed into the goal regions."""
+class RouteAimAttrs(AttrsModel):
+    """``attrs.goal_region`` of routes.zarr: how episodes were aimed and replayed into the goal regions (what
+    goals.zarr keeps under the same key, how the regions were cut, is :class:`pipeline.goals.store.GoalRegionAttrs`)."""
 
     hfov_deg: float | None = None
     stop_radius_m: float | None = None
@@ -111,7 +112,7 @@ class RoutesAttrs(ArtifactAttrs):
     episodes: list[EpisodeRecord]
     verification: Verification
     unreachable_goals: list[dict[str, Any]]
-    goal_region: GoalRegionAttrs = GoalRegionAttrs()
+    goal_region: RouteAimAttrs = RouteAimAttrs()
 
 
 def write_routes(path: Path, eps: EpisodeSetSource, *, grid: GridSpec, attrs: dict, step_m: float, turn_deg: float,

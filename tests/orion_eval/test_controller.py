@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 from orion_eval.agents import AGENTS, build_agent
-from orion_eval.agents.base import Feedback
+from orion_eval.agents.base import ParsedFeedback
 from orion_eval.agents.controller import ModularAgent, ModuleSet, SearchState
-from orion_eval.artifacts import Artifacts
+from pipeline.scene import Scene
+from stages import STAGES
 from orion_eval.episode import EpisodeRun, Task
 from orion_eval.scene import SceneContext
 from orion_eval.user import SimulatedUser
@@ -18,7 +19,7 @@ from orion_eval.user import SimulatedUser
 @pytest.fixture(scope="module")
 def ctx(tiny_scene):
     ws, params = tiny_scene
-    return SceneContext(Artifacts(ws, params, "tiny"))
+    return SceneContext(Scene(ws, params, "tiny", STAGES, check=True))
 
 
 def episode(ctx, method="orion", goal_index=0):
@@ -59,7 +60,7 @@ def test_procedural_point_is_walked_to_and_searched_around(ctx):
     st = SearchState(name=goal.name)
     oid = m.retrieve_map(goal.name, "vlmap")[0][0]
     x0, y0, yaw0 = m.pose
-    agent.update(m, st, Feedback(destination=(90.0, 2.0)), oid, goal.name)
+    agent.update(m, st, ParsedFeedback(destination=(90.0, 2.0)), oid, goal.name)
     moved = math.hypot(m.pose[0] - x0, m.pose[1] - y0)
     assert run.body.steps > 0 and moved > 0.5
     assert len(st.focus) == 1 and np.allclose(st.focus[0][0], m.pose[:2])
@@ -75,7 +76,7 @@ def test_a_route_is_followed_to_its_end_and_a_detector_looks_there(ctx):
     m = run.modules
     st = SearchState(name=goal.name)
     oid = m.retrieve_map(goal.name, ctx.params.eval.orion_map)[0][0]
-    agent.update(m, st, Feedback(route=[("turn", 90.0), ("forward", 1.0)]), oid, goal.name)
+    agent.update(m, st, ParsedFeedback(route=[("turn", 90.0), ("forward", 1.0)]), oid, goal.name)
     assert run.body.actions[:6] == [2] * 6  # six 15 deg left turns
     assert np.allclose(st.spin_at, m.pose[:2]) and np.allclose(st.focus[0][0], m.pose[:2])
 
@@ -87,9 +88,9 @@ def test_corrective_feedback_helps_only_through_memory(ctx):
         which = agent.map_name()
         oid = m.retrieve_map(goal.name, which)[0][0]
         plain, corrected = SearchState(name=goal.name), SearchState(name=goal.name)
-        agent.update(m, plain, Feedback(), oid, goal.name)
+        agent.update(m, plain, ParsedFeedback(), oid, goal.name)
         before = {k: dict(v) for k, v in m.memory.maps.items()}
-        agent.update(m, corrected, Feedback(corrected_as="Bob's chair"), oid, goal.name)
+        agent.update(m, corrected, ParsedFeedback(corrected_as="Bob's chair"), oid, goal.name)
         assert vars(plain) == vars(corrected)  # the search itself does not change
         assert (m.memory.maps["pos"] != before["pos"]) == remembered
         assert bool(m.retrieve_memory("Bob's chair")[0]) == remembered
@@ -104,7 +105,7 @@ def test_landmarks_are_located_with_the_methods_own_modules(ctx):
     assert len(hints) == 1 and len(hints[0]) == len(m.retrieve_map(phrase, "vlmap"))
     assert run.body.steps == 0  # the map answers without moving
     oid = m.retrieve_map(goal.name, "vlmap")[0][0]
-    agent.update(m, st, Feedback(landmarks=[phrase]), oid, goal.name)
+    agent.update(m, st, ParsedFeedback(landmarks=[phrase]), oid, goal.name)
     assert len(st.focus) == 1 and st.spin_at is None
     goal, run, cow = episode(ctx, "cow")
     run.modules.detector = "saliency"
@@ -118,7 +119,7 @@ def test_landmarks_are_located_with_the_methods_own_modules(ctx):
     assert all(np.array_equal(a, b) for a, b in zip(again, hints)) and set(st.landmarks) == {phrase, "bicycle"}
     st = SearchState(name=goal.name)
     oid = m.register(m.pose[:2], np.array([0]), "detect")
-    cow.update(m, st, Feedback(landmarks=[phrase], route=[("forward", 0.5)]), oid, goal.name)
+    cow.update(m, st, ParsedFeedback(landmarks=[phrase], route=[("forward", 0.5)]), oid, goal.name)
     if hints:  # with a route as well, both are hints; the detector looks around at the landmark
         assert len(st.focus) == 2 and st.spin_at is not None
 
@@ -128,6 +129,6 @@ def test_a_description_becomes_the_query(ctx):
     m = run.modules
     st = SearchState(name=goal.name)
     oid = m.retrieve_map(goal.name, "cfmap")[0][0]
-    agent.update(m, st, Feedback(description="red chair made of wood"), oid, goal.name)
+    agent.update(m, st, ParsedFeedback(description="red chair made of wood"), oid, goal.name)
     assert st.query == "red chair made of wood" and run.body.steps == 0
     assert st.queries == ["red chair made of wood", goal.name]  # the map: the description's candidates, then the name's

@@ -112,17 +112,18 @@ def test_draws_are_seeded_per_view_and_query(space):
 def test_scene_context_detects_with_the_simulated_detector(tiny_scene):
     """Simulated perception brings the simulated detector: the goal in front is found most of the time,
     an unrelated class seldom; the oracle diagnostic keeps the encoder's ground-truth detection."""
-    from orion_eval.artifacts import Artifacts
+    from pipeline.scene import Scene
+    from stages import STAGES
     from orion_eval.scene import SceneContext
     from orion_eval.world import Body
 
     ws, params = tiny_scene
-    assert SceneContext(Artifacts(ws, params, "tiny")).detector is None  # oracle maps: diagnostic detection
+    assert SceneContext(Scene(ws, params, "tiny", STAGES, check=True)).detector is None  # oracle maps: diagnostic detection
     found = unrelated = trials = 0
     for seed in range(2):
         ep = params.eval.model_copy(update={"detect_encoder": "simulated_lseg",
                                             "detector": DetectorParams(seed=seed)})
-        ctx = SceneContext(Artifacts(ws, params.model_copy(update={"eval": ep}), "tiny"))
+        ctx = SceneContext(Scene(ws, params.model_copy(update={"eval": ep}), "tiny", STAGES, check=True))
         assert ctx.detector is not None
         for goal in [g for g in ctx.arts.goals.goals if ctx.arts.routes.for_goal(g.id)][:4]:
             start = ctx.arts.routes.for_goal(goal.id)[0].start

@@ -7,7 +7,8 @@ from http.server import BaseHTTPRequestHandler, HTTPServer
 import numpy as np
 import pytest
 
-from orion_eval.artifacts import Artifacts
+from pipeline.scene import Scene
+from stages import STAGES
 from orion_eval.episode import EpisodeOver, EpisodeRun, Task
 from orion_eval.llm import ChatClient, LLMAgent, LLMUser, dispatch, parse_action
 from orion_eval.scene import SceneContext
@@ -72,7 +73,7 @@ def test_client_bounds_requests_and_sends_the_protocol():
 
 def test_llm_agent_and_user_drive_an_episode(tiny_scene):
     ws, params = tiny_scene
-    ctx = SceneContext(Artifacts(ws, params, "tiny"))
+    ctx = SceneContext(Scene(ws, params, "tiny", STAGES, check=True))
 
     def new_run(goal, ep):
         return EpisodeRun(ctx, Task("tiny", "llm", "yesno", 0, goal.id, ep.id, ep.start, ep.geodesic_m),

@@ -4,7 +4,8 @@ import math
 
 import numpy as np
 
-from orion_eval.artifacts import Artifacts
+from pipeline.scene import Scene
+from stages import STAGES
 from orion_eval.episode import EpisodeRun, Task
 from orion_eval.memory import MemoryMaps
 from orion_eval.scene import SceneContext
@@ -13,7 +14,7 @@ from orion_eval.user import SimulatedUser
 
 def _run(tiny_scene, goal_index=0):
     ws, params = tiny_scene
-    ctx = SceneContext(Artifacts(ws, params, "tiny"))
+    ctx = SceneContext(Scene(ws, params, "tiny", STAGES, check=True))
     goal = [g for g in ctx.arts.goals.goals if ctx.arts.routes.for_goal(g.id)][goal_index]
     ep = ctx.arts.routes.for_goal(goal.id)[0]
     task = Task("tiny", "orion", "yesno", 0, goal.id, ep.id, ep.start, ep.geodesic_m)

@@ -82,10 +82,11 @@ def test_method_colours_are_stable_and_names_escaped(tmp_path):
 
 
 def test_scene_page_with_pictures_and_episodes_renders_in_chromium(built_scene, tmp_path):
-    from orion_eval.run import run_eval
+    from orion_eval.run import evaluate
+    from stages import STAGES
 
     ws, params = built_scene
-    run_eval(ws, params, tmp_path, methods=["vlmap"], feedback=["mixed"], seeds=[0], progress=False)
+    evaluate(ws, params, STAGES, tmp_path, methods=["vlmap"], feedback=["mixed"], seeds=[0], progress=False)
     page = (tmp_path / "scenes" / "tiny.html").read_text()
     assert "Episode browser" in page and "episode_vlmap.png" in page and "goals.png" in page
     for name in ("goals.png", "routes.png", "episode_vlmap.png"):

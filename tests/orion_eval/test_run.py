@@ -1,4 +1,4 @@
-"""``run_eval`` end to end on the tiny scene: sanity of the results, determinism, the report."""
+"""The evaluator (``orion_eval.run.evaluate``) end to end on the tiny scene: results, determinism, the report."""
 
 import json
 import shutil
@@ -6,7 +6,8 @@ import subprocess
 
 import pytest
 
-from orion_eval.run import run_eval
+from orion_eval.run import evaluate
+from stages import STAGES
 from pipeline.errors import ConfigError
 
 MAP_AGENTS = ("vlmap", "cf", "orion")
@@ -17,7 +18,7 @@ FEEDBACK = ("corrective", "descriptive", "landmark", "procedural", "mixed")
 def evaluated(tiny_scene, tmp_path_factory):
     ws, params = tiny_scene
     out = tmp_path_factory.mktemp("eval_out")
-    res = run_eval(ws, params, out, seeds=[0], progress=False)
+    res = evaluate(ws, params, STAGES, out, seeds=[0], progress=False)
     return ws, params, out, res
 
 
@@ -73,8 +74,8 @@ def test_upper_bound_and_feedback_ordering(evaluated):
 def test_same_seed_same_results(tiny_scene, tmp_path):
     ws, params = tiny_scene
     kw = dict(methods=["cow", "orion"], feedback=["mixed"], seeds=[1], progress=False, report=False)
-    a = run_eval(ws, params, tmp_path / "a", **kw)
-    b = run_eval(ws, params, tmp_path / "b", **kw)
+    a = evaluate(ws, params, STAGES, tmp_path / "a", **kw)
+    b = evaluate(ws, params, STAGES, tmp_path / "b", **kw)
     strip = lambda r: [{k: v for k, v in e.items() if k != "seconds"} for e in r["episodes"]]
     assert strip(a) == strip(b) and a["overall"] == b["overall"]
     assert (tmp_path / "a" / "episodes" / "tiny.episodes.jsonl.gz").read_bytes() != b""
@@ -83,17 +84,17 @@ def test_same_seed_same_results(tiny_scene, tmp_path):
 def test_unknown_names_are_config_errors(tiny_scene, tmp_path):
     ws, params = tiny_scene
     with pytest.raises(ConfigError, match="--methods: unknown method"):
-        run_eval(ws, params, tmp_path, methods=["gpt"], progress=False)
+        evaluate(ws, params, STAGES, tmp_path, methods=["gpt"], progress=False)
     with pytest.raises(ConfigError, match="--feedback: unknown setting"):
-        run_eval(ws, params, tmp_path, feedback=["shouting"], progress=False)
+        evaluate(ws, params, STAGES, tmp_path, feedback=["shouting"], progress=False)
     with pytest.raises(ConfigError, match="--scene: unknown scene"):
-        run_eval(ws, params, tmp_path, scenes=["nope"], progress=False)
+        evaluate(ws, params, STAGES, tmp_path, scenes=["nope"], progress=False)
     named = params.model_copy(update={"eval": params.eval.model_copy(update={"methods": ("cow", "gpt"),
                                                                             "feedback": ("shouting",)})})
     with pytest.raises(ConfigError, match=r"eval\.methods: unknown method\(s\) \['gpt'\]; choose from \['human', "):
-        run_eval(ws, named, tmp_path, progress=False)
+        evaluate(ws, named, STAGES, tmp_path, progress=False)
     with pytest.raises(ConfigError, match=r"eval\.feedback: unknown setting\(s\) \['shouting'\]"):
-        run_eval(ws, named, tmp_path, methods=["cow"], progress=False)
+        evaluate(ws, named, STAGES, tmp_path, methods=["cow"], progress=False)
 
 
 def test_report_renders_in_headless_chromium(evaluated, tmp_path):
@@ -138,6 +139,6 @@ def test_scene_caches_do_not_change_episodes(tiny_scene):
 
     ws, params = tiny_scene
     strip = lambda rs, fb: [{k: v for k, v in e.items() if k != "seconds"} for e in rs if e["feedback"] == fb]  # noqa: E731
-    shared = evaluate_scene(ws, params, "tiny", ["cow", "orion"], ["yesno", "procedural"], [0])
-    alone = evaluate_scene(ws, params, "tiny", ["cow", "orion"], ["procedural"], [0])
+    shared = evaluate_scene(ws, params, STAGES, "tiny", ["cow", "orion"], ["yesno", "procedural"], [0])
+    alone = evaluate_scene(ws, params, STAGES, "tiny", ["cow", "orion"], ["procedural"], [0])
     assert strip(shared, "procedural") == strip(alone, "procedural") and len(alone) > 0

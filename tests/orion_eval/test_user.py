@@ -3,7 +3,8 @@
 import numpy as np
 
 from orion_eval.agents.base import parse_feedback, parse_route
-from orion_eval.artifacts import Artifacts
+from pipeline.scene import Scene
+from stages import STAGES
 from orion_eval.scene import SceneContext
 from orion_eval.user import SimulatedUser
 
@@ -30,7 +31,7 @@ def test_parse_feedback_templates():
 
 def test_replies_per_setting_are_deterministic(tiny_scene):
     ws, params = tiny_scene
-    ctx = SceneContext(Artifacts(ws, params, "tiny"))
+    ctx = SceneContext(Scene(ws, params, "tiny", STAGES, check=True))
     goal = ctx.arts.goals.goals[0]
     far = ctx.arts.routes.for_goal(goal.id)[0].start if ctx.arts.routes.for_goal(goal.id) else None
     assert far is not None
@@ -62,7 +63,7 @@ def test_procedural_is_spoken_like_a_person(tiny_scene):
     from orion_eval.user import POINTING
 
     ws, params = tiny_scene
-    ctx = SceneContext(Artifacts(ws, params, "tiny"))
+    ctx = SceneContext(Scene(ws, params, "tiny", STAGES, check=True))
     said = []
     for goal in ctx.arts.goals.goals:
         for ep in ctx.arts.routes.for_goal(goal.id):

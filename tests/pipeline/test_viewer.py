@@ -17,11 +17,12 @@ def cli(ws, *args) -> int:
 
 @pytest.fixture(scope="module")
 def evaluated(built_scene, tmp_path_factory):
-    from orion_eval.run import run_eval
+    from orion_eval.run import evaluate
+    from stages import STAGES
 
     ws, params = built_scene
     out = tmp_path_factory.mktemp("view_eval")
-    run_eval(ws, params, out, methods=["orion"], feedback=["mixed"], seeds=[0], progress=False, report=False)
+    evaluate(ws, params, STAGES, out, methods=["orion"], feedback=["mixed"], seeds=[0], progress=False, report=False)
     with gzip.open(out / "episodes" / "tiny.episodes.jsonl.gz", "rt") as f:
         first = json.loads(f.readline())
     return out, first

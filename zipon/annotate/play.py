@@ -43,14 +43,15 @@ class PlaySession:
 
     def __init__(self, workspace, params, scene: str, method: str, goal_id: str, seed: int = 0):
         from orion_eval.agents import build_agent
-        from orion_eval.artifacts import Artifacts
         from orion_eval.episode import EpisodeRun, Task, start_pose
         from orion_eval.scene import SceneContext
         from pipeline.errors import InputDataError
+        from pipeline.scene import Scene
+        from stages import STAGES
 
         self.id = secrets.token_hex(6)
         self.workspace, self.scene = workspace, scene
-        arts = Artifacts(workspace, params, scene)
+        arts = Scene(workspace, params, scene, STAGES, check=True)
         self.ctx = SceneContext(arts)
         goals = {g.id: g for g in arts.goals.goals}
         if goal_id not in goals:

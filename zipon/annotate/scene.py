@@ -30,7 +30,7 @@ class SceneView:
         return self.scene.name
 
     def has(self, artifact: str) -> bool:
-        return self.scene.dataset.workspace.artifact(artifact, self.name).exists()
+        return self.scene.workspace.artifact(artifact, self.name).exists()
 
     def _get(self, key, make):
         if key not in self._cache:
@@ -116,11 +116,11 @@ class SceneView:
         """The scene's objects file (``goals.objects_files.<scene>``) as an ObjectSet, or None when it has none."""
         from pipeline.goals.objects import objects_from_file
 
-        ds = self.scene.dataset
-        rel = ds.params.goals.objects_files.get(self.name)
-        if rel is None or not (ds.workspace.root / rel).is_file():
+        sc = self.scene
+        rel = sc.params.goals.objects_files.get(self.name)
+        if rel is None or not (sc.workspace.root / rel).is_file():
             return None
-        return objects_from_file(ds.workspace.root / rel, self.name)
+        return objects_from_file(sc.workspace.root / rel, self.name)
 
     def _trajectory(self) -> list[list[float]]:
         poses = self.recon.poses
@@ -266,7 +266,7 @@ class SceneView:
         if not grid.inside(grid.world_to_cell(np.array(start[:2]))):
             raise InputDataError(f"start ({start[0]:g}, {start[1]:g}) is off the map", field="start")
         planner = self._get("planner", lambda: RoutePlanner(
-            recon.navigable, grid, RouteSettings.from_config(self.scene.dataset.params.task)))
+            recon.navigable, grid, RouteSettings.from_config(self.scene.params.task)))
         mask = rasterize_polygons([np.asarray(goals.objects[k].footprint) for k in object_keys], grid) > 0
         first = goals.objects[object_keys[0]]
         route = planner.route(start, mask, face_xy=np.asarray(first.mass_center, dtype=np.float64))

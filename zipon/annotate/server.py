@@ -540,7 +540,7 @@ def play_start(request, wb, body):
         if not done:
             raise HTTPError(429, f"{MAX_PLAYS} episodes are running; finish one first", "method")
         wb._plays.pop(done[0])
-    session = PlaySession(wb.workspace, view.scene.dataset.params, scene, method, goal, seed)
+    session = PlaySession(wb.workspace, view.scene.params, scene, method, goal, seed)
     wb._plays[session.id] = session
     session.wait(20.0)
     return session.state()

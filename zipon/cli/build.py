@@ -241,13 +241,16 @@ def demo(
     ok = run_stages([], None, False, scheduler)
     ws, params = G.load()
     built = [s for s in params.scenes if ws.artifact("routes", s).exists()]
-    pictures = render_all(ws, params, list(params.scenes))
+    from zipon.api import Dataset
+
+    dataset = Dataset(ws, params)
+    pictures = render_all([dataset[s] for s in params.scenes])
     report = None
     if ok and eval_seeds and built:
-        from orion_eval.run import run_eval
+        from zipon.evaluate import run_eval
 
         eval_dir = ws.data_dir / "eval" / "demo"
-        results = run_eval(ws, params, eval_dir, scenes=built, seeds=list(range(eval_seeds)), progress=not G.quiet)
+        results = run_eval(dataset, eval_dir, scenes=built, seeds=eval_seeds, progress=not G.quiet)
         print_eval(results, eval_dir)
         report = eval_dir / "report.html"
     table = Table(title="zipon demo: where things are")

@@ -38,7 +38,7 @@ def render(
     if what not in RENDERS:
         raise ConfigError(f"--what {what!r}: choose one of {', '.join(RENDERS)}")
     sc = _scene(scene)
-    target = Path(out_png) if out_png else sc.dataset.workspace.renders(scene) / f"{what}.png"
+    target = Path(out_png) if out_png else sc.workspace.renders(scene) / f"{what}.png"
     art = sc.path  # on an object store: the artifact's published version, mirrored on first use
     if what == "frames":
         from pipeline.pictures import frames_contact_sheet
@@ -99,7 +99,7 @@ def goals_import(
 
     sc = _scene(scene)
     doc = validate_edit(edit_file, sc.path("goals"))  # on an object store: the published goals, mirrored first
-    ws = sc.dataset.workspace
+    ws = sc.workspace
     try:
         saved = save_goals_edit(ws, scene, doc, STAGES, overrides=G.overrides, show_progress=not G.quiet)
     except EditNotSaved as err:
@@ -169,7 +169,7 @@ def goals_export_navchat(
     from pipeline.goals.store import Goals
 
     sc = _scene(scene)  # on an object store its published goals and frames are mirrored on first use
-    ws, params = sc.dataset.workspace, sc.dataset.params
+    ws, params = sc.workspace, sc.params
     goals = Goals(sc.path("goals"))
     frames = FrameStore(sc.path("frames")) if sc.path("frames").exists() else None
     objects_json, final_json = export_scene(goals, params.goals, frames, scene, ws.root)
@@ -264,7 +264,7 @@ def query(
         out.print_json(json.dumps(doc))
         return
     if not result.candidates:
-        out.print(no_candidates_reason(result, sc.dataset.params.query))
+        out.print(no_candidates_reason(result, sc.params.query))
         if png:
             out.print(str(png))
         return
@@ -370,6 +370,7 @@ def eval_cmd(
     """
     from pipeline.errors import ConfigError
     from zipon.api import Dataset
+    from zipon.evaluate import run_eval
 
     if seeds is not None and seed_list:
         raise ConfigError("--seeds N (a count) and --seed-list (explicit seeds) exclude each other")
@@ -381,9 +382,8 @@ def eval_cmd(
         raise typer.BadParameter(f"{out_dir} is a file; give a folder for results.json, report.html and the "
                                  "episode logs", param_hint="--out")
     agents = [_agent_class(m) if ":" in m else m for m in methods] or None
-    # Dataset.run_eval: on an object store the evaluated scenes are mirrored first
-    results = Dataset(*G.load()).run_eval(out_dir, scenes=scenes or None, agents=agents, feedback=feedback or None,
-                                          seeds=seed_list or seeds, progress=not G.quiet)
+    results = run_eval(Dataset(*G.load()), out_dir, scenes=scenes or None, agents=agents, feedback=feedback or None,
+                       seeds=seed_list or seeds, progress=not G.quiet)
     print_eval(results, out_dir)
 
 
@@ -433,8 +433,8 @@ def view(
     from pipeline.viewer import write_recording
 
     sc = _scene(scene)
-    sc.dataset.mirror([scene])  # on an object store: the scene's published artifacts (the recording reads them all)
-    ws, params = sc.dataset.workspace, sc.dataset.params
+    sc.mirror()  # on an object store: the scene's published artifacts (the recording reads them all)
+    ws, params = sc.workspace, sc.params
     target = out_file or ws.renders(scene) / f"{scene}.rrd"
     s = write_recording(ws, params, scene, target, episode=episode, eval_dir=eval_dir, method=method,
                         feedback=feedback, seed=seed, query=text, max_frames=max_frames, mesh_voxel_m=mesh_voxel,

@@ -1,18 +1,20 @@
-"""The Artifacts view and its lineage check."""
+"""The scene handle (pipeline.scene.Scene) the evaluator reads through, and its lineage check."""
 
+import dataclasses
 import json
 import shutil
 
 import pytest
 
-from orion_eval.artifacts import Artifacts
 from pipeline.errors import LineageError, MissingInputError
 from pipeline.paths import Workspace
+from pipeline.scene import Scene, read_stages
+from stages import STAGES
 
 
 def test_lineage_ok_and_lazy_views(tiny_scene):
     ws, params = tiny_scene
-    arts = Artifacts(ws, params, "tiny")
+    arts = Scene(ws, params, "tiny", STAGES, check=True)
     shared = arts.check_lineage()
     assert set(shared) == {"recon", "goals"}
     assert arts.grid == arts.recon.grid == arts.goals.grid == arts.routes.grid
@@ -30,15 +32,28 @@ def test_mismatched_reconstruction_is_a_lineage_error(tiny_scene, tmp_path):
     path.write_text(json.dumps(doc))
     other = Workspace(ws.root, ws.data_dir, manifests)
     with pytest.raises(LineageError, match=r"scene tiny: goals was built from recon blake2b:0{32}, but .*reconstruct\.json"):
-        Artifacts(other, params, "tiny")
+        Scene(other, params, "tiny", STAGES, check=True)
     (manifests / "tiny" / "routes.json").unlink()
     with pytest.raises(MissingInputError, match="no manifest of stage routes"):
-        Artifacts(other, params, "tiny", check=False).check_lineage(("routes",))
+        Scene(other, params, "tiny", STAGES).check_lineage(("routes",))
+
+
+def test_which_stage_builds_an_artifact_is_read_from_the_registry(tiny_scene, tmp_path):
+    ws, params = tiny_scene
+    empty = Workspace(ws.root, tmp_path / "data", ws.manifests_dir)
+    with pytest.raises(MissingInputError, match=r"scene 'tiny' has no goals yet \(build it: zipon run -s tiny "
+                                                r"--stage goals\)"):
+        Scene(empty, params, "tiny", STAGES).goals
+    renamed = {**STAGES, "goals": dataclasses.replace(STAGES["goals"], name="objectives")}
+    with pytest.raises(MissingInputError, match=r"--stage objectives\)"):
+        Scene(empty, params, "tiny", renamed).goals
+    assert read_stages(STAGES) == ("ingest", "reconstruct", "vlmap", "cfmap", "goals", "routes")
+    assert read_stages(renamed)[4] == "objectives"
 
 
 def test_action_space_comes_from_routes_zarr(tiny_scene):
     ws, params = tiny_scene
-    arts = Artifacts(ws, params, "tiny")
+    arts = Scene(ws, params, "tiny", STAGES, check=True)
     recorded = arts.routes.attrs
     assert arts.action_space() == (recorded["action_space"]["step_m"], recorded["action_space"]["turn_deg"],
                                    recorded["success_m"]) == (0.25, 15.0, 1.5)
@@ -52,20 +67,20 @@ def test_params_disagreeing_with_routes_are_a_lineage_error(tiny_scene):
 
     with pytest.raises(LineageError, match=r"task\.step_m 0\.3 in .*params\.yaml but routes\.zarr of tiny was "
                                            r"built with 0\.25: rebuild with zipon run -s tiny"):
-        Artifacts(ws, task(step_m=0.3), "tiny")
+        Scene(ws, task(step_m=0.3), "tiny", STAGES, check=True)
     with pytest.raises(LineageError, match=r"task\.turn_deg 30 in .* built with 15:"):
-        Artifacts(ws, task(turn_deg=30.0), "tiny")
+        Scene(ws, task(turn_deg=30.0), "tiny", STAGES, check=True)
     with pytest.raises(LineageError, match=r"task\.success_m 1 in .* built with 1\.5:"):
-        Artifacts(ws, task(success_m=1.0), "tiny")
+        Scene(ws, task(success_m=1.0), "tiny", STAGES, check=True)
     with pytest.raises(LineageError, match=r"task\.hfov_deg 60 in .* built with 90:"):
-        Artifacts(ws, task(hfov_deg=60.0), "tiny")
-    Artifacts(ws, task(success_m=1.0), "tiny", check=False)  # reading alone is not refused
-    Artifacts(ws, task(clearance_m=0.2), "tiny")  # planning margins are not recorded facts of the routes
+        Scene(ws, task(hfov_deg=60.0), "tiny", STAGES, check=True)
+    Scene(ws, task(success_m=1.0), "tiny", STAGES)  # reading alone is not refused
+    Scene(ws, task(clearance_m=0.2), "tiny", STAGES, check=True)  # planning margins are not recorded facts of the routes
 
 
 def test_goal_regions_are_read_from_goals_zarr(tiny_scene):
     ws, params = tiny_scene
-    arts = Artifacts(ws, params, "tiny")
+    arts = Scene(ws, params, "tiny", STAGES, check=True)
     assert arts.goals.success_m == arts.routes.success_m == params.task.success_m
     assert any(arts.goals.goal_region(g.id).any() for g in arts.goals.goals)
     assert "region_cells" not in arts.routes.group and arts.routes.attrs["goal_region"]["hfov_deg"] == 90.0
