@@ -7,7 +7,10 @@ with the ``processes`` scheduler in a fresh process. Per stage it prints, from t
 seconds, wall seconds and peak RSS, and the ratio of the stage's seconds per frame to a BARE kernel
 measured in the same run, single-threaded, on the same data:
 
-- ``ingest``: zstd decompression of the MCAP chunks of the logs (``zstandard``), nothing else;
+- ``ingest``: the honest floor of ingest (:func:`kernel_ingest_floor`): reading the logs' messages with CRC checks
+  (chunk zstd decode included), parsing each image payload into its array, encoding and writing the arrays to a
+  zarr store on disk with frames.zarr's codecs, and their BLAKE3 digests, each part printed (``ingest_floor``
+  line; the zstd decode alone is printed beside it);
 - ``reconstruct``: open3d's ``VoxelBlockGrid`` ``compute_unique_block_coordinates`` + ``integrate``
   alone on frames already decoded and prepared (:mod:`pipeline.recon.tsdf` with the run's params);
 - ``vlmap`` / ``cfmap``: ``torch.index_add_`` of ``h*w`` x ``D`` fp32 feature rows per frame (the
@@ -76,7 +79,7 @@ from pathlib import Path
 from _common import ROOT, emit
 
 STAGES = ("ingest", "reconstruct", "vlmap", "cfmap", "goals", "routes")
-KERNEL_OF = {"ingest": "zstd_decode", "reconstruct": "o3d_integrate", "vlmap": "index_add", "cfmap": "index_add"}
+KERNEL_OF = {"ingest": "ingest_floor", "reconstruct": "o3d_integrate", "vlmap": "index_add", "cfmap": "index_add"}
 
 
 def write_params(root: Path, scenes: int, frames: int, width: int, height: int) -> Path:
@@ -123,8 +126,8 @@ def manifests(root: Path, scenes: list[str], stages: list[str]) -> dict[str, lis
 
 # ----------------------------------------------------------------------------- bare kernels
 
-def kernel_zstd(logs: list[Path]) -> float:
-    """Seconds of zstd-decompressing every MCAP chunk of ``logs`` (chunk records read beforehand)."""
+def kernel_zstd(logs: list[Path]) -> tuple[float, float]:
+    """(wall, CPU) seconds of zstd-decompressing every MCAP chunk of ``logs`` (chunk records read beforehand)."""
     import zstandard
     from mcap.records import Chunk
     from mcap.stream_reader import StreamReader
@@ -137,14 +140,85 @@ def kernel_zstd(logs: list[Path]) -> float:
     if not chunks:
         raise SystemExit(f"{logs}: no zstd chunks (the simulator's logs are zstd-compressed MCAP)")
     dec = zstandard.ZstdDecompressor()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for data, size in chunks:
         dec.decompress(data, max_output_size=size)
-    return time.perf_counter() - t0
+    return time.perf_counter() - t0, time.process_time() - c0
 
 
-def kernel_integrate(params_path: Path, frames_zarr: Path, n: int) -> tuple[float, int]:
-    """(seconds, frames) of open3d's integrate alone over the first ``n`` frames, prepared beforehand."""
+def kernel_ingest_floor(logs: list[Path], workdir: Path, level: int, block: int = 16) -> dict[str, float]:
+    """Seconds of the work no ingest can skip, each part timed alone on every image of ``logs``: reading the MCAP
+    messages with CRC checks (``mcap``'s reader: chunk zstd decode included), turning each ``sensor_msgs/Image``
+    payload into its array (``pipeline.ros2.parse_image_cdr`` + ``np.frombuffer``), encoding and writing those
+    arrays in blocks of ``block`` frames to a zarr v3 store on disk with frames.zarr's codecs (blosc-zstd at
+    ``level``: no shuffle for uint8 images, byte shuffle for uint16), and their BLAKE3 digests. Only one block of
+    frames is held at a time. Returns the wall seconds per part, ``cpu`` (the CPU seconds of all of it, every thread
+    of this process) and ``images``."""
+    import blake3
+    import numpy as np
+    import zarr
+    from mcap.reader import make_reader
+
+    from pipeline.ros2 import parse_image_cdr
+    from pipeline.store import compressor
+
+    spent = {"read": 0.0, "parse": 0.0, "encode": 0.0, "hash": 0.0}
+    images, cpu0 = 0, time.process_time()
+    for n_log, log in enumerate(logs):
+        group = zarr.open_group(workdir / f"floor_{n_log}.zarr", mode="w")
+        pending: dict[str, list] = {}
+        arrays: dict[str, zarr.Array] = {}
+        hashes: dict[str, blake3.blake3] = {}
+
+        def flush(topic: str) -> None:
+            rows = np.stack(pending.pop(topic))
+            t0 = time.perf_counter()
+            if topic not in arrays:
+                shuffle = "noshuffle" if rows.dtype == np.uint8 else "shuffle"
+                arrays[topic] = group.create_array(topic.strip("/").replace("/", "_"), shape=(0, *rows.shape[1:]),
+                                                   chunks=(block, *rows.shape[1:]), dtype=rows.dtype,
+                                                   compressors=compressor(level, shuffle=shuffle))
+            z = arrays[topic]
+            n = z.shape[0]
+            z.resize((n + len(rows), *z.shape[1:]))
+            z[n:] = rows
+            t1 = time.perf_counter()
+            hashes.setdefault(topic, blake3.blake3()).update(rows.reshape(-1).view(np.uint8))
+            spent["encode"] += t1 - t0
+            spent["hash"] += time.perf_counter() - t1
+
+        with open(log, "rb") as f:
+            messages = make_reader(f, validate_crcs=True).iter_messages()
+            while True:
+                t0 = time.perf_counter()
+                item = next(messages, None)
+                t1 = time.perf_counter()
+                spent["read"] += t1 - t0
+                if item is None:
+                    break
+                schema, channel, message = item
+                if schema is None or schema.name not in ("sensor_msgs/msg/Image", "sensor_msgs/Image"):
+                    continue
+                msg = parse_image_cdr(message.data)
+                dtype = np.uint16 if msg["encoding"] in ("16UC1", "mono16") else np.uint8
+                rows = np.frombuffer(msg["data"], dtype=dtype).reshape(msg["height"], msg["width"], -1)
+                rows = rows[..., 0] if rows.shape[-1] == 1 else rows
+                spent["parse"] += time.perf_counter() - t1
+                images += 1
+                pending.setdefault(channel.topic, []).append(rows)
+                if len(pending[channel.topic]) == block:
+                    flush(channel.topic)
+        for topic in list(pending):
+            flush(topic)
+        shutil.rmtree(workdir / f"floor_{n_log}.zarr")
+    return {**spent, "cpu": time.process_time() - cpu0, "images": images}
+
+
+def kernel_integrate(params_path: Path, frames_zarr: Path, n: int) -> tuple[float, float, int]:
+    """(wall seconds, CPU seconds, frames) of open3d's integrate alone, on one thread as the stage runs it with
+    ``run.threads_per_worker: 1``, over the first ``n`` frames, prepared beforehand."""
+    import open3d as o3d
+
     from pipeline.paramsfile import load_params
     from pipeline.frames import FrameStore
     from pipeline.recon.tsdf import integrate, new_volume, prepare_block, strided
@@ -155,15 +229,20 @@ def kernel_integrate(params_path: Path, frames_zarr: Path, n: int) -> tuple[floa
     block = prepare_block(store.read(0, n), p)
     intr = strided(store.intrinsics, p.depth_stride)
     volume = new_volume(p)
-    t0 = time.perf_counter()
+    before = o3d.utility.get_max_threads()
+    o3d.utility.set_max_threads(1)
+    t0, c0 = time.perf_counter(), time.process_time()
     for j in range(n):
         if block.has_depth[j]:
             integrate(volume, block.depth_mm[j], block.rgb[j], block.T_world_camera[j], intr, p)
-    return time.perf_counter() - t0, n
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    o3d.utility.set_max_threads(before)
+    return wall, cpu, n
 
 
-def kernel_index_add(h: int, w: int, dim: int, frames: int = 16, cells: int = 40_000) -> float:
-    """Seconds per frame of ``index_add_`` of ``h*w`` random-cell rows of ``dim`` fp32 into ``cells`` rows."""
+def kernel_index_add(h: int, w: int, dim: int, frames: int = 16, cells: int = 40_000) -> tuple[float, float]:
+    """(wall, CPU) seconds per frame of ``index_add_`` of ``h*w`` random-cell rows of ``dim`` fp32 into ``cells``
+    rows."""
     import torch
 
     g = torch.Generator().manual_seed(0)
@@ -171,10 +250,10 @@ def kernel_index_add(h: int, w: int, dim: int, frames: int = 16, cells: int = 40
     acc = torch.zeros(cells, dim)
     idx = [torch.randint(0, cells, (h * w,), generator=g) for _ in range(frames)]
     acc.index_add_(0, idx[0], feats)  # warm
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for i in idx:
         acc.index_add_(0, i, feats)
-    return (time.perf_counter() - t0) / frames
+    return (time.perf_counter() - t0) / frames, (time.process_time() - c0) / frames
 
 
 def encoder_share(params_path: Path, root: Path, scene: str, kind: str, params=None, frames: int | None = None) -> dict:
@@ -466,8 +545,17 @@ def main() -> None:
     total = args.scenes * args.frames
     data = root / "data"
     logs = sorted((data / "raw").glob("*.mcap"))
-    zstd_s = kernel_zstd(logs)
-    kernels = {"zstd_decode": zstd_s / total, "index_add": kernel_index_add(h, w, p.encoders.oracle.dim)}
+    zstd_s, zstd_cpu = kernel_zstd(logs)
+    floor = kernel_ingest_floor(logs, root, p.ingest.compression_level)
+    parts = ("read", "parse", "encode", "hash")
+    floor_s = sum(floor[k] for k in parts)
+    emit(bench="batch", kind="ingest_floor", s_per_frame={k: round(floor[k] / total, 6) for k in parts},
+         total_s_per_frame=round(floor_s / total, 6), cpu_s_per_frame=round(floor["cpu"] / total, 6),
+         images=floor["images"], frames=total, zstd_decode_s_per_frame=round(zstd_s / total, 6))
+    # stage -> (wall, CPU) seconds per frame of its bare kernel; a stage's CPU seconds are compared with the
+    # kernel's CPU seconds, steadier than wall time on a shared machine
+    kernels = {"zstd_decode": (zstd_s / total, zstd_cpu / total), "ingest_floor": (floor_s / total, floor["cpu"] / total),
+               "index_add": kernel_index_add(h, w, p.encoders.oracle.dim)}
     first = True
     try:
         for workers in args.workers:
@@ -478,10 +566,12 @@ def main() -> None:
             wall, peak = zipon(params, *run_args)
             cpu_run = _children_cpu_s() - cpu0  # every process of the run (scheduler, workers), all their threads
             if first:  # frames.zarr exists now: time open3d alone on the first scene's frames
-                secs, n = kernel_integrate(params, data / "artifacts" / scenes[0] / "frames.zarr", args.kernel_frames)
-                kernels["o3d_integrate"] = secs / n
-                emit(bench="batch", kind="kernels", s_per_frame={k: round(v, 6) for k, v in kernels.items()},
-                     kernel_frames={"zstd_decode": total, "o3d_integrate": n, "index_add": 16},
+                secs, cpu_k, n = kernel_integrate(params, data / "artifacts" / scenes[0] / "frames.zarr",
+                                                  args.kernel_frames)
+                kernels["o3d_integrate"] = (secs / n, cpu_k / n)
+                emit(bench="batch", kind="kernels", s_per_frame={k: round(v[0], 6) for k, v in kernels.items()},
+                     cpu_s_per_frame={k: round(v[1], 6) for k, v in kernels.items()},
+                     kernel_frames={"zstd_decode": total, "ingest_floor": total, "o3d_integrate": n, "index_add": 16},
                      feature_rows=[h * w, p.encoders.oracle.dim])
                 for kind in ("vlmap", "cfmap"):
                     if kind in args.stages:
@@ -502,8 +592,8 @@ def main() -> None:
                 kernel = KERNEL_OF.get(stage)
                 if kernel:
                     row["kernel"] = kernel
-                    row["ratio_to_kernel"] = round(secs / total / kernels[kernel], 2)
-                    row["cpu_ratio_to_kernel"] = round(cpu / total / kernels[kernel], 2) if cpu == cpu else None
+                    row["ratio_to_kernel"] = round(secs / total / kernels[kernel][0], 2)
+                    row["cpu_ratio_to_kernel"] = round(cpu / total / kernels[kernel][1], 2) if cpu == cpu else None
                 emit(**row)
             rate = total / wall
             emit(bench="batch", kind="run", workers=workers, frames=total, wall_s=round(wall, 1),
