@@ -39,7 +39,8 @@ class Manifest(BaseModel):
     summary: dict[str, Any] = Field(default_factory=dict, description="the stage's figures")
     timing: dict[str, Any] = Field(default_factory=dict, description="started (UTC ISO), seconds (wall), "
                                    "cpu_seconds (process CPU time of the stage), peak_rss_mb (the worker process's "
-                                   "peak resident memory up to the end of the stage), host, python")
+                                   "peak resident memory up to the end of the stage), waited_seconds, native_threads "
+                                   "(the BLAS/torch/open3d threads it ran with), host, python")
     layout: dict[str, str] = Field(default_factory=dict, description="artifact path templates of this zipon")
 
     def text(self) -> str:

@@ -9,7 +9,6 @@ import platform
 from pathlib import Path
 
 
-
 def peak_rss_mb() -> float:
     """Peak resident memory of this (worker) process so far, MiB: ``VmHWM`` (per address space, so a worker forked
     from a big parent does not report the parent's ``ru_maxrss``), else ``ru_maxrss`` where ``/proc`` is missing."""
@@ -60,7 +59,9 @@ def limit_native_threads(n: int) -> None:
 
     Speed only: outputs do not depend on thread counts (open3d's parallel reductions are made canonical or
     run single-threaded where they would; see pipeline.recon)."""
+    global _NATIVE_THREADS
     restore_malloc_defaults()
+    _NATIVE_THREADS = n
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = str(n)
     try:
@@ -75,3 +76,11 @@ def limit_native_threads(n: int) -> None:
         o3d.utility.set_max_threads(n)
     except (ImportError, AttributeError):
         pass
+
+
+_NATIVE_THREADS: int | None = None
+
+
+def native_threads() -> int | None:
+    """The thread count :func:`limit_native_threads` last set in this process (None: never set)."""
+    return _NATIVE_THREADS

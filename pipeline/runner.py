@@ -32,7 +32,7 @@ from pipeline.paths import ARTIFACTS, Workspace
 from pipeline.locks import output_lock
 from pipeline.publication import check_inputs_unchanged, publish_outputs, recover
 from pipeline.store import ArrayDigests, content_digest, new_tmp_dir, remove, sweep_tmp
-from pipeline.process import limit_native_threads, peak_rss_mb
+from pipeline.process import limit_native_threads, native_threads, peak_rss_mb
 from pipeline.stagegraph import (SOURCE, StageSpec, input_digests, source_key, source_paths, stage_code_digest,
                                  stage_levels, staleness, upstream_stages)
 
@@ -314,6 +314,7 @@ def _run_stage(
                     "cpu_seconds": round(time.process_time() - cpu0 + ctx.elsewhere["cpu_seconds"], 3),
                     "peak_rss_mb": round(max(peak_rss_mb(), ctx.elsewhere["peak_rss_mb"]), 1),
                     "waited_seconds": round(ctx.elsewhere["waited_seconds"], 3),
+                    "native_threads": native_threads(),
                     "host": socket.gethostname(), "python": platform.python_version()},
         )
         check_inputs_unchanged(ws, scene, stage, upstream_stages(stages, params, scene, stage),
@@ -341,6 +342,18 @@ def _task(ws, params, stages, scene, stage, force, show_progress, threads, *upst
         return Outcome(scene, stage, "failed", error=f"{type(err).__name__}: {err}\n{traceback.format_exc()}")
 
 
+def stage_threads(params: Params, spec: StageSpec, scenes_in_run: int, scheduler: str) -> int:
+    """Native threads for one task of ``spec``: ``run.threads_per_worker``, times the workers each scene of the run
+    has to itself when the run has fewer scenes than workers and the stage ``spreads_threads`` (one scene's
+    reconstruct on 2 workers uses both cores), capped at the machine's cores. Not under the ``threads`` scheduler,
+    whose tasks share one process and so its thread settings."""
+    threads = params.run.threads_per_worker
+    if not spec.spreads_threads or scheduler == "threads" or scenes_in_run <= 0:
+        return threads
+    share = max(1, params.run.workers // scenes_in_run)
+    return max(threads, min(threads * share, os.cpu_count() or 1))
+
+
 def run_many(
     ws: Workspace,
     params: Params,
@@ -355,14 +368,15 @@ def run_many(
     import dask
 
     scheduler = scheduler or params.run.scheduler
-    threads = params.run.threads_per_worker
     levels = stage_levels(stages)
+    scenes_in_run = len({scene for scene, _ in pairs})
     tasks: dict[tuple[str, str], Any] = {}
     for scene, stage in pairs:
         ups = [tasks[(scene, u)] for u in upstream_stages(stages, params, scene, stage) if (scene, u) in tasks]
         with dask.annotate(priority=levels[stage]):  # read by dask.distributed only (stage_levels says why)
             tasks[(scene, stage)] = dask.delayed(_task, pure=False)(
-                ws, params, stages, scene, stage, force, show_progress, threads, *ups,
+                ws, params, stages, scene, stage, force, show_progress,
+                stage_threads(params, stages[stage], scenes_in_run, scheduler), *ups,
                 dask_key_name=f"{stage}-{scene}",
             )
     if not tasks:

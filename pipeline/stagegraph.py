@@ -36,6 +36,9 @@ class StageSpec:
     simulated_only: bool = False
     description: str = ""
     config: str = ""  # "module:Class" of the stage's StageConfig; default: "<entry module>:Config"
+    # one long native loop whose output does not depend on its thread count: it may take the native threads of the
+    # workers that fewer scenes than workers leave idle (runner.stage_threads)
+    spreads_threads: bool = False
 
     @property
     def module(self) -> str:

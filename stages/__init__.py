@@ -33,6 +33,7 @@ STAGES: dict[str, StageSpec] = {
             entry="stages.reconstruct:run",
             inputs=("frames",),
             outputs=("recon", "recon_mesh", "recon_points"),
+            spreads_threads=True,  # open3d's integrate: identical grids, mesh and points on 1 or N threads (test)
             description="frames.zarr -> TSDF mesh + points, floor, occupancy/navigable/colour/height grids (recon.zarr)",
         ),
         StageSpec(

@@ -253,3 +253,18 @@ def test_ordered_tasks_asking_for_a_resource_run_only_on_the_workers_that_offer_
         assert {w for _, w in out} == {gpu}
         with pytest.raises(ZiponError, match=r"run\.encoder_resources \{'TPU': 1\}: no dask worker offers them"):
             client.submit(_ordered_with_resources, [1, 2], {"TPU": 1}).result()
+
+
+def test_a_stage_that_spreads_threads_takes_the_workers_idle_scenes_leave(workspace):
+    from pipeline.runner import stage_threads
+    from stages import STAGES
+
+    cores = os.cpu_count() or 1
+    params = load_params(workspace.params_path, ["run.workers=2"])
+    recon, vlmap = STAGES["reconstruct"], STAGES["vlmap"]
+    assert stage_threads(params, recon, 1, "processes") == min(2, cores)
+    assert stage_threads(params, recon, 2, "processes") == 1
+    assert stage_threads(params, vlmap, 1, "processes") == 1  # maps spread their chunks over workers instead
+    assert stage_threads(params, recon, 1, "threads") == 1  # one shared process: its settings are everyone's
+    many = load_params(workspace.params_path, ["run.workers=64", "run.threads_per_worker=2"])
+    assert stage_threads(many, recon, 1, "processes") == max(2, cores)  # never more than the machine's cores

@@ -81,3 +81,24 @@ def test_keyframe_maps_have_the_same_digest_in_one_process_and_in_two_worker_pro
     workers = build(tmp_path / "processes", *stages, "--scheduler", "processes", params=KEYFRAME_PARAMS,
                     scenes=("sim_00",))
     assert {k: v for k, v in workers.items() if v != single[k]} == {}
+
+
+ONE_SCENE = PARAMS.replace("  sim_01: {source: simulate}\n", "")
+
+
+@pytest.mark.slow
+def test_one_scene_on_two_workers_reconstructs_on_both_cores_with_the_same_digests(tmp_path):
+    """A scene alone on 2 workers: its reconstruct takes both workers' threads (open3d on 2 threads), the others
+    one each, and every artifact equals the 1-worker build's."""
+    import json
+
+    one = build(tmp_path / "one", params=ONE_SCENE.replace("workers: 2", "workers: 1"), scenes=("sim_00",))
+    two = build(tmp_path / "two", "--scheduler", "processes", params=ONE_SCENE, scenes=("sim_00",))
+    assert {k: v for k, v in two.items() if v != one[k]} == {}
+
+    def threads(root: Path) -> dict[str, int]:
+        return {m.stem: json.loads(m.read_text())["timing"]["native_threads"]
+                for m in (root / "manifests" / "sim_00").glob("*.json")}
+
+    assert threads(tmp_path / "one") == dict.fromkeys(threads(tmp_path / "one"), 1)
+    assert threads(tmp_path / "two") == {**dict.fromkeys(threads(tmp_path / "two"), 1), "reconstruct": 2}
