@@ -4,8 +4,9 @@ The logs are written first (``zipon run --stage simulate``, NOT timed); then, fo
 ``zipon run --force`` runs ingest -> reconstruct -> vlmap + cfmap (oracle encoder) -> goals -> routes
 with the ``processes`` scheduler in a fresh process. Per stage it prints, from the stage manifests
 (``timing``: wall seconds, CPU seconds, peak RSS of the worker process), frames/s per worker, CPU
-seconds, wall seconds and peak RSS, and the ratio of the stage's seconds per frame to a BARE kernel
-measured in the same run, single-threaded, on the same data:
+seconds, wall seconds, peak RSS, the worker's page faults, preemptions and MB read per frame (``timing.counters``:
+where extra CPU in a big batch goes), and the ratio of the stage's seconds per frame to a BARE kernel measured
+in the same run, single-threaded, on the same data:
 
 - ``ingest``: the honest floor of ingest (:func:`kernel_ingest_floor`): reading the logs' messages with CRC checks
   (chunk zstd decode included), parsing each image payload into its array, encoding and writing the arrays to a
@@ -594,6 +595,12 @@ def main() -> None:
                        "cpu_s": round(cpu, 2),
                        "cpu_frames_per_s": round(total / cpu, 2) if cpu == cpu else None,
                        "peak_rss_mb": round(max(x.get("peak_rss_mb", float("nan")) for x in t), 1)}
+                counters = [x.get("counters", {}) for x in t]  # the worker's faults, switches and reads, per frame
+                for key, scale in (("minor_faults", 1), ("major_faults", 1), ("preempted", 1),
+                                   ("read_bytes", 1 << 20), ("disk_read_bytes", 1 << 20)):
+                    if all(key in c for c in counters):
+                        name = key.replace("_bytes", "_mb")
+                        row[f"{name}_per_frame"] = round(sum(c[key] for c in counters) / scale / total, 3)
                 kernel = KERNEL_OF.get(stage)
                 if kernel:
                     row["kernel"] = kernel

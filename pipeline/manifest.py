@@ -40,7 +40,9 @@ class Manifest(BaseModel):
     timing: dict[str, Any] = Field(default_factory=dict, description="started (UTC ISO), seconds (wall), "
                                    "cpu_seconds (process CPU time of the stage), peak_rss_mb (the worker process's "
                                    "peak resident memory up to the end of the stage), waited_seconds, native_threads "
-                                   "(the BLAS/torch/open3d threads it ran with), host, python")
+                                   "(the BLAS/torch/open3d threads it ran with), counters (the worker process's page faults, "
+                                   "context switches and bytes read over the stage: pipeline.process.process_counters),"
+                                   " host, python")
     layout: dict[str, str] = Field(default_factory=dict, description="artifact path templates of this zipon")
 
     def text(self) -> str:

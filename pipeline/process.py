@@ -84,3 +84,28 @@ _NATIVE_THREADS: int | None = None
 def native_threads() -> int | None:
     """The thread count :func:`limit_native_threads` last set in this process (None: never set)."""
     return _NATIVE_THREADS
+
+
+def process_counters() -> dict[str, int]:
+    """This process's counters since it started: page faults served from memory (``minor_faults``) and from disk
+    (``major_faults``), context switches it asked for (``waits``: I/O, locks) and was forced into
+    (``preempted``: another runnable process took the core), bytes its reads asked for (``read_bytes``: page cache
+    included, so a frame read twice counts twice) and bytes read from the disk itself (``disk_read_bytes``; absent
+    where ``/proc/self/io`` is not readable). :func:`counters_since` turns two readings into what a stage did."""
+    import resource
+
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    out = {"minor_faults": ru.ru_minflt, "major_faults": ru.ru_majflt, "waits": ru.ru_nvcsw,
+           "preempted": ru.ru_nivcsw}
+    try:
+        io = dict(line.split(": ") for line in Path("/proc/self/io").read_text().splitlines())
+        out.update(read_bytes=int(io["rchar"]), disk_read_bytes=int(io["read_bytes"]))
+    except (OSError, KeyError, ValueError):
+        pass
+    return out
+
+
+def counters_since(before: dict[str, int]) -> dict[str, int]:
+    """:func:`process_counters` now minus ``before`` (the counters both readings have)."""
+    now = process_counters()
+    return {k: now[k] - before[k] for k in now if k in before}

@@ -32,7 +32,8 @@ from pipeline.paths import ARTIFACTS, Workspace
 from pipeline.locks import output_lock
 from pipeline.publication import check_inputs_unchanged, publish_outputs, recover
 from pipeline.store import ArrayDigests, content_digest, new_tmp_dir, remove, sweep_tmp
-from pipeline.process import limit_native_threads, native_threads, peak_rss_mb
+from pipeline.process import (counters_since, limit_native_threads, native_threads, peak_rss_mb,
+                              process_counters)
 from pipeline.stagegraph import (SOURCE, StageSpec, input_digests, source_key, source_paths, stage_code_digest,
                                  stage_levels, staleness, upstream_stages)
 
@@ -283,7 +284,7 @@ def _run_stage(
     reason = "forced" if force else staleness(ws, params, stages, spec, scene, in_digests)
     if not reason:
         return Outcome(scene, stage, "skipped", reason="up to date")
-    t0, cpu0 = time.perf_counter(), time.process_time()
+    t0, cpu0, counters0 = time.perf_counter(), time.process_time(), process_counters()
     started = datetime.now(timezone.utc).isoformat(timespec="seconds")
     tmp = new_tmp_dir(ws.tmp_dir(scene), stage)
     try:
@@ -315,6 +316,7 @@ def _run_stage(
                     "peak_rss_mb": round(max(peak_rss_mb(), ctx.elsewhere["peak_rss_mb"]), 1),
                     "waited_seconds": round(ctx.elsewhere["waited_seconds"], 3),
                     "native_threads": native_threads(),
+                    "counters": counters_since(counters0),
                     "host": socket.gethostname(), "python": platform.python_version()},
         )
         check_inputs_unchanged(ws, scene, stage, upstream_stages(stages, params, scene, stage),
