@@ -39,6 +39,11 @@ One JSON object per line on stdout.
     .venv/bin/python benchmarks/bench_batch.py --scenes 2 --frames 240 --workers 1 2
     .venv/bin/python benchmarks/bench_batch.py --scenes 1 --frames 1400 --workers 1 --keep /tmp/batch
 
+A batch's CPU seconds per frame can only be compared with one scene's run alone on the same scene (the apartments
+differ in size, and reconstruct's cost follows the surface each frame sees): ``--alone SCENE ...`` reruns those
+scenes one at a time on 1 worker after the batch and prints, per stage, the scene's CPU seconds in the last batch
+run over alone (``batch_vs_alone``).
+
 ``--within-scene`` measures one scene's map stages instead (:func:`within_scene`): the logs, ingest and
 reconstruct are built first (not timed); then ``zipon run --force --stage vlmap`` (``--map-stages``) with 1 and
 with 2 workers (``processes``: a local dask cluster; the chunks of ``maps.chunk_frames`` frames of the one scene
@@ -500,6 +505,10 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, default=None,
                     help="work in this folder and keep it (default: a temp dir); logs already there are reused (even "
                     "when zipon's code changed since: they are not timed)")
+    ap.add_argument("--alone", nargs="*", default=None, metavar="SCENE",
+                    help="after the batch runs, run these scenes again one at a time on 1 worker and print each "
+                    "stage's CPU seconds in the last batch run over alone, for the same scene (default: the first "
+                    "scene when there are several; none: --alone with no name)")
     ap.add_argument("--within-scene", action="store_true",
                     help="one scene's map stages with each worker count, then the incremental rerun (see above)")
     ap.add_argument("--map-stages", nargs="+", default=["vlmap"], choices=("vlmap", "cfmap"),
@@ -614,6 +623,30 @@ def main() -> None:
                  cpu_s=round(cpu_run, 1), projected_wall_min_if_cpu_bound=round(
                      args.target_frames * cpu_run / total / min(workers, os.cpu_count() or 1) / 60, 1),
                  target_frames=args.target_frames)
+        alone = args.alone if args.alone is not None else (scenes[:1] if len(scenes) > 1 else [])
+        if alone:
+            batch = manifests(root, alone, args.stages)
+            batch_workers = args.workers[-1]
+            for scene in alone:
+                run_args = ["-S", "run.workers=1", "run", "--force", "-s", scene,
+                            *sum((["--stage", s] for s in args.stages), [])]
+                for fold in data.glob(FOLD.format(scene=scene, stage="*")):
+                    shutil.rmtree(fold)
+                cpu0 = _children_cpu_s()
+                wall, _ = zipon(params, *run_args)
+                cpu_alone_run = _children_cpu_s() - cpu0
+                single = manifests(root, [scene], args.stages)
+                i = alone.index(scene)
+                per_stage = {stage: {"batch_cpu_s": batch[stage][i].get("cpu_seconds"),
+                                     "alone_cpu_s": single[stage][0].get("cpu_seconds"),
+                                     "ratio": round(batch[stage][i]["cpu_seconds"] / single[stage][0]["cpu_seconds"], 3)
+                                     if single[stage][0].get("cpu_seconds") else None}
+                             for stage in args.stages}
+                b_sum = sum(batch[s][i].get("cpu_seconds", 0.0) for s in args.stages)
+                a_sum = sum(single[s][0].get("cpu_seconds", 0.0) for s in args.stages)
+                emit(bench="batch", kind="batch_vs_alone", scene=scene, batch_workers=batch_workers,
+                     stages=per_stage, stages_cpu_ratio=round(b_sum / a_sum, 3) if a_sum else None,
+                     alone_run_wall_s=round(wall, 1), alone_run_cpu_s=round(cpu_alone_run, 1))
     finally:
         if args.keep is None:
             shutil.rmtree(root, ignore_errors=True)
