@@ -132,10 +132,17 @@ def test_version_comes_from_the_package_metadata(capsys):
     assert capsys.readouterr().out.strip() == f"zipon {version('zipon')}"
 
 
-def test_shell_completion_script(capsys):
-    assert main(["--show-completion", "bash"]) == 0
-    script = capsys.readouterr().out
-    assert "_zipon_completion()" in script and "_ZIPON_COMPLETE=complete_bash" in script
+def test_shell_completion_script():
+    """``--show-completion`` detects the shell it runs under (the parent process): run it from bash, whatever started
+    the tests (a background job's orphaned process has no shell above it). ``; exit`` keeps bash from exec'ing."""
+    import shlex
+    import subprocess
+    import sys
+
+    done = subprocess.run(["bash", "-c", f"{shlex.quote(sys.executable)} -m zipon.cli --show-completion; exit $?"],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert "_zipon_completion()" in done.stdout and "_ZIPON_COMPLETE=complete_bash" in done.stdout
 
 
 @pytest.mark.parametrize("flags, zipon_level, dvc_level", [
