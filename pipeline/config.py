@@ -9,7 +9,7 @@ overrides, moved keys and writing ``params.yaml`` live in :mod:`pipeline.paramsf
 from __future__ import annotations
 
 import re
-from typing import Annotated, Any, Literal, get_args
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, field_validator, model_serializer, model_validator
 
@@ -338,8 +338,6 @@ class ReconstructParams(DepthRange):
         return self
 
 
-EncoderName = Literal["lseg", "maskclip", "conceptfusion", "torchscript", "oracle", "simulated_lseg", "simulated_cf",
-                      "perception"]  # perception: simulated_lseg for the vlmap, simulated_cf for the cfmap
 CellSize = tuple[Annotated[int, Field(gt=0)], Annotated[int, Field(gt=0)]]  # (height, width)
 
 
@@ -480,13 +478,15 @@ class EncodersParams(Section):
     @field_validator("vlmap", "cfmap", "simulated")
     @classmethod
     def _known_encoder(cls, name: str | None) -> str | None:
-        if name is None or name in get_args(EncoderName):
-            return name
         from pipeline import plugins
 
+        # 'perception': simulated_lseg for the vlmap, simulated_cf for the cfmap
+        built_in = [*plugins.BUILT_IN_ENCODERS, "perception"]
+        if name is None or name in built_in:  # known without reading the installed packages
+            return name
         installed = plugins.names(plugins.ENCODERS_GROUP)
         if name not in installed:
-            raise ValueError(f"unknown encoder {name!r}: built-in {list(get_args(EncoderName))}, installed plugins "
+            raise ValueError(f"unknown encoder {name!r}: built-in {built_in}, installed plugins "
                              f"(zipon.encoders entry points) {installed}")
         return name
 

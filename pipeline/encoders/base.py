@@ -19,9 +19,9 @@ pixel-corner convention (cell ``(r, c)`` covers pixels ``[r*H/h, (r+1)*H/h) x [c
 So the intrinsics of the feature grid are ``Intrinsics.scaled(w, h)`` (see :meth:`DenseFeatures.intrinsics`),
 and depth for back-projection is depth resampled to ``(h, w)`` (:meth:`DenseFeatures.resample_depth`).
 
-Family: :class:`Encoder` (ABC) + :data:`ENCODERS` (name -> class, filled by ``@register`` in each
-implementation module: ``lseg``, ``maskclip``, ``conceptfusion``, ``torchscript``, ``oracle``,
-``simulated_lseg``, ``simulated_cf``).
+Family: :class:`Encoder` (ABC) + :data:`ENCODERS` (name -> class, filled on use from the one registry: zipon's own
+encoders declared in :data:`pipeline.plugins.BUILT_IN_ENCODERS`, the installed ``zipon.encoders``; see
+:func:`pipeline.encoders.choice.encoder_class`).
 ``bind_scene(gt)`` hands the scene's ground truth to encoders that use it (only the oracle, a
 diagnostic); it is a no-op for real encoders. Nothing downloads weights: a real encoder without
 its weights file is a :class:`ConfigError` naming the param, a missing file a
@@ -377,11 +377,5 @@ def all_valid(feat: torch.Tensor) -> torch.Tensor:
 
 # ----------------------------------------------------------------------------- registry
 
-#: encoder name -> implementation; filled by the implementation modules (imported in __init__).
+#: encoder name -> implementation, the ones loaded so far (:func:`pipeline.encoders.choice.encoder_class` fills it)
 ENCODERS: dict[str, type[Encoder]] = {}
-
-
-def register(cls: type[Encoder]) -> type[Encoder]:
-    """Class decorator: add an implementation to :data:`ENCODERS` under its ``name``."""
-    ENCODERS[cls.name] = cls
-    return cls

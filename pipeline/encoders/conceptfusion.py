@@ -28,7 +28,7 @@ from open_clip.transform import PreprocessCfg, image_transform_v2
 from PIL import Image
 
 from pipeline.config import RegionParams
-from pipeline.encoders.base import DenseFeatures, Encoder, OpenClipText, l2_normalize, register, require_file
+from pipeline.encoders.base import DenseFeatures, Encoder, OpenClipText, l2_normalize, require_file
 from pipeline.encoders.maskclip import clip_tokens, load_open_clip
 from pipeline.encoders.regions import RegionGenerator, Regions, build_region_generator
 
@@ -89,7 +89,6 @@ def paint_regions(fused: torch.Tensor, masks: torch.Tensor) -> tuple[torch.Tenso
     return out, valid
 
 
-@register
 class ConceptFusionEncoder(OpenClipText, Encoder):
     """ConceptFusion global+local CLIP features on regions; see the module docstring."""
 

@@ -28,7 +28,6 @@ from pipeline.encoders.base import (
     Encoder,
     all_valid,
     normalize,
-    register,
     require_file,
     resize_features,
     to_tensor01,
@@ -86,7 +85,6 @@ def window_starts(length: int, crop: int, stride: int) -> list[int]:
     return [i * stride for i in range(n)]
 
 
-@register
 class LSegEncoder(Encoder):
     """LSeg (ViT-L/16 + DPT, CLIP ViT-B/32 text space, 512-d); see the module docstring."""
 

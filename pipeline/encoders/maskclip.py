@@ -30,7 +30,6 @@ from pipeline.encoders.base import (
     OpenClipText,
     all_valid,
     normalize,
-    register,
     require_file,
     resize_features,
     to_tensor01,
@@ -104,7 +103,6 @@ def maskclip_patch_features(visual: nn.Module, x: torch.Tensor) -> torch.Tensor:
     return v.transpose(1, 2).reshape(x.shape[0], -1, gh, gw)
 
 
-@register
 class MaskClipEncoder(OpenClipText, Encoder):
     """MaskCLIP dense features of an open_clip ViT; see the module docstring."""
 

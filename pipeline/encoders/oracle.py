@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from pipeline.encoders.base import DenseFeatures, Encoder, PaletteFeatures, register
+from pipeline.encoders.base import DenseFeatures, Encoder, PaletteFeatures
 from pipeline.encoders.oracle_text import BACKGROUND, VERSION, OracleText, _words
 from pipeline.errors import ConfigError, InputDataError
 
@@ -48,7 +48,6 @@ def _centre_pixels(n_pixels: int, n_cells: int) -> slice | np.ndarray:
     return np.minimum(((np.arange(n_cells) + 0.5) * n_pixels / n_cells).astype(np.int64), n_pixels - 1)
 
 
-@register
 class OracleEncoder(OracleText, Encoder):
     """Ground-truth features for simulated scenes (a diagnostic); see the module docstring. The word space and
     the text side are :class:`~pipeline.encoders.oracle_text.OracleText`'s (numpy)."""

@@ -40,7 +40,7 @@ import cv2
 import numpy as np
 import torch
 
-from pipeline.encoders.base import DenseFeatures, Encoder, PaletteFeatures, l2_normalize, register
+from pipeline.encoders.base import DenseFeatures, Encoder, PaletteFeatures, l2_normalize
 from pipeline.encoders.perception_text import (TEMPERATURE, VERSIONS, ClipTextSpace, load_text_space,
                                                resolve_embeddings)
 from pipeline.errors import ConfigError, InputDataError
@@ -221,7 +221,6 @@ class SimulatedPerception(Encoder):
         raise NotImplementedError
 
 
-@register
 class SimulatedLSeg(SimulatedPerception):
     """Dense LSeg-like perception (see the module docstring)."""
 
@@ -246,7 +245,6 @@ class SimulatedLSeg(SimulatedPerception):
         return np.concatenate([mix, nw]), np.concatenate([rows, nrows])
 
 
-@register
 class SimulatedCF(SimulatedPerception):
     """Region ConceptFusion-like perception (see the module docstring)."""
 

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from pipeline.encoders.base import DenseFeatures, Encoder, file_digest, l2_normalize, register, require_file, to_tensor01
+from pipeline.encoders.base import DenseFeatures, Encoder, file_digest, l2_normalize, require_file, to_tensor01
 from pipeline.errors import ConfigError, StageError
 
 if TYPE_CHECKING:
@@ -55,7 +55,6 @@ def load_factory(spec: str) -> Any:
     return obj
 
 
-@register
 class TorchScriptEncoder(Encoder):
     """A dense encoder from user files or a factory; see the module docstring."""
 

@@ -148,12 +148,8 @@ READERS: dict[str, type[Reader]] = {}
 def reader_class(name: str) -> type[Reader] | None:
     """The reader of format ``name``, built in or registered by an installed package; None for a name neither
     declares. Raises ConfigError naming the entry point when a registration does not load or does not fit."""
-    if name not in READERS:
-        cls = plugins.load_class(plugins.READERS_GROUP, name, Reader, "pipeline.readers.base.Reader", "reader")
-        if cls is None:
-            return None
-        READERS[name] = cls
-    return READERS[name]
+    return plugins.load_class(plugins.READERS_GROUP, name, Reader, "pipeline.readers.base.Reader", "reader",
+                              loaded=READERS)
 
 
 def all_readers() -> dict[str, type[Reader]]:
