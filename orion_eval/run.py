@@ -32,11 +32,11 @@ from pipeline.scene import Scene
 from pipeline.store import write_text_atomic
 
 
-def scene_tasks(arts: Scene, methods, feedback, seeds) -> list[tuple[Task, object]]:
+def scene_tasks(scene: Scene, methods, feedback, seeds) -> list[tuple[Task, object]]:
     """(task, goal view) pairs of one scene in a fixed order (seed, setting, method, goal): the goals of one
     (seed, setting, method) run are consecutive, in goals.zarr order (the order memory is carried in)."""
     out = []
-    routes, goals = arts.routes, arts.goals
+    routes, goals = scene.routes, scene.goals
     for seed in seeds:
         for fb in feedback:
             for method in methods:
@@ -46,7 +46,7 @@ def scene_tasks(arts: Scene, methods, feedback, seeds) -> list[tuple[Task, objec
                         continue  # unreachable goal: reported by the routes stage, not an episode
                     e = eps[seed % len(eps)]
                     p0 = start_pose(e.start, seed, len(eps))
-                    out.append((Task(arts.name, method, fb, int(seed), goal.id, e.id, p0, float(e.geodesic_m)),
+                    out.append((Task(scene.name, method, fb, int(seed), goal.id, e.id, p0, float(e.geodesic_m)),
                                 goal))
     return out
 
@@ -59,8 +59,7 @@ def evaluate_scene(ws: Workspace, params: Params, stages: Mapping, scene: str, m
     from pipeline.process import limit_native_threads
 
     limit_native_threads(threads)
-    arts = Scene(ws, params, scene, stages, check=True)
-    ctx = SceneContext(arts)
+    ctx = SceneContext(Scene(ws, params, scene, stages, check=True))
     lp = params.eval.llm
     client = llm_user = None
     if lp.base_url:
@@ -71,10 +70,10 @@ def evaluate_scene(ws: Workspace, params: Params, stages: Mapping, scene: str, m
             llm_user = lambda goal: LLMUser(client, goal)  # noqa: E731
     resources = AgentResources(llm=client)
     agents = {m: build_agent(m, params, resources, agent_classes) for m in methods}
-    goal_index = {g.id: i for i, g in enumerate(arts.goals.goals)}
+    goal_index = {g.id: i for i, g in enumerate(ctx.scene.goals.goals)}
     results = []
     memories: dict[tuple, object] = {}  # (method, setting, seed) -> the memory carried across the scene's goals
-    for task, goal in scene_tasks(arts, methods, feedback, seeds):
+    for task, goal in scene_tasks(ctx.scene, methods, feedback, seeds):
         rng = np.random.default_rng([task.seed, goal_index[goal.id], FEEDBACK_SETTINGS.index(task.feedback)])
         memory = None
         if getattr(agents[task.method], "persistent_memory", False):

@@ -96,7 +96,7 @@ def test_llm_agent_and_user_drive_an_episode(tiny_scene):
                 found.append(i)
         return found
 
-    goal, ep, ids = next((g, e, ids) for g in ctx.arts.goals.goals for e in ctx.arts.routes.for_goal(g.id)[:1]
+    goal, ep, ids = next((g, e, ids) for g in ctx.scene.goals.goals for e in ctx.scene.routes.for_goal(g.id)[:1]
                          if (ids := reaching_candidates(g, e)))
     replies = [
         json.dumps({"thought": "where is it", "action": "retrieve_map", "args": {"obj_str": goal.name}}),
