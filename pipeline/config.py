@@ -471,9 +471,32 @@ class EncodersParams(Section):
     simulated_lseg: SimulatedLSegParams = SimulatedLSegParams()
     simulated_cf: SimulatedCFParams = SimulatedCFParams()
     plugins: dict[str, dict[str, Any]] = Field(
-        default_factory=dict, description="plugin encoder name -> its settings (the plugin's from_params reads "
-        "params.plugins[name]); part of a map's digest when the map uses that plugin"
+        default_factory=dict, description="plugin encoder name -> its settings, checked against the params class the "
+        "plugin declares (its params_model); part of a map's digest when the map uses that plugin"
     )
+
+    @field_validator("plugins")
+    @classmethod
+    def _plugin_settings(cls, plugins: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+        """Each plugin's settings validated by the class its encoder declares (importing the plugin)."""
+        from pydantic import ValidationError
+
+        from pipeline.encoders.choice import encoder_class
+
+        for name, settings in plugins.items():
+            encoder = encoder_class(name)
+            if encoder is None:
+                raise ValueError(f"{name}: settings for an encoder no installed package registers (zipon.encoders "
+                                 "entry points)")
+            if encoder.params_model is None:
+                raise ValueError(f"{name}: the encoder takes no settings (it declares no params_model)")
+            try:
+                encoder.params_model.model_validate(settings)
+            except ValidationError as err:
+                e = err.errors()[0]
+                where = ".".join(map(str, (name, *e["loc"])))
+                raise ValueError(f"{where}: {e['msg'].removeprefix('Value error, ')}") from None
+        return plugins
 
     @field_validator("vlmap", "cfmap", "simulated")
     @classmethod

@@ -48,6 +48,7 @@ import torch.nn.functional as F
 
 from pipeline.encoders.text import file_digest
 from pipeline.errors import ConfigError, InputDataError, MissingInputError
+from pipeline.section import Section
 
 if TYPE_CHECKING:
     from pipeline.config import EncodersParams
@@ -155,12 +156,25 @@ class Encoder(ABC):
     needs_ground_truth: ClassVar[bool] = False
     #: False for encoders that never look at the colour images (the oracle): readers may then skip decoding them.
     reads_rgb: ClassVar[bool] = True
+    #: the class of the encoder's settings (a :class:`pipeline.section.Section`), declared beside it: the
+    #: ``encoders.<name>`` section of zipon's own encoders, ``encoders.plugins.<name>`` of an installed package's,
+    #: validated against it when the params load; None: the encoder takes no settings
+    params_model: ClassVar[type[Section] | None] = None
 
     def __init__(self, *, device: str = "cpu", batch_size: int = 4):
         self.device = torch.device(device)
         self.batch_size = int(batch_size)
 
     # ------------------------------------------------------------------ interface
+    @classmethod
+    def settings(cls, params: "EncodersParams") -> Section | None:
+        """The encoder's settings in the ``encoders`` section ``params``, as its :attr:`params_model`."""
+        if cls.name in type(params).model_fields:
+            return getattr(params, cls.name)
+        if cls.params_model is None:
+            return None
+        return cls.params_model.model_validate(params.plugins.get(cls.name, {}))
+
     @classmethod
     @abstractmethod
     def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "Encoder":

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from pipeline.config import LSegParams
 from pipeline.encoders.base import (
     DenseFeatures,
     Encoder,
@@ -89,6 +90,7 @@ class LSegEncoder(Encoder):
     """LSeg (ViT-L/16 + DPT, CLIP ViT-B/32 text space, 512-d); see the module docstring."""
 
     name = "lseg"
+    params_model = LSegParams
     version = "1"
 
     def __init__(
@@ -115,7 +117,7 @@ class LSegEncoder(Encoder):
 
     @classmethod
     def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "LSegEncoder":
-        p = params.lseg
+        p = cls.settings(params)
         path = require_file(p.weights, WEIGHTS_PARAM, "the lseg encoder (LSeg checkpoint, e.g. demo_e200.ckpt)")
         return cls(
             load_lseg_net(path),

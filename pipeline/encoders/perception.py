@@ -88,7 +88,7 @@ class SimulatedPerception(Encoder):
 
     @classmethod
     def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "SimulatedPerception":
-        return cls(getattr(params, cls.name), batch_size=batch_size)
+        return cls(cls.settings(params), batch_size=batch_size)
 
     @property
     def dim(self) -> int:
@@ -225,6 +225,7 @@ class SimulatedLSeg(SimulatedPerception):
     """Dense LSeg-like perception (see the module docstring)."""
 
     name = "simulated_lseg"
+    params_model = SimulatedLSegParams
     version = VERSIONS[name]
     profile = "lseg"
     kind = ("simulated LSeg-like dense perception (CLIP ViT-B/32 text space; calibrated to ConceptGraphs "
@@ -249,6 +250,7 @@ class SimulatedCF(SimulatedPerception):
     """Region ConceptFusion-like perception (see the module docstring)."""
 
     name = "simulated_cf"
+    params_model = SimulatedCFParams
     version = VERSIONS[name]
     profile = "conceptfusion"
     kind = ("simulated ConceptFusion-like region perception (CLIP ViT-B/32 text space; calibrated to ConceptGraphs "

@@ -57,3 +57,13 @@ def test_the_params_accept_every_declared_encoder_and_refuse_others_naming_them(
         assert EncodersParams(vlmap=name).vlmap == name
     with pytest.raises(ValueError, match=r"unknown encoder 'lsegg': built-in \['lseg', 'maskclip', .*'perception'\]"):
         EncodersParams(cfmap="lsegg")
+
+
+def test_each_built_in_encoder_declares_the_class_of_its_params_section():
+    from pipeline.encoders import ENCODERS
+
+    load()
+    defaults = EncodersParams()
+    for name, cls in ENCODERS.items():
+        assert EncodersParams.model_fields[name].annotation is cls.params_model
+        assert cls.settings(defaults) is getattr(defaults, name)
