@@ -478,17 +478,18 @@ class EncodersParams(Section):
     @field_validator("plugins")
     @classmethod
     def _plugin_settings(cls, plugins: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
-        """Each plugin's settings validated by the class its encoder declares (importing the plugin)."""
+        """Each plugin's settings validated by the class its encoder declares (importing the plugin's module; whether
+        it is an Encoder is checked when it is built)."""
         from pydantic import ValidationError
 
-        from pipeline.encoders.choice import encoder_class
+        from pipeline import plugins as registry
 
         for name, settings in plugins.items():
-            encoder = encoder_class(name)
+            encoder = registry.load_class(registry.ENCODERS_GROUP, name, object, "a class", "encoder")
             if encoder is None:
                 raise ValueError(f"{name}: settings for an encoder no installed package registers (zipon.encoders "
                                  "entry points)")
-            if encoder.params_model is None:
+            if getattr(encoder, "params_model", None) is None:
                 raise ValueError(f"{name}: the encoder takes no settings (it declares no params_model)")
             try:
                 encoder.params_model.model_validate(settings)

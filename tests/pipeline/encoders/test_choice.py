@@ -45,7 +45,7 @@ def test_every_declared_name_loads_its_class_and_unknown_names_are_config_errors
     from pipeline.encoders import ENCODERS
 
     load()
-    assert list(ENCODERS) == list(plugins.BUILT_IN_ENCODERS)
+    assert set(ENCODERS) == set(plugins.BUILT_IN_ENCODERS)
     for name, cls in ENCODERS.items():
         assert f"{cls.__module__}:{cls.__qualname__}" == plugins.BUILT_IN_ENCODERS[name] and cls.name == name
     with pytest.raises(ConfigError, match=r"'nope': unknown \(choose one of \['lseg', .*'simulated_cf'\]"):
