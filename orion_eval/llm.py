@@ -11,8 +11,9 @@ The agent side speaks the paper's think-act-ask JSON protocol: each reply is one
 with ``action`` one of the ORION functions (:data:`AGENT_FUNCTIONS`); ``talk`` carries
 ``{"content": ...}``. :func:`parse_action` extracts and validates it (tolerating code fences and
 text around the object); :func:`dispatch` calls the function on :class:`~orion_eval.modules.Modules`
-and returns the observation string that goes back to the model. :class:`LLMAgent` loops
-think-act-ask until the episode ends or the step budget of the dialogue is spent; :class:`LLMUser`
+and returns the observation string that goes back to the model. The ``llm`` agent
+(:class:`orion_eval.agents.llm.LLMAgent`) loops think-act-ask until the episode ends or the step budget of the
+dialogue is spent; :class:`LLMUser`
 answers the agent's Talk in the user's role, given the goal's FB and the success verdict.
 """
 
@@ -155,26 +156,6 @@ def dispatch(m, act: AgentAction) -> str:
         pos, neg = m.retrieve_memory(str(a["obj_str"]))
         return json.dumps({"positive": [i for i, _, _ in pos], "negative": neg})
     return m.talk(str(a["content"]))  # talk: the user's reply is the observation
-
-
-class LLMAgent:
-    """An agent whose every action is chosen by the model (think-act-ask)."""
-
-    name, label, colour, upper_bound = "llm", "LLM agent", "#17becf", False
-
-    def __init__(self, client: ChatClient, max_turns: int = 40):
-        self.client, self.max_turns = client, max_turns
-
-    def run(self, m, instruction: str, goal_name: str) -> None:
-        messages = [{"role": "system", "content": AGENT_SYSTEM}, {"role": "user", "content": instruction}]
-        for _ in range(self.max_turns):
-            reply = self.client.chat(messages)
-            messages.append({"role": "assistant", "content": reply})
-            try:
-                obs = dispatch(m, parse_action(reply))
-            except InputDataError as err:
-                obs = f"error: {err}"
-            messages.append({"role": "user", "content": f"observation: {obs}"})
 
 
 class LLMUser:

@@ -35,7 +35,7 @@ MERGE_M = 0.6
 
 def new_memory(ctx) -> MemoryMaps:
     """An empty ORION memory on the scene's ORION map text encoder."""
-    return MemoryMaps(lambda texts: np.asarray(ctx.arts.map_query(ctx.params.eval.orion_map).text_features(texts)),
+    return MemoryMaps(lambda texts: np.asarray(ctx.scene.map_query(ctx.params.eval.orion_map).text_features(texts)),
                       merge_m=MERGE_M)
 
 
@@ -131,7 +131,7 @@ class Modules:
         mask[e.cells] = True
         key = ("obj", e.source, int(e.cells.min()) if len(e.cells) else 0, len(e.cells))
         # sight the object's centre column at half and full height of its reconstructed top surface
-        h = self.ctx.arts.height.reshape(-1)[e.cells] if len(e.cells) else np.array([np.nan])
+        h = self.ctx.scene.height.reshape(-1)[e.cells] if len(e.cells) else np.array([np.nan])
         top = float(np.clip(np.nanmedian(h), 0.1, 2.0)) if np.isfinite(h).any() else 0.6
         region, view = self.ctx.goal_target(key, mask.reshape(g.rows, g.cols), e.center_xy, (0.5 * top, top))
         route = self.ctx.view_planner.route(self.pose, view, key=key, face_xy=e.center_xy, end_mask=region)

@@ -30,7 +30,6 @@ from pathlib import Path
 import numpy as np
 
 from orion_eval.agents import AGENTS
-from orion_eval.llm import LLMAgent
 from orion_eval.metrics import METRICS
 
 FB_NAMES = {"none": "No interaction", "yesno": "Yes/No", "corrective": "Corrective", "descriptive": "Descriptive",
@@ -50,27 +49,20 @@ DEFINITIONS = {
 EPISODES_PER_SCENE = 6  # the episode browser shows at most this many runs per scene
 
 
-def _agent(m: str):
-    """The agent class registered as ``m`` (the LLM agent included), or ``None`` for a name no agent has."""
-    if m == LLMAgent.name:
-        return LLMAgent
-    return AGENTS.get(m)
-
-
 def method_name(m: str) -> str:
     """How tables and figures name method ``m``: its agent's ``label``, else the name itself."""
-    return getattr(_agent(m), "label", "") or m
+    return getattr(AGENTS.get(m), "label", "") or m
 
 
 def is_upper_bound(m: str) -> bool:
     """Whether ``m`` follows the ground truth (shown for reference, never "best")."""
-    return bool(getattr(_agent(m), "upper_bound", False))
+    return bool(getattr(AGENTS.get(m), "upper_bound", False))
 
 
 def method_color(m: str) -> str:
     """The method's fixed colour (its agent's ``colour``, matplotlib tab10 hues); any other name gets a colour
     derived from its text (stable across runs)."""
-    colour = getattr(_agent(m), "colour", "")
+    colour = getattr(AGENTS.get(m), "colour", "")
     if colour:
         return colour
     h = int(hashlib.blake2b(m.encode(), digest_size=4).hexdigest(), 16)

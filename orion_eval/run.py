@@ -21,7 +21,7 @@ from typing import Mapping
 
 import numpy as np
 
-from orion_eval.agents import build_agent
+from orion_eval.agents import AgentResources, build_agent
 from orion_eval.episode import Task, run_episode, start_pose
 from orion_eval.scene import SceneContext
 from orion_eval.user import FEEDBACK_SETTINGS, HUMAN_FEEDBACK
@@ -32,11 +32,11 @@ from pipeline.scene import Scene
 from pipeline.store import write_text_atomic
 
 
-def scene_tasks(arts: Scene, methods, feedback, seeds) -> list[tuple[Task, object]]:
+def scene_tasks(scene: Scene, methods, feedback, seeds) -> list[tuple[Task, object]]:
     """(task, goal view) pairs of one scene in a fixed order (seed, setting, method, goal): the goals of one
     (seed, setting, method) run are consecutive, in goals.zarr order (the order memory is carried in)."""
     out = []
-    routes, goals = arts.routes, arts.goals
+    routes, goals = scene.routes, scene.goals
     for seed in seeds:
         for fb in feedback:
             for method in methods:
@@ -46,7 +46,7 @@ def scene_tasks(arts: Scene, methods, feedback, seeds) -> list[tuple[Task, objec
                         continue  # unreachable goal: reported by the routes stage, not an episode
                     e = eps[seed % len(eps)]
                     p0 = start_pose(e.start, seed, len(eps))
-                    out.append((Task(arts.name, method, fb, int(seed), goal.id, e.id, p0, float(e.geodesic_m)),
+                    out.append((Task(scene.name, method, fb, int(seed), goal.id, e.id, p0, float(e.geodesic_m)),
                                 goal))
     return out
 
@@ -59,23 +59,21 @@ def evaluate_scene(ws: Workspace, params: Params, stages: Mapping, scene: str, m
     from pipeline.process import limit_native_threads
 
     limit_native_threads(threads)
-    arts = Scene(ws, params, scene, stages, check=True)
-    ctx = SceneContext(arts)
+    ctx = SceneContext(Scene(ws, params, scene, stages, check=True))
     lp = params.eval.llm
     client = llm_user = None
     if lp.base_url:
-        from orion_eval.llm import ChatClient, LLMAgent, LLMUser
+        from orion_eval.llm import ChatClient, LLMUser
 
         client = ChatClient.from_params(lp)
         if lp.roles in ("user", "both"):
             llm_user = lambda goal: LLMUser(client, goal)  # noqa: E731
-    extra = agent_classes or {}
-    agents = {m: (LLMAgent(client) if m == "llm" else extra[m](params) if m in extra else build_agent(m, params))
-              for m in methods}
-    goal_index = {g.id: i for i, g in enumerate(arts.goals.goals)}
+    resources = AgentResources(llm=client)
+    agents = {m: build_agent(m, params, resources, agent_classes) for m in methods}
+    goal_index = {g.id: i for i, g in enumerate(ctx.scene.goals.goals)}
     results = []
     memories: dict[tuple, object] = {}  # (method, setting, seed) -> the memory carried across the scene's goals
-    for task, goal in scene_tasks(arts, methods, feedback, seeds):
+    for task, goal in scene_tasks(ctx.scene, methods, feedback, seeds):
         rng = np.random.default_rng([task.seed, goal_index[goal.id], FEEDBACK_SETTINGS.index(task.feedback)])
         memory = None
         if getattr(agents[task.method], "persistent_memory", False):
@@ -107,12 +105,15 @@ def _resolve(params: Params, scenes, methods, feedback, seeds, agent_classes=Non
 
     # names are checked against their registries here (params spell none of them); None = every one
     source = "--methods" if methods else "eval.methods"
-    methods = list(methods or ep.methods or AGENTS)
-    llm_agent = bool(ep.llm.base_url) and ep.llm.roles in ("agent", "both")
-    bad = [m for m in methods if m not in AGENTS and m not in (agent_classes or {}) and not (m == "llm" and llm_agent)]
+    classes = {**AGENTS, **(agent_classes or {})}
+    usable = [m for m, cls in AGENTS.items() if cls.missing(params) is None]
+    methods = list(methods or ep.methods or [m for m in usable if AGENTS[m].by_default])
+    bad = [m for m in methods if m not in classes]
     if bad:
-        raise ConfigError(f"{source}: unknown method(s) {bad}; choose from {list(AGENTS)} "
-                          f"(and 'llm' when eval.llm.base_url is set with roles agent/both)")
+        raise ConfigError(f"{source}: unknown method(s) {bad}; choose from {usable}")
+    for m in methods:
+        if (why := classes[m].missing(params)) is not None:
+            raise ConfigError(f"{source}: method {m!r} cannot run: {why}")
     source = "--feedback" if feedback else "eval.feedback"
     feedback = list(feedback or ep.feedback or FEEDBACK_SETTINGS)
     bad = [f for f in feedback if f not in (*FEEDBACK_SETTINGS, HUMAN_FEEDBACK)]

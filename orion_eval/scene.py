@@ -51,13 +51,13 @@ class Detection:
 class SceneContext:
     """Per-scene state shared by all episodes (see the module docstring)."""
 
-    def __init__(self, arts: Scene):
-        self.arts, self.params = arts, arts.params
+    def __init__(self, scene: Scene):
+        self.scene, self.params = scene, scene.params
         ep, task = self.params.eval, self.params.task
-        self.grid = arts.grid
-        self.navigable = arts.navigable
+        self.grid = scene.grid
+        self.navigable = scene.navigable
         # the action space and success radius routes.zarr was built with (Scene checks the params agree)
-        self.step_m, self.turn_deg, self.success_m = arts.action_space()
+        self.step_m, self.turn_deg, self.success_m = scene.action_space()
         self.world = World(self.navigable, self.grid, step_m=self.step_m, turn_deg=self.turn_deg)
         space = {"step_m": self.step_m, "turn_deg": self.turn_deg}
         # the agents' goto_object stops within their own radius of a found object
@@ -66,7 +66,7 @@ class SceneContext:
         # the user's procedural feedback is planned as the routes stage plans, into the stored goal region
         self.user_planner = NavPlanner(self.navigable, self.grid,
                                        RouteSettings.from_config(task, **space, stop_radius_m=0.0))
-        self.success = SuccessRule(self.grid, arts.height, arts.camera_height_m, rule=ep.success_rule,
+        self.success = SuccessRule(self.grid, scene.height, scene.camera_height_m, rule=ep.success_rule,
                                    distance_m=self.success_m, hfov_deg=task.hfov_deg, sight=self.sight)
         # route targets (pipeline.routes.region) are explicit cells: a zero stop radius keeps them as they are
         self.view_planner = NavPlanner(self.navigable, self.grid, RouteSettings.from_config(
@@ -79,14 +79,14 @@ class SceneContext:
     # ------------------------------------------------------------------ goals
     @cached_property
     def object_index(self) -> np.ndarray:
-        return self.arts.goals.object_index()
+        return self.scene.goals.object_index()
 
     def footprint_mask(self, keys) -> np.ndarray:
         """``(rows, cols)`` bool footprint of goal objects (cached per key tuple)."""
         keys = tuple(keys)
         cache = self.__dict__.setdefault("_fp_cache", {})
         if keys not in cache:
-            order = self.arts.goals.object_keys
+            order = self.scene.goals.object_keys
             cache[keys] = np.isin(self.object_index, [order.index(k) + 1 for k in keys])
         return cache[keys]
 
@@ -159,7 +159,7 @@ class SceneContext:
         """Full-grid goal region of a GROUND-TRUTH goal as stored in goals.zarr (cached per goal)."""
         cache = self.__dict__.setdefault("_stored_regions", {})
         if goal.id not in cache:
-            cache[goal.id] = self.arts.goals.goal_region(goal.id)
+            cache[goal.id] = self.scene.goals.goal_region(goal.id)
         return cache[goal.id]
 
     # ------------------------------------------------------------------ maps
@@ -167,7 +167,7 @@ class SceneContext:
         """Candidates of ``text`` on map ``which`` ('vlmap' | 'cfmap'), pose-independent (cached)."""
         key = (which, text)
         if key not in self._map_cache:
-            res = self.arts.map_query(which).query(text, None)
+            res = self.scene.map_query(which).query(text, None)
             out = []
             g = self.grid
             r_all, c_all = np.nonzero(res.labels)  # one pass over the grid, then per component
@@ -188,9 +188,9 @@ class SceneContext:
         from orion_eval.egoview import EgoRenderer
 
         ep = self.params.eval
-        return EgoRenderer(self.arts.recon.mesh_path, floor_z=self.arts.recon.floor_z,
-                           camera_height_m=self.arts.camera_height_m, size=tuple(ep.detect_size),
-                           hfov_deg=self.params.task.hfov_deg, gt=self.arts.gt)
+        return EgoRenderer(self.scene.recon.mesh_path, floor_z=self.scene.recon.floor_z,
+                           camera_height_m=self.scene.camera_height_m, size=tuple(ep.detect_size),
+                           hfov_deg=self.params.task.hfov_deg, gt=self.scene.gt)
 
     @cached_property
     def encoder(self):
@@ -200,11 +200,11 @@ class SceneContext:
         ep, enc = self.params.eval, self.params.encoders
         name = ep.detect_encoder
         if name in (None, "vlmap", "cfmap"):
-            name = self.arts.map_query(name or "vlmap").map.encoder["name"]
+            name = self.scene.map_query(name or "vlmap").map.encoder["name"]
         if name == "oracle":
             enc = enc.model_copy(update={"oracle": enc.oracle.model_copy(update={"out_size": tuple(ep.detect_size)})})
         e = build_encoder(enc, name, runtime=self.params.run)
-        e.bind_scene(self.arts.gt)
+        e.bind_scene(self.scene.gt)
         return e
 
     def text_features(self, texts: list[str]) -> torch.Tensor:
@@ -235,12 +235,12 @@ class SceneContext:
 
     def _simulated_detector(self, kind: str):
         space = getattr(self.encoder, "space", None)
-        if space is None or self.arts.gt is None or self.renderer.boxes is None:
+        if space is None or self.scene.gt is None or self.renderer.boxes is None:
             return None
         from orion_eval.detector import SaliencyDetector, SimulatedDetector
 
         cls = SaliencyDetector if kind == "saliency" else SimulatedDetector
-        return cls(self.params.eval.detector, space, self.arts.gt, self.renderer.boxes)
+        return cls(self.params.eval.detector, space, self.scene.gt, self.renderer.boxes)
 
     def _detection(self, xy: np.ndarray, score: float, pixels: int) -> Detection:
         """A detection from the world ``(N,2)`` points of its pixels."""

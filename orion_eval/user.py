@@ -79,7 +79,7 @@ class SimulatedUser:
         route = ctx.route_to_goal(ctx.user_planner, pose, g, key="user", face_xy=g.mass_center)
         if route is None or not route.parts:
             return None
-        if procedural_allowed(route.parts, ctx.arts.room_at(pose[:2]), g.room_id):
+        if procedural_allowed(route.parts, ctx.scene.room_at(pose[:2]), g.room_id):
             said = [p.kind if p.kind != "go forward" else f"go forward {self.say_metres(p.value)}" for p in route.parts]
             return f"Follow this route: {', '.join(said)}."
         x, y, yaw = (float(v) for v in pose)
@@ -128,7 +128,7 @@ def goal_geometry(ctx, keys: tuple[str, ...]):
     """Success-rule geometry of a group of object keys (cached on the scene context)."""
     cache = ctx.__dict__.setdefault("_goal_geometry", {})
     if keys not in cache:
-        goals = ctx.arts.goals
+        goals = ctx.scene.goals
         objs = [goals.objects[k] for k in keys]
         cache[keys] = ctx.success.geometry([np.asarray(o.footprint) for o in objs], [o.mass_center for o in objs],
                                            [o.z_range for o in objs], ctx.footprint_mask(keys))

@@ -7,9 +7,11 @@ any scope (an import inside a function counts as much as one at the top), plus t
 of every package on the way (Python runs them on import). Nothing is imported to compute it, so
 ``zipon status`` stays fast and a syntax error in a stage is reported, not raised.
 
-Dynamic imports (``importlib.import_module(name)`` with a computed name) are not seen. The project's one
-registry loaded by name, the built-in readers (:data:`pipeline.plugins.BUILT_IN_READERS`), is added from its
-declarations: code that imports :mod:`pipeline.readers.base` (which loads them) runs every built-in reader.
+Dynamic imports (``importlib.import_module(name)`` with a computed name) are not seen. The project's registries
+loaded by name, the built-in readers and encoders (:data:`pipeline.plugins.BUILT_IN_READERS`,
+:data:`~pipeline.plugins.BUILT_IN_ENCODERS`), are added from their declarations: code that imports
+:mod:`pipeline.readers.base` (or :mod:`pipeline.encoders.choice`, which load them) runs every built-in reader (or
+encoder).
 
 Parsing every file of the project costs most of a ``zipon status`` (~0.8 s for ~100 files), so the
 imports read from a file are kept in a small cache keyed by the file's bytes and module name
@@ -178,7 +180,9 @@ def import_closure(entry: str, root: Path = ROOT) -> list[Path]:
 
 _CLOSURES: dict[tuple[str, Path], tuple[tuple | None, list[Path]]] = {}
 #: modules that load project modules by name from a declaration: {loader: the modules it loads}
-LOADED_BY_NAME = {"pipeline.readers.base": sorted({v.split(":")[0] for v in plugins.BUILT_IN_READERS.values()})}
+LOADED_BY_NAME = {loader: sorted({v.split(":")[0] for v in declared.values()}) for loader, declared in
+                  (("pipeline.readers.base", plugins.BUILT_IN_READERS),
+                   ("pipeline.encoders.choice", plugins.BUILT_IN_ENCODERS))}
 
 
 def _stamps(paths: list[Path]) -> tuple | None:

@@ -9,7 +9,7 @@ overrides, moved keys and writing ``params.yaml`` live in :mod:`pipeline.paramsf
 from __future__ import annotations
 
 import re
-from typing import Annotated, Any, Literal, get_args
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, field_validator, model_serializer, model_validator
 
@@ -338,8 +338,6 @@ class ReconstructParams(DepthRange):
         return self
 
 
-EncoderName = Literal["lseg", "maskclip", "conceptfusion", "torchscript", "oracle", "simulated_lseg", "simulated_cf",
-                      "perception"]  # perception: simulated_lseg for the vlmap, simulated_cf for the cfmap
 CellSize = tuple[Annotated[int, Field(gt=0)], Annotated[int, Field(gt=0)]]  # (height, width)
 
 
@@ -473,20 +471,46 @@ class EncodersParams(Section):
     simulated_lseg: SimulatedLSegParams = SimulatedLSegParams()
     simulated_cf: SimulatedCFParams = SimulatedCFParams()
     plugins: dict[str, dict[str, Any]] = Field(
-        default_factory=dict, description="plugin encoder name -> its settings (the plugin's from_params reads "
-        "params.plugins[name]); part of a map's digest when the map uses that plugin"
+        default_factory=dict, description="plugin encoder name -> its settings, checked against the params class the "
+        "plugin declares (its params_model); part of a map's digest when the map uses that plugin"
     )
+
+    @field_validator("plugins")
+    @classmethod
+    def _plugin_settings(cls, plugins: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+        """Each plugin's settings validated by the class its encoder declares (importing the plugin's module; whether
+        it is an Encoder is checked when it is built)."""
+        from pydantic import ValidationError
+
+        from pipeline import plugins as registry
+
+        for name, settings in plugins.items():
+            encoder = registry.load_class(registry.ENCODERS_GROUP, name, object, "a class", "encoder")
+            if encoder is None:
+                raise ValueError(f"{name}: settings for an encoder no installed package registers (zipon.encoders "
+                                 "entry points)")
+            if getattr(encoder, "params_model", None) is None:
+                raise ValueError(f"{name}: the encoder takes no settings (it declares no params_model)")
+            try:
+                encoder.params_model.model_validate(settings)
+            except ValidationError as err:
+                e = err.errors()[0]
+                where = ".".join(map(str, (name, *e["loc"])))
+                raise ValueError(f"{where}: {e['msg'].removeprefix('Value error, ')}") from None
+        return plugins
 
     @field_validator("vlmap", "cfmap", "simulated")
     @classmethod
     def _known_encoder(cls, name: str | None) -> str | None:
-        if name is None or name in get_args(EncoderName):
-            return name
         from pipeline import plugins
 
+        # 'perception': simulated_lseg for the vlmap, simulated_cf for the cfmap
+        built_in = [*plugins.BUILT_IN_ENCODERS, "perception"]
+        if name is None or name in built_in:  # known without reading the installed packages
+            return name
         installed = plugins.names(plugins.ENCODERS_GROUP)
         if name not in installed:
-            raise ValueError(f"unknown encoder {name!r}: built-in {list(get_args(EncoderName))}, installed plugins "
+            raise ValueError(f"unknown encoder {name!r}: built-in {built_in}, installed plugins "
                              f"(zipon.encoders entry points) {installed}")
         return name
 

@@ -17,6 +17,7 @@ import math
 import re
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
+from typing import Any
 
 RELATIONS = ("next to", "near", "on", "under")
 #: how the user points at a destination, and its bearing (degrees, counter-clockwise from ahead)
@@ -81,6 +82,15 @@ def parse_feedback(reply: str) -> ParsedFeedback:
     return fb
 
 
+@dataclass(frozen=True)
+class AgentResources:
+    """What the evaluator lends the agents of one scene beside the params: ``llm``, the chat client of ``eval.llm``
+    (one per scene, shared with the LLM user so that ``eval.llm.max_requests`` bounds both; None when no endpoint
+    is set)."""
+
+    llm: Any = None
+
+
 class Agent(ABC):
     """A scripted policy over the ORION modules."""
 
@@ -89,9 +99,20 @@ class Agent(ABC):
     colour: str = ""  # its fixed colour in every figure ("#rrggbb"; empty: one derived from the name)
     upper_bound: bool = False  # follows the ground truth: shown for reference, never "best" or starred
     persistent_memory: bool = False  # True: evaluate_scene carries the agent's memory across a scene's goals
+    by_default: bool = True  # evaluated when no method is named (False: only when named)
 
     def __init__(self, params):
         self.params = params  # the whole Params
+
+    @classmethod
+    def missing(cls, params) -> str | None:
+        """What ``params`` lack for this agent to run, in words (None: nothing)."""
+        return None
+
+    @classmethod
+    def build(cls, params, resources: AgentResources) -> "Agent":
+        """The agent of one scene: every agent, built in, installed or the caller's, is made here."""
+        return cls(params)
 
     @abstractmethod
     def run(self, m, instruction: str, goal_name: str) -> None:
@@ -120,9 +141,12 @@ def register(cls: type[Agent]) -> type[Agent]:
     return cls
 
 
-def build_agent(name: str, params) -> Agent:
-    if name not in AGENTS:
+def build_agent(name: str, params, resources: AgentResources = AgentResources(),
+                classes: dict[str, type[Agent]] | None = None) -> Agent:
+    """The agent ``name`` of the registry (or of ``classes``, the caller's own agents) for one scene."""
+    cls = (classes or {}).get(name) or AGENTS.get(name)
+    if cls is None:
         from pipeline.errors import ConfigError
 
         raise ConfigError(f"eval.methods: unknown agent {name!r} (choose from {sorted(AGENTS)})")
-    return AGENTS[name](params)
+    return cls.build(params, resources)

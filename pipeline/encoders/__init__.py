@@ -1,5 +1,5 @@
 """Open-vocabulary dense encoders: the interface and registry in :mod:`pipeline.encoders.base`,
-one module per implementation (importing one registers it in :data:`ENCODERS`), building one in
+one module per implementation (declared by name in :data:`pipeline.plugins.BUILT_IN_ENCODERS`), building one in
 :mod:`pipeline.encoders.build`.
 
 Nothing heavy is imported with the package: :mod:`pipeline.encoders.choice` (which encoder a stage

@@ -19,9 +19,9 @@ pixel-corner convention (cell ``(r, c)`` covers pixels ``[r*H/h, (r+1)*H/h) x [c
 So the intrinsics of the feature grid are ``Intrinsics.scaled(w, h)`` (see :meth:`DenseFeatures.intrinsics`),
 and depth for back-projection is depth resampled to ``(h, w)`` (:meth:`DenseFeatures.resample_depth`).
 
-Family: :class:`Encoder` (ABC) + :data:`ENCODERS` (name -> class, filled by ``@register`` in each
-implementation module: ``lseg``, ``maskclip``, ``conceptfusion``, ``torchscript``, ``oracle``,
-``simulated_lseg``, ``simulated_cf``).
+Family: :class:`Encoder` (ABC) + :data:`ENCODERS` (name -> class, filled on use from the one registry: zipon's own
+encoders declared in :data:`pipeline.plugins.BUILT_IN_ENCODERS`, the installed ``zipon.encoders``; see
+:func:`pipeline.encoders.choice.encoder_class`).
 ``bind_scene(gt)`` hands the scene's ground truth to encoders that use it (only the oracle, a
 diagnostic); it is a no-op for real encoders. Nothing downloads weights: a real encoder without
 its weights file is a :class:`ConfigError` naming the param, a missing file a
@@ -48,6 +48,7 @@ import torch.nn.functional as F
 
 from pipeline.encoders.text import file_digest
 from pipeline.errors import ConfigError, InputDataError, MissingInputError
+from pipeline.section import Section
 
 if TYPE_CHECKING:
     from pipeline.config import EncodersParams
@@ -155,12 +156,25 @@ class Encoder(ABC):
     needs_ground_truth: ClassVar[bool] = False
     #: False for encoders that never look at the colour images (the oracle): readers may then skip decoding them.
     reads_rgb: ClassVar[bool] = True
+    #: the class of the encoder's settings (a :class:`pipeline.section.Section`), declared beside it: the
+    #: ``encoders.<name>`` section of zipon's own encoders, ``encoders.plugins.<name>`` of an installed package's,
+    #: validated against it when the params load; None: the encoder takes no settings
+    params_model: ClassVar[type[Section] | None] = None
 
     def __init__(self, *, device: str = "cpu", batch_size: int = 4):
         self.device = torch.device(device)
         self.batch_size = int(batch_size)
 
     # ------------------------------------------------------------------ interface
+    @classmethod
+    def settings(cls, params: "EncodersParams") -> Section | None:
+        """The encoder's settings in the ``encoders`` section ``params``, as its :attr:`params_model`."""
+        if cls.name in type(params).model_fields:
+            return getattr(params, cls.name)
+        if cls.params_model is None:
+            return None
+        return cls.params_model.model_validate(params.plugins.get(cls.name, {}))
+
     @classmethod
     @abstractmethod
     def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "Encoder":
@@ -377,11 +391,5 @@ def all_valid(feat: torch.Tensor) -> torch.Tensor:
 
 # ----------------------------------------------------------------------------- registry
 
-#: encoder name -> implementation; filled by the implementation modules (imported in __init__).
+#: encoder name -> implementation, the ones loaded so far (:func:`pipeline.encoders.choice.encoder_class` fills it)
 ENCODERS: dict[str, type[Encoder]] = {}
-
-
-def register(cls: type[Encoder]) -> type[Encoder]:
-    """Class decorator: add an implementation to :data:`ENCODERS` under its ``name``."""
-    ENCODERS[cls.name] = cls
-    return cls

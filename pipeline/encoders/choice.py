@@ -4,12 +4,12 @@ Stage configs (``zipon status``, ``zipon params``, staleness checks) need the en
 :func:`encoder_choice` answers from the params alone for 'vlmap' / 'cfmap', and imports the
 registry (:mod:`pipeline.encoders.base`, torch) only to check an explicit encoder name.
 :func:`load` imports the one module implementing a name (``zipon query`` on an oracle map does not
-import open_clip or torchvision); a name it does not know loads every implementation.
+import open_clip or torchvision). Names come from one registry: zipon's own encoders declared in
+:data:`pipeline.plugins.BUILT_IN_ENCODERS`, and those installed packages register (``zipon.encoders``).
 """
 
 from __future__ import annotations
 
-import importlib
 import importlib.util
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -19,15 +19,7 @@ from pipeline.errors import ConfigError
 
 if TYPE_CHECKING:
     from pipeline.config import EncodersParams
-
-#: encoder name -> module of :mod:`pipeline.encoders` implementing it
-MODULES: dict[str, str] = {
-    "oracle": "oracle", "lseg": "lseg", "maskclip": "maskclip", "conceptfusion": "conceptfusion",
-    "torchscript": "torchscript", "simulated_lseg": "perception", "simulated_cf": "perception",
-}
-
-
-#: entry-point group through which installed packages add encoders: ``name = "module:Class"``
+    from pipeline.encoders.base import Encoder
 
 
 def plugin_names() -> list[str]:
@@ -35,16 +27,12 @@ def plugin_names() -> list[str]:
     return plugins.names(plugins.ENCODERS_GROUP)
 
 
-def _plugin_entry(name: str):
-    return plugins.entry(plugins.ENCODERS_GROUP, name)
-
-
 def plugin_source(name: str) -> str | None:
     """The source folder (a package) or file (a module) of plugin encoder ``name``, without importing it;
     None for a built-in encoder. Map stages hash it as an input: the plugin's code is outside zipon's."""
-    if name in MODULES:
+    if name in plugins.BUILT_IN_ENCODERS:
         return None
-    ep = _plugin_entry(name)
+    ep = plugins.entry(plugins.ENCODERS_GROUP, name)
     if ep is None:
         return None
     spec = importlib.util.find_spec(ep.value.split(":")[0].split(".")[0])
@@ -55,31 +43,21 @@ def plugin_source(name: str) -> str | None:
     return str(origin.parent if origin.name == "__init__.py" else origin)
 
 
-def _load_plugin(name: str) -> bool:
-    """Register plugin encoder ``name`` from its entry point; False when no package provides it."""
+def encoder_class(name: str) -> type[Encoder] | None:
+    """The encoder registered as ``name``, built in (:data:`pipeline.plugins.BUILT_IN_ENCODERS`) or by an installed
+    package, imported on first use and kept in :data:`pipeline.encoders.base.ENCODERS`; None for a name neither
+    declares. Raises ConfigError naming the entry point when a registration does not load or does not fit."""
     from pipeline.encoders.base import ENCODERS, Encoder
 
-    cls = plugins.load_class(plugins.ENCODERS_GROUP, name, Encoder, "pipeline.encoders.base.Encoder", "encoder")
-    if cls is None:
-        return False
-    ENCODERS[name] = cls
-    return True
+    return plugins.load_class(plugins.ENCODERS_GROUP, name, Encoder, "pipeline.encoders.base.Encoder", "encoder",
+                              loaded=ENCODERS)
 
 
 def load(name: str | None = None) -> None:
-    """Register the implementation of encoder ``name`` (None or an unlisted name: every implementation);
-    names no built-in module has are looked up in the ``zipon.encoders`` entry points."""
-    from pipeline.encoders.base import ENCODERS
-
-    if name in ENCODERS:
-        return
-    if name in MODULES:
-        importlib.import_module(f"pipeline.encoders.{MODULES[name]}")
-        if name in ENCODERS:
-            return
-    if name is not None and _load_plugin(name):
-        return
-    from pipeline.encoders import conceptfusion, lseg, maskclip, oracle, perception, torchscript  # noqa: F401
+    """Register the implementation of encoder ``name`` (None: every built-in encoder; an installed package's is
+    loaded by its name)."""
+    for each in plugins.BUILT_IN_ENCODERS if name is None else (name,):
+        encoder_class(each)
 
 
 def encoder_choice(params: "EncodersParams", which: str | None = None, *, simulated: bool = False) -> str:
@@ -94,12 +72,8 @@ def encoder_choice(params: "EncodersParams", which: str | None = None, *, simula
     elif which in ("vlmap", "cfmap"):
         name = getattr(params, which)
     else:
-        from pipeline.encoders.base import ENCODERS
-
-        load(which)
-        if which not in ENCODERS:
-            load()
-            raise ConfigError(f"encoder {which!r}: unknown (choose one of {sorted(ENCODERS)} or 'vlmap'/'cfmap')")
+        if encoder_class(which) is None:
+            raise ConfigError(f"encoder {which!r}: unknown (choose one of {plugins.encoder_names()} or 'vlmap'/'cfmap')")
         name = which
     if name == "perception":  # one setting, each map its model: LSeg-like for the vlmap, ConceptFusion-like for the cfmap
         name = "simulated_cf" if which == "cfmap" else "simulated_lseg"

@@ -27,8 +27,8 @@ from open_clip.model import get_model_preprocess_cfg
 from open_clip.transform import PreprocessCfg, image_transform_v2
 from PIL import Image
 
-from pipeline.config import RegionParams
-from pipeline.encoders.base import DenseFeatures, Encoder, OpenClipText, l2_normalize, register, require_file
+from pipeline.config import ConceptFusionParams, RegionParams
+from pipeline.encoders.base import DenseFeatures, Encoder, OpenClipText, l2_normalize, require_file
 from pipeline.encoders.maskclip import clip_tokens, load_open_clip
 from pipeline.encoders.regions import RegionGenerator, Regions, build_region_generator
 
@@ -89,11 +89,11 @@ def paint_regions(fused: torch.Tensor, masks: torch.Tensor) -> tuple[torch.Tenso
     return out, valid
 
 
-@register
 class ConceptFusionEncoder(OpenClipText, Encoder):
     """ConceptFusion global+local CLIP features on regions; see the module docstring."""
 
     name = "conceptfusion"
+    params_model = ConceptFusionParams
     version = "2"  # 2: the reference's crop transform (resize + centre crop) and its in-order renormalisation
 
     def __init__(
@@ -121,7 +121,7 @@ class ConceptFusionEncoder(OpenClipText, Encoder):
 
     @classmethod
     def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "ConceptFusionEncoder":
-        p = params.conceptfusion
+        p = cls.settings(params)
         param = "encoders.conceptfusion.weights"
         path = require_file(p.weights, param, f"the conceptfusion encoder (open_clip {p.arch} weights)")
         return cls(load_open_clip(p.arch, path, param), build_region_generator(p.regions), arch=p.arch,

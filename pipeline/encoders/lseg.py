@@ -23,12 +23,12 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from pipeline.config import LSegParams
 from pipeline.encoders.base import (
     DenseFeatures,
     Encoder,
     all_valid,
     normalize,
-    register,
     require_file,
     resize_features,
     to_tensor01,
@@ -86,11 +86,11 @@ def window_starts(length: int, crop: int, stride: int) -> list[int]:
     return [i * stride for i in range(n)]
 
 
-@register
 class LSegEncoder(Encoder):
     """LSeg (ViT-L/16 + DPT, CLIP ViT-B/32 text space, 512-d); see the module docstring."""
 
     name = "lseg"
+    params_model = LSegParams
     version = "1"
 
     def __init__(
@@ -117,7 +117,7 @@ class LSegEncoder(Encoder):
 
     @classmethod
     def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "LSegEncoder":
-        p = params.lseg
+        p = cls.settings(params)
         path = require_file(p.weights, WEIGHTS_PARAM, "the lseg encoder (LSeg checkpoint, e.g. demo_e200.ckpt)")
         return cls(
             load_lseg_net(path),

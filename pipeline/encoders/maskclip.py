@@ -22,6 +22,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from pipeline.config import MaskClipParams
 from pipeline.encoders.base import (
     CLIP_MEAN,
     CLIP_STD,
@@ -30,7 +31,6 @@ from pipeline.encoders.base import (
     OpenClipText,
     all_valid,
     normalize,
-    register,
     require_file,
     resize_features,
     to_tensor01,
@@ -104,11 +104,11 @@ def maskclip_patch_features(visual: nn.Module, x: torch.Tensor) -> torch.Tensor:
     return v.transpose(1, 2).reshape(x.shape[0], -1, gh, gw)
 
 
-@register
 class MaskClipEncoder(OpenClipText, Encoder):
     """MaskCLIP dense features of an open_clip ViT; see the module docstring."""
 
     name = "maskclip"
+    params_model = MaskClipParams
     version = "2"  # 2: the last block keeps its residual and MLP, as MaskCLIP's code does
 
     def __init__(
@@ -135,7 +135,7 @@ class MaskClipEncoder(OpenClipText, Encoder):
 
     @classmethod
     def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "MaskClipEncoder":
-        p = params.maskclip
+        p = cls.settings(params)
         param = "encoders.maskclip.weights"
         path = require_file(p.weights, param, f"the maskclip encoder (open_clip {p.arch} weights)")
         return cls(load_open_clip(p.arch, path, param), arch=p.arch, weights=path, input_size=p.input_size,

@@ -30,7 +30,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from pipeline.encoders.base import DenseFeatures, Encoder, PaletteFeatures, register
+from pipeline.config import OracleParams
+from pipeline.encoders.base import DenseFeatures, Encoder, PaletteFeatures
 from pipeline.encoders.oracle_text import BACKGROUND, VERSION, OracleText, _words
 from pipeline.errors import ConfigError, InputDataError
 
@@ -48,12 +49,12 @@ def _centre_pixels(n_pixels: int, n_cells: int) -> slice | np.ndarray:
     return np.minimum(((np.arange(n_cells) + 0.5) * n_pixels / n_cells).astype(np.int64), n_pixels - 1)
 
 
-@register
 class OracleEncoder(OracleText, Encoder):
     """Ground-truth features for simulated scenes (a diagnostic); see the module docstring. The word space and
     the text side are :class:`~pipeline.encoders.oracle_text.OracleText`'s (numpy)."""
 
     name = "oracle"
+    params_model = OracleParams
     version = VERSION
     diagnostic = True
     reads_rgb = False
@@ -78,7 +79,7 @@ class OracleEncoder(OracleText, Encoder):
 
     @classmethod
     def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "OracleEncoder":
-        p = params.oracle
+        p = cls.settings(params)
         return cls(dim=p.dim, seed=p.seed, color_weight=p.color_weight, material_weight=p.material_weight,
                    confusion=p.confusion, noise_std=p.noise_std, out_size=p.out_size, device=device,
                    batch_size=batch_size)

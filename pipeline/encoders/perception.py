@@ -40,7 +40,7 @@ import cv2
 import numpy as np
 import torch
 
-from pipeline.encoders.base import DenseFeatures, Encoder, PaletteFeatures, l2_normalize, register
+from pipeline.encoders.base import DenseFeatures, Encoder, PaletteFeatures, l2_normalize
 from pipeline.encoders.perception_text import (TEMPERATURE, VERSIONS, ClipTextSpace, load_text_space,
                                                resolve_embeddings)
 from pipeline.errors import ConfigError, InputDataError
@@ -88,7 +88,7 @@ class SimulatedPerception(Encoder):
 
     @classmethod
     def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "SimulatedPerception":
-        return cls(getattr(params, cls.name), batch_size=batch_size)
+        return cls(cls.settings(params), batch_size=batch_size)
 
     @property
     def dim(self) -> int:
@@ -221,11 +221,11 @@ class SimulatedPerception(Encoder):
         raise NotImplementedError
 
 
-@register
 class SimulatedLSeg(SimulatedPerception):
     """Dense LSeg-like perception (see the module docstring)."""
 
     name = "simulated_lseg"
+    params_model = SimulatedLSegParams
     version = VERSIONS[name]
     profile = "lseg"
     kind = ("simulated LSeg-like dense perception (CLIP ViT-B/32 text space; calibrated to ConceptGraphs "
@@ -246,11 +246,11 @@ class SimulatedLSeg(SimulatedPerception):
         return np.concatenate([mix, nw]), np.concatenate([rows, nrows])
 
 
-@register
 class SimulatedCF(SimulatedPerception):
     """Region ConceptFusion-like perception (see the module docstring)."""
 
     name = "simulated_cf"
+    params_model = SimulatedCFParams
     version = VERSIONS[name]
     profile = "conceptfusion"
     kind = ("simulated ConceptFusion-like region perception (CLIP ViT-B/32 text space; calibrated to ConceptGraphs "

@@ -23,7 +23,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from pipeline.encoders.base import DenseFeatures, Encoder, file_digest, l2_normalize, register, require_file, to_tensor01
+from pipeline.config import TorchScriptParams
+from pipeline.encoders.base import DenseFeatures, Encoder, file_digest, l2_normalize, require_file, to_tensor01
 from pipeline.errors import ConfigError, StageError
 
 if TYPE_CHECKING:
@@ -55,11 +56,11 @@ def load_factory(spec: str) -> Any:
     return obj
 
 
-@register
 class TorchScriptEncoder(Encoder):
     """A dense encoder from user files or a factory; see the module docstring."""
 
     name = "torchscript"
+    params_model = TorchScriptParams
 
     def __init__(
         self,
@@ -87,7 +88,7 @@ class TorchScriptEncoder(Encoder):
 
     @classmethod
     def from_params(cls, params: "EncodersParams", *, device: str, batch_size: int = 4) -> "TorchScriptEncoder":
-        p = params.torchscript
+        p = cls.settings(params)
         common = dict(name=p.name, version=p.version, input_size=p.input_size, device=device,
                       batch_size=batch_size)
         if p.factory is not None:

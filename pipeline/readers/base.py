@@ -2,9 +2,12 @@
 
 A :class:`Reader` turns a raw log or dataset folder into
 
-- a :class:`SourceInfo` (intrinsics, the pose chain, provenance, ground truth) from :meth:`Reader.open`;
-- a time-ordered stream of :class:`Sample` from :meth:`Reader.samples`: colour, depth and instance
-  images (decoded lazily) and pose-link samples, each with its own stamp and message index.
+- an :class:`Opened` from :meth:`Reader.open`: the :class:`SourceInfo` (intrinsics, the pose chain, provenance,
+  ground truth) and the reader's own state of that source (its file lists, poses, topics...);
+- a time-ordered stream of :class:`Sample` from :meth:`Reader.samples`, given that :class:`Opened`: colour, depth
+  and instance images (decoded lazily) and pose-link samples, each with its own stamp and message index.
+
+A reader keeps nothing of a source on itself: what :meth:`Reader.samples` needs, :meth:`Reader.open` returns.
 
 The shared :mod:`pipeline.readers.matcher` consumes that stream whatever the format, so every
 reader gets the same timestamp matching, tolerance, interpolation and unmatched-frame report.
@@ -19,7 +22,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
-from typing import Any, ClassVar, Iterator
+from typing import Any, ClassVar, Generic, Iterator, TypeVar
 
 import numpy as np
 
@@ -93,9 +96,24 @@ class SourceInfo:
     ground_truth: dict | None = None
 
 
+#: a reader's own state of one opened source (a frozen dataclass of the reader's module)
+State = TypeVar("State")
+
+
+@dataclass(frozen=True)
+class Opened(Generic[State]):
+    """What :meth:`Reader.open` found in one source: ``info`` for the ingest, and ``state`` for the reader's own
+    :meth:`Reader.samples` (what it listed, parsed or decided while opening)."""
+
+    info: SourceInfo
+    state: State
+
+
 class Reader(ABC):
     """A raw format, found by its ``name`` in the reader registry (:func:`reader_class`) and built by
-    :func:`open_reader`. ``layout`` says what :meth:`detect` looks for, in the words of "cannot tell the format"."""
+    :func:`open_reader`. ``layout`` says what :meth:`detect` looks for, in the words of "cannot tell the format".
+    After construction a reader holds only its ``path`` and ``params``: what it learns of the source travels in the
+    :class:`Opened` that :meth:`open` returns and :meth:`samples` takes."""
 
     name: ClassVar[str]
     layout: ClassVar[str]
@@ -114,12 +132,13 @@ class Reader(ABC):
         """Whether ``path`` looks like this format (cheap: names and magic bytes only)."""
 
     @abstractmethod
-    def open(self) -> SourceInfo:
-        """Validate the source's layout and return what is known before streaming."""
+    def open(self) -> Opened:
+        """Validate the source's layout and return what is known before streaming, with the reader's state of it."""
 
     @abstractmethod
-    def samples(self) -> Iterator[Sample]:
-        """Every message, ordered by time; within a stream (pose link) stamps must strictly increase."""
+    def samples(self, opened: Opened) -> Iterator[Sample]:
+        """Every message of the source ``opened`` (what :meth:`open` returned), ordered by time; within a stream (pose
+        link) stamps must strictly increase."""
 
 
 #: the readers loaded so far, by format name (filled by :func:`reader_class`)
@@ -129,12 +148,8 @@ READERS: dict[str, type[Reader]] = {}
 def reader_class(name: str) -> type[Reader] | None:
     """The reader of format ``name``, built in or registered by an installed package; None for a name neither
     declares. Raises ConfigError naming the entry point when a registration does not load or does not fit."""
-    if name not in READERS:
-        cls = plugins.load_class(plugins.READERS_GROUP, name, Reader, "pipeline.readers.base.Reader", "reader")
-        if cls is None:
-            return None
-        READERS[name] = cls
-    return READERS[name]
+    return plugins.load_class(plugins.READERS_GROUP, name, Reader, "pipeline.readers.base.Reader", "reader",
+                              loaded=READERS)
 
 
 def all_readers() -> dict[str, type[Reader]]:

@@ -95,13 +95,14 @@ class _Log:
     def __init__(self, path: Path, label: str, params: IngestParams, fmt: str, log: Callable[[str], None]):
         self.label = label
         self.reader = open_reader(path, params, fmt)
-        self.info = self.reader.open()
+        self.opened = self.reader.open()
+        self.info = self.opened.info
         log(f"reading {label} as {self.reader.name}: {self.info.intrinsics.width}x{self.info.intrinsics.height}, "
             f"pose from {' -> '.join(lk.name for lk in self.info.pose_chain)}")
         self.matcher = FrameMatcher(self.info, params, label)
 
     def blocks(self) -> Iterator[FrameBlock]:
-        return self.matcher.blocks(self.reader.samples())
+        return self.matcher.blocks(self.reader.samples(self.opened))
 
     def provenance(self, params: IngestParams) -> dict:
         return {"source": self.label, "format": self.reader.name, "reader": type(self.reader).__name__,

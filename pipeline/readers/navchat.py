@@ -15,6 +15,7 @@ only for yaw-only motion. We undo the reversal: file ``a b c d`` -> ``(qx, qy, q
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
@@ -23,11 +24,21 @@ import numpy as np
 
 from pipeline.errors import InputDataError
 from pipeline.geometry import Intrinsics, habitat_to_world
-from pipeline.readers.base import (DEPTH, INSTANCE, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, frame_stamps_ns,
+from pipeline.readers.base import (DEPTH, INSTANCE, POSE, RGB, Opened, PoseLink, Reader, Sample, SourceInfo, frame_stamps_ns,
                                    pose_from_tq_checked, read_image)
 
 NAVCHAT_HFOV_DEG = 90.0
 _RGB = re.compile(r"^(.+)_(\d+)\.png$")
+
+
+@dataclass(frozen=True)
+class NavchatFrames:
+    """The opened recording: its scene name, frame numbers and their stamps, and whether it has ``semantic/``."""
+
+    scene: str
+    ids: list[int]
+    stamps: np.ndarray
+    has_instance: bool
 
 
 class NavchatReader(Reader):
@@ -41,7 +52,7 @@ class NavchatReader(Reader):
         return (path.is_dir() and (path / "rgb").is_dir() and (path / "pose").is_dir()
                 and next((path / "depth").glob("*.npy"), None) is not None)
 
-    def open(self) -> SourceInfo:
+    def open(self) -> Opened[NavchatFrames]:
         for sub in ("rgb", "depth", "pose"):
             if not (self.path / sub).is_dir():
                 raise InputDataError(f"no {sub}/ folder", path=self.path / sub,
@@ -54,51 +65,53 @@ class NavchatReader(Reader):
         if len(scenes) != 1:
             raise InputDataError(f"rgb/ holds scenes {scenes}", path=self.path / "rgb",
                                  expected="files rgb/{scene}_{i}.png of exactly one scene")
-        self.scene = scenes[0]
-        self.ids = sorted(i for _, i in found)
-        self.has_instance = (self.path / "semantic").is_dir()
-        for k, i in enumerate(self.ids):
-            for sub, ext in (("depth", "npy"), ("pose", "txt")) + ((("semantic", "npy"),) if self.has_instance else ()):
-                f = self._file(sub, i, ext)
+        scene = scenes[0]
+        ids = sorted(i for _, i in found)
+        has_instance = (self.path / "semantic").is_dir()
+        for k, i in enumerate(ids):
+            for sub, ext in (("depth", "npy"), ("pose", "txt")) + ((("semantic", "npy"),) if has_instance else ()):
+                f = self._file(scene, sub, i, ext)
                 if not f.is_file():
-                    raise InputDataError(f"rgb/{self.scene}_{i}.png has no {sub} file", path=f, frame=k,
+                    raise InputDataError(f"rgb/{scene}_{i}.png has no {sub} file", path=f, frame=k,
                                          expected="depth, pose (and semantic) files for every rgb frame")
-        self.stamps = frame_stamps_ns(np.array(self.ids), self.params.folder_fps)
-        first = read_image(self._file("rgb", self.ids[0], "png"), flags=cv2.IMREAD_COLOR, frame=0, what="colour")
+        first = read_image(self._file(scene, "rgb", ids[0], "png"), flags=cv2.IMREAD_COLOR, frame=0, what="colour")
         h, w = first.shape[:2]
         o = self.params.camera_override
         # hfov 90 deg: f = (w / 2) / tan(45 deg) = w / 2 exactly (from_hfov would leave 320.00000000000006)
         intr = Intrinsics(o.fx, o.fy, o.cx, o.cy, w, h) if o else Intrinsics(w / 2.0, w / 2.0, w / 2.0, h / 2.0, w, h)
-        self.h_cam = self.params.navchat_camera_height_m
-        return SourceInfo(
-            intrinsics=intr, has_instance=self.has_instance, pose_chain=[PoseLink("world", "camera")],
+        info = SourceInfo(
+            intrinsics=intr, has_instance=has_instance, pose_chain=[PoseLink("world", "camera")],
             where={RGB: "rgb/", DEPTH: "depth/", INSTANCE: "semantic/", "world->camera": "pose/"},
             provenance={
-                "scene": self.scene, "frames": len(self.ids),
+                "scene": scene, "frames": len(ids),
                 "conversions": [
                     f"intrinsics: {'ingest.camera_override' if o else f'hfov {NAVCHAT_HFOV_DEG} deg'}: "
                     f"{intr.to_dict()}",
                     f"stamps: synthesised as frame number / ingest.folder_fps ({self.params.folder_fps} Hz)",
                     "pose: file 'x y z a b c d' with (a, b, c, d) = reversed (w, x, y, z) -> q_xyzw = (c, b, a, d)",
-                    f"pose: Habitat base (y up) -> camera {self.h_cam} m above the base, OpenCV optical, z-up world "
+                    f"pose: Habitat base (y up) -> camera {self.params.navchat_camera_height_m} m above the base, OpenCV optical, z-up world "
                     "(pipeline.geometry.habitat_to_world)",
                     "depth: uint16 mm kept; semantic ids -> uint16 instance",
                 ],
             },
         )
+        stamps = frame_stamps_ns(np.array(ids), self.params.folder_fps)
+        return Opened(info, NavchatFrames(scene=scene, ids=ids, stamps=stamps, has_instance=has_instance))
 
-    def _file(self, sub: str, i: int, ext: str) -> Path:
-        return self.path / sub / f"{self.scene}_{i}.{ext}"
+    def _file(self, scene: str, sub: str, i: int, ext: str) -> Path:
+        return self.path / sub / f"{scene}_{i}.{ext}"
 
-    def samples(self) -> Iterator[Sample]:
-        for k, (i, stamp) in enumerate(zip(self.ids, self.stamps.tolist())):
-            yield Sample(POSE, stamp, k, self._pose(self._file("pose", i, "txt"), k), key="world->camera", rigid=True)
-            rgb, depth, semantic = (self._file(sub, i, ext) for sub, ext in
+    def samples(self, opened: Opened[NavchatFrames]) -> Iterator[Sample]:
+        rec = opened.state
+        for k, (i, stamp) in enumerate(zip(rec.ids, rec.stamps.tolist())):
+            yield Sample(POSE, stamp, k, self._pose(self._file(rec.scene, "pose", i, "txt"), k), key="world->camera",
+                         rigid=True)
+            rgb, depth, semantic = (self._file(rec.scene, sub, i, ext) for sub, ext in
                                     (("rgb", "png"), ("depth", "npy"), ("semantic", "npy")))
             yield Sample(RGB, stamp, k, lambda f=rgb, k=k: read_image(f, flags=cv2.IMREAD_COLOR, frame=k, what="colour"),
                          origin=rgb)
             yield Sample(DEPTH, stamp, k, lambda f=depth, k=k: self._npy(f, k, "depth"), origin=depth)
-            if self.has_instance:
+            if rec.has_instance:
                 yield Sample(INSTANCE, stamp, k, lambda f=semantic, k=k: self._npy(f, k, "semantic"), origin=semantic)
 
     def _pose(self, file: Path, k: int) -> np.ndarray:
@@ -111,7 +124,7 @@ class NavchatReader(Reader):
             raise InputDataError(f"pose has {len(v)} numbers", path=file, frame=k, expected="7: x y z a b c d")
         a, b, c, d = v[3:]
         T_hab_base = pose_from_tq_checked(v[:3] + [c, b, a, d], path=file, frame=k)
-        return habitat_to_world(T_hab_base, self.h_cam)
+        return habitat_to_world(T_hab_base, self.params.navchat_camera_height_m)
 
     @staticmethod
     def _npy(file: Path, k: int, what: str) -> np.ndarray:

@@ -24,14 +24,17 @@ from __future__ import annotations
 
 import json
 from abc import ABC, abstractmethod
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
 
+from pipeline.config import IngestParams
 from pipeline.errors import InputDataError
 from pipeline.geometry import Intrinsics, invert_pose
-from pipeline.readers.base import DEPTH, INSTANCE, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, pose_from_tq_checked
+from pipeline.readers.base import (DEPTH, INSTANCE, POSE, RGB, Opened, PoseLink, Reader, Sample, SourceInfo,
+                                   pose_from_tq_checked)
 from pipeline.readers.registration import DepthRegistration
 from pipeline.ros2 import (CAMERA_INFO, COMPRESSED, IMAGE, POSE_STAMPED, RAW_ENCODINGS, TF,
                            compressed_image_to_array, raw_image_to_array)
@@ -90,40 +93,49 @@ def _field(msg, *names):
     raise AttributeError(names[0])
 
 
+@dataclass(frozen=True)
+class RosLogStreams:
+    """The opened log: its container (closed when the stream ends), the topic of each stream (``rgb``, ``depth``,
+    ``camera_info``, ``instance`` when there is one), the pose topics with their types, the pose chain, the colour
+    camera and the depth registration into it (None: depth on the colour camera)."""
+
+    src: MessageSource
+    topics: dict[str, str]
+    pose_topics: dict[str, str]
+    chain: list[PoseLink]
+    intrinsics: Intrinsics
+    registration: DepthRegistration | None
+
+
 class RosLogReader(Reader):
     """See the module doc. Subclasses provide :meth:`_source`; topic names come from ``params.topics`` or
-    are detected by type and name."""
+    are detected by type and name (:class:`LogScan`)."""
 
     @abstractmethod
     def _source(self) -> MessageSource:
         """Open the container."""
 
-    # ------------------------------------------------------------------ open
-    def open(self) -> SourceInfo:
-        self.src = self._source()
-        self.file = self.src.file
-        self.types, self.count = self.src.types, self.src.counts
+    def open(self) -> Opened[RosLogStreams]:
+        scan = LogScan(self._source(), self.params)
         t = self.params.topics
-        rgb = self._pick(RGB, t.rgb)
-        depth = self._pick(DEPTH, t.depth)
-        instance = self._pick(INSTANCE, t.instance, required=False)
-        info_topic = self._pick_info(t.camera_info, rgb)
-        self.topics = {RGB: rgb, DEPTH: depth, "camera_info": info_topic}
+        rgb = scan.pick(RGB, t.rgb)
+        depth = scan.pick(DEPTH, t.depth)
+        instance = scan.pick(INSTANCE, t.instance, required=False)
+        info_topic = scan.pick_info(t.camera_info, rgb)
+        topics = {RGB: rgb, DEPTH: depth, "camera_info": info_topic}
         if instance:
-            self.topics[INSTANCE] = instance
-        self.intrinsics, self._info0 = self._camera_info(info_topic)
-        self._tree: dict | None = None
-        chain, pose_where, pose_desc = self._pose_chain(rgb)
-        self.chain = chain
-        self.registration, depth_desc = self._depth_registration(rgb, depth, info_topic)
-        gt = self._ground_truth()
+            topics[INSTANCE] = instance
+        intrinsics, info0 = scan.camera_info(info_topic)
+        chain, pose_where, pose_desc, pose_topics = scan.pose_chain(rgb)
+        registration, depth_desc = scan.depth_registration(rgb, depth, info_topic, intrinsics)
+        gt = scan.ground_truth()
         where = {RGB: rgb, DEPTH: depth, **({INSTANCE: instance} if instance else {}), **pose_where}
-        d, model = self._info_distortion(self._info0)
-        return SourceInfo(
-            intrinsics=self.intrinsics, has_instance=bool(instance), pose_chain=chain, where=where, ground_truth=gt,
+        d, model = [float(x) for x in _field(info0, "d", "D")], str(info0.distortion_model)
+        info = SourceInfo(
+            intrinsics=intrinsics, has_instance=bool(instance), pose_chain=chain, where=where, ground_truth=gt,
             provenance={
-                "topics": {**self.topics, "pose": pose_desc},
-                "message_types": {k: self.types[k] for k in self.topics.values()},
+                "topics": {**topics, "pose": pose_desc},
+                "message_types": {k: scan.types[k] for k in topics.values()},
                 "conversions": [
                     "stamps: header.stamp (log time if zero)",
                     "colour: bgr/bgra/rgba/mono reordered to RGB uint8; compressed png/jpeg decoded with OpenCV",
@@ -133,22 +145,126 @@ class RosLogReader(Reader):
                     f"pose: {pose_desc}",
                 ],
                 "camera_info_distortion": {"model": model, "d": d},
-                **self.src.metadata(),
-                "messages_per_topic": {k: self.count.get(k, 0) for k in sorted(set(self.topics.values()))},
+                **scan.src.metadata(),
+                "messages_per_topic": {k: scan.src.counts.get(k, 0) for k in sorted(set(topics.values()))},
             },
         )
+        return Opened(info, RosLogStreams(src=scan.src, topics=topics, pose_topics=pose_topics, chain=chain,
+                                          intrinsics=intrinsics, registration=registration))
 
-    @staticmethod
-    def _info_distortion(info) -> tuple[list[float], str]:
-        return [float(x) for x in _field(info, "d", "D")], str(info.distortion_model)
+    def samples(self, opened: Opened[RosLogStreams]) -> Iterator[Sample]:
+        log = opened.state
+        src = log.src
+        image_topics = {log.topics[s]: s for s in (RGB, DEPTH, INSTANCE) if s in log.topics}
+        info_topic = log.topics["camera_info"]
+        dynamic = {lk.name for lk in log.chain if lk.static is None}
+        index: dict[str, int] = {}
+        topics = list(dict.fromkeys(list(image_topics) + [info_topic] + list(log.pose_topics)))
+        try:
+            for topic, log_time, raw in src.messages(topics):
+                i = index[topic] = index.get(topic, -1) + 1
+                if topic in image_topics:
+                    yield _image_sample(log, image_topics[topic], topic, raw, log_time, i)
+                elif topic == info_topic:
+                    _check_info(log, raw, i)
+                elif log.pose_topics.get(topic) == POSE_STAMPED:
+                    m = _decode(src, POSE_STAMPED, raw, topic, i)
+                    p, q = m.pose.position, m.pose.orientation
+                    T = pose_from_tq_checked([p.x, p.y, p.z, q.x, q.y, q.z, q.w], path=src.file, topic=topic,
+                                             frame=i, field="pose")
+                    yield Sample(POSE, _stamp(m.header.stamp, log_time), i, T, key="world->camera", rigid=True)
+                elif topic == "/tf":
+                    for tr in _decode(src, TF, raw, topic, i).transforms:
+                        name = f"{tr.header.frame_id}->{tr.child_frame_id}"
+                        if name in dynamic:
+                            yield Sample(POSE, _stamp(tr.header.stamp, log_time), i, _tf_pose(src, tr, topic, i),
+                                         key=name, rigid=True)
+        finally:
+            src.close()
 
-    def _missing(self, what: str, field: str, candidates: list[str]) -> InputDataError:
+
+# ---------------------------------------------------------------------- reading messages
+
+def _decode(src: MessageSource, type_name: str, raw, topic: str, index: int):
+    try:
+        return src.decode(topic, raw, index)
+    except InputDataError:
+        raise
+    except Exception as err:  # noqa: BLE001 - any decoder failure is this message's finding
+        raise InputDataError(f"message could not be decoded as {type_name} ({err})", path=src.file,
+                             topic=topic, frame=index) from None
+
+
+def _parse_image(src: MessageSource, topic: str, raw, i: int) -> dict:
+    try:
+        return src.image(topic, raw, i)
+    except InputDataError:
+        raise
+    except (ValueError, IndexError, UnicodeDecodeError, AttributeError) as err:
+        raise InputDataError(f"message is not a valid {src.types[topic]} ({err})", path=src.file, topic=topic,
+                             frame=i) from None
+
+
+def _tf_pose(src: MessageSource, tr, topic: str, index: int) -> np.ndarray:
+    tt, q = tr.transform.translation, tr.transform.rotation
+    return pose_from_tq_checked([tt.x, tt.y, tt.z, q.x, q.y, q.z, q.w], path=src.file, topic=topic, frame=index,
+                                field=f"transforms[{tr.header.frame_id}->{tr.child_frame_id}]")
+
+
+def _stamp(stamp, log_time: int) -> int:
+    ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    return ns if ns else int(log_time)
+
+
+def _image_sample(log: RosLogStreams, stream: str, topic: str, raw, log_time: int, i: int) -> Sample:
+    where = {"path": log.src.file, "topic": topic, "frame": i}
+    m = _parse_image(log.src, topic, raw, i)
+    stamp = m["stamp_ns"] or int(log_time)
+    reg = log.registration if stream == DEPTH else None
+    if log.src.types[topic] == IMAGE:
+        if m["encoding"] not in RAW_ENCODINGS:
+            raise InputDataError(f"unknown image encoding {m['encoding']!r}", **where, field="encoding",
+                                 expected=f"one of {sorted(RAW_ENCODINGS)}")
+        intr = reg.depth if reg else log.intrinsics
+        if (m["width"], m["height"]) != (intr.width, intr.height):
+            info = log.topics["camera_info"] if reg is None else "of the depth camera"
+            raise InputDataError(f"image is {m['width']}x{m['height']}", **where, field="width/height",
+                                 expected=f"{intr.width}x{intr.height} as in CameraInfo {info}")
+        decode = lambda: raw_image_to_array(m, where=where)  # noqa: E731
+    else:
+        decode = lambda: compressed_image_to_array(m, where=where)  # noqa: E731
+    return Sample(stream, stamp, i, (lambda: reg(decode())) if reg else decode)
+
+
+def _check_info(log: RosLogStreams, raw, i: int) -> None:
+    topic = log.topics["camera_info"]
+    info = _decode(log.src, CAMERA_INFO, raw, topic, i)
+    K = np.asarray(_field(info, "k", "K"), dtype=np.float64).reshape(3, 3)
+    if (info.width, info.height) != (log.intrinsics.width, log.intrinsics.height) or not np.allclose(
+            K, log.intrinsics.K, rtol=0, atol=1e-9):
+        raise InputDataError(f"CameraInfo changed to {info.width}x{info.height}, K {K.tolist()}", path=log.src.file,
+                             topic=topic, field="k/width/height", frame=i,
+                             expected=f"constant intrinsics as in message 0 ({log.intrinsics.to_dict()})")
+
+
+# ---------------------------------------------------------------------- what opening a log finds
+
+class LogScan:
+    """What :meth:`RosLogReader.open` looks up in one log: topics, CameraInfo, the tf tree (read once, when first
+    needed), the pose chain, the depth registration and the ground truth. It lives only while the log is opened."""
+
+    def __init__(self, src: MessageSource, params: IngestParams):
+        self.src, self.params = src, params
+        self.file, self.types = src.file, src.types
+        self._tree: dict | None = None
+
+    def missing(self, what: str, field: str, candidates: list[str]) -> InputDataError:
         listing = ", ".join(f"{k} ({self.types[k]})" for k in sorted(self.types)) or "none"
         msg = f"no {what} topic" if not candidates else f"several {what} topics: {', '.join(candidates)}"
         return InputDataError(f"{msg}; topics in the log: {listing}", path=self.file, field=f"ingest.topics.{field}",
                               expected=f"one {what} topic (set ingest.topics.{field})")
 
-    def _pick(self, stream: str, given: str | None, required: bool = True) -> str | None:
+    def pick(self, stream: str, given: str | None, required: bool = True) -> str | None:
         images = [k for k, v in self.types.items() if v in (IMAGE, COMPRESSED)]
         if given:
             if given not in self.types:
@@ -176,13 +292,13 @@ class RosLogReader(Reader):
         if not cands and not required:
             return None
         what = {RGB: "colour image", DEPTH: "depth image", INSTANCE: "instance image"}[stream]
-        raise self._missing(what, stream, cands)
+        raise self.missing(what, stream, cands)
 
-    def _infos(self) -> list[str]:
+    def infos(self) -> list[str]:
         return [k for k, v in self.types.items() if v == CAMERA_INFO]
 
     @staticmethod
-    def _info_near(image_topic: str, infos: list[str]) -> str | None:
+    def info_near(image_topic: str, infos: list[str]) -> str | None:
         """The CameraInfo in the closest namespace above ``image_topic`` holding exactly one."""
         parts = image_topic.split("/")
         for cut in range(len(parts) - 1, 0, -1):
@@ -194,33 +310,21 @@ class RosLogReader(Reader):
                 return None
         return None
 
-    def _pick_info(self, given: str | None, rgb: str) -> str:
-        infos = self._infos()
+    def pick_info(self, given: str | None, rgb: str) -> str:
+        infos = self.infos()
         if given:
             if self.types.get(given) != CAMERA_INFO:
                 raise InputDataError("not a CameraInfo topic in the log", path=self.file, topic=given,
                                      field="ingest.topics.camera_info", expected=f"one of {infos}")
             return given
-        found = infos[0] if len(infos) == 1 else self._info_near(rgb, infos)
+        found = infos[0] if len(infos) == 1 else self.info_near(rgb, infos)
         if found is None:
-            raise self._missing("sensor_msgs/CameraInfo", "camera_info", infos)
+            raise self.missing("sensor_msgs/CameraInfo", "camera_info", infos)
         return found
 
-    def _messages(self, topics: list[str], stop_ns: int | None = None):
-        return self.src.messages(topics, stop_ns)
-
-    def _decode(self, type_name: str, raw, topic: str, index: int):
-        try:
-            return self.src.decode(topic, raw, index)
-        except InputDataError:
-            raise
-        except Exception as err:  # noqa: BLE001 - any decoder failure is this message's finding
-            raise InputDataError(f"message could not be decoded as {type_name} ({err})", path=self.file,
-                                 topic=topic, frame=index) from None
-
-    def _camera_info(self, topic: str) -> tuple[Intrinsics, Any]:
-        for _, _, raw in self._messages([topic]):
-            info = self._decode(CAMERA_INFO, raw, topic, 0)
+    def camera_info(self, topic: str) -> tuple[Intrinsics, Any]:
+        for _, _, raw in self.src.messages([topic]):
+            info = _decode(self.src, CAMERA_INFO, raw, topic, 0)
             K = np.asarray(_field(info, "k", "K"), dtype=np.float64).reshape(3, 3)
             if info.width == 0 or info.height == 0 or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
                 raise InputDataError(f"CameraInfo has width {info.width}, height {info.height}, K {K.tolist()}",
@@ -231,42 +335,43 @@ class RosLogReader(Reader):
                              expected="at least one sensor_msgs/CameraInfo")
 
     # ------------------------------------------------------------------ tf
-    def _tf_tree(self) -> dict[str, tuple[str, np.ndarray | None]]:
+    def tf_tree(self) -> dict[str, tuple[str, np.ndarray | None]]:
         """child frame -> (parent frame, static transform or None for /tf links), from /tf_static and the
         first seconds of /tf."""
         if self._tree is not None:
             return self._tree
         parent: dict[str, tuple[str, np.ndarray | None]] = {}
         if "/tf_static" in self.types:
-            for i, (_, _, raw) in enumerate(self._messages(["/tf_static"])):
-                for tr in self._decode(TF, raw, "/tf_static", i).transforms:
-                    parent[tr.child_frame_id] = (tr.header.frame_id, self._tf_pose(tr, "/tf_static", i))
+            for i, (_, _, raw) in enumerate(self.src.messages(["/tf_static"])):
+                for tr in _decode(self.src, TF, raw, "/tf_static", i).transforms:
+                    parent[tr.child_frame_id] = (tr.header.frame_id, _tf_pose(self.src, tr, "/tf_static", i))
         if "/tf" in self.types:
-            for i, (_, _, raw) in enumerate(self._messages(["/tf"], self.src.start_ns + _TF_PREAMBLE_NS)):
-                for tr in self._decode(TF, raw, "/tf", i).transforms:
+            for i, (_, _, raw) in enumerate(self.src.messages(["/tf"], self.src.start_ns + _TF_PREAMBLE_NS)):
+                for tr in _decode(self.src, TF, raw, "/tf", i).transforms:
                     parent.setdefault(tr.child_frame_id, (tr.header.frame_id, None))
         self._tree = parent
         return parent
 
-    def _pose_chain(self, rgb: str) -> tuple[list[PoseLink], dict[str, str], str]:
+    def pose_chain(self, rgb: str) -> tuple[list[PoseLink], dict[str, str], str, dict[str, str]]:
+        """The chain world -> camera, where each link comes from, in words, and the pose topics with their types."""
         t = self.params.topics
         stamped = [k for k, v in self.types.items() if v == POSE_STAMPED]
         use_tf = t.tf_camera_frame is not None or t.tf_world_frame is not None
         if t.pose or (not use_tf and stamped):
             topic = t.pose or (stamped[0] if len(stamped) == 1 else None)
             if topic is None:
-                raise self._missing("geometry_msgs/PoseStamped", "pose", stamped)
+                raise self.missing("geometry_msgs/PoseStamped", "pose", stamped)
             if self.types.get(topic) != POSE_STAMPED:
                 raise InputDataError("not a PoseStamped topic in the log", path=self.file, topic=topic,
                                      field="ingest.topics.pose", expected=f"one of {stamped}")
-            self.pose_topics = {topic: POSE_STAMPED}
             link = PoseLink("world", "camera")
-            return [link], {link.name: topic}, f"geometry_msgs/PoseStamped on {topic} (header.frame_id -> camera)"
+            return ([link], {link.name: topic}, f"geometry_msgs/PoseStamped on {topic} (header.frame_id -> camera)",
+                    {topic: POSE_STAMPED})
         if "/tf" not in self.types:
             raise InputDataError("no camera pose in the log", path=self.file, field="ingest.topics.pose",
                                  expected="a geometry_msgs/PoseStamped topic or /tf (tf2_msgs/TFMessage)")
-        camera = t.tf_camera_frame or self._first_frame_id(rgb)
-        parent = self._tf_tree()
+        camera = t.tf_camera_frame or self.first_frame_id(rgb)
+        parent = self.tf_tree()
         if camera not in parent:
             raise InputDataError(f"camera frame {camera!r} is not in the tf tree (frames: {sorted(parent)})",
                                  path=self.file, topic="/tf", field="ingest.topics.tf_camera_frame",
@@ -280,14 +385,14 @@ class RosLogReader(Reader):
             raise InputDataError(f"tf chain from {camera!r} ends at {frame!r}", path=self.file, topic="/tf",
                                  field="ingest.topics.tf_world_frame", expected=f"a chain up to {t.tf_world_frame!r}")
         chain.reverse()
-        self.pose_topics = {k: TF for k in ("/tf", "/tf_static") if k in self.types}
+        pose_topics = {k: TF for k in ("/tf", "/tf_static") if k in self.types}
         names = " -> ".join([chain[0].parent] + [lk.child for lk in chain])
         where = {lk.name: ("/tf_static" if lk.static is not None else "/tf") for lk in chain}
-        return chain, where, f"tf chain {names} (static links from /tf_static; dynamic links interpolated)"
+        return chain, where, f"tf chain {names} (static links from /tf_static; dynamic links interpolated)", pose_topics
 
-    def _static_between(self, target: str, source: str) -> np.ndarray | None:
+    def static_between(self, target: str, source: str) -> np.ndarray | None:
         """``T_target_source`` from static tf links only (both frames up to a common ancestor), else None."""
-        parent = self._tf_tree()
+        parent = self.tf_tree()
 
         def to_ancestors(frame: str) -> dict[str, np.ndarray] | None:
             out, T = {frame: np.eye(4)}, np.eye(4)
@@ -306,30 +411,26 @@ class RosLogReader(Reader):
             return None
         return invert_pose(a[common[0]]) @ b[common[0]]
 
-    def _first_frame_id(self, topic: str) -> str:
-        for i, (_, _, raw) in enumerate(self._messages([topic])):
-            return self._parse_image(topic, raw, i)["frame_id"]
+    def first_frame_id(self, topic: str) -> str:
+        for i, (_, _, raw) in enumerate(self.src.messages([topic])):
+            return _parse_image(self.src, topic, raw, i)["frame_id"]
         raise InputDataError("image topic has no messages", path=self.file, topic=topic, expected="images")
 
-    def _tf_pose(self, tr, topic: str, index: int) -> np.ndarray:
-        tt, q = tr.transform.translation, tr.transform.rotation
-        return pose_from_tq_checked([tt.x, tt.y, tt.z, q.x, q.y, q.z, q.w], path=self.file, topic=topic, frame=index,
-                                    field=f"transforms[{tr.header.frame_id}->{tr.child_frame_id}]")
-
     # ------------------------------------------------------------------ depth registration
-    def _depth_registration(self, rgb: str, depth: str, info_topic: str) -> tuple[DepthRegistration | None, str]:
+    def depth_registration(self, rgb: str, depth: str, info_topic: str, colour: Intrinsics
+                           ) -> tuple[DepthRegistration | None, str]:
         given = self.params.topics.depth_camera_info
-        infos = [k for k in self._infos() if k != info_topic]
+        infos = [k for k in self.infos() if k != info_topic]
         if given and self.types.get(given) != CAMERA_INFO:
             raise InputDataError("not a CameraInfo topic in the log", path=self.file, topic=given,
                                  field="ingest.topics.depth_camera_info", expected=f"one of {infos}")
-        depth_info = given or self._info_near(depth, infos)
-        rgb_frame, depth_frame = self._first_frame_id(rgb), self._first_frame_id(depth)
+        depth_info = given or self.info_near(depth, infos)
+        rgb_frame, depth_frame = self.first_frame_id(rgb), self.first_frame_id(depth)
         K_depth = None
         if depth_info:
-            K_depth, _ = self._camera_info(depth_info)
+            K_depth, _ = self.camera_info(depth_info)
         same_frame = depth_frame == rgb_frame or not depth_frame
-        if same_frame and (K_depth is None or K_depth == self.intrinsics):
+        if same_frame and (K_depth is None or K_depth == colour):
             how = f"on the colour camera (frame_id {rgb_frame!r}"
             return None, how + (f", CameraInfo {depth_info} equal to colour's)" if depth_info else ")")
         if K_depth is None:
@@ -338,18 +439,18 @@ class RosLogReader(Reader):
                 path=self.file, topic=f"{depth} and {rgb}", field="ingest.topics.depth_camera_info",
                 expected="the depth camera's sensor_msgs/CameraInfo (set ingest.topics.depth_camera_info) to "
                          "register depth into colour, or depth aligned to colour (aligned_depth_to_color)")
-        T = np.eye(4) if same_frame else self._static_between(rgb_frame, depth_frame)
+        T = np.eye(4) if same_frame else self.static_between(rgb_frame, depth_frame)
         if T is None:
             raise InputDataError(
                 f"depth (frame {depth_frame!r}) is not aligned to colour (frame {rgb_frame!r}) and no static tf "
                 "links the two frames", path=self.file, topic=f"{depth} and {rgb}",
                 expected="/tf_static transforms between the depth and colour optical frames, or depth aligned "
                          "to colour (aligned_depth_to_color)")
-        reg = DepthRegistration(K_depth, self.intrinsics, T)
+        reg = DepthRegistration(K_depth, colour, T)
         return reg, f"{reg.describe()} (CameraInfo {depth_info}, tf {depth_frame} -> {rgb_frame})"
 
     # ------------------------------------------------------------------ ground truth
-    def _ground_truth(self) -> dict | None:
+    def ground_truth(self) -> dict | None:
         from pipeline.scene_gt import GTScene
 
         data = self.src.ground_truth_json()
@@ -360,75 +461,3 @@ class RosLogReader(Reader):
         except ValueError as err:  # bad JSON, bad UTF-8 and pydantic's ValidationError are all ValueErrors
             raise InputDataError(f"ground_truth.json attachment is invalid: {err}", path=self.file,
                                  field="attachment ground_truth.json", expected="a GTScene JSON document") from None
-
-    # ------------------------------------------------------------------ stream
-    def samples(self) -> Iterator[Sample]:
-        image_topics = {self.topics[s]: s for s in (RGB, DEPTH, INSTANCE) if s in self.topics}
-        info_topic = self.topics["camera_info"]
-        dynamic = {lk.name for lk in self.chain if lk.static is None}
-        index: dict[str, int] = {}
-        topics = list(dict.fromkeys(list(image_topics) + [info_topic] + list(self.pose_topics)))
-        try:
-            for topic, log_time, raw in self._messages(topics):
-                i = index[topic] = index.get(topic, -1) + 1
-                if topic in image_topics:
-                    yield self._image_sample(image_topics[topic], topic, raw, log_time, i)
-                elif topic == info_topic:
-                    self._check_info(raw, i)
-                elif self.pose_topics.get(topic) == POSE_STAMPED:
-                    m = self._decode(POSE_STAMPED, raw, topic, i)
-                    p, q = m.pose.position, m.pose.orientation
-                    T = pose_from_tq_checked([p.x, p.y, p.z, q.x, q.y, q.z, q.w], path=self.file, topic=topic,
-                                             frame=i, field="pose")
-                    yield Sample(POSE, self._stamp(m.header.stamp, log_time), i, T, key="world->camera", rigid=True)
-                elif topic == "/tf":
-                    for tr in self._decode(TF, raw, topic, i).transforms:
-                        name = f"{tr.header.frame_id}->{tr.child_frame_id}"
-                        if name in dynamic:
-                            yield Sample(POSE, self._stamp(tr.header.stamp, log_time), i,
-                                         self._tf_pose(tr, topic, i), key=name, rigid=True)
-        finally:
-            self.src.close()
-
-    @staticmethod
-    def _stamp(stamp, log_time: int) -> int:
-        ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-        return ns if ns else int(log_time)
-
-    def _parse_image(self, topic: str, raw, i: int) -> dict:
-        try:
-            return self.src.image(topic, raw, i)
-        except InputDataError:
-            raise
-        except (ValueError, IndexError, UnicodeDecodeError, AttributeError) as err:
-            raise InputDataError(f"message is not a valid {self.types[topic]} ({err})", path=self.file, topic=topic,
-                                 frame=i) from None
-
-    def _image_sample(self, stream: str, topic: str, raw, log_time: int, i: int) -> Sample:
-        where = {"path": self.file, "topic": topic, "frame": i}
-        m = self._parse_image(topic, raw, i)
-        stamp = m["stamp_ns"] or int(log_time)
-        reg = self.registration if stream == DEPTH else None
-        if self.types[topic] == IMAGE:
-            if m["encoding"] not in RAW_ENCODINGS:
-                raise InputDataError(f"unknown image encoding {m['encoding']!r}", **where, field="encoding",
-                                     expected=f"one of {sorted(RAW_ENCODINGS)}")
-            intr = reg.depth if reg else self.intrinsics
-            if (m["width"], m["height"]) != (intr.width, intr.height):
-                info = self.topics["camera_info"] if reg is None else "of the depth camera"
-                raise InputDataError(f"image is {m['width']}x{m['height']}", **where, field="width/height",
-                                     expected=f"{intr.width}x{intr.height} as in CameraInfo {info}")
-            decode = lambda: raw_image_to_array(m, where=where)  # noqa: E731
-        else:
-            decode = lambda: compressed_image_to_array(m, where=where)  # noqa: E731
-        return Sample(stream, stamp, i, (lambda: reg(decode())) if reg else decode)
-
-    def _check_info(self, raw, i: int) -> None:
-        topic = self.topics["camera_info"]
-        info = self._decode(CAMERA_INFO, raw, topic, i)
-        K = np.asarray(_field(info, "k", "K"), dtype=np.float64).reshape(3, 3)
-        if (info.width, info.height) != (self.intrinsics.width, self.intrinsics.height) or not np.allclose(
-                K, self.intrinsics.K, rtol=0, atol=1e-9):
-            raise InputDataError(f"CameraInfo changed to {info.width}x{info.height}, K {K.tolist()}", path=self.file,
-                                 topic=topic, field="k/width/height", frame=i,
-                                 expected=f"constant intrinsics as in message 0 ({self.intrinsics.to_dict()})")

@@ -16,6 +16,7 @@ rest are re-orthonormalised within ``ingest.pose_orthonormal_tol``. ScanNet's wo
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
@@ -24,7 +25,7 @@ import numpy as np
 
 from pipeline.errors import InputDataError
 from pipeline.geometry import Intrinsics, invert_pose, nearest_rigid
-from pipeline.readers.base import (DEPTH, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, frame_stamps_ns,
+from pipeline.readers.base import (DEPTH, POSE, RGB, Opened, PoseLink, Reader, Sample, SourceInfo, frame_stamps_ns,
                                    read_depth16, read_image)
 from pipeline.readers.matcher import index_ranges
 from pipeline.readers.registration import DepthRegistration
@@ -42,6 +43,19 @@ def _matrix(file: Path, what: str) -> np.ndarray:
     return M
 
 
+@dataclass(frozen=True)
+class ScanNetFrames:
+    """The opened scene: the frame numbers kept (finite pose) with their poses and stamps, the colour files'
+    extension, the stored camera (colour K at the depth size) and the depth registration into it (None: aligned)."""
+
+    ids: list[int]
+    poses: dict[int, np.ndarray]
+    stamps: np.ndarray
+    color_ext: str
+    out: Intrinsics
+    registration: DepthRegistration | None
+
+
 class ScanNetReader(Reader):
     """See the module doc."""
 
@@ -53,7 +67,7 @@ class ScanNetReader(Reader):
         return (path.is_dir() and all((path / d).is_dir() for d in ("color", "depth", "pose"))
                 and (path / "intrinsic" / "intrinsic_color.txt").is_file())
 
-    def open(self) -> SourceInfo:
+    def open(self) -> Opened[ScanNetFrames]:
         for sub in ("color", "depth", "pose", "intrinsic"):
             if not (self.path / sub).is_dir():
                 raise InputDataError(f"no {sub}/ folder", path=self.path / sub,
@@ -61,26 +75,24 @@ class ScanNetReader(Reader):
         ids = sorted(int(m.group(1)) for p in (self.path / "color").iterdir() if (m := _NUM.match(p.name)))
         if not ids:
             raise InputDataError("no color/N.jpg files", path=self.path / "color", expected="color/0.jpg, color/1.jpg, ...")
-        self.color_ext = "jpg" if (self.path / f"color/{ids[0]}.jpg").is_file() else "png"
+        color_ext = "jpg" if (self.path / f"color/{ids[0]}.jpg").is_file() else "png"
         poses, dropped = {}, []
         for k, i in enumerate(ids):
             for sub, name in (("depth", f"{i}.png"), ("pose", f"{i}.txt")):
                 if not (self.path / sub / name).is_file():
-                    raise InputDataError(f"color/{i}.{self.color_ext} has no {sub} file", path=self.path / sub / name,
+                    raise InputDataError(f"color/{i}.{color_ext} has no {sub} file", path=self.path / sub / name,
                                          frame=k, expected="depth and pose files for every colour frame")
             T = _matrix(self.path / f"pose/{i}.txt", "pose")
             if not np.isfinite(T).all():
                 dropped.append(i)  # ScanNet writes -inf where its tracking failed
                 continue
             poses[i] = nearest_rigid(T, tol=self.params.pose_orthonormal_tol, path=self.path / f"pose/{i}.txt", frame=k)
-        self.ids = [i for i in ids if i in poses]
-        if not self.ids:
+        kept = [i for i in ids if i in poses]
+        if not kept:
             raise InputDataError(f"all {len(ids)} poses are invalid (-inf)", path=self.path / "pose",
                                  expected="finite camera-to-world matrices")
-        self.poses = poses
-        self.dropped = dropped
-        depth0 = read_depth16(self.path / f"depth/{self.ids[0]}.png", 0, "uint16 millimetres")
-        color0 = read_image(self.path / f"color/{self.ids[0]}.{self.color_ext}", flags=cv2.IMREAD_COLOR, frame=0,
+        depth0 = read_depth16(self.path / f"depth/{kept[0]}.png", 0, "uint16 millimetres")
+        color0 = read_image(self.path / f"color/{kept[0]}.{color_ext}", flags=cv2.IMREAD_COLOR, frame=0,
                             what="colour")
         (hd, wd), (hc, wc) = depth0.shape, color0.shape[:2]
         intr_dir = self.path / "intrinsic"
@@ -89,25 +101,24 @@ class ScanNetReader(Reader):
         K_d = _matrix(depth_file, "depth intrinsics")[:3, :3] if depth_file.is_file() else None
         o = self.params.camera_override
         color = Intrinsics(o.fx, o.fy, o.cx, o.cy, wc, hc) if o else Intrinsics.from_K(K_c, wc, hc)
-        self.out = color.scaled(wd, hd)
-        depth = Intrinsics.from_K(K_d, wd, hd) if K_d is not None else self.out
+        out = color.scaled(wd, hd)
+        depth = Intrinsics.from_K(K_d, wd, hd) if K_d is not None else out
         E = {n: _matrix(intr_dir / f"extrinsic_{n}.txt", f"{n} extrinsics") if (intr_dir / f"extrinsic_{n}.txt").is_file()
              else np.eye(4) for n in ("color", "depth")}
         T_color_depth = invert_pose(E["color"]) @ E["depth"]
-        same = depth == self.out and np.allclose(T_color_depth, np.eye(4), rtol=0, atol=1e-12)
-        self.registration = None if same else DepthRegistration(depth, self.out, T_color_depth)
-        self.stamps = frame_stamps_ns(np.array(self.ids), self.params.folder_fps)
-        return SourceInfo(
-            intrinsics=self.out, has_instance=False, pose_chain=[PoseLink("world", "camera")],
-            where={RGB: f"color/*.{self.color_ext}", DEPTH: "depth/*.png", "world->camera": "pose/*.txt"},
+        same = depth == out and np.allclose(T_color_depth, np.eye(4), rtol=0, atol=1e-12)
+        registration = None if same else DepthRegistration(depth, out, T_color_depth)
+        info = SourceInfo(
+            intrinsics=out, has_instance=False, pose_chain=[PoseLink("world", "camera")],
+            where={RGB: f"color/*.{color_ext}", DEPTH: "depth/*.png", "world->camera": "pose/*.txt"},
             provenance={
                 "frames": len(ids),
                 "frames_dropped_invalid_pose": {"count": len(dropped), "ranges": index_ranges(dropped)},
                 "conversions": [
                     f"colour: {wc}x{hc} resampled to the depth's {wd}x{hd} (area); K "
-                    f"{'ingest.camera_override' if o else 'intrinsic_color.txt'} scaled: {self.out.to_dict()}",
-                    "depth: " + (f"{self.registration.describe()} (intrinsic_depth.txt, extrinsic_*.txt)"
-                                 if self.registration else "on the colour camera (same K at the depth size, identity "
+                    f"{'ingest.camera_override' if o else 'intrinsic_color.txt'} scaled: {out.to_dict()}",
+                    "depth: " + (f"{registration.describe()} (intrinsic_depth.txt, extrinsic_*.txt)"
+                                 if registration else "on the colour camera (same K at the depth size, identity "
                                  "extrinsics): stored as recorded"),
                     f"stamps: synthesised as frame number / ingest.folder_fps ({self.params.folder_fps} Hz)",
                     f"pose: pose/N.txt camera(optical)-to-world, re-orthonormalised by SVD (ingest.pose_orthonormal_tol"
@@ -116,20 +127,24 @@ class ScanNetReader(Reader):
                 ],
             },
         )
+        stamps = frame_stamps_ns(np.array(kept), self.params.folder_fps)
+        return Opened(info, ScanNetFrames(ids=kept, poses=poses, stamps=stamps, color_ext=color_ext, out=out,
+                                          registration=registration))
 
-    def samples(self) -> Iterator[Sample]:
-        for k, (i, stamp) in enumerate(zip(self.ids, self.stamps.tolist())):
-            yield Sample(POSE, stamp, k, self.poses[i], key="world->camera", rigid=True)
-            yield Sample(RGB, stamp, k, lambda i=i, k=k: self._colour(i, k),
-                         origin=self.path / f"color/{i}.{self.color_ext}")
-            yield Sample(DEPTH, stamp, k, lambda i=i, k=k: self._depth(i, k), origin=self.path / f"depth/{i}.png")
+    def samples(self, opened: Opened[ScanNetFrames]) -> Iterator[Sample]:
+        scan = opened.state
+        for k, (i, stamp) in enumerate(zip(scan.ids, scan.stamps.tolist())):
+            yield Sample(POSE, stamp, k, scan.poses[i], key="world->camera", rigid=True)
+            yield Sample(RGB, stamp, k, lambda i=i, k=k: self._colour(scan, i, k),
+                         origin=self.path / f"color/{i}.{scan.color_ext}")
+            yield Sample(DEPTH, stamp, k, lambda i=i, k=k: self._depth(scan, i, k), origin=self.path / f"depth/{i}.png")
 
-    def _depth(self, i: int, k: int) -> np.ndarray:
+    def _depth(self, scan: ScanNetFrames, i: int, k: int) -> np.ndarray:
         depth = read_depth16(self.path / f"depth/{i}.png", k, "uint16 millimetres")
-        return self.registration(depth) if self.registration else depth
+        return scan.registration(depth) if scan.registration else depth
 
-    def _colour(self, i: int, k: int) -> np.ndarray:
-        img = read_image(self.path / f"color/{i}.{self.color_ext}", flags=cv2.IMREAD_COLOR, frame=k, what="colour")
-        if img.shape[:2] == (self.out.height, self.out.width):
+    def _colour(self, scan: ScanNetFrames, i: int, k: int) -> np.ndarray:
+        img = read_image(self.path / f"color/{i}.{scan.color_ext}", flags=cv2.IMREAD_COLOR, frame=k, what="colour")
+        if img.shape[:2] == (scan.out.height, scan.out.width):
             return img
-        return cv2.resize(img, (self.out.width, self.out.height), interpolation=cv2.INTER_AREA)
+        return cv2.resize(img, (scan.out.width, scan.out.height), interpolation=cv2.INTER_AREA)

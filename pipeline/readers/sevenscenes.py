@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import re
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
@@ -28,7 +29,7 @@ import numpy as np
 
 from pipeline.errors import InputDataError
 from pipeline.geometry import Intrinsics
-from pipeline.readers.base import (DEPTH, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, frame_stamps_ns,
+from pipeline.readers.base import (DEPTH, POSE, RGB, Opened, PoseLink, Reader, Sample, SourceInfo, frame_stamps_ns,
                                    native_intrinsics, read_depth16, read_image, read_pose_matrix)
 
 SEVEN_SCENES_INTRINSICS = (585.0, 585.0, 320.0, 240.0)
@@ -66,6 +67,15 @@ def camera_intrinsics_file(file: Path, first_image: Path) -> tuple[Intrinsics, n
     return Intrinsics(fx, fy, cx, cy, w, h), K
 
 
+@dataclass(frozen=True)
+class SevenScenesFrames:
+    """The opened sequence: each frame's file stem (``frame-NNNNNN``) and stamp, and the colour files' extension."""
+
+    names: list[str]
+    stamps: np.ndarray
+    ext: str
+
+
 class SevenScenesReader(Reader):
     """See the module doc."""
 
@@ -79,7 +89,7 @@ class SevenScenesReader(Reader):
     def detect(cls, path: Path) -> bool:
         return path.is_dir() and any(next(path.glob(f"frame-*.color.{e}"), None) for e in ("png", "jpg"))
 
-    def open(self) -> SourceInfo:
+    def open(self) -> Opened[SevenScenesFrames]:
         if not self.path.is_dir():
             raise InputDataError("not a folder", path=self.path, expected="a 7-Scenes sequence folder (seq-XX)")
         found = sorted((int(m.group(1)), m.group(2), len(m.group(1)))
@@ -91,17 +101,16 @@ class SevenScenesReader(Reader):
         if len(exts) > 1:
             raise InputDataError(f"colour frames in both {' and '.join(exts)}", path=self.path,
                                  expected="one colour format per sequence")
-        ids, self.ext = [i for i, _, _ in found], exts[0]
+        ids, ext = [i for i, _, _ in found], exts[0]
         width = found[0][2]
-        self.names = [f"frame-{i:0{width}d}" for i in ids]
-        for k, name in enumerate(self.names):
+        names = [f"frame-{i:0{width}d}" for i in ids]
+        for k, name in enumerate(names):
             for suffix in (".depth.png", ".pose.txt"):
                 if not (self.path / (name + suffix)).is_file():
                     raise InputDataError(f"{name}.color.png has no {suffix[1:]} file", path=self.path / (name + suffix),
                                          frame=k, expected="colour, depth and pose files for every frame")
-        self.stamps = frame_stamps_ns(np.array(ids), self.params.folder_fps)
         o = self.params.camera_override
-        first = self.path / f"{self.names[0]}.color.{self.ext}"
+        first = self.path / f"{names[0]}.color.{ext}"
         k_file = next((f for f in (self.path / INTRINSICS_FILE, self.path.parent / INTRINSICS_FILE) if f.is_file()),
                       None)
         recorded = {}
@@ -114,9 +123,9 @@ class SevenScenesReader(Reader):
             recorded = {"camera_intrinsics_file": {"path": rel, "K": K.tolist()}}
         else:
             intr, how = native_intrinsics(*SEVEN_SCENES_INTRINSICS, first, "7-Scenes Kinect defaults")
-        return SourceInfo(
+        info = SourceInfo(
             intrinsics=intr, has_instance=False, pose_chain=[PoseLink("world", "camera")],
-            where={RGB: f"frame-*.color.{self.ext}", DEPTH: "frame-*.depth.png", "world->camera": "frame-*.pose.txt"},
+            where={RGB: f"frame-*.color.{ext}", DEPTH: "frame-*.depth.png", "world->camera": "frame-*.pose.txt"},
             provenance={
                 "frames": len(ids), **recorded,
                 "conversions": [
@@ -130,13 +139,16 @@ class SevenScenesReader(Reader):
                 ],
             },
         )
+        stamps = frame_stamps_ns(np.array(ids), self.params.folder_fps)
+        return Opened(info, SevenScenesFrames(names=names, stamps=stamps, ext=ext))
 
-    def samples(self) -> Iterator[Sample]:
-        for k, (name, stamp) in enumerate(zip(self.names, self.stamps.tolist())):
+    def samples(self, opened: Opened[SevenScenesFrames]) -> Iterator[Sample]:
+        seq = opened.state
+        for k, (name, stamp) in enumerate(zip(seq.names, seq.stamps.tolist())):
             base = self.path / name
             yield Sample(POSE, stamp, k, self._pose(base.with_name(name + ".pose.txt"), k), key="world->camera",
                          rigid=True)
-            colour, depth = base.with_name(f"{name}.color.{self.ext}"), base.with_name(name + ".depth.png")
+            colour, depth = base.with_name(f"{name}.color.{seq.ext}"), base.with_name(name + ".depth.png")
             yield Sample(RGB, stamp, k, lambda f=colour, k=k: read_image(f, flags=cv2.IMREAD_COLOR, frame=k,
                                                                           what="colour"), origin=colour)
             yield Sample(DEPTH, stamp, k, lambda f=depth, k=k: self._depth(f, k), origin=depth)

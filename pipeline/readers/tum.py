@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import heapq
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
@@ -19,7 +20,7 @@ import numpy as np
 
 from pipeline.errors import InputDataError
 from pipeline.geometry import Intrinsics
-from pipeline.readers.base import (DEPTH, POSE, RGB, PoseLink, Reader, Sample, SourceInfo, parse_stamp_ns,
+from pipeline.readers.base import (DEPTH, POSE, RGB, Opened, PoseLink, Reader, Sample, SourceInfo, parse_stamp_ns,
                                    native_intrinsics, pose_from_tq_checked, read_depth16, read_image,
                                    read_text_lines)
 
@@ -50,6 +51,19 @@ def tum_depth_to_mm(raw: np.ndarray) -> np.ndarray:
     return ((raw.astype(np.uint32) + 2) // 5).astype(np.uint16)
 
 
+#: an index file's rows: ``(line_no, stamp_ns, the other columns)``
+Rows = list[tuple[int, int, list[str]]]
+
+
+@dataclass(frozen=True)
+class TumIndex:
+    """The opened folder: the rows of ``rgb.txt``, ``depth.txt`` and ``groundtruth.txt``."""
+
+    rgb: Rows
+    depth: Rows
+    poses: Rows
+
+
 class TumReader(Reader):
     """See the module doc."""
 
@@ -60,8 +74,7 @@ class TumReader(Reader):
     def detect(cls, path: Path) -> bool:
         return path.is_dir() and (path / "rgb.txt").is_file() and (path / "depth.txt").is_file()
 
-    def _intrinsics(self) -> tuple[Intrinsics, str]:
-        first = self.path / self.rows[RGB][0][2][0]
+    def _intrinsics(self, first: Path) -> tuple[Intrinsics, str]:
         o = self.params.camera_override
         if o is not None:
             return native_intrinsics(o.fx, o.fy, o.cx, o.cy, first, "ingest.camera_override")
@@ -71,25 +84,23 @@ class TumReader(Reader):
             cam = f"fr{m.group(1)}" if m else "fr1"
         return native_intrinsics(*TUM_INTRINSICS[cam], first, f"TUM {cam} (published, distortion ignored)")
 
-    def open(self) -> SourceInfo:
-        self.rows = {}
+    def open(self) -> Opened[TumIndex]:
+        rows = {}
         for stream, name in ((RGB, "rgb.txt"), (DEPTH, "depth.txt")):
-            rows = _table(self.path / name, 2)
-            for k, (no, _, rest) in enumerate(rows):
+            rows[stream] = _table(self.path / name, 2)
+            for k, (no, _, rest) in enumerate(rows[stream]):
                 if not (self.path / rest[0]).is_file():
                     raise InputDataError(f"{name} line {no} lists a missing file", path=self.path / rest[0],
                                          field=f"{name} line {no}", frame=k, expected="the image file to exist")
-            self.rows[stream] = rows
-        self.rows[POSE] = _table(self.path / "groundtruth.txt", 8)
+        rows[POSE] = _table(self.path / "groundtruth.txt", 8)
         for stream, name, expected in ((RGB, "rgb.txt", "timestamp filename lines"),
                                        (DEPTH, "depth.txt", "timestamp filename lines"),
                                        (POSE, "groundtruth.txt", "timestamp tx ty tz qx qy qz qw lines")):
-            if not self.rows[stream]:
+            if not rows[stream]:
                 raise InputDataError(f"no {'poses' if stream == POSE else 'frames'} listed: every line is blank or a "
                                      "comment", path=self.path / name, expected=expected)
-        intr, how = self._intrinsics()
-        self.intrinsics = intr
-        return SourceInfo(
+        intr, how = self._intrinsics(self.path / rows[RGB][0][2][0])
+        info = SourceInfo(
             intrinsics=intr, has_instance=False, pose_chain=[PoseLink("world", "camera")],
             where={RGB: "rgb.txt", DEPTH: "depth.txt", "world->camera": "groundtruth.txt"},
             provenance={
@@ -102,10 +113,13 @@ class TumReader(Reader):
                 ],
             },
         )
+        return Opened(info, TumIndex(rgb=rows[RGB], depth=rows[DEPTH], poses=rows[POSE]))
 
-    def samples(self) -> Iterator[Sample]:
-        def images(stream: str, name: str):
-            for k, (no, stamp, rest) in enumerate(self.rows[stream]):
+    def samples(self, opened: Opened[TumIndex]) -> Iterator[Sample]:
+        index = opened.state
+
+        def images(stream: str, rows: Rows):
+            for k, (no, stamp, rest) in enumerate(rows):
                 file = self.path / rest[0]
                 if stream == RGB:
                     load = (lambda f=file, k=k: read_image(f, flags=cv2.IMREAD_COLOR, frame=k, what="colour"))
@@ -114,7 +128,7 @@ class TumReader(Reader):
                 yield Sample(stream, stamp, k, load, origin=file)
 
         def poses():
-            for k, (no, stamp, rest) in enumerate(self.rows[POSE]):
+            for k, (no, stamp, rest) in enumerate(index.poses):
                 try:
                     values = [float(x) for x in rest]
                 except ValueError as err:
@@ -123,7 +137,7 @@ class TumReader(Reader):
                 T = pose_from_tq_checked(values, path=self.path / "groundtruth.txt", field=f"line {no}", frame=k)
                 yield Sample(POSE, stamp, k, T, key="world->camera", rigid=True)
 
-        yield from heapq.merge(images(RGB, "rgb.txt"), images(DEPTH, "depth.txt"), poses(), key=lambda s: s.stamp_ns)
+        yield from heapq.merge(images(RGB, index.rgb), images(DEPTH, index.depth), poses(), key=lambda s: s.stamp_ns)
 
     @staticmethod
     def _depth(file: Path, k: int) -> np.ndarray:

@@ -23,8 +23,8 @@ def ctx(tiny_scene):
 
 
 def episode(ctx, method="orion", goal_index=0):
-    goal = [g for g in ctx.arts.goals.goals if ctx.arts.routes.for_goal(g.id)][goal_index]
-    ep = ctx.arts.routes.for_goal(goal.id)[0]
+    goal = [g for g in ctx.scene.goals.goals if ctx.scene.routes.for_goal(g.id)][goal_index]
+    ep = ctx.scene.routes.for_goal(goal.id)[0]
     task = Task("tiny", method, "yesno", 0, goal.id, ep.id, ep.start, ep.geodesic_m)
     run = EpisodeRun(ctx, task, SimulatedUser(ctx, goal, "yesno", np.random.default_rng(0)), 2000, 5)
     return goal, run, build_agent(method, ctx.params)

@@ -125,9 +125,9 @@ def test_scene_context_detects_with_the_simulated_detector(tiny_scene):
                                             "detector": DetectorParams(seed=seed)})
         ctx = SceneContext(Scene(ws, params.model_copy(update={"eval": ep}), "tiny", STAGES, check=True))
         assert ctx.detector is not None
-        for goal in [g for g in ctx.arts.goals.goals if ctx.arts.routes.for_goal(g.id)][:4]:
-            start = ctx.arts.routes.for_goal(goal.id)[0].start
-            centres = np.array([ctx.arts.goals.objects[k].mass_center for k in goal.object_keys])
+        for goal in [g for g in ctx.scene.goals.goals if ctx.scene.routes.for_goal(g.id)][:4]:
+            start = ctx.scene.routes.for_goal(goal.id)[0].start
+            centres = np.array([ctx.scene.goals.objects[k].mass_center for k in goal.object_keys])
             route = ctx.route_to_goal(ctx.view_planner, start, goal, key="t", face_xy=centres)
             body = Body(*start)
             for a in route.actions.tolist():

@@ -9,11 +9,15 @@ import pytest
 
 from pipeline.scene import Scene
 from stages import STAGES
+from orion_eval.report import method_name
+from orion_eval.run import _resolve, evaluate
 from orion_eval.episode import EpisodeOver, EpisodeRun, Task
-from orion_eval.llm import ChatClient, LLMAgent, LLMUser, dispatch, parse_action
+from orion_eval.agents import AGENTS
+from orion_eval.agents.llm import LLMAgent
+from orion_eval.llm import ChatClient, LLMUser, dispatch, parse_action
 from orion_eval.scene import SceneContext
 from orion_eval.user import SimulatedUser
-from pipeline.errors import InputDataError, StageError
+from pipeline.errors import ConfigError, InputDataError, StageError
 
 
 class _Server:
@@ -92,7 +96,7 @@ def test_llm_agent_and_user_drive_an_episode(tiny_scene):
                 found.append(i)
         return found
 
-    goal, ep, ids = next((g, e, ids) for g in ctx.arts.goals.goals for e in ctx.arts.routes.for_goal(g.id)[:1]
+    goal, ep, ids = next((g, e, ids) for g in ctx.scene.goals.goals for e in ctx.scene.routes.for_goal(g.id)[:1]
                          if (ids := reaching_candidates(g, e)))
     replies = [
         json.dumps({"thought": "where is it", "action": "retrieve_map", "args": {"obj_str": goal.name}}),
@@ -108,7 +112,7 @@ def test_llm_agent_and_user_drive_an_episode(tiny_scene):
         user.llm = LLMUser(client, goal)
         run = EpisodeRun(ctx, task, user, 2000, 5)
         with pytest.raises(EpisodeOver, match="success"):
-            LLMAgent(client, max_turns=5).run(run.modules, user.instruction(), goal.name)
+            LLMAgent(ctx.params, client, max_turns=5).run(run.modules, user.instruction(), goal.name)
         assert run.success and run.talk_turns == 1
         assert run.dialogue[-1] == {"speaker": "user", "text": "Yes, you found it.", "kind": "llm", "step": run.body.steps}
         obs = srv.requests[1]["body"]["messages"][-1]["content"]
@@ -116,5 +120,31 @@ def test_llm_agent_and_user_drive_an_episode(tiny_scene):
         assert len(srv.requests) == 4
         assert dispatch(run.modules, parse_action('{"action": "double_check", "args": {"obj_id": 999}}')) \
             == "unknown obj_id 999"
+    finally:
+        srv.close()
+
+
+def _with_llm(params, **llm):
+    ev = params.eval
+    return params.model_copy(update={"eval": ev.model_copy(update={"llm": ev.llm.model_copy(update=llm)})})
+
+
+def test_the_llm_agent_is_built_from_the_registry_like_any_agent(tiny_scene, tmp_path):
+    ws, params = tiny_scene
+    assert AGENTS["llm"] is LLMAgent and method_name("llm") == "LLM agent"
+    with pytest.raises(ConfigError, match=r"--methods: method 'llm' cannot run: it needs eval\.llm\.base_url"):
+        evaluate(ws, params, STAGES, tmp_path, methods=["llm"], progress=False)
+    user_only = _with_llm(params, base_url="http://127.0.0.1:9/v1", roles="user")
+    with pytest.raises(ConfigError, match=r"method 'llm' cannot run: eval\.llm\.roles is 'user'"):
+        evaluate(ws, user_only, STAGES, tmp_path, methods=["llm"], progress=False)
+    srv = _Server([])  # every reply: talk, so each episode ends after eval.max_talk_turns questions
+    try:
+        agent_only = _with_llm(params, base_url=srv.url, roles="agent", max_requests=1000)
+        assert "llm" not in _resolve(agent_only, None, None, None, None)[1]  # evaluated only when named
+        res = evaluate(ws, agent_only, STAGES, tmp_path / "eval", methods=["llm"], feedback=["yesno"], seeds=[0],
+                       progress=False, report=False)
+        episodes = res["overall"]["llm"]["yesno"]["episodes"]
+        assert episodes > 0
+        assert len(srv.requests) == episodes * agent_only.eval.max_talk_turns
     finally:
         srv.close()

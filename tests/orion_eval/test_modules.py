@@ -15,8 +15,8 @@ from orion_eval.user import SimulatedUser
 def _run(tiny_scene, goal_index=0):
     ws, params = tiny_scene
     ctx = SceneContext(Scene(ws, params, "tiny", STAGES, check=True))
-    goal = [g for g in ctx.arts.goals.goals if ctx.arts.routes.for_goal(g.id)][goal_index]
-    ep = ctx.arts.routes.for_goal(goal.id)[0]
+    goal = [g for g in ctx.scene.goals.goals if ctx.scene.routes.for_goal(g.id)][goal_index]
+    ep = ctx.scene.routes.for_goal(goal.id)[0]
     task = Task("tiny", "orion", "yesno", 0, goal.id, ep.id, ep.start, ep.geodesic_m)
     user = SimulatedUser(ctx, goal, "yesno", np.random.default_rng(0))
     return ctx, goal, EpisodeRun(ctx, task, user, 2000, 5)
@@ -24,7 +24,7 @@ def _run(tiny_scene, goal_index=0):
 
 def test_retrieve_map_finds_the_goal_class_and_goto_object_reaches_it(tiny_scene):
     ctx, goal, run = _run(tiny_scene)
-    n_goals = len([g for g in ctx.arts.goals.goals if ctx.arts.routes.for_goal(g.id)])
+    n_goals = len([g for g in ctx.scene.goals.goals if ctx.scene.routes.for_goal(g.id)])
     reached = []
     for k in range(n_goals):
         ctx, goal, run = _run(tiny_scene, k)

@@ -27,9 +27,12 @@ def test_results_document_and_logs(evaluated):
     from orion_eval.agents import AGENTS
     from orion_eval.user import FEEDBACK_SETTINGS
 
-    # eval.methods / eval.feedback unset: every registered agent (the paper's table order), every setting
+    # eval.methods / eval.feedback unset: every registered agent evaluated by default (the paper's table order; the
+    # LLM agent only when named), every setting
     assert params.eval.methods is None and params.eval.feedback is None
-    assert res["run"]["methods"] == list(AGENTS) == ["human", "cow", "vlmap", "cf", "orion"]
+    assert res["run"]["methods"] == [m for m in AGENTS if AGENTS[m].by_default] == ["human", "cow", "vlmap", "cf",
+                                                                                     "orion"]
+    assert list(AGENTS)[-1] == "llm"
     assert res["run"]["feedback"] == list(FEEDBACK_SETTINGS)
     on_disk = json.loads((out / "results.json").read_text())
     assert on_disk["overall"] == res["overall"]

@@ -14,12 +14,12 @@ from stages import STAGES
 
 def test_lineage_ok_and_lazy_views(tiny_scene):
     ws, params = tiny_scene
-    arts = Scene(ws, params, "tiny", STAGES, check=True)
-    shared = arts.check_lineage()
+    scene = Scene(ws, params, "tiny", STAGES, check=True)
+    shared = scene.check_lineage()
     assert set(shared) == {"recon", "goals"}
-    assert arts.grid == arts.recon.grid == arts.goals.grid == arts.routes.grid
-    assert arts.gt is not None and len(arts.routes.episodes) > 0
-    assert 0.7 < arts.camera_height_m < 1.0  # the simulator's 0.88 m camera
+    assert scene.grid == scene.recon.grid == scene.goals.grid == scene.routes.grid
+    assert scene.gt is not None and len(scene.routes.episodes) > 0
+    assert 0.7 < scene.camera_height_m < 1.0  # the simulator's 0.88 m camera
 
 
 def test_mismatched_reconstruction_is_a_lineage_error(tiny_scene, tmp_path):
@@ -53,9 +53,9 @@ def test_which_stage_builds_an_artifact_is_read_from_the_registry(tiny_scene, tm
 
 def test_action_space_comes_from_routes_zarr(tiny_scene):
     ws, params = tiny_scene
-    arts = Scene(ws, params, "tiny", STAGES, check=True)
-    recorded = arts.routes.attrs
-    assert arts.action_space() == (recorded["action_space"]["step_m"], recorded["action_space"]["turn_deg"],
+    scene = Scene(ws, params, "tiny", STAGES, check=True)
+    recorded = scene.routes.attrs
+    assert scene.action_space() == (recorded["action_space"]["step_m"], recorded["action_space"]["turn_deg"],
                                    recorded["success_m"]) == (0.25, 15.0, 1.5)
 
 
@@ -80,10 +80,10 @@ def test_params_disagreeing_with_routes_are_a_lineage_error(tiny_scene):
 
 def test_goal_regions_are_read_from_goals_zarr(tiny_scene):
     ws, params = tiny_scene
-    arts = Scene(ws, params, "tiny", STAGES, check=True)
-    assert arts.goals.success_m == arts.routes.success_m == params.task.success_m
-    assert any(arts.goals.goal_region(g.id).any() for g in arts.goals.goals)
-    assert "region_cells" not in arts.routes.group and arts.routes.attrs["goal_region"]["hfov_deg"] == 90.0
+    scene = Scene(ws, params, "tiny", STAGES, check=True)
+    assert scene.goals.success_m == scene.routes.success_m == params.task.success_m
+    assert any(scene.goals.goal_region(g.id).any() for g in scene.goals.goals)
+    assert "region_cells" not in scene.routes.group and scene.routes.attrs["goal_region"]["hfov_deg"] == 90.0
 
 
 def test_zipon_eval_refuses_another_step_size(tiny_scene, tmp_path, capsys):

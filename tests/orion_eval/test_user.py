@@ -32,8 +32,8 @@ def test_parse_feedback_templates():
 def test_replies_per_setting_are_deterministic(tiny_scene):
     ws, params = tiny_scene
     ctx = SceneContext(Scene(ws, params, "tiny", STAGES, check=True))
-    goal = ctx.arts.goals.goals[0]
-    far = ctx.arts.routes.for_goal(goal.id)[0].start if ctx.arts.routes.for_goal(goal.id) else None
+    goal = ctx.scene.goals.goals[0]
+    far = ctx.scene.routes.for_goal(goal.id)[0].start if ctx.scene.routes.for_goal(goal.id) else None
     assert far is not None
     replies = {}
     for setting in ("none", "yesno", "descriptive", "landmark", "mixed"):
@@ -65,8 +65,8 @@ def test_procedural_is_spoken_like_a_person(tiny_scene):
     ws, params = tiny_scene
     ctx = SceneContext(Scene(ws, params, "tiny", STAGES, check=True))
     said = []
-    for goal in ctx.arts.goals.goals:
-        for ep in ctx.arts.routes.for_goal(goal.id):
+    for goal in ctx.scene.goals.goals:
+        for ep in ctx.scene.routes.for_goal(goal.id):
             text = SimulatedUser(ctx, goal, "procedural", np.random.default_rng(0)).procedural(ep.start)
             if text is None:
                 continue
@@ -83,7 +83,7 @@ def test_procedural_is_spoken_like_a_person(tiny_scene):
                 fb = parse_feedback("No. " + text)
                 assert fb.destination is not None and fb.destination[1] == int(m.group(1))
     assert said
-    goal = ctx.arts.goals.goals[0]
+    goal = ctx.scene.goals.goals[0]
     u = SimulatedUser(ctx, goal, "procedural", np.random.default_rng(0))
     noisy = [u.say_metres(5.0) for _ in range(200)]
     assert {"4 meters", "5 meters", "6 meters"} <= set(noisy) and all(re.fullmatch(r"\d+ meters?", t) for t in noisy)

@@ -72,3 +72,18 @@ def test_ingest_map_and_eval_with_the_package_reader_encoder_and_agent(package, 
     results = json.loads((tmp_path / "eval" / "results.json").read_text())
     assert list(results["overall"]) == [PluginNearest.name]
     assert results["overall"][PluginNearest.name]["yesno"]["episodes"] == len(results["episodes"]) > 0
+
+
+@pytest.mark.parametrize("setting, message", [
+    ("sharpness: -1.0", "encoders.plugins: colour_words.sharpness: Input should be greater than 0"),
+    ("sharpnes: 20.0", "encoders.plugins: colour_words.sharpnes: Extra inputs are not permitted"),
+])
+def test_the_package_encoder_settings_are_checked_by_the_class_it_declares(package, tmp_path, capsys, setting,
+                                                                           message):
+    root = tmp_path / "ws"
+    root.mkdir()
+    (root / "params.yaml").write_text(PARAMS.replace("sharpness: 20.0", setting))
+    assert main(["-p", str(root / "params.yaml"), "status"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "Traceback" not in err
+    assert err.endswith(message) and str(root / "params.yaml") in err

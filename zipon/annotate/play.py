@@ -51,13 +51,12 @@ class PlaySession:
 
         self.id = secrets.token_hex(6)
         self.workspace, self.scene = workspace, scene
-        arts = Scene(workspace, params, scene, STAGES, check=True)
-        self.ctx = SceneContext(arts)
-        goals = {g.id: g for g in arts.goals.goals}
+        self.ctx = SceneContext(Scene(workspace, params, scene, STAGES, check=True))
+        goals = {g.id: g for g in self.ctx.scene.goals.goals}
         if goal_id not in goals:
             raise InputDataError(f"no goal {goal_id!r} in scene {scene}", field="goal",
                                  expected=f"one of {sorted(goals)}")
-        episodes = arts.routes.for_goal(goal_id)
+        episodes = self.ctx.scene.routes.for_goal(goal_id)
         if not episodes:
             raise InputDataError(f"goal {goal_id!r} has no route (unreachable)", field="goal")
         goal = goals[goal_id]
@@ -156,7 +155,7 @@ class PlaySession:
 
         if self._renderer is None:
             c = self.ctx
-            self._renderer = EgoRenderer(c.arts.recon.mesh_path, floor_z=c.arts.recon.floor_z,
-                                         camera_height_m=c.arts.camera_height_m, size=VIEW_SIZE,
+            self._renderer = EgoRenderer(c.scene.recon.mesh_path, floor_z=c.scene.recon.floor_z,
+                                         camera_height_m=c.scene.camera_height_m, size=VIEW_SIZE,
                                          hfov_deg=c.params.task.hfov_deg)
         return _png(self._renderer.render(tuple(self.run.body.pose)).rgb)

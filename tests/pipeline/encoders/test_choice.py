@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 from pipeline.config import EncodersParams
-from pipeline.encoders.choice import MODULES, encoder_choice, load
+from pipeline import plugins
+from pipeline.encoders.choice import encoder_choice, load
 from pipeline.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -40,11 +41,29 @@ def test_building_one_encoder_imports_only_its_module():
     assert got == {"torch": True, "torchvision": False, "open_clip": False}
 
 
-def test_every_listed_name_is_registered_by_its_module_and_unknown_names_are_config_errors():
+def test_every_declared_name_loads_its_class_and_unknown_names_are_config_errors():
     from pipeline.encoders import ENCODERS
 
     load()
-    assert set(MODULES) == set(ENCODERS)
-    assert all(ENCODERS[n].__module__ == f"pipeline.encoders.{m}" for n, m in MODULES.items())
-    with pytest.raises(ConfigError, match="'nope': unknown .*oracle"):
+    assert set(ENCODERS) == set(plugins.BUILT_IN_ENCODERS)
+    for name, cls in ENCODERS.items():
+        assert f"{cls.__module__}:{cls.__qualname__}" == plugins.BUILT_IN_ENCODERS[name] and cls.name == name
+    with pytest.raises(ConfigError, match=r"'nope': unknown \(choose one of \['lseg', .*'simulated_cf'\]"):
         encoder_choice(EncodersParams(), "nope")
+
+
+def test_the_params_accept_every_declared_encoder_and_refuse_others_naming_them():
+    for name in [*plugins.BUILT_IN_ENCODERS, "perception"]:
+        assert EncodersParams(vlmap=name).vlmap == name
+    with pytest.raises(ValueError, match=r"unknown encoder 'lsegg': built-in \['lseg', 'maskclip', .*'perception'\]"):
+        EncodersParams(cfmap="lsegg")
+
+
+def test_each_built_in_encoder_declares_the_class_of_its_params_section():
+    from pipeline.encoders import ENCODERS
+
+    load()
+    defaults = EncodersParams()
+    for name, cls in ENCODERS.items():
+        assert EncodersParams.model_fields[name].annotation is cls.params_model
+        assert cls.settings(defaults) is getattr(defaults, name)

@@ -82,3 +82,14 @@ def test_a_map_built_with_a_plugin_encoder_reads_the_scene_colours(plugins, tmp_
     feats = np.asarray(m.features(), np.float32)
     agree = (feats[:, : len(COLOURS)].argmax(1) == nearest).mean()
     assert agree > 0.8, agree
+
+
+def test_plugin_settings_are_read_through_the_class_the_plugin_declares(plugins):
+    assert ColourWords.settings(_params(plugins={"colour_words": {}}).encoders).sharpness == 20.0
+    assert ColourWords.settings(_params(plugins={"colour_words": {"sharpness": 5}}).encoders).sharpness == 5.0
+    with pytest.raises(ConfigError, match=r"encoders.plugins: colour_words.sharpness: expected a number, got the string .sharp."):
+        _params(plugins={"colour_words": {"sharpness": "sharp"}})
+    with pytest.raises(ConfigError, match=r"encoders.plugins: colour_wordz: settings for an encoder no installed "):
+        _params(plugins={"colour_wordz": {"sharpness": 1.0}})
+    with pytest.raises(ConfigError, match=r"entry point 'tests.fixtures.no_such_module:Encoder' .* failed to load"):
+        _params(plugins={"broken": {}})

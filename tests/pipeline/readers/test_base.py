@@ -3,7 +3,7 @@ frames.zarr) plus format detection."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, is_dataclass
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +15,7 @@ from pipeline.config import IngestParams
 from pipeline.errors import ConfigError, InputDataError, MissingInputError
 from pipeline.frames import FrameStore
 from pipeline.paramsfile import parse_params
-from pipeline.readers import all_readers, detect_format, open_reader
+from pipeline.readers import Opened, all_readers, detect_format, open_reader
 from pipeline.readers.ingest import ingest_path
 from tests.fixtures.raw_datasets import (decoded, make_recording, navchat_expected_poses, write_7scenes, write_bag,
                                          write_mcap, write_navchat, write_replica, write_scannet, write_tum)
@@ -102,6 +102,17 @@ class TestReaderContract:
         case = FACTORIES[fmt](tmp_path)
         assert detect_format(case.path) == fmt
         assert open_reader(case.path, IngestParams()).name == fmt
+
+    def test_open_returns_what_samples_reads_and_the_reader_keeps_nothing(self, fmt, tmp_path):
+        case = FACTORIES[fmt](tmp_path)
+        reader = open_reader(case.path, IngestParams())
+        opened = reader.open()
+        assert isinstance(opened, Opened) and is_dataclass(opened.state)
+        with pytest.raises(AttributeError):  # frozen: samples() reads the state, never changes it
+            setattr(opened.state, fields(opened.state)[0].name, None)
+        rgb_stamps = [s.stamp_ns for s in reader.samples(opened) if s.stream == "rgb"]
+        assert rgb_stamps == case.stamps.tolist()
+        assert set(vars(reader)) == {"path", "params"}
 
     def test_round_trip(self, fmt, tmp_path):
         case = FACTORIES[fmt](tmp_path)

@@ -37,8 +37,7 @@ def test_quaternion_order_quirk_is_undone(tmp_path):
     q /= np.linalg.norm(q)
     (root / "pose/abcScene_1.txt").write_text(" ".join(repr(float(x)) for x in [1.0, 0.0, 2.0, q[2], q[1], q[0], q[3]]))
     reader = open_reader(root, IngestParams(navchat_camera_height_m=0.5))
-    reader.open()
-    poses = [s.payload for s in reader.samples() if s.stream == "pose"]
+    poses = [s.payload for s in reader.samples(reader.open()) if s.stream == "pose"]
     assert np.abs(poses[1] - habitat_to_world(pose_from_tq(np.array([1.0, 0.0, 2.0]), q), 0.5)).max() < 1e-12
 
 

@@ -57,10 +57,10 @@ def test_depth_scale():
 
 def test_intrinsics_from_folder_name_and_override(tmp_path):
     root = write_tum(tmp_path, make_recording(2, h=480, w=640), name="rgbd_dataset_freiburg2_xyz")
-    assert open_reader(root, IngestParams()).open().intrinsics.fx == 520.9
-    assert open_reader(root, IngestParams(tum_camera="fr3")).open().intrinsics.fx == 535.4
+    assert open_reader(root, IngestParams()).open().info.intrinsics.fx == 520.9
+    assert open_reader(root, IngestParams(tum_camera="fr3")).open().info.intrinsics.fx == 535.4
     o = CameraOverride(fx=500, fy=501, cx=320, cy=240)
-    assert open_reader(root, IngestParams(camera_override=o)).open().intrinsics.fy == 501
+    assert open_reader(root, IngestParams(camera_override=o)).open().info.intrinsics.fy == 501
 
 
 def test_listed_file_missing(tmp_path):
