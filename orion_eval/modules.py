@@ -8,7 +8,8 @@ One :class:`Modules` per episode, on top of the scene's shared :class:`~orion_ev
 - detection: ``detect_object(obj_str) -> [(obj_id, distance_m, angle_rad)]`` on the ego view
   ray-cast from the reconstructed mesh, with the agent's detector (:attr:`Modules.detector`: ORION's grounded
   one or CoW's CLIP saliency); ``double_check(obj_id) -> bool``;
-- exploration: ``search_object(obj_str) -> obj_id | None`` (spin first, then frontiers);
+- exploration: ``search_object(obj_str) -> obj_id | None`` (spin first, then frontiers; ``search_objects``
+  for several things at once); a spin is remembered where it was made (no steps to repeat it there);
 - memory: ``update_memory(obj_id, pos_str, neg_str)``, ``retrieve_memory(obj_str) -> [(obj_id, d, a)]``;
 - interaction: ``talk(content) -> str`` (the user's reply).
 

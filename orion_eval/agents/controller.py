@@ -18,12 +18,19 @@ searches for and where, through the same rules for every method:
   what the method perceives (an ego-view detector sees colour and material; a map keeps only what its
   fused features kept);
 - *landmark* ("It is next to the bed."): the landmarks are located with the method's own modules (map
-  retrieval, else a spin and exploration with the detector; each landmark once per episode) and the goal is
-  searched near them: map candidates ranked by distance to the landmarks, and, without a map, a
+  retrieval, else a detector's spin that looks for the landmarks and the goal at once, then exploration
+  watching for both; each landmark once per episode) and the goal is searched near them: map candidates
+  ranked by distance to the landmarks, and, without a map, what the spin spotted of the goal, else a
   detector's spin at the landmark it found;
 - *procedural* (a route, or "It is about 4 meters to your left."): the route is walked to its end (the
   point is walked to) and the goal is searched there: map candidates nearest the end first, a
-  detector's spin there first.
+  detector's spin there first;
+- *mixed*: the kinds combine rather than follow one another: the description is the query of every spin
+  and map look-up, the route's end picks which instance of each landmark is meant (the one nearest it), and
+  the spin at the route's end looks for the landmarks and the goal together.
+
+A spin is remembered where it was made (:meth:`~orion_eval.modules.Modules.look_around_for`): looking
+around again there for the same thing costs no steps.
 
 Without anything left to try, a method that explores searches the frontiers with its detector; one that
 cannot gives up.

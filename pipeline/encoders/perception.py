@@ -24,8 +24,9 @@ background), plus smooth false class responses on a coarse grid of ``noise_cells
 ``simulated_cf`` (regions, the cfmap's): regions are the objects' masks (sharp edges), small ones
 (< ``min_region_frac``) dropped into the background region, touching ones merged with
 ``merge_probability``; each region's local feature is its objects' area-weighted mean (whole-object
-errors), the global feature the area-weighted mean of all regions, fused with ConceptFusion's own rule
-(:func:`pipeline.encoders.conceptfusion.fuse_region_features`).
+errors) with the colour / material of everything in the region's bounding box (ConceptFusion crops the
+box, and CLIP does not bind attributes to the object), the global feature the area-weighted mean of all
+regions, fused with ConceptFusion's own rule (:func:`pipeline.encoders.conceptfusion.fuse_region_features`).
 
 All draws are seeded by ``seed``, the scene and the frame's instance image (never by the batch), and
 every step works on whole frames (a handful of per-object table rows, one matrix product per frame).
