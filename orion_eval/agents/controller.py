@@ -125,19 +125,6 @@ class ModularAgent(Agent):
         """Nearest the hints first (the agent's distance breaks ties; without hints: nearest the agent)."""
         return sorted(ids, key=lambda i: (round(st.focus_distance(m.objects[i].center_xy), 2), m.relative(i)[0], i))
 
-    def map_candidates(self, m, st: SearchState, which: str) -> list[int]:
-        """The map's candidates of every query, the hints and the description weighed together: by distance to the
-        hints in steps of ``eval.reject_radius_m`` (what the controller takes for one place), then the
-        description's candidates before the name's, then nearest the agent. Without hints: the description's
-        candidates, then the name's."""
-        step = max(self.params.eval.reject_radius_m, 1e-6)
-        order: dict[int, int] = {}
-        for rank, q in enumerate(st.queries):
-            for t in m.retrieve_map(q, which):
-                order.setdefault(t[0], rank)
-        return sorted(order, key=lambda i: (int(st.focus_distance(m.objects[i].center_xy) // step), order[i],
-                                            m.relative(i)[0], i))
-
     def next_candidate(self, m, st: SearchState, goal_name: str) -> int | None:
         """Walk to the next object worth asking about and return its id; None when nothing is left."""
         mods, which = self.modules, self.map_name()
@@ -152,7 +139,8 @@ class ModularAgent(Agent):
                 self.look_at_focus(m, st)
             todo += st.spotted
             if which:
-                todo += self.map_candidates(m, st, which)
+                for q in st.queries:
+                    todo += self.ranked(m, st, [t[0] for t in m.retrieve_map(q, which)])
             skip = self.skip(m, st, negatives)
             todo = list(dict.fromkeys(i for i in todo if not skip(i)))
             todo = [i for i in todo if i not in st.deferred] + [i for i in todo if i in st.deferred]

@@ -154,29 +154,3 @@ def test_a_description_becomes_the_query(ctx):
     agent.update(m, st, ParsedFeedback(description="red chair made of wood"), oid, goal.name)
     assert st.query == "red chair made of wood" and run.body.steps == 0
     assert st.queries == ["red chair made of wood", goal.name]  # the map: the description's candidates, then the name's
-
-
-def test_map_candidates_weigh_the_hints_and_the_description_together(ctx):
-    goal, run, agent = episode(ctx, "vlmap")
-    m = run.modules
-    name_ids = [t[0] for t in m.retrieve_map("chair", "vlmap")]
-    desc_ids = [t[0] for t in m.retrieve_map("table", "vlmap")]  # stands in for a description's candidates
-    assert name_ids and desc_ids and set(name_ids) != set(desc_ids)
-    st = SearchState(name="chair", description="table")
-    alone = agent.map_candidates(m, st, "vlmap")
-    assert set(alone) == set(name_ids) | set(desc_ids)
-    first_name = min(alone.index(i) for i in set(name_ids) - set(desc_ids))
-    assert all(alone.index(i) < first_name for i in desc_ids)  # no hints: the description's candidates first
-    far = max(name_ids, key=lambda i: min(np.hypot(*(m.objects[j].center_xy - m.objects[i].center_xy))
-                                          for j in desc_ids))
-    st.focus = [m.objects[far].center_xy[None]]  # a route ending at one of the name's candidates
-    hinted = agent.map_candidates(m, st, "vlmap")
-    step = ctx.params.eval.reject_radius_m
-    bands = [int(st.focus_distance(m.objects[i].center_xy) // step) for i in hinted]
-    assert bands == sorted(bands) and bands[0] == 0  # the place the route points at first ...
-    there = [i for i, b in zip(hinted, bands) if b == 0]
-    if any(i in desc_ids for i in there):  # ... the description's candidate there, if it has one
-        assert hinted[0] in desc_ids
-    away = [i for i, b in zip(hinted, bands) if b > 0 and i in desc_ids]
-    assert away  # the description's candidates elsewhere now come after the name's candidates at the route's end
-    assert hinted.index(far) < min(hinted.index(i) for i in away) and alone.index(far) > max(alone.index(i) for i in away)
