@@ -14,8 +14,7 @@ searches for and where, through the same rules for every method:
 - *corrective* ("This is Bob's chair, not Alice's chair."): only memory can use it: the object is remembered
   as what the user called it, which helps when a later goal of the scene is that object;
 - *descriptive* ("It is a red chair made of wood."): the description becomes the query of the detector,
-  and the map's candidates of the description are tried before those of the goal's name (at the same place,
-  when hints say where: :meth:`ModularAgent.map_candidates`); what it adds is
+  and the map's candidates of the description are tried before those of the goal's name; what it adds is
   what the method perceives (an ego-view detector sees colour and material; a map keeps only what its
   fused features kept);
 - *landmark* ("It is next to the bed."): the landmarks are located with the method's own modules (map
