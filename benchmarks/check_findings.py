@@ -198,7 +198,8 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=3)
     ap.add_argument("--frames", type=int, default=240, help="simulate.frames of the scenes")
     ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--workers", type=int, default=1, help="eval.workers (processes)")
+    ap.add_argument("--workers", type=int, default=2, help="eval.workers: scenes evaluated in parallel processes "
+                    "(each scene's episodes are the same whatever the count)")
     ap.add_argument("--boot", type=int, default=1000, help="bootstrap draws for the 95 %% intervals")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     ap.add_argument("--results", type=Path, default=None,

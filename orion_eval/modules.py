@@ -8,7 +8,8 @@ One :class:`Modules` per episode, on top of the scene's shared :class:`~orion_ev
 - detection: ``detect_object(obj_str) -> [(obj_id, distance_m, angle_rad)]`` on the ego view
   ray-cast from the reconstructed mesh, with the agent's detector (:attr:`Modules.detector`: ORION's grounded
   one or CoW's CLIP saliency); ``double_check(obj_id) -> bool``;
-- exploration: ``search_object(obj_str) -> obj_id | None`` (spin first, then frontiers);
+- exploration: ``search_object(obj_str) -> obj_id | None`` (spin first, then frontiers; ``search_objects``
+  for several things at once); a spin is remembered where it was made (no steps to repeat it there);
 - memory: ``update_memory(obj_id, pos_str, neg_str)``, ``retrieve_memory(obj_str) -> [(obj_id, d, a)]``;
 - interaction: ``talk(content) -> str`` (the user's reply).
 
@@ -61,6 +62,7 @@ class Modules:
         # a memory carried across the goals of a scene (evaluate_scene), else a fresh one
         self.memory = memory if memory is not None else new_memory(self.ctx)
         self._explored = None
+        self._spins: dict[tuple[int, int], dict[str, list[int]]] = {}  # place -> what its spin saw, per query
         # which ego-view detector detect_object runs: 'grounded' (ORION's) or 'saliency' (CoW's CLIP Grad-CAM);
         # the agent sets it from its module set
         self.detector = "grounded"
@@ -187,17 +189,24 @@ class Modules:
         return self.look_around_for([obj_str])[obj_str]
 
     def look_around_for(self, obj_strs: list[str]) -> dict[str, list[tuple[int, float, float]]]:
-        """One 360 deg spin detecting each of ``obj_strs`` in every view: ``{obj_str: [(obj_id, d, a)]}``."""
-        found: dict[str, list[int]] = {s: [] for s in obj_strs}
-        per_view = max(1, int(round(90.0 / self.ctx.turn_deg)))
-        views = int(round(360.0 / self.ctx.turn_deg)) // per_view
-        for _ in range(views):
-            for s in obj_strs:
-                found[s] += [t[0] for t in self.detect_object(s)]
-            for _ in range(per_view):
-                self.run.act(LEFT)
-        self._mark_explored()
-        return {s: self._triples(ids) for s, ids in found.items()}
+        """One 360 deg spin detecting each of ``obj_strs`` in every view: ``{obj_str: [(obj_id, d, a)]}``.
+
+        The agent remembers what each spin saw where it stood: looking around again at the same place for
+        what it already looked for there costs no steps and gives the same objects (the views are the same)."""
+        seen = self._spins.setdefault(self.ctx.pose_key(self.pose)[:2], {})
+        new = [s for s in dict.fromkeys(obj_strs) if s not in seen]
+        if new:
+            found: dict[str, list[int]] = {s: [] for s in new}
+            per_view = max(1, int(round(90.0 / self.ctx.turn_deg)))
+            views = int(round(360.0 / self.ctx.turn_deg)) // per_view
+            for _ in range(views):
+                for s in new:
+                    found[s] += [t[0] for t in self.detect_object(s)]
+                for _ in range(per_view):
+                    self.run.act(LEFT)
+            self._mark_explored()
+            seen.update(found)
+        return {s: self._triples(seen[s]) for s in obj_strs}
 
     def frontier(self) -> np.ndarray | None:
         """World xy of the nearest frontier cell (navigable, unexplored, next to explored) at least 1 m away."""
@@ -218,10 +227,20 @@ class Modules:
 
     def search_object(self, obj_str: str, skip=lambda obj_id: False) -> int | None:
         """Frontier-based exploration with a spin first; the nearest detection not ``skip``-ped, or None."""
+        hit = self.search_objects([obj_str], {obj_str: skip})
+        return hit[1] if hit else None
+
+    def search_objects(self, obj_strs: list[str], skip: dict | None = None) -> tuple[str, int] | None:
+        """:meth:`search_object` for several things at once (every spin detects all of them): ``(obj_str,
+        obj_id)`` of the first of ``obj_strs`` (in their order) seen at the first place any was, or None;
+        ``skip`` maps an obj_str to the test of detections of it to pass over (none: keep all)."""
+        skip = skip or {}
         for _ in range(self.ctx.params.eval.explore_max_targets):
-            hits = [t for t in self.look_around(obj_str) if not skip(t[0])]
-            if hits:
-                return hits[0][0]
+            seen = self.look_around_for(obj_strs)
+            for s in obj_strs:
+                hits = [t for t in seen[s] if not skip.get(s, lambda obj_id: False)(t[0])]
+                if hits:
+                    return s, hits[0][0]
             target = self.frontier()
             if target is None:
                 return None

@@ -66,8 +66,9 @@ class _PerceptionParams(Section):
         0.15, ge=0, le=1, description="probability an object takes a confused class in one frame (per-view error)"
     )
     attribute_weight: float = Field(
-        0.3, ge=0, description="weight of the object's colour / material direction in its pixel features (text "
-        "side: colour 0.5, material 0.3 against the class, as in 'a red chair' vs 'a chair' ~0.9 in CLIP)"
+        0.3, ge=0, description="weight of the object's colour / material direction in its features (text side: "
+        "colour 0.5, material 0.3 against the class, as in 'a red chair' vs 'a chair' ~0.9 in CLIP); each model "
+        "sets its own"
     )
     attribute_confusion: float = Field(
         0.4, ge=0, le=1, description="probability an object's colour (and, drawn apart, its material) is perceived as "
@@ -90,6 +91,13 @@ class SimulatedLSegParams(_PerceptionParams):
     """Simulated LSeg-like dense perception (the vlmap's): boundary bleeding, small objects washed out,
     confusions toward CLIP-similar classes, low-confidence background. Not a trained model."""
 
+    attribute_weight: float = Field(
+        0.1, ge=0, description="weight of the object's colour / material direction in its pixel features: LSeg "
+        "trains its image encoder so each pixel's feature matches the frozen CLIP text feature of its CATEGORY label "
+        "(Li et al., ICLR 2022: per-pixel cross-entropy over the label set's text features); no label names a "
+        "colour or material, so what survives is a weak residue of the CLIP initialisation (modelling choice: a "
+        "third of the 0.3 a CLIP image feature keeps; no published figure measures it)"
+    )
     blur_cells: float = Field(
         3.0, ge=0, description="gaussian sigma (feature cells) of the per-class masks before features are mixed: "
         "LSeg's ViT-L/16 tokens are 16 px of a 480 px crop (4 cells of 120), its decoder upsamples them, so edges "
@@ -110,8 +118,10 @@ class SimulatedCFParams(_PerceptionParams):
     object_confusion_strength: tuple[float, float] = Field((0.6, 1.0), description="see simulated_lseg")
     frame_confusion: float = Field(0.2, ge=0, le=1, description="see simulated_lseg (a whole region per frame)")
     attribute_weight: float = Field(
-        0.5, ge=0, description="CLIP crops keep colour and material better than LSeg's class-trained head "
-        "(modelling choice: text side uses 0.5 for colour)"
+        0.5, ge=0, description="weight of colour / material in a CLIP crop's feature (plain CLIP, not trained on "
+        "labels: text side uses 0.5 for colour); the crop is the region's BOUNDING BOX and CLIP does not bind "
+        "attributes to objects (ARO, see attribute_confusion), so a region gets the area-weighted attributes of "
+        "everything in its box (background: none), and the 3D fusion then averages what each view's box held"
     )
     attribute_confusion: float = Field(0.3, ge=0, le=1, description="see simulated_lseg (CLIP crops: fewer misreads)")
     merge_probability: float = Field(

@@ -18,12 +18,19 @@ searches for and where, through the same rules for every method:
   what the method perceives (an ego-view detector sees colour and material; a map keeps only what its
   fused features kept);
 - *landmark* ("It is next to the bed."): the landmarks are located with the method's own modules (map
-  retrieval, else a spin and exploration with the detector; each landmark once per episode) and the goal is
-  searched near them: map candidates ranked by distance to the landmarks, and, without a map, a
+  retrieval, else a detector's spin that looks for the landmarks and the goal at once, then exploration
+  watching for both; each landmark once per episode) and the goal is searched near them: map candidates
+  ranked by distance to the landmarks, and, without a map, what the spin spotted of the goal, else a
   detector's spin at the landmark it found;
 - *procedural* (a route, or "It is about 4 meters to your left."): the route is walked to its end (the
   point is walked to) and the goal is searched there: map candidates nearest the end first, a
-  detector's spin there first.
+  detector's spin there first;
+- *mixed*: the kinds combine rather than follow one another: the description is the query of every spin
+  and map look-up, the route's end picks which instance of each landmark is meant (the one nearest it), and
+  the spin at the route's end looks for the landmarks and the goal together.
+
+A spin is remembered where it was made (:meth:`~orion_eval.modules.Modules.look_around_for`): looking
+around again there for the same thing costs no steps.
 
 Without anything left to try, a method that explores searches the frontiers with its detector; one that
 cannot gives up.
@@ -127,7 +134,7 @@ class ModularAgent(Agent):
                 positives, neg = m.retrieve_memory(goal_name)
                 negatives = set(neg)
                 todo += [t[0] for t in positives]
-            if mods.detector and st.spin_at is not None:
+            if mods.detector and st.spin_at is not None and not st.spotted:
                 self.look_at_focus(m, st)
             todo += st.spotted
             if which:
@@ -160,7 +167,7 @@ class ModularAgent(Agent):
         here = np.asarray(m.pose[:2])
         if float(np.hypot(*(target - here))) > self.params.eval.reject_radius_m:
             m.goto_point(target)
-        st.spotted = self.ranked(m, st, [t[0] for t in m.look_around(st.query)])
+        st.spotted = self.ranked(m, st, [t[0] for t in m.look_around(st.query)] + st.spotted)
 
     # ------------------------------------------------------------------ the user's reply
     def update(self, m, st: SearchState, fb: ParsedFeedback, oid: int, goal_name: str) -> None:
@@ -184,15 +191,29 @@ class ModularAgent(Agent):
             st.spin_at = end if self.modules.detector else None
             st.spotted = []
         if fb.landmarks:  # located from where the route ended, if one came with them
+            routed = bool(fb.route or fb.destination)
+            if not routed:
+                st.spotted = []
             hints = self.locate_landmarks(m, st, fb.landmarks)
             if hints:
-                st.focus = (st.focus if fb.route or fb.destination else []) + hints
-                st.spotted = []
+                if routed:
+                    # the hints pin each other down: of each landmark, the instances that agree with the route's end
+                    hints = [self.nearest(pts, st.focus) for pts in hints]
+                st.focus = (st.focus if routed else []) + hints
+                st.spotted = self.ranked(m, st, st.spotted)
                 if self.modules.detector and not self.map_name():
-                    # no map: look around at the landmark seen nearest the other hints
+                    # no map: look around at the landmark seen nearest the other hints (unless the goal was seen)
                     here = np.asarray(m.pose[:2])
                     st.spin_at = np.asarray(min(hints[0], key=lambda p: (st.focus_distance(p),
                                                                          float(np.hypot(*(p - here))))), np.float64)
+
+    @staticmethod
+    def nearest(pts: np.ndarray, focus: list) -> np.ndarray:
+        """The ``(1,2)`` point of ``pts`` nearest the hints ``focus`` (all of ``pts`` without hints)."""
+        if not focus:
+            return pts
+        d = [np.mean([np.min(np.hypot(*(f - p).T)) for f in focus]) for p in pts]
+        return pts[[int(np.argmin(d))]]
 
     def locate_landmarks(self, m, st: SearchState, phrases: list[str]) -> list[np.ndarray]:
         """Find the landmarks with the method's modules: the map's candidates of each phrase, else the detector (one
@@ -206,12 +227,22 @@ class ModularAgent(Agent):
                 pts = [m.objects[t[0]].center_xy for t in m.retrieve_map(phrase, which)]
                 st.landmarks[phrase] = np.asarray(pts, np.float64) if pts else None
         elif new and self.modules.detector:
-            seen = m.look_around_for(new)
+            # one spin for the landmarks and the goal together: the goal itself may be in sight
+            seen = m.look_around_for([*new, st.query])
             for phrase in new:
                 pts = [m.objects[t[0]].center_xy for t in seen[phrase]]
                 st.landmarks[phrase] = np.asarray(pts, np.float64) if pts else None
-            if all(st.landmarks[p] is None for p in phrases) and self.modules.explore:
-                oid = m.search_object(phrases[0])
-                if oid is not None:
-                    st.landmarks[phrases[0]] = np.asarray([m.objects[oid].center_xy], np.float64)
+            self.spot(m, st, seen[st.query])
+            if all(st.landmarks[p] is None for p in phrases) and self.modules.explore and not st.spotted:
+                # explore for the first landmark, watching for the goal at every spin
+                hit = m.search_objects([st.query, phrases[0]], {st.query: self.skip(m, st, set())})
+                if hit and hit[0] == st.query:
+                    st.spotted = [hit[1]]
+                elif hit:
+                    st.landmarks[phrases[0]] = np.asarray([m.objects[hit[1]].center_xy], np.float64)
         return [st.landmarks[p] for p in phrases if st.landmarks.get(p) is not None]
+
+    def spot(self, m, st: SearchState, found: list) -> None:
+        """Add detections of the goal's query (``(obj_id, d, a)``) to the places to try, unless rejected."""
+        skip = self.skip(m, st, set())
+        st.spotted = list(dict.fromkeys(st.spotted + [t[0] for t in found if not skip(t[0])]))

@@ -24,8 +24,9 @@ background), plus smooth false class responses on a coarse grid of ``noise_cells
 ``simulated_cf`` (regions, the cfmap's): regions are the objects' masks (sharp edges), small ones
 (< ``min_region_frac``) dropped into the background region, touching ones merged with
 ``merge_probability``; each region's local feature is its objects' area-weighted mean (whole-object
-errors), the global feature the area-weighted mean of all regions, fused with ConceptFusion's own rule
-(:func:`pipeline.encoders.conceptfusion.fuse_region_features`).
+errors) with the colour / material of everything in the region's bounding box (ConceptFusion crops the
+box, and CLIP does not bind attributes to the object), the global feature the area-weighted mean of all
+regions, fused with ConceptFusion's own rule (:func:`pipeline.encoders.conceptfusion.fuse_region_features`).
 
 All draws are seeded by ``seed``, the scene and the frame's instance image (never by the batch), and
 every step works on whole frames (a handful of per-object table rows, one matrix product per frame).
@@ -154,13 +155,17 @@ class SimulatedPerception(Encoder):
                                             self.p.attribute_weight * 0.6))
         self._attr = np.stack(attrs) if attrs else np.zeros((0, self.dim))
 
-    def _object_rows(self, ids: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """``(K,D)`` features of the objects ``ids`` (row index into the scene's objects) in this frame."""
+    def _object_identities(self, ids: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """``(K,D)`` class part of the objects ``ids`` (row index into the scene's objects) in this frame."""
         ident = self._identity[ids].copy()
         swap = rng.random(len(ids)) < self.p.frame_confusion
         if swap.any():
             ident[swap] = self._confused(self._class[ids[swap]], rng.random(int(swap.sum())))
-        return ident + self._attr[ids]
+        return ident
+
+    def _object_rows(self, ids: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """``(K,D)`` features of the objects ``ids``: class part plus each object's own attributes."""
+        return self._object_identities(ids, rng) + self._attr[ids]
 
     def _labels(self, instance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(labels (h,w) in 0..K, objs (K,) row indices)``: compact per-frame labels, 0 = background."""
@@ -283,11 +288,29 @@ class SimulatedCF(SimulatedPerception):
             parent[k] = r
         return parent[region]
 
+    def _box_attributes(self, labels: np.ndarray, objs: np.ndarray, region: np.ndarray) -> np.ndarray:
+        """``(K,D)`` attribute part of each label: the mean attributes of every cell in its region's bounding
+        box (background cells carry none). ConceptFusion's local feature is CLIP of the region's box crop, and
+        CLIP does not bind colour / material to the object (ARO): the crop reports the box's attributes."""
+        K = len(objs) + 1
+        attr = np.concatenate([np.zeros((1, self.dim)), self._attr[objs]])
+        lab = region[labels]
+        out = np.zeros((K, self.dim))
+        for r in np.unique(lab):
+            if r == 0:
+                continue
+            rr, cc = np.nonzero(lab == r)
+            box = labels[rr.min() : rr.max() + 1, cc.min() : cc.max() + 1]
+            share = np.bincount(box.ravel(), minlength=K) / box.size
+            out[region == r] = share @ attr
+        return out
+
     def _frame(self, instance, rng):
         labels, objs = self._labels(instance)
         K = len(objs) + 1
         region = self._regions(labels, K, rng)
-        rows = np.concatenate([self._background[None], self._object_rows(objs, rng)])
+        rows = np.concatenate([self._background[None], self._object_identities(objs, rng)])
+        rows = rows + self._box_attributes(labels, objs, region)
         area = np.bincount(labels.ravel(), minlength=K).astype(np.float64)
         R = int(region.max()) + 1
         local = np.zeros((R, self.dim))

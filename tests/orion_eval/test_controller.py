@@ -120,8 +120,30 @@ def test_landmarks_are_located_with_the_methods_own_modules(ctx):
     st = SearchState(name=goal.name)
     oid = m.register(m.pose[:2], np.array([0]), "detect")
     cow.update(m, st, ParsedFeedback(landmarks=[phrase], route=[("forward", 0.5)]), oid, goal.name)
-    if hints:  # with a route as well, both are hints; the detector looks around at the landmark
-        assert len(st.focus) == 2 and st.spin_at is not None
+    # with a route as well: one spin at the route's end looks for the landmark and the goal together; either the
+    # goal is in sight (tried first), or the landmark seen nearest the route's end is a second hint to look around at
+    assert st.spotted or st.landmarks[phrase] is not None
+    if st.landmarks[phrase] is not None:
+        assert len(st.focus) == 2 and len(st.focus[1]) == 1 and st.spin_at is not None
+    else:
+        assert len(st.focus) == 1 and all(not m.objects[i].source.endswith("map") for i in st.spotted)
+
+
+def test_a_route_picks_the_landmark_instance_at_its_end(ctx):
+    goal, run, agent = episode(ctx, "vlmap")
+    m = run.modules
+    phrase = next(o for o in ("chair", "table", "cabinet", "bed", "couch") if len(m.retrieve_map(o, "vlmap")) >= 2)
+    every = np.asarray([m.objects[t[0]].center_xy for t in m.retrieve_map(phrase, "vlmap")])
+    st = SearchState(name=goal.name)
+    oid = m.retrieve_map(goal.name, "vlmap")[0][0]
+    agent.update(m, st, ParsedFeedback(landmarks=[phrase], route=[("forward", 0.5)]), oid, goal.name)
+    end = np.asarray(m.pose[:2])
+    assert len(st.focus) == 2 and np.allclose(st.focus[0], end)
+    # of the map's instances of the landmark, only the one nearest the route's end is kept
+    assert len(st.focus[1]) == 1 and np.allclose(st.focus[1][0], every[np.argmin(np.hypot(*(every - end).T))])
+    alone = SearchState(name=goal.name)
+    agent.update(m, alone, ParsedFeedback(landmarks=[phrase]), oid, goal.name)
+    assert len(alone.focus) == 1 and len(alone.focus[0]) == len(every)  # without a route: every instance
 
 
 def test_a_description_becomes_the_query(ctx):

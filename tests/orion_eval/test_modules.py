@@ -71,6 +71,23 @@ def test_move_rotate_and_search(tiny_scene):
     assert oid is not None and run.body.steps >= 24  # spun first
 
 
+def test_a_spin_is_remembered_where_it_was_made(tiny_scene):
+    ctx, goal, run = _run(tiny_scene)
+    m = run.modules
+    first = m.look_around_for([goal.name, "bed"])
+    spin = run.body.steps
+    assert spin == 24  # 360 deg in 15 deg turns, every query detected in each of the 4 views
+    again = m.look_around(goal.name)
+    assert run.body.steps == spin and [t[0] for t in again] == [t[0] for t in first[goal.name]]  # no new steps
+    m.look_around("chair")  # something not looked for here yet: a new spin
+    assert run.body.steps == 2 * spin
+    m.move(1.0)
+    m.look_around(goal.name)  # another place: another spin
+    assert run.body.steps == 2 * spin + 4 + spin
+    hit = m.search_objects(["bicycle", goal.name])
+    assert hit is not None and hit[0] == goal.name  # no bicycle anywhere: the goal, seen on the way
+
+
 def test_memory_keeps_names_apart():
     from orion_eval.memory import lexical_feature
 

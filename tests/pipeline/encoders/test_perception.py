@@ -274,17 +274,31 @@ def test_cf_mixes_the_global_context():
     assert s_bed[0, 25, 15].argmax() == 0 and s_toilet[0, 25, 15].argmax() == 0
 
 
-def test_cf_keeps_attributes_better_than_lseg():
+def test_lseg_keeps_attributes_weakly_and_cf_reads_them_off_the_whole_box():
     gt = scene([(1, "chair", "red", "fabric"), (2, "chair", "blue", "fabric")])
-    inst = frames({1: (slice(10, 50), slice(5, 35)), 2: (slice(10, 50), slice(45, 75))})
+    apart = frames({1: (slice(10, 50), slice(5, 35)), 2: (slice(10, 50), slice(45, 75))})
     kw = dict(object_confusion=0.0, frame_confusion=0.0, background_noise=0.0, object_noise=0.0)
     gaps = {}
     for name, misread in (("simulated_lseg", 0.0), ("simulated_cf", 0.0), ("simulated_cf", 1.0)):
         e = encoder(name, attribute_confusion=misread, **kw,
                     **({"merge_probability": 0.0} if name == "simulated_cf" else {}))
         e.bind_scene(gt)
-        s, _ = scores(e, inst, ["red chair"])
+        s, _ = scores(e, apart, ["red chair"])
         gaps[name, misread] = s[0, 30, 20, 0] - s[0, 30, 60, 0]
-    assert gaps["simulated_cf", 0.0] > gaps["simulated_lseg", 0.0] > 0
+    # LSeg's pixel features are trained toward category labels: colour is a faint trace; a CLIP crop sees it
+    assert gaps["simulated_cf", 0.0] > 2 * gaps["simulated_lseg", 0.0] > 0
     # colours always misread: the red chair is no longer told from the blue one
     assert abs(gaps["simulated_cf", 1.0]) < 0.5 * gaps["simulated_cf", 0.0]
+    # the red chair drawn as a thin L around the blue one: its box crop is mostly blue chair, and CLIP reports
+    # the crop's colours, not the region's own (the blue chair's box holds only itself)
+    around = np.zeros((1, H, W), np.uint16)
+    around[0, 10:50, 5:8] = 1
+    around[0, 47:50, 5:60] = 1
+    around[0, 12:44, 12:58] = 2
+    e = encoder("simulated_cf", attribute_confusion=0.0, merge_probability=0.0, **kw)
+    e.bind_scene(gt)
+    s_apart, _ = scores(e, apart, ["red chair", "blue chair"])
+    s_around, _ = scores(e, around, ["red chair", "blue chair"])
+    red_apart, red_l, blue = s_apart[0, 30, 20], s_around[0, 30, 6], s_around[0, 30, 30]
+    assert red_l[0] - blue[0] < 0.5 * gaps["simulated_cf", 0.0]  # red hardly sets it apart any more ...
+    assert red_l[0] - red_l[1] < 0.5 * (red_apart[0] - red_apart[1])  # ... it reads about as blue as red
