@@ -627,7 +627,7 @@ def main() -> None:
         if alone:
             batch = manifests(root, alone, args.stages)
             batch_workers = args.workers[-1]
-            for scene in alone:
+            for i, scene in enumerate(alone):
                 run_args = ["-S", "run.workers=1", "run", "--force", "-s", scene,
                             *sum((["--stage", s] for s in args.stages), [])]
                 for fold in data.glob(FOLD.format(scene=scene, stage="*")):
@@ -636,14 +636,11 @@ def main() -> None:
                 wall, _ = zipon(params, *run_args)
                 cpu_alone_run = _children_cpu_s() - cpu0
                 single = manifests(root, [scene], args.stages)
-                i = alone.index(scene)
-                per_stage = {stage: {"batch_cpu_s": batch[stage][i].get("cpu_seconds"),
-                                     "alone_cpu_s": single[stage][0].get("cpu_seconds"),
-                                     "ratio": round(batch[stage][i]["cpu_seconds"] / single[stage][0]["cpu_seconds"], 3)
-                                     if single[stage][0].get("cpu_seconds") else None}
-                             for stage in args.stages}
-                b_sum = sum(batch[s][i].get("cpu_seconds", 0.0) for s in args.stages)
-                a_sum = sum(single[s][0].get("cpu_seconds", 0.0) for s in args.stages)
+                cpu = {stage: (batch[stage][i].get("cpu_seconds", 0.0), single[stage][0].get("cpu_seconds", 0.0))
+                       for stage in args.stages}  # stage -> (in the batch, alone)
+                per_stage = {stage: {"batch_cpu_s": b, "alone_cpu_s": a, "ratio": round(b / a, 3) if a else None}
+                             for stage, (b, a) in cpu.items()}
+                b_sum, a_sum = (sum(pair[k] for pair in cpu.values()) for k in (0, 1))
                 emit(bench="batch", kind="batch_vs_alone", scene=scene, batch_workers=batch_workers,
                      stages=per_stage, stages_cpu_ratio=round(b_sum / a_sum, 3) if a_sum else None,
                      alone_run_wall_s=round(wall, 1), alone_run_cpu_s=round(cpu_alone_run, 1))
