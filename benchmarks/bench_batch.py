@@ -229,11 +229,12 @@ def kernel_integrate(params_path: Path, frames_zarr: Path, n: int) -> tuple[floa
 
     from pipeline.paramsfile import load_params
     from pipeline.frames import FrameStore
-    from pipeline.recon.tsdf import integrate, new_volume, prepare_block, strided
+    from pipeline.recon.tsdf import integrate, new_volume, prepare_block, strided, with_stride
 
     p = load_params(params_path).reconstruct
     store = FrameStore(frames_zarr)
     n = store.n_frames if n <= 0 else min(n, store.n_frames)
+    p = with_stride(p, store.intrinsics)
     intr = strided(store.intrinsics, p.depth_stride)
     volume = new_volume(p)
     before = o3d.utility.get_max_threads()

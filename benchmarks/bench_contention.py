@@ -54,12 +54,13 @@ def _integrate(scale: int, frames_zarr: str, frames: int) -> None:
 
     from pipeline.frames import FrameStore
     from pipeline.config import ReconstructParams
-    from pipeline.recon.tsdf import integrate, new_volume, prepare_block, strided
+    from pipeline.recon.tsdf import integrate, new_volume, prepare_block, strided, with_stride
 
     o3d.utility.set_max_threads(1)
     p = ReconstructParams()
     store = FrameStore(Path(frames_zarr))
     n = min(frames, store.n_frames)
+    p = with_stride(p, store.intrinsics)
     block = prepare_block(store.read(0, n), p)
     intr = strided(store.intrinsics, p.depth_stride)
     for _ in range(scale):

@@ -238,8 +238,11 @@ class ReconstructParams(DepthRange):
     block_frames: int = Field(16, gt=0, description="frames read and fused per block")
     depth_min_m: float = Field(0.1, ge=0, description="depth below this is ignored, metres")
     depth_max_m: float = Field(5.0, gt=0, description="depth beyond this is ignored (sensor noise grows), metres")
-    depth_stride: int = Field(
-        1, ge=1, le=8, description="fuse every n-th depth pixel in each direction (1 = full resolution)"
+    depth_stride: int | Literal["auto"] = Field(
+        "auto", description="fuse every n-th depth pixel in each direction (1 = full resolution); 'auto' = the "
+        "largest stride (at most 8) whose pixel at depth_max_m still spans no more than one voxel, i.e. "
+        "stride <= voxel_size_m * focal length (px) / depth_max_m: 2 for 640x480 RGB-D cameras at the defaults, 1 "
+        "for 320x240; recon.zarr records the stride used"
     )
     min_weight: float = Field(
         2.0, gt=0, description="a voxel counts as observed (mesh, points, grids) after this many fused frames"
@@ -328,6 +331,13 @@ class ReconstructParams(DepthRange):
         0.05, gt=0, description="a pixel counts as seen by the last keyframe when their depths agree within this "
         "fraction of the depth, fraction"
     )
+
+    @field_validator("depth_stride", mode="before")
+    @classmethod
+    def _stride(cls, v: Any) -> Any:
+        if v == "auto" or (isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 8):
+            return v
+        raise ValueError(f"expected 'auto' or a whole number from 1 to 8, got {v!r}")
 
     @model_validator(mode="after")
     def _ranges(self) -> "ReconstructParams":

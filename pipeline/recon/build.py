@@ -100,7 +100,7 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
         height_band_m=[p.obstacle_min_height_m, p.obstacle_max_height_m],
         tsdf={"voxel_size_m": p.voxel_size_m, "sdf_trunc_m": p.sdf_trunc_m, "min_weight": p.min_weight,
               "occupancy_min_weight": p.occupancy_min_weight, "depth_range_m": [p.depth_min_m, p.depth_max_m],
-              "depth_stride": p.depth_stride, "blocks": fusion.n_blocks},
+              "depth_stride": tsdf.fusion_stride(p, store.intrinsics), "blocks": fusion.n_blocks},
         mesh=mesh_info, points=points_info,
         frames={"n_frames": store.n_frames, "fused": len(fusion.frames_fused), "empty": fusion.empty_frames[:100]},
         refinement=refinement,

@@ -17,6 +17,7 @@ and the same bytes for any thread count.
 
 from __future__ import annotations
 
+import math
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, Iterable, Iterator
@@ -73,6 +74,25 @@ def strided(intr: Intrinsics, stride: int) -> Intrinsics:
         return intr
     w, h = -(-intr.width // stride), -(-intr.height // stride)
     return Intrinsics(intr.fx / stride, intr.fy / stride, intr.cx / stride, intr.cy / stride, w, h)
+
+
+def fusion_stride(p: ReconstructParams, intr: Intrinsics) -> int:
+    """``reconstruct.depth_stride`` for a camera: the number given, or for ``'auto'`` the largest stride (at most 8)
+    whose pixel at ``depth_max_m`` spans no more than one voxel (``stride * depth_max_m / f <= voxel_size_m``,
+    with ``f`` the smaller focal length in pixels).
+
+    Fusion looks every voxel of the touched blocks up in the depth image; a coarser image changes which pixel a
+    voxel reads by less than a voxel at any depth in range, and every surface voxel is still hit by a pixel.
+    """
+    if p.depth_stride != "auto":
+        return int(p.depth_stride)
+    return int(min(8, max(1, math.floor(p.voxel_size_m * min(intr.fx, intr.fy) / p.depth_max_m + 1e-9))))
+
+
+def with_stride(p: ReconstructParams, intr: Intrinsics) -> ReconstructParams:
+    """``p`` with ``depth_stride`` resolved for this camera (:func:`fusion_stride`)."""
+    stride = fusion_stride(p, intr)
+    return p if p.depth_stride == stride else p.model_copy(update={"depth_stride": stride})
 
 
 def prepare_depth(depth_mm: np.ndarray, p: ReconstructParams) -> np.ndarray:
@@ -187,6 +207,7 @@ def fuse(store: FrameStore, p: ReconstructParams, *, frames: Iterable[int] | Non
         wanted = np.zeros(store.n_frames, dtype=bool)
         wanted[idx] = True
         start, stop = int(idx.min()), int(idx.max()) + 1
+    p = with_stride(p, store.intrinsics)
     intr = strided(store.intrinsics, p.depth_stride)
     fusion = Fusion(volume=new_volume(p))
     selector = KeyframeSelector(KeyframeRule.from_params(p), intr) if p.keyframes else None

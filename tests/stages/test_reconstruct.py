@@ -65,6 +65,7 @@ def test_artifact_contract_for_downstream_stages(built):
     rgb = np.median(recon.color[table][seen], axis=0)
     assert rgb[0] > rgb[2] + 40
     assert recon.attrs["occupancy_codes"] == {"0": "unknown", "1": "free", "2": "occupied"}
+    assert params.reconstruct.depth_stride == "auto" and recon.attrs["tsdf"]["depth_stride"] == 1  # the stride used
     assert recon.robot_radius_m == 0.18 and recon.height_band_m == (0.1, 1.5)
     assert recon.fused.all() and np.isfinite(recon.poses).all()
     assert recon.mesh_path.name == "recon_mesh.ply" and recon.points_path.is_file()

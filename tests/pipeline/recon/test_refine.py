@@ -20,7 +20,7 @@ def _err(T, T_ref):
 
 def test_a_perturbed_pose_is_pulled_back_toward_the_model(tmp_path):
     store = FrameStore(write_tum_frames(tmp_path / "tum.zarr", TUM))
-    p = ReconstructParams(refine_poses=True)
+    p = ReconstructParams(refine_poses=True, depth_stride=1)  # full resolution: the intrinsics below are unstrided
     fusion = tsdf.fuse(store, p, frames=range(20))
     block = store.read(20, 21)
     depth = tsdf.prepare_depth(block.depth_mm[0], p)

@@ -81,3 +81,26 @@ def test_points_and_voxels_come_out_in_one_canonical_order_not_the_hash_maps(arr
     assert all(np.array_equal(a, b) for a, b in zip(points_a, points_b))
     assert len(chunks_a) == len(chunks_b)
     assert all(np.array_equal(la, lb) and np.array_equal(ta, tb) for (la, ta), (lb, tb) in zip(chunks_a, chunks_b))
+
+
+@pytest.mark.parametrize(("intr", "expected"), [
+    (Intrinsics(517.3, 516.5, 318.6, 255.3, 640, 480), 2),  # TUM fr1 Kinect: 0.025 * 516.5 / 5 = 2.58
+    (Intrinsics(585.0, 585.0, 320.0, 240.0, 640, 480), 2),  # 7-Scenes Kinect: 2.93
+    (Intrinsics.from_hfov(640, 480, 90.0), 1),  # f = 320: a stride-2 pixel at 5 m spans 31 mm > 25 mm
+    (Intrinsics.from_hfov(320, 240, 90.0), 1),
+    (Intrinsics(2000.0, 2000.0, 960.0, 540.0, 1920, 1080), 8),  # 10 by the rule, capped at 8
+])
+def test_auto_stride_keeps_a_pixel_at_the_farthest_depth_within_one_voxel(intr, expected):
+    p = ReconstructParams()
+    assert p.depth_stride == "auto"
+    stride = tsdf.fusion_stride(p, intr)
+    assert stride == expected
+    assert stride == 1 or stride * p.depth_max_m / min(intr.fx, intr.fy) <= p.voxel_size_m
+    assert tsdf.fusion_stride(ReconstructParams(depth_stride=3), intr) == 3
+    assert tsdf.with_stride(p, intr).depth_stride == expected
+
+
+def test_a_bad_depth_stride_is_refused():
+    for bad in (0, 9, "half"):
+        with pytest.raises(ValueError, match="depth_stride\n.*expected 'auto' or a whole number from 1 to 8"):
+            ReconstructParams(depth_stride=bad)
