@@ -31,7 +31,10 @@ Each run's line also gives its wall time, frames/s over the whole batch, the lar
 peak RSS (``ru_maxrss`` of the run's processes) and the wall time the same rate implies for the
 paper's 14,159 frames (``--target-frames``), and the wall time its CPU seconds imply when the
 workers each have a core of their own (``projected_wall_min_if_cpu_bound``: CPU seconds per frame
-x target frames / workers; the figure for an otherwise idle machine, ignoring scene imbalance). The machine's 1-minute load average is printed on
+x target frames / workers; the figure for an otherwise idle machine, ignoring scene imbalance), and the wall time
+the stages' bare kernels alone imply (``kernel_floor_wall_min_for_target``: the kernels' CPU seconds a frame,
+summed over the stages run, x target frames / workers), below which no scheduling or overhead work can bring a
+run: a target under it needs less work per frame. The machine's 1-minute load average is printed on
 every line: on a shared machine wall times are upper bounds, CPU seconds are the steadier figure.
 One JSON object per line on stdout.
 
@@ -618,7 +621,13 @@ def main() -> None:
                     row["cpu_ratio_to_kernel"] = round(cpu / total / kernels[kernel][1], 2) if cpu == cpu else None
                 emit(**row)
             rate = total / wall
+            # the wall time the stages' bare kernels alone imply (CPU seconds a frame of each stage's kernel, summed
+            # over the stages run, x target frames / cores): no scheduling, no I/O beyond the kernels', perfect
+            # balance. A target below it needs less work per frame, not a faster run of the same work.
+            floor_cpu = sum(kernels[KERNEL_OF[s]][1] for s in args.stages if s in KERNEL_OF)
             emit(bench="batch", kind="run", workers=workers, frames=total, wall_s=round(wall, 1),
+                 kernel_floor_wall_min_for_target=round(
+                     args.target_frames * floor_cpu / min(workers, os.cpu_count() or 1) / 60, 1),
                  frames_per_s=round(rate, 2), peak_rss_mb_largest_process=round(peak, 1),
                  projected_wall_min_for_target=round(args.target_frames / rate / 60, 1),
                  cpu_s=round(cpu_run, 1), projected_wall_min_if_cpu_bound=round(

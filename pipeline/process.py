@@ -53,6 +53,27 @@ def restore_malloc_defaults() -> None:
 _MALLOC_RESTORED = False
 
 
+def release_free_memory() -> None:
+    """Hand the heap pages freed since the last call back to the OS: a garbage collection, then glibc's
+    ``malloc_trim(0)``, which releases the free pages inside every arena, not only above each arena's top.
+
+    A worker process runs stage after stage, and their threads (readers, writers, prefetchers, dask's) each
+    allocate in their own arena; blocks freed in the middle of an arena stay resident otherwise, so a worker's
+    memory ratcheted up from scene to scene to more than any one stage needs. The runner calls this after each
+    stage and each map chunk. Linux/glibc only; elsewhere only the collection runs."""
+    import gc
+
+    gc.collect()
+    if platform.system() != "Linux":
+        return
+    import ctypes
+
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc (musl, ...)
+        pass
+
+
 def limit_native_threads(n: int) -> None:
     """Cap BLAS/OpenMP/torch/open3d threads inside a worker (dask runs one task per worker thread), and restore
     glibc's malloc thresholds there (:func:`restore_malloc_defaults`).

@@ -32,8 +32,8 @@ from pipeline.paths import ARTIFACTS, Workspace
 from pipeline.locks import output_lock
 from pipeline.publication import check_inputs_unchanged, publish_outputs, recover
 from pipeline.store import ArrayDigests, content_digest, new_tmp_dir, remove, sweep_tmp
-from pipeline.process import (counters_since, limit_native_threads, native_threads, peak_rss_mb,
-                              process_counters)
+from pipeline.process import (counters_since, limit_native_threads, native_threads, peak_rss_mb, process_counters,
+                              release_free_memory)
 from pipeline.stagegraph import (SOURCE, StageSpec, input_digests, source_key, source_paths, stage_code_digest,
                                  stage_levels, staleness, upstream_stages)
 
@@ -218,6 +218,7 @@ def _ordered_call(fn: Callable[[Any], Any], threads: int, item: Any) -> tuple[An
     limit_native_threads(threads)
     cpu0 = time.process_time()
     result = fn(item)
+    release_free_memory()
     return result, os.getpid(), time.process_time() - cpu0, peak_rss_mb()
 
 
@@ -342,6 +343,8 @@ def _task(ws, params, stages, scene, stage, force, show_progress, threads, *upst
         return Outcome(scene, stage, "failed", error=os_error_message(err, where))
     except Exception as err:  # noqa: BLE001 - a bug, not bad input: keep the traceback for the report
         return Outcome(scene, stage, "failed", error=f"{type(err).__name__}: {err}\n{traceback.format_exc()}")
+    finally:
+        release_free_memory()  # the next stage this worker runs starts from what is still in use
 
 
 def stage_threads(params: Params, spec: StageSpec, scenes_in_run: int, scheduler: str) -> int:
