@@ -34,13 +34,14 @@ searches for and where, through the same rules for every method:
   and map look-up, the route's end picks which instance of each landmark is meant (the one nearest it), the
   spin at the route's end looks for the landmarks and the goal together, and the map's candidates of the
   description and of the name form one list ranked by distance to the route's end (in whole metres: the
-  route is not precise), the description's first within each metre, then by the landmarks.
+  route is not precise), then by the landmarks, the description's candidates first among equals.
 
 A spin is remembered where it was made (:meth:`~orion_eval.modules.Modules.look_around_for`): looking
 around again there for the same thing costs no steps.
 
-Without anything left to try, a method that explores searches the frontiers with its detector; one that
-cannot gives up.
+Without anything left to try, a method that explores searches the frontiers with its detector, for as long
+as frontiers are left and its search still moves it (``eval.explore_max_targets`` bounds one search, not the
+episode: giving up with unexplored rooms left would waste the step budget); one that cannot explore gives up.
 """
 
 from __future__ import annotations
@@ -130,12 +131,12 @@ class ModularAgent(Agent):
 
     def ranked(self, m, st: SearchState, ids: list[int], first: set = frozenset()) -> list[int]:
         """Nearest the hints first (the agent's distance breaks ties; without hints: nearest the agent). After a
-        route, the distance to its end comes first, in whole metres (the route is not precise), and ``first``
-        (the description's candidates) lead within each metre."""
+        route, the distance to its end comes first, in whole metres (the route is not precise), then the hints
+        (the landmarks say where within that metre), then ``first`` (the description's candidates)."""
         def key(i: int):
             xy = m.objects[i].center_xy
             end = 0 if st.route_end is None else round(float(np.hypot(*(xy - st.route_end))))
-            return end, i not in first, round(st.focus_distance(xy), 2), m.relative(i)[0], i
+            return end, round(st.focus_distance(xy), 2), i not in first, m.relative(i)[0], i
         return sorted(ids, key=key)
 
     def map_candidates(self, m, st: SearchState, which: str) -> list[int]:
@@ -168,8 +169,11 @@ class ModularAgent(Agent):
             if not todo:
                 if not (mods.detector and mods.explore):
                     return None
+                steps = m.run.body.steps
                 oid = m.search_object(st.query, skip=skip)
                 if oid is None:
+                    if m.frontier() is not None and m.run.body.steps > steps:
+                        continue  # frontiers left: search on from here
                     return None
                 m.goto_object(oid)
                 if st.description and m.check_attributes(oid, st.name, st.description) is False:
