@@ -16,7 +16,11 @@ For each object visible in the rendered view (its instance pixels within ``eval.
   space (:mod:`pipeline.encoders.perception_text`): the object's class row plus the attributes the
   query names (its own colour / material), so "chair" finds armchairs often, sofas rarely, and "red
   chair" not the blue one; false positives follow CLIP's similarities;
-- detected with probability ``recall * grounding``, one seeded draw per (view, query, object).
+- detected with probability ``recall * grounding``, one seeded draw per (view, object) shared by every query:
+  how clearly an object shows in a view does not depend on what is asked, so the detections of queries are
+  consistent (an object found as "red chair made of wood" in a view is found as "chair" there too, and a blue
+  chair found as "chair" is the blue chair the description rejects: the attribute reading of
+  :meth:`orion_eval.modules.Modules.check_attributes`).
 """
 
 from __future__ import annotations
@@ -101,8 +105,9 @@ class SimulatedDetector:
         recall = (self.p.max_recall * _sigmoid((np.log(area) - np.log(self.p.half_recall_area)) / self.p.size_slope)
                   * (visible / sil) ** self.p.occlusion_power)
         ground = self.grounding(text, ids)
-        h = hashlib.blake2b(repr((self.p.seed, self.scene, key, text)).encode(), digest_size=8).digest()
-        u = np.random.default_rng(int.from_bytes(h, "little")).random(int(ids.max()) + 1)[ids]  # one draw per id
+        # one draw per (view, object), whatever the query: detections of several queries agree with each other
+        h = hashlib.blake2b(repr((self.p.seed, self.scene, key)).encode(), digest_size=8).digest()
+        u = np.random.default_rng(int.from_bytes(h, "little")).random(int(ids.max()) + 1)[ids]
         hit = u < recall * ground
         return [Sighting(int(i), inst == i, float(g), float(r))
                 for i, g, r in zip(ids[hit], ground[hit], recall[hit])]

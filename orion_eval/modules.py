@@ -7,7 +7,8 @@ One :class:`Modules` per episode, on top of the scene's shared :class:`~orion_ev
 - semantic map: ``retrieve_map(obj_str) -> [(obj_id, distance_m, angle_rad)]`` (VLMap or CF map);
 - detection: ``detect_object(obj_str) -> [(obj_id, distance_m, angle_rad)]`` on the ego view
   ray-cast from the reconstructed mesh, with the agent's detector (:attr:`Modules.detector`: ORION's grounded
-  one or CoW's CLIP saliency); ``double_check(obj_id) -> bool``;
+  one or CoW's CLIP saliency); ``double_check(obj_id) -> bool``; ``check_attributes(obj_id, name, description)``
+  (does the object in view have the described colour / material);
 - exploration: ``search_object(obj_str) -> obj_id | None`` (spin first, then frontiers; ``search_objects``
   for several things at once); a spin is remembered where it was made (no steps to repeat it there);
 - memory: ``update_memory(obj_id, pos_str, neg_str)``, ``retrieve_memory(obj_str) -> [(obj_id, d, a)]``;
@@ -166,6 +167,22 @@ class Modules:
                 if np.linalg.norm(det.center_xy - e.center_xy) <= 1.0 or np.isin(det.cells, e.cells).any():
                     return True
         return False
+
+    def check_attributes(self, obj_id: int, name: str, description: str) -> bool | None:
+        """Face the object and read it with the ego-view detector: True when the view detects ``description``
+        there, False when it detects ``name`` but not the description (the object is seen, and its colour or
+        material is not the described one), None when neither (not seen well enough to tell)."""
+        e = self.objects[obj_id]
+        self.rotate(self.relative(obj_id)[1])
+        self.run.log_event("verify", description)
+
+        def seen(text: str) -> bool:
+            return any(np.linalg.norm(det.center_xy - e.center_xy) <= 1.0 or np.isin(det.cells, e.cells).any()
+                       for det in self.ctx.detect(self.pose, text, self.detector))
+
+        if seen(description):
+            return True
+        return False if seen(name) else None
 
     # ------------------------------------------------------------------ exploration
     def _explored_mask(self) -> np.ndarray:

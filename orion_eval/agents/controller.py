@@ -14,26 +14,34 @@ searches for and where, through the same rules for every method:
 - *corrective* ("This is Bob's chair, not Alice's chair."): only memory can use it: the object is remembered
   as what the user called it, which helps when a later goal of the scene is that object;
 - *descriptive* ("It is a red chair made of wood."): the description becomes the query of the detector,
-  and the map's candidates of the description are tried before those of the goal's name; what it adds is
-  what the method perceives (an ego-view detector sees colour and material; a map keeps only what its
-  fused features kept);
+  and the map's candidates of the description are tried before those of the goal's name; a method with a
+  detector also verifies each candidate with it before asking, as the paper's controller filters
+  detections by the description: standing at the candidate, an object its detector sees as the goal's
+  name but not as the description (another colour or material) is passed over without a question and the
+  search goes on (:meth:`~orion_eval.modules.Modules.check_attributes`). What it adds is what the method
+  perceives: an ego-view detector reads colour and material off the object in view; a map keeps only what
+  its fused features kept;
 - *landmark* ("It is next to the bed."): the landmarks are located with the method's own modules (map
   retrieval, else a detector's spin that looks for the landmarks and the goal at once, then exploration
   watching for both; each landmark once per episode) and the goal is searched near them: map candidates
   ranked by distance to the landmarks, and, without a map, what the spin spotted of the goal, else a
-  detector's spin at the landmark it found;
+  detector's spin at the landmark instance nearest the other hints (with a map too: the map says where the
+  landmark is, the detector looks for the goal around it);
 - *procedural* (a route, or "It is about 4 meters to your left."): the route is walked to its end (the
   point is walked to) and the goal is searched there: map candidates nearest the end first, a
   detector's spin there first;
 - *mixed*: the kinds combine rather than follow one another: the description is the query of every spin
-  and map look-up, the route's end picks which instance of each landmark is meant (the one nearest it), and
-  the spin at the route's end looks for the landmarks and the goal together.
+  and map look-up, the route's end picks which instance of each landmark is meant (the one nearest it), the
+  spin at the route's end looks for the landmarks and the goal together, and the map's candidates of the
+  description and of the name form one list ranked by distance to the route's end (in whole metres: the
+  route is not precise), then by the landmarks, the description's candidates first among equals.
 
 A spin is remembered where it was made (:meth:`~orion_eval.modules.Modules.look_around_for`): looking
 around again there for the same thing costs no steps.
 
-Without anything left to try, a method that explores searches the frontiers with its detector; one that
-cannot gives up.
+Without anything left to try, a method that explores searches the frontiers with its detector, for as long
+as frontiers are left and its search still moves it (``eval.explore_max_targets`` bounds one search, not the
+episode: giving up with unexplored rooms left would waste the step budget); one that cannot explore gives up.
 """
 
 from __future__ import annotations
@@ -72,6 +80,7 @@ class SearchState:
     rejected: list = field(default_factory=list)  # centres of places the user said "No" to
     deferred: set = field(default_factory=set)  # map candidates whose double-check failed (tried last)
     focus: list = field(default_factory=list)  # per hint, the (K,2) points the goal is near (landmarks, route end)
+    route_end: np.ndarray | None = None  # where the user's last route (or pointed destination) ended
     spin_at: np.ndarray | None = None  # where a detector should look around next (None: done or nowhere)
     spotted: list = field(default_factory=list)  # detections of the query from that look-around, nearest first
     landmarks: dict = field(default_factory=dict)  # landmark phrase -> (K,2) places found (or None: not found)
@@ -120,9 +129,24 @@ class ModularAgent(Agent):
         radius = self.params.eval.reject_radius_m
         return lambda i: self.near_any(m, i, st.rejected, radius) or i in negatives
 
-    def ranked(self, m, st: SearchState, ids: list[int]) -> list[int]:
-        """Nearest the hints first (the agent's distance breaks ties; without hints: nearest the agent)."""
-        return sorted(ids, key=lambda i: (round(st.focus_distance(m.objects[i].center_xy), 2), m.relative(i)[0], i))
+    def ranked(self, m, st: SearchState, ids: list[int], first: set = frozenset()) -> list[int]:
+        """Nearest the hints first (the agent's distance breaks ties; without hints: nearest the agent). After a
+        route, the distance to its end comes first, in whole metres (the route is not precise), then the hints
+        (the landmarks say where within that metre), then ``first`` (the description's candidates)."""
+        def key(i: int):
+            xy = m.objects[i].center_xy
+            end = 0 if st.route_end is None else round(float(np.hypot(*(xy - st.route_end))))
+            return end, round(st.focus_distance(xy), 2), i not in first, m.relative(i)[0], i
+        return sorted(ids, key=key)
+
+    def map_candidates(self, m, st: SearchState, which: str) -> list[int]:
+        """The map's candidates of the description, then of the name, each nearest the hints first; after a route,
+        one list: the route's end says where the goal is, the description which one it is there."""
+        lists = [[t[0] for t in m.retrieve_map(q, which)] for q in st.queries]
+        if st.route_end is None:
+            return [i for ids in lists for i in self.ranked(m, st, ids)]
+        described = set(lists[0]) if st.description else set()
+        return self.ranked(m, st, list(dict.fromkeys(i for ids in lists for i in ids)), described)
 
     def next_candidate(self, m, st: SearchState, goal_name: str) -> int | None:
         """Walk to the next object worth asking about and return its id; None when nothing is left."""
@@ -138,18 +162,23 @@ class ModularAgent(Agent):
                 self.look_at_focus(m, st)
             todo += st.spotted
             if which:
-                for q in st.queries:
-                    todo += self.ranked(m, st, [t[0] for t in m.retrieve_map(q, which)])
+                todo += self.map_candidates(m, st, which)
             skip = self.skip(m, st, negatives)
             todo = list(dict.fromkeys(i for i in todo if not skip(i)))
             todo = [i for i in todo if i not in st.deferred] + [i for i in todo if i in st.deferred]
             if not todo:
                 if not (mods.detector and mods.explore):
                     return None
+                steps = m.run.body.steps
                 oid = m.search_object(st.query, skip=skip)
                 if oid is None:
+                    if m.frontier() is not None and m.run.body.steps > steps:
+                        continue  # frontiers left: search on from here
                     return None
                 m.goto_object(oid)
+                if st.description and m.check_attributes(oid, st.name, st.description) is False:
+                    st.rejected.append(m.objects[oid].center_xy)
+                    continue
                 return oid
             oid = todo[0]
             if not m.goto_object(oid):
@@ -158,6 +187,9 @@ class ModularAgent(Agent):
             from_map = m.objects[oid].source in ("vlmap", "cfmap")
             if mods.detector and from_map and oid not in st.deferred and not m.double_check(oid):
                 st.deferred.add(oid)
+                continue
+            if mods.detector and st.description and m.check_attributes(oid, st.name, st.description) is False:
+                st.rejected.append(m.objects[oid].center_xy)  # seen, and not the described colour / material
                 continue
             return oid
 
@@ -187,7 +219,7 @@ class ModularAgent(Agent):
                 m.goto_point((x + dist * math.cos(yaw + math.radians(bearing)),
                               y + dist * math.sin(yaw + math.radians(bearing))))
             end = np.asarray(m.pose[:2], np.float64)
-            st.focus = [end[None]]
+            st.focus, st.route_end = [end[None]], end
             st.spin_at = end if self.modules.detector else None
             st.spotted = []
         if fb.landmarks:  # located from where the route ended, if one came with them
@@ -201,8 +233,8 @@ class ModularAgent(Agent):
                     hints = [self.nearest(pts, st.focus) for pts in hints]
                 st.focus = (st.focus if routed else []) + hints
                 st.spotted = self.ranked(m, st, st.spotted)
-                if self.modules.detector and not self.map_name():
-                    # no map: look around at the landmark seen nearest the other hints (unless the goal was seen)
+                if self.modules.detector:
+                    # look around at the landmark found nearest the other hints (unless the goal was seen)
                     here = np.asarray(m.pose[:2])
                     st.spin_at = np.asarray(min(hints[0], key=lambda p: (st.focus_distance(p),
                                                                          float(np.hypot(*(p - here))))), np.float64)

@@ -27,6 +27,11 @@ background), plus smooth false class responses on a coarse grid of ``noise_cells
 errors) with the colour / material of everything in the region's bounding box (ConceptFusion crops the
 box, and CLIP does not bind attributes to the object), the global feature the area-weighted mean of all
 regions, fused with ConceptFusion's own rule (:func:`pipeline.encoders.conceptfusion.fuse_region_features`).
+SAM's automatic masks are nested (each prompt returns a whole, a part and a sub-part mask), and
+ConceptFusion adds the fused feature of every mask to its pixels and renormalises: each object region that
+touches others also lies in the coarser mask of it with its touching neighbours (their area-weighted
+classes, the attributes of the union's bounding box), fused in the same softmax, so an object's pixels
+carry its neighbours' classes and colours too (version 3).
 
 All draws are seeded by ``seed``, the scene and the frame's instance image (never by the batch), and
 every step works on whole frames (a handful of per-object table rows, one matrix product per frame).
@@ -268,10 +273,7 @@ class SimulatedCF(SimulatedPerception):
         region = np.arange(K)
         region[(area < self.p.min_region_frac * h * w) & (region > 0)] = 0
         lab = region[labels]
-        pairs = np.concatenate([np.stack([lab[:, :-1].ravel(), lab[:, 1:].ravel()], 1),
-                                np.stack([lab[:-1].ravel(), lab[1:].ravel()], 1)])
-        pairs = pairs[(pairs[:, 0] != pairs[:, 1]) & (pairs.min(axis=1) > 0)]
-        pairs = np.unique(np.sort(pairs, axis=1), axis=0)
+        pairs = self._touching(lab)
         merge = pairs[rng.random(len(pairs)) < self.p.merge_probability]
         parent = np.arange(K)
         for a, b in merge:  # union-find over the frame's few objects
@@ -288,6 +290,43 @@ class SimulatedCF(SimulatedPerception):
             parent[k] = r
         return parent[region]
 
+    @staticmethod
+    def _touching(lab: np.ndarray) -> np.ndarray:
+        """``(P,2)`` sorted pairs of distinct object regions (> 0) that touch in the region image ``lab``."""
+        pairs = np.concatenate([np.stack([lab[:, :-1].ravel(), lab[:, 1:].ravel()], 1),
+                                np.stack([lab[:-1].ravel(), lab[1:].ravel()], 1)])
+        pairs = pairs[(pairs[:, 0] != pairs[:, 1]) & (pairs.min(axis=1) > 0)]
+        return np.unique(np.sort(pairs, axis=1), axis=0)
+
+    def _box_share(self, labels: np.ndarray, cells: np.ndarray, K: int) -> np.ndarray:
+        """``(K,)`` share of each label in the bounding box of the ``cells`` mask."""
+        rr, cc = np.nonzero(cells)
+        box = labels[rr.min() : rr.max() + 1, cc.min() : cc.max() + 1]
+        return np.bincount(box.ravel(), minlength=K) / box.size
+
+    def _groups(self, labels: np.ndarray, objs: np.ndarray, region: np.ndarray, ident: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """SAM's coarser masks: ``(regions (G,), local features (G,D))``, for each object region that touches
+        others, the mask of it with its touching neighbours (SAM's automatic generator returns each prompt's
+        whole / part / sub-part masks, so an object's pixels lie in larger masks too), its local feature the
+        neighbours' area-weighted mean (class parts ``ident`` (K,D) as in this frame) with the attributes of the
+        union's bounding box."""
+        K = len(objs) + 1
+        lab = region[labels]
+        pairs = self._touching(lab)
+        if not len(pairs):
+            return np.zeros(0, np.int64), np.zeros((0, self.dim))
+        attr = np.concatenate([np.zeros((1, self.dim)), self._attr[objs]])
+        area = np.bincount(labels.ravel(), minlength=K).astype(np.float64)
+        owners, feats = [], []
+        for r in np.unique(pairs):
+            members = np.unique(np.concatenate([[r], pairs[pairs[:, 0] == r, 1], pairs[pairs[:, 1] == r, 0]]))
+            inside = np.isin(region, members)  # (K,) labels in the group
+            rows = ident[inside] + self._box_share(labels, np.isin(lab, members), K) @ attr
+            feats.append((area[inside, None] * rows / np.linalg.norm(rows, axis=1, keepdims=True)).sum(0))
+            owners.append(r)
+        return np.asarray(owners, np.int64), np.stack(feats)
+
     def _box_attributes(self, labels: np.ndarray, objs: np.ndarray, region: np.ndarray) -> np.ndarray:
         """``(K,D)`` attribute part of each label: the mean attributes of every cell in its region's bounding
         box (background cells carry none). ConceptFusion's local feature is CLIP of the region's box crop, and
@@ -299,18 +338,15 @@ class SimulatedCF(SimulatedPerception):
         for r in np.unique(lab):
             if r == 0:
                 continue
-            rr, cc = np.nonzero(lab == r)
-            box = labels[rr.min() : rr.max() + 1, cc.min() : cc.max() + 1]
-            share = np.bincount(box.ravel(), minlength=K) / box.size
-            out[region == r] = share @ attr
+            out[region == r] = self._box_share(labels, lab == r, K) @ attr
         return out
 
     def _frame(self, instance, rng):
         labels, objs = self._labels(instance)
         K = len(objs) + 1
         region = self._regions(labels, K, rng)
-        rows = np.concatenate([self._background[None], self._object_identities(objs, rng)])
-        rows = rows + self._box_attributes(labels, objs, region)
+        ident = np.concatenate([self._background[None], self._object_identities(objs, rng)])
+        rows = ident + self._box_attributes(labels, objs, region)
         area = np.bincount(labels.ravel(), minlength=K).astype(np.float64)
         R = int(region.max()) + 1
         local = np.zeros((R, self.dim))
@@ -324,12 +360,19 @@ class SimulatedCF(SimulatedPerception):
         local_t = l2_normalize(torch.from_numpy(local[used]))
         g = l2_normalize((torch.from_numpy(np.bincount(region, weights=area, minlength=R)[used])[:, None]
                           * local_t).sum(0, keepdim=True))
+        owners, group_local = self._groups(labels, objs, region, ident)
+        masks = torch.cat([local_t, l2_normalize(torch.from_numpy(group_local))]) if len(owners) else local_t
         from pipeline.encoders.conceptfusion import fuse_region_features  # imports open_clip: only when fusing
 
-        fused = fuse_region_features(g, local_t, torch.zeros(len(local_t), dtype=torch.long), 1,
-                                     self.p.global_temperature)
+        # one softmax over all the frame's masks, as ConceptFusion fuses every mask SAM returned
+        fused = fuse_region_features(g, masks, torch.zeros(len(masks), dtype=torch.long), 1,
+                                     self.p.global_temperature).numpy()
         table = np.zeros((R, self.dim))
-        table[used] = fused.numpy()
+        table[used] = fused[: len(local_t)]
+        if len(owners):
+            # a pixel's feature is the sum of the fused features of every mask holding it, renormalised
+            table[owners] += fused[len(local_t):]
+            table[owners] /= np.linalg.norm(table[owners], axis=1, keepdims=True)
         return table, region[labels]  # (R,D) unit rows, (h,w) row of each cell
 
     def _encode_batch(self, rgb: np.ndarray, depth_m, instance) -> PaletteFeatures:

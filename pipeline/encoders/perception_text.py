@@ -189,7 +189,7 @@ class ClipTextSpace:
 #: ~0.25) are ~2.5x those of real CLIP image-text pairs (~0.1), so logits use T = 0.025 to keep real margins.
 TEMPERATURE = 0.025
 #: version of each simulated perception model (its features change when it does)
-VERSIONS = {"simulated_lseg": "2", "simulated_cf": "2"}
+VERSIONS = {"simulated_lseg": "2", "simulated_cf": "3"}
 
 
 @lru_cache(maxsize=4)

@@ -83,7 +83,7 @@ def _boxes(scene):
 
 def test_recall_falls_with_size_distance_and_occlusion(space):
     near = gt([(1, "chair", "red", (1.5, -0.3, -0.6), (2.0, 0.3, 0.2))])
-    far = gt([(1, "chair", "red", (6.0, -0.3, -0.6), (6.5, 0.3, 0.2))])
+    far = gt([(1, "chair", "red", (8.0, -0.3, -0.6), (8.5, 0.3, 0.2))])
     rates = {}
     for name, scene in (("near", near), ("far", far)):
         det = SimulatedDetector(DetectorParams(), space, scene, _boxes(scene))
@@ -110,8 +110,8 @@ def test_draws_are_seeded_per_view_and_query(space):
 
 
 def test_scene_context_detects_with_the_simulated_detector(tiny_scene):
-    """Simulated perception brings the simulated detector: the goal in front is found most of the time,
-    an unrelated class seldom; the oracle diagnostic keeps the encoder's ground-truth detection."""
+    """Simulated perception brings the simulated detector: the goal in front is found often (about half the
+    views at the routes' ends of the tiny scene, over 5 detector seeds), an unrelated class seldom; the oracle diagnostic keeps the encoder's ground-truth detection."""
     from pipeline.scene import Scene
     from stages import STAGES
     from orion_eval.scene import SceneContext
@@ -120,7 +120,7 @@ def test_scene_context_detects_with_the_simulated_detector(tiny_scene):
     ws, params = tiny_scene
     assert SceneContext(Scene(ws, params, "tiny", STAGES, check=True)).detector is None  # oracle maps: diagnostic detection
     found = unrelated = trials = 0
-    for seed in range(2):
+    for seed in range(5):
         ep = params.eval.model_copy(update={"detect_encoder": "simulated_lseg",
                                             "detector": DetectorParams(seed=seed)})
         ctx = SceneContext(Scene(ws, params.model_copy(update={"eval": ep}), "tiny", STAGES, check=True))
@@ -138,7 +138,7 @@ def test_scene_context_detects_with_the_simulated_detector(tiny_scene):
             found += any(fp[d.cells].any() for d in ctx.detect(body.pose, goal.name))
             unrelated += bool(ctx.detect(body.pose, "bicycle"))
             trials += 1
-    assert found >= 0.6 * trials and unrelated <= 1, (found, unrelated, trials)
+    assert found >= 0.35 * trials and unrelated <= 1, (found, unrelated, trials)
 
 
 def test_saliency_detector_is_weaker_and_coarser(space):
@@ -169,3 +169,17 @@ def test_saliency_detector_is_weaker_and_coarser(space):
     s2 = SaliencyDetector(DetectorParams(), space, small, _boxes(small))
     v2, o2, d2 = view_of(g2, [1])
     assert rate(s2, v2, o2, d2, "chair", 1) < 0.5 * rate(g2, v2, o2, d2, "chair", 1)
+
+
+def test_queries_share_one_draw_per_view_and_object(space):
+    scene = gt([(1, "chair", "red", (3.0, -0.3, -0.6), (3.5, 0.3, 0.2)), (2, "chair", "blue", (3.0, 0.5, -0.6),
+                                                                          (3.5, 1.1, 0.2))])
+    det = SimulatedDetector(DetectorParams(), space, scene, _boxes(scene))
+    view, origin, dirs = view_of(det, [1, 2])
+    ids = lambda text, k: {s.instance_id for s in det.detect(view, text, origin, dirs, 10.0, key=(k,))}  # noqa: E731
+    chair = [ids("chair", k) for k in range(60)]
+    red = [ids("red chair", k) for k in range(60)]
+    assert 0 < sum(1 in c for c in chair) < 60
+    # the red chair is found as "red chair" exactly in the views where it is found as "chair"; the blue one never
+    assert [1 in c for c in chair] == [1 in r for r in red] and not any(2 in r for r in red)
+    assert any(2 in c for c in chair)  # the blue chair is seen as a chair: its colour tells it apart

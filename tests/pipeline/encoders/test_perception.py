@@ -302,3 +302,20 @@ def test_lseg_keeps_attributes_weakly_and_cf_reads_them_off_the_whole_box():
     red_apart, red_l, blue = s_apart[0, 30, 20], s_around[0, 30, 6], s_around[0, 30, 30]
     assert red_l[0] - blue[0] < 0.5 * gaps["simulated_cf", 0.0]  # red hardly sets it apart any more ...
     assert red_l[0] - red_l[1] < 0.5 * (red_apart[0] - red_apart[1])  # ... it reads about as blue as red
+
+
+def test_cf_pixels_carry_the_coarser_mask_of_their_touching_neighbours():
+    gt = scene([(1, "chair", "red", "fabric"), (2, "chair", "blue", "fabric")])
+    apart = frames({1: (slice(10, 50), slice(5, 35)), 2: (slice(10, 50), slice(45, 75))})
+    touching = frames({1: (slice(10, 50), slice(10, 40)), 2: (slice(10, 50), slice(40, 70))})
+    e = encoder("simulated_cf", attribute_confusion=0.0, object_confusion=0.0, frame_confusion=0.0,
+                background_noise=0.0, object_noise=0.0, merge_probability=0.0)
+    e.bind_scene(gt)
+    s_apart, _ = scores(e, apart, ["red chair"])
+    s_touch, feats = scores(e, touching, ["red chair"])
+    gap_apart = s_apart[0, 30, 20, 0] - s_apart[0, 30, 60, 0]
+    gap_touch = s_touch[0, 30, 25, 0] - s_touch[0, 30, 55, 0]
+    # SAM also returns the mask of both chairs; ConceptFusion adds its feature to both: the colours blur together
+    assert 0 < gap_touch < 0.8 * gap_apart, (gap_touch, gap_apart)
+    f = feats.features[0]
+    assert not torch.equal(f[30, 25], f[30, 55])  # still two regions (no merge): each keeps its own mask
