@@ -43,8 +43,12 @@ def _other(value: Any, annotation: Any) -> Any:
     args = get_args(annotation)
     if get_origin(annotation) in (Union, UnionType):
         lits = [a for a in args if get_origin(a) is Literal]
-        if lits:
-            return _other(value, lits[0])
+        choices = [c for lit in lits for c in get_args(lit) if c != value]
+        if choices:
+            return choices[0]
+        if lits:  # the value is the only literal (e.g. 'auto' of int | 'auto'): a value of the other member
+            inner = next(a for a in args if get_origin(a) is not Literal and a is not type(None))
+            return {float: 0.123, int: 2, str: "x"}[inner]
         if value is None:
             inner = next(a for a in args if a is not type(None))
             return {float: 0.123, int: 7, str: "x.pt", bool: True}.get(inner, ("a", "b"))
