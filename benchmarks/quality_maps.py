@@ -53,7 +53,8 @@ TARGET = {"simulated_lseg": "LSeg (privileged)", "simulated_cf": "ConceptFusion"
 
 
 def segmentation_metrics(mq: MapQuery, gt: GTScene) -> dict:
-    """``{mAcc, F-mIoU, cells, per_class: {cls: {acc, iou, cells}}}`` (percent) of map ``mq`` (see the docstring)."""
+    """``{mAcc, F-mIoU, cells, per_class: {cls: {acc, iou, cells, confused_as}}}`` (percent) of map ``mq`` (see the
+    docstring); ``confused_as``: the (up to 3) labels its cells took instead, percent of its cells."""
     grid = mq.grid
     masks = class_masks(gt, grid)
     classes = sorted(masks)
@@ -61,7 +62,8 @@ def segmentation_metrics(mq: MapQuery, gt: GTScene) -> dict:
     for i, c in enumerate(classes):  # a cell in two classes' masks keeps the later class (rare: stacked objects)
         label[masks[c].ravel()] = i
     pred = np.full(grid.rows * grid.cols, -2, np.int64)
-    text = mq.text_features(classes + list(BACKGROUND_VOCAB))
+    names = classes + list(BACKGROUND_VOCAB)
+    text = mq.text_features(names)
     pred[mq.map.cell] = mq.map.dot(text).argmax(axis=1)
     # a ground-truth cell the map never observed takes the label of the nearest observed cell (the protocol
     # labels each ground-truth point by its nearest map point)
@@ -77,7 +79,10 @@ def segmentation_metrics(mq: MapQuery, gt: GTScene) -> dict:
         tp, n = int((g & p).sum()), int(g.sum())
         union = int((g | p).sum())
         acc, iou = tp / max(n, 1), tp / max(union, 1)
-        per_class[c] = {"acc": round(100 * acc, 2), "iou": round(100 * iou, 2), "cells": n}
+        # what the class's cells were labelled as instead, most cells first (the per-class confusion)
+        wrong = np.bincount(pred[g & ~p] + 2, minlength=len(names) + 2)[2:]
+        confused = {names[j]: round(100 * int(wrong[j]) / max(n, 1), 1) for j in np.argsort(-wrong)[:3] if wrong[j]}
+        per_class[c] = {"acc": round(100 * acc, 2), "iou": round(100 * iou, 2), "cells": n, "confused_as": confused}
         accs.append(acc)
         fiou += iou * n / max(n_eval, 1)
     return {"mAcc": round(100 * float(np.mean(accs)), 2) if accs else 0.0, "F-mIoU": round(100 * fiou, 2),

@@ -13,14 +13,16 @@ searches for and where, through the same rules for every method:
 - *yes/no*: the place is rejected (and, with memory, remembered as not the goal);
 - *corrective* ("This is Bob's chair, not Alice's chair."): only memory can use it: the object is remembered
   as what the user called it, which helps when a later goal of the scene is that object;
-- *descriptive* ("It is a red chair made of wood."): the description becomes the query of the detector,
-  and the map's candidates of the description are tried before those of the goal's name; a method with a
-  detector also verifies each candidate with it before asking, as the paper's controller filters
-  detections by the description: standing at the candidate, an object its detector sees as the goal's
-  name but not as the description (another colour or material) is passed over without a question and the
-  search goes on (:meth:`~orion_eval.modules.Modules.check_attributes`). What it adds is what the method
-  perceives: an ego-view detector reads colour and material off the object in view; a map keeps only what
-  its fused features kept;
+- *descriptive* ("It is a red chair made of wood."): the description narrows the name, it does not replace
+  it: every spin and exploration of a detector looks for both (what is seen as the description is tried
+  first, what is seen only as the name after it), and the map's candidates of the description are tried
+  before those of the goal's name; a method with a detector also verifies each candidate with it before
+  asking, as the paper's controller filters detections by the description: standing at the candidate, an
+  object its detector sees as the goal's name but not as the description (another colour or material) is
+  passed over without a question and the search goes on
+  (:meth:`~orion_eval.modules.Modules.check_attributes`). What it adds is what the method perceives: an
+  ego-view detector reads colour and material off the object in view; a map keeps only what its fused
+  features kept;
 - *landmark* ("It is next to the bed."): the landmarks are located with the method's own modules (map
   retrieval, else a detector's spin that looks for the landmarks and the goal at once, then exploration
   watching for both; each landmark once per episode) and the goal is searched near them: map candidates
@@ -30,11 +32,12 @@ searches for and where, through the same rules for every method:
 - *procedural* (a route, or "It is about 4 meters to your left."): the route is walked to its end (the
   point is walked to) and the goal is searched there: map candidates nearest the end first, a
   detector's spin there first;
-- *mixed*: the kinds combine rather than follow one another: the description is the query of every spin
-  and map look-up, the route's end picks which instance of each landmark is meant (the one nearest it), the
-  spin at the route's end looks for the landmarks and the goal together, and the map's candidates of the
-  description and of the name form one list ranked by distance to the route's end (in whole metres: the
-  route is not precise), then by the landmarks, the description's candidates first among equals.
+- *mixed*: the kinds combine rather than follow one another: the description and the name are the queries
+  of every spin and map look-up (the description's first), the route's end picks which instance of each
+  landmark is meant (the one nearest it), the spin at the route's end looks for the landmarks and the goal
+  together, and the map's candidates of the description and of the name form one list ranked by distance
+  to the route's end (in whole metres: the route is not precise), then by the landmarks, the description's
+  candidates first among equals.
 
 A spin is remembered where it was made (:meth:`~orion_eval.modules.Modules.look_around_for`): looking
 around again there for the same thing costs no steps.
@@ -86,13 +89,10 @@ class SearchState:
     landmarks: dict = field(default_factory=dict)  # landmark phrase -> (K,2) places found (or None: not found)
 
     @property
-    def query(self) -> str:
-        """What the detector and exploration look for: the description once given, else the name."""
-        return self.description or self.name
-
-    @property
     def queries(self) -> list[str]:
-        """What the map is asked for, in order: the description's candidates first, then the name's."""
+        """What the map and the detector are asked for, in order: the description (once given), then the name.
+        The description narrows the name, it does not replace it: what is seen as the name but not read as the
+        description is still a candidate, after the described ones (and a detector then checks its attributes)."""
         return [self.description, self.name] if self.description else [self.name]
 
     def focus_distance(self, xy) -> float:
@@ -170,7 +170,8 @@ class ModularAgent(Agent):
                 if not (mods.detector and mods.explore):
                     return None
                 steps = m.run.body.steps
-                oid = m.search_object(st.query, skip=skip)
+                hit = m.search_objects(st.queries, dict.fromkeys(st.queries, skip))
+                oid = hit[1] if hit else None
                 if oid is None:
                     if m.frontier() is not None and m.run.body.steps > steps:
                         continue  # frontiers left: search on from here
@@ -199,7 +200,11 @@ class ModularAgent(Agent):
         here = np.asarray(m.pose[:2])
         if float(np.hypot(*(target - here))) > self.params.eval.reject_radius_m:
             m.goto_point(target)
-        st.spotted = self.ranked(m, st, [t[0] for t in m.look_around(st.query)] + st.spotted)
+        seen = m.look_around_for(st.queries)
+        # the described detections first among equals, then what is seen as the name only
+        found = [t[0] for q in st.queries for t in seen[q]] + st.spotted
+        described = {t[0] for t in seen[st.queries[0]]} if st.description else set()
+        st.spotted = self.ranked(m, st, list(dict.fromkeys(found)), described)
 
     # ------------------------------------------------------------------ the user's reply
     def update(self, m, st: SearchState, fb: ParsedFeedback, oid: int, goal_name: str) -> None:
@@ -260,15 +265,16 @@ class ModularAgent(Agent):
                 st.landmarks[phrase] = np.asarray(pts, np.float64) if pts else None
         elif new and self.modules.detector:
             # one spin for the landmarks and the goal together: the goal itself may be in sight
-            seen = m.look_around_for([*new, st.query])
+            seen = m.look_around_for([*new, *st.queries])
             for phrase in new:
                 pts = [m.objects[t[0]].center_xy for t in seen[phrase]]
                 st.landmarks[phrase] = np.asarray(pts, np.float64) if pts else None
-            self.spot(m, st, seen[st.query])
+            self.spot(m, st, [t for q in st.queries for t in seen[q]])
             if all(st.landmarks[p] is None for p in phrases) and self.modules.explore and not st.spotted:
                 # explore for the first landmark, watching for the goal at every spin
-                hit = m.search_objects([st.query, phrases[0]], {st.query: self.skip(m, st, set())})
-                if hit and hit[0] == st.query:
+                skip = self.skip(m, st, set())
+                hit = m.search_objects([*st.queries, phrases[0]], dict.fromkeys(st.queries, skip))
+                if hit and hit[0] in st.queries:
                     st.spotted = [hit[1]]
                 elif hit:
                     st.landmarks[phrases[0]] = np.asarray([m.objects[hit[1]].center_xy], np.float64)

@@ -41,3 +41,9 @@ def test_oracle_map_scores_high_and_simulated_perception_lower(built_scene, qual
     build_map(MAP_CONFIGS["cfmap"].from_params(sim, "tiny"), frames, recon, out, artifact_attrs("cfmap", 1, "cfmap", "t"))
     perceived = quality.segmentation_metrics(open_query(out, sim, recon_path=recon, frames_path=frames), gt)
     assert perceived["mAcc"] < oracle["mAcc"] - 10, (perceived["mAcc"], oracle["mAcc"])
+    # per class, what its cells were labelled as instead: labels of the vocabulary, never more than it missed
+    vocab = {o.cls for o in gt.objects} | set(quality.BACKGROUND_VOCAB)
+    for c, v in perceived["per_class"].items():
+        assert set(v["confused_as"]) <= vocab - {c}
+        assert sum(v["confused_as"].values()) <= 100 - v["acc"] + 0.5
+    assert any(v["confused_as"] for v in perceived["per_class"].values())

@@ -146,14 +146,42 @@ def test_a_route_picks_the_landmark_instance_at_its_end(ctx):
     assert len(alone.focus) == 1 and len(alone.focus[0]) == len(every)  # without a route: every instance
 
 
-def test_a_description_becomes_the_query(ctx):
+def test_a_description_narrows_the_query(ctx):
     goal, run, agent = episode(ctx, "cf")
     m = run.modules
     st = SearchState(name=goal.name)
     oid = m.retrieve_map(goal.name, "cfmap")[0][0]
     agent.update(m, st, ParsedFeedback(description="red chair made of wood"), oid, goal.name)
-    assert st.query == "red chair made of wood" and run.body.steps == 0
-    assert st.queries == ["red chair made of wood", goal.name]  # the map: the description's candidates, then the name's
+    assert run.body.steps == 0
+    assert st.queries == ["red chair made of wood", goal.name]  # the description's candidates, then the name's
+
+
+def test_a_detectors_spin_looks_for_the_description_and_the_name(ctx):
+    """The description narrows what the detector looks for, it does not replace it: at the hinted place one spin
+    detects both, the described objects first, and what is seen only as the name is still tried (after them)."""
+    from orion_eval.world import Body
+
+    goal, run, agent = episode(ctx, "orion")
+    obj = ctx.scene.goals.objects[goal.object_keys[0]]
+    ep = ctx.scene.routes.for_goal(goal.id)[0]
+    route = ctx.route_to_goal(ctx.view_planner, ep.start, goal, key="t", face_xy=np.asarray(obj.mass_center))
+    run.body = Body(*ep.start)
+    for a in route.actions.tolist():  # walk to where the goal is in view
+        if a == 0:
+            break
+        ctx.world.act(run.body, a)
+    m = run.modules
+    m.detector = "grounded"
+    named = [t[0] for t in m.look_around_for([goal.name])[goal.name]]
+    assert named, "the goal is seen from where its route ends"
+    steps = run.body.steps
+    st = SearchState(name=goal.name, description="purple zebra made of glass")
+    st.spin_at = np.asarray(m.pose[:2], np.float64)
+    agent.look_at_focus(m, st)
+    assert run.body.steps > steps  # a new query: one more spin here
+    assert set(named) <= set(st.spotted)  # seen as the name, not as the description: still a candidate
+    described = [t[0] for t in m.look_around_for([st.description])[st.description]]
+    assert set(st.spotted[: len(described)]) == set(described)
 
 
 def test_a_detector_reads_the_described_colour_off_the_object_in_view(tiny_scene):
