@@ -158,31 +158,25 @@ class Modules:
 
     def double_check(self, obj_id: int) -> bool:
         """Face the object and check the ego view detects something matching the object's query there."""
+        self.rotate(self.relative(obj_id)[1])
+        return any(self._detects_at(obj_id, text) for text in sorted(self.objects[obj_id].texts) or [""])
+
+    def _detects_at(self, obj_id: int, text: str) -> bool:
+        """Whether the current ego view detects ``text`` at the object: a detection within 1 m of its centre or
+        on one of its cells."""
         e = self.objects[obj_id]
-        d, a = self.relative(obj_id)
-        self.rotate(a)
-        texts = sorted(e.texts) or [""]
-        for text in texts:
-            for det in self.ctx.detect(self.pose, text, self.detector):
-                if np.linalg.norm(det.center_xy - e.center_xy) <= 1.0 or np.isin(det.cells, e.cells).any():
-                    return True
-        return False
+        return any(np.linalg.norm(det.center_xy - e.center_xy) <= 1.0 or np.isin(det.cells, e.cells).any()
+                   for det in self.ctx.detect(self.pose, text, self.detector))
 
     def check_attributes(self, obj_id: int, name: str, description: str) -> bool | None:
         """Face the object and read it with the ego-view detector: True when the view detects ``description``
         there, False when it detects ``name`` but not the description (the object is seen, and its colour or
         material is not the described one), None when neither (not seen well enough to tell)."""
-        e = self.objects[obj_id]
         self.rotate(self.relative(obj_id)[1])
         self.run.log_event("verify", description)
-
-        def seen(text: str) -> bool:
-            return any(np.linalg.norm(det.center_xy - e.center_xy) <= 1.0 or np.isin(det.cells, e.cells).any()
-                       for det in self.ctx.detect(self.pose, text, self.detector))
-
-        if seen(description):
+        if self._detects_at(obj_id, description):
             return True
-        return False if seen(name) else None
+        return False if self._detects_at(obj_id, name) else None
 
     # ------------------------------------------------------------------ exploration
     def _explored_mask(self) -> np.ndarray:
