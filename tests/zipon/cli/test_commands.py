@@ -27,6 +27,15 @@ def test_config_error_is_a_message_and_exit_1(tmp_path, capsys):
     assert "Traceback" not in err
 
 
+def test_a_bad_depth_stride_is_one_message_and_exit_1(tmp_path, capsys):
+    (tmp_path / "params.yaml").write_text("scenes:\n  s0: {source: simulate}\nreconstruct:\n  depth_stride: half\n")
+    code = main(["--params", str(tmp_path / "params.yaml"), "status"])
+    err = capsys.readouterr().err
+    assert code == 1
+    assert "reconstruct.depth_stride: expected 'auto' or a whole number from 1 to 8, got 'half'" in err
+    assert "Traceback" not in err
+
+
 def test_missing_params_file(tmp_path, capsys):
     assert main(["--params", str(tmp_path / "nope.yaml"), "status"]) == 1
     assert "params file not found" in capsys.readouterr().err
