@@ -8,7 +8,9 @@ its memory from one goal to the next, as in the paper (corrective feedback helps
 object found for one goal is the right object of a later goal); the other methods have no memory.
 Per goal and seed the episode is ``routes.for_goal(goal)[seed % n]`` with its start heading turned
 by 90 deg per pass over the goal's episodes (:func:`orion_eval.episode.start_pose`); the user's
-draws are seeded by ``(seed, goal index, setting index)``. Results are identical for identical inputs.
+draws are seeded by ``(seed, goal index)``, the same in every feedback setting (paired settings: a (seed, goal)
+is asked the same at the same place whatever the setting, so settings differ only in what is said). Results
+are identical for identical inputs.
 """
 
 from __future__ import annotations
@@ -74,7 +76,7 @@ def evaluate_scene(ws: Workspace, params: Params, stages: Mapping, scene: str, m
     results = []
     memories: dict[tuple, object] = {}  # (method, setting, seed) -> the memory carried across the scene's goals
     for task, goal in scene_tasks(ctx.scene, methods, feedback, seeds):
-        rng = np.random.default_rng([task.seed, goal_index[goal.id], FEEDBACK_SETTINGS.index(task.feedback)])
+        rng = np.random.default_rng([task.seed, goal_index[goal.id]])  # not the setting: paired settings
         memory = None
         if getattr(agents[task.method], "persistent_memory", False):
             from orion_eval.modules import new_memory

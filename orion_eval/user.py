@@ -14,7 +14,10 @@ feedback kind of :data:`pipeline.goals.feedback.FEEDBACK_KINDS`, mixed):
   navchat's rule allows a route (goal in another room, at most 3 parts), else a destination point
   "No. It is about 4 meters ahead on your left." (the goal's mass centre in one of 8 directions); distances
   are misjudged (a seeded factor ``exp(N(0, SPEECH_NOISE))``) and said in whole metres, turns only as
-  left / right / around: approximate, "not precise" as the paper says;
+  left / right / around: approximate, "not precise" as the paper says. Each misjudgement is drawn for
+  what is judged — the episode's key, the place the user is asked from, the distance's place in the reply —
+  never in the order of the episode's calls, so two settings of one (seed, goal) asked at the same place
+  say the same route (common random numbers: settings differ only in which kinds are said);
 - ``mixed``: every kind available at that moment in one reply (corrective, descriptive, landmark,
   procedural, in that order), as the paper's user-LLM received all of them at once.
 
@@ -47,7 +50,10 @@ class SimulatedUser:
     def __init__(self, ctx, goal, setting: str, rng: np.random.Generator):
         if setting not in FEEDBACK_SETTINGS:
             raise ValueError(f"unknown feedback setting {setting!r}; choose from {FEEDBACK_SETTINGS}")
-        self.ctx, self.goal, self.setting, self.rng = ctx, goal, setting, rng
+        self.ctx, self.goal, self.setting = ctx, goal, setting
+        # one draw from the episode's generator keys every misjudgement (say_metres): the user's words are a
+        # function of (episode, place asked from, what is judged), the same in every setting given that rng
+        self.key = int(rng.integers(2**63))
         self.geometry = goal_geometry(ctx, goal.object_keys)
 
     def instruction(self) -> str:
@@ -66,9 +72,11 @@ class SimulatedUser:
                 best, best_d = key, r["distance_m"]
         return best
 
-    def say_metres(self, metres: float) -> str:
-        """A distance as a person says it: misjudged by a seeded factor, in whole metres (at least 1)."""
-        v = max(1, int(round(metres * float(np.exp(self.rng.normal(0.0, SPEECH_NOISE))))))
+    def say_metres(self, metres: float, where: tuple[int, ...]) -> str:
+        """A distance as a person says it: misjudged by a factor drawn for ``where`` (the place asked from and the
+        distance's place in the reply: the same ``where`` is misjudged the same), in whole metres (at least 1)."""
+        factor = float(np.exp(np.random.default_rng([self.key, *where]).normal(0.0, SPEECH_NOISE)))
+        v = max(1, int(round(metres * factor)))
         return f"{v} meter" if v == 1 else f"{v} meters"
 
     def procedural(self, pose) -> str | None:
@@ -79,14 +87,18 @@ class SimulatedUser:
         route = ctx.route_to_goal(ctx.user_planner, pose, g, key="user", face_xy=g.mass_center)
         if route is None or not route.parts:
             return None
+        # the place asked from (non-negative: seed words); then 0 and the part's index for a route's distances, 1
+        # for a point's
+        here = tuple(v % 2**32 for v in ctx.pose_key(pose))
         if procedural_allowed(route.parts, ctx.scene.room_at(pose[:2]), g.room_id):
-            said = [p.kind if p.kind != "go forward" else f"go forward {self.say_metres(p.value)}" for p in route.parts]
+            said = [p.kind if p.kind != "go forward" else f"go forward {self.say_metres(p.value, (*here, 0, i))}"
+                    for i, p in enumerate(route.parts)]
             return f"Follow this route: {', '.join(said)}."
         x, y, yaw = (float(v) for v in pose)
         dx, dy = np.asarray(g.mass_center, np.float64) - (x, y)
         bearing = float(np.degrees(np.arctan2(dy, dx) - yaw))
         sector = int(round(bearing / 45.0)) % 8
-        return f"It is about {self.say_metres(float(np.hypot(dx, dy)))} {POINTING[sector]}."
+        return f"It is about {self.say_metres(float(np.hypot(dx, dy)), (*here, 1))} {POINTING[sector]}."
 
     def feedback(self, kind: str, pose) -> str | None:
         fb = self.goal.feedback

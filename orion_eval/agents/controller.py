@@ -34,10 +34,11 @@ searches for and where, through the same rules for every method:
   detector's spin there first;
 - *mixed*: the kinds combine rather than follow one another: the description and the name are the queries
   of every spin and map look-up (the description's first), the route's end picks which instance of each
-  landmark is meant (the one nearest it), the spin at the route's end looks for the landmarks and the goal
-  together, and the map's candidates of the description and of the name form one list ranked by distance
-  to the route's end (in whole metres: the route is not precise), then by the landmarks, the description's
-  candidates first among equals.
+  landmark is meant (the one nearest it), a detector looks around at the route's end first, as the route alone
+  would (without a map, that spin looks for the landmarks and the goal together), and around the landmark only
+  when it saw nothing there, and the map's candidates of the description and of the name form one list ranked
+  by distance to the route's end (in whole metres: the route is not precise), then by the landmarks, the
+  description's candidates first among equals.
 
 A spin is remembered where it was made (:meth:`~orion_eval.modules.Modules.look_around_for`): looking
 around again there for the same thing costs no steps.
@@ -85,6 +86,7 @@ class SearchState:
     focus: list = field(default_factory=list)  # per hint, the (K,2) points the goal is near (landmarks, route end)
     route_end: np.ndarray | None = None  # where the user's last route (or pointed destination) ended
     spin_at: np.ndarray | None = None  # where a detector should look around next (None: done or nowhere)
+    spin_then: np.ndarray | None = None  # where it looks around next when that spin sees nothing (a landmark)
     spotted: list = field(default_factory=list)  # detections of the query from that look-around, nearest first
     landmarks: dict = field(default_factory=dict)  # landmark phrase -> (K,2) places found (or None: not found)
 
@@ -195,16 +197,18 @@ class ModularAgent(Agent):
             return oid
 
     def look_at_focus(self, m, st: SearchState) -> None:
-        """Walk to the hinted place and look around for the query there (once per hint)."""
-        target, st.spin_at = st.spin_at, None
-        here = np.asarray(m.pose[:2])
-        if float(np.hypot(*(target - here))) > self.params.eval.reject_radius_m:
-            m.goto_point(target)
-        seen = m.look_around_for(st.queries)
-        # the described detections first among equals, then what is seen as the name only
-        found = [t[0] for q in st.queries for t in seen[q]] + st.spotted
-        described = {t[0] for t in seen[st.queries[0]]} if st.description else set()
-        st.spotted = self.ranked(m, st, list(dict.fromkeys(found)), described)
+        """Walk to the hinted place and look around for the query there (once per hint); when that spin sees
+        nothing, on to the next hinted place (:attr:`SearchState.spin_then`)."""
+        while st.spin_at is not None and not st.spotted:
+            target, st.spin_at, st.spin_then = st.spin_at, st.spin_then, None
+            here = np.asarray(m.pose[:2])
+            if float(np.hypot(*(target - here))) > self.params.eval.reject_radius_m:
+                m.goto_point(target)
+            seen = m.look_around_for(st.queries)
+            # the described detections first among equals, then what is seen as the name only
+            found = [t[0] for q in st.queries for t in seen[q]] + st.spotted
+            described = {t[0] for t in seen[st.queries[0]]} if st.description else set()
+            st.spotted = self.ranked(m, st, list(dict.fromkeys(found)), described)
 
     # ------------------------------------------------------------------ the user's reply
     def update(self, m, st: SearchState, fb: ParsedFeedback, oid: int, goal_name: str) -> None:
@@ -225,7 +229,7 @@ class ModularAgent(Agent):
                               y + dist * math.sin(yaw + math.radians(bearing))))
             end = np.asarray(m.pose[:2], np.float64)
             st.focus, st.route_end = [end[None]], end
-            st.spin_at = end if self.modules.detector else None
+            st.spin_at, st.spin_then = (end if self.modules.detector else None), None
             st.spotted = []
         if fb.landmarks:  # located from where the route ended, if one came with them
             routed = bool(fb.route or fb.destination)
@@ -239,10 +243,15 @@ class ModularAgent(Agent):
                 st.focus = (st.focus if routed else []) + hints
                 st.spotted = self.ranked(m, st, st.spotted)
                 if self.modules.detector:
-                    # look around at the landmark found nearest the other hints (unless the goal was seen)
+                    # look around at the landmark found nearest the other hints (unless the goal was seen); after
+                    # a route, first at its end (as the route alone would), then at the landmark
                     here = np.asarray(m.pose[:2])
-                    st.spin_at = np.asarray(min(hints[0], key=lambda p: (st.focus_distance(p),
-                                                                         float(np.hypot(*(p - here))))), np.float64)
+                    at = np.asarray(min(hints[0], key=lambda p: (st.focus_distance(p), float(np.hypot(*(p - here))))),
+                                    np.float64)
+                    if routed and st.spin_at is not None:
+                        st.spin_then = at
+                    else:
+                        st.spin_at = at
 
     @staticmethod
     def nearest(pts: np.ndarray, focus: list) -> np.ndarray:
@@ -266,6 +275,8 @@ class ModularAgent(Agent):
         elif new and self.modules.detector:
             # one spin for the landmarks and the goal together: the goal itself may be in sight
             seen = m.look_around_for([*new, *st.queries])
+            if st.spin_at is not None and float(np.hypot(*(st.spin_at - m.pose[:2]))) <= self.params.eval.reject_radius_m:
+                st.spin_at = None  # the look-around due here (a route's end) is this one
             for phrase in new:
                 pts = [m.objects[t[0]].center_xy for t in seen[phrase]]
                 st.landmarks[phrase] = np.asarray(pts, np.float64) if pts else None

@@ -9,6 +9,7 @@ import pytest
 from orion_eval.agents import AGENTS, build_agent
 from orion_eval.agents.base import ParsedFeedback
 from orion_eval.agents.controller import ModularAgent, ModuleSet, SearchState
+from pipeline.routes.actions import LEFT
 from pipeline.scene import Scene
 from stages import STAGES
 from orion_eval.episode import EpisodeRun, Task
@@ -258,14 +259,40 @@ def test_after_a_route_the_map_candidates_rank_by_distance_to_its_end(ctx):
     assert set(ids) >= {t[0] for t in m.retrieve_map(goal.name, "vlmap")}
 
 
-def test_a_method_with_map_and_detector_looks_around_its_landmark(ctx):
+def orion_told_landmark(ctx, route=None):
+    """ORION (map + detector) after a "No" naming a landmark its map retrieves (and ``route``, when given):
+    ``(run, agent, search state, landmark phrase)``."""
     goal, run, agent = episode(ctx, "orion")
-    m = run.modules
-    which = agent.map_name()
+    m, which = run.modules, agent.map_name()
     phrase = next(o for o in ("bed", "table", "couch", "chair", "cabinet") if m.retrieve_map(o, which))
     st = SearchState(name=goal.name)
     oid = m.retrieve_map(goal.name, which)[0][0]
-    agent.update(m, st, ParsedFeedback(landmarks=[phrase]), oid, goal.name)
+    agent.update(m, st, ParsedFeedback(landmarks=[phrase], route=route or []), oid, goal.name)
+    return run, agent, st, phrase
+
+
+def test_a_method_with_map_and_detector_looks_around_its_landmark(ctx):
+    run, agent, st, phrase = orion_told_landmark(ctx)
+    m, which = run.modules, agent.map_name()
     assert run.body.steps == 0  # the map says where the landmark is
     places = [m.objects[t[0]].center_xy for t in m.retrieve_map(phrase, which)]
     assert st.spin_at is not None and any(np.allclose(st.spin_at, p) for p in places)  # the detector looks there
+
+
+def test_after_a_route_a_detector_looks_around_its_end_before_the_landmark(ctx):
+    """Mixed feedback combines the kinds: a route with landmarks is searched as the route alone would be (a look
+    around at its end) and, when that sees nothing, around the landmark instance nearest the end."""
+    run, agent, st, _ = orion_told_landmark(ctx, route=[("forward", 0.5)])
+    m = run.modules
+    end = np.asarray(m.pose[:2])
+    assert np.allclose(st.spin_at, end) and np.allclose(st.spin_then, st.focus[1][0])
+    start = run.body.steps
+    agent.look_at_focus(m, st)
+    turns = int(round(360.0 / ctx.turn_deg))
+    assert run.body.actions[start:start + turns] == [LEFT] * turns  # the first look around is at the route's end
+    assert st.spin_at is None and st.spin_then is None
+    far = float(np.hypot(*(np.asarray(m.pose[:2]) - end))) > ctx.params.eval.reject_radius_m
+    # it went on to the landmark only when the route's end showed nothing
+    assert far or st.spotted or np.hypot(*(st.focus[1][0] - end)) <= ctx.params.eval.reject_radius_m
+    if far:
+        assert run.body.actions[-turns:] == [LEFT] * turns

@@ -145,3 +145,25 @@ def test_scene_caches_do_not_change_episodes(tiny_scene):
     shared = evaluate_scene(ws, params, STAGES, "tiny", ["cow", "orion"], ["yesno", "procedural"], [0])
     alone = evaluate_scene(ws, params, STAGES, "tiny", ["cow", "orion"], ["procedural"], [0])
     assert strip(shared, "procedural") == strip(alone, "procedural") and len(alone) > 0
+
+
+def test_feedback_settings_are_paired(tiny_scene):
+    """Episodes of one (seed, goal) in 'procedural' and 'mixed' hear the same route at their first question (the
+    agent asks it at the same place in both, before any feedback): the user's draws do not depend on the setting."""
+    from orion_eval.run import evaluate_scene
+
+    ws, params = tiny_scene
+    eps = evaluate_scene(ws, params, STAGES, "tiny", ["vlmap"], ["procedural", "mixed"], [0, 1])
+    first = {}
+    for e in eps:
+        talk = e["log"]["dialogue"]
+        if len(talk) > 1 and talk[1]["kind"] != "yes":
+            first[(e["feedback"], e["seed"], e["goal"])] = (talk[0]["pose"], talk[1]["text"], talk[1]["kind"])
+    compared = 0
+    for (fb, seed, goal), (pose, text, kind) in first.items():
+        if fb != "procedural" or kind != "procedural":
+            continue
+        m_pose, m_text, m_kind = first[("mixed", seed, goal)]
+        assert m_pose == pose and m_kind.endswith("procedural") and m_text.endswith(" " + text.removeprefix("No. "))
+        compared += 1
+    assert compared

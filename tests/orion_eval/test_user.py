@@ -85,7 +85,32 @@ def test_procedural_is_spoken_like_a_person(tiny_scene):
     assert said
     goal = ctx.scene.goals.goals[0]
     u = SimulatedUser(ctx, goal, "procedural", np.random.default_rng(0))
-    noisy = [u.say_metres(5.0) for _ in range(200)]
+    noisy = [u.say_metres(5.0, (i, 0)) for i in range(200)]
     assert {"4 meters", "5 meters", "6 meters"} <= set(noisy) and all(re.fullmatch(r"\d+ meters?", t) for t in noisy)
-    again = SimulatedUser(ctx, goal, "procedural", np.random.default_rng(0))
-    assert [again.say_metres(5.0) for _ in range(200)] == noisy  # seeded
+    again = SimulatedUser(ctx, goal, "mixed", np.random.default_rng(0))
+    # keyed by what is judged, not by call order nor the setting: the same place and part, the same words
+    assert [again.say_metres(5.0, (i, 0)) for i in reversed(range(200))] == noisy[::-1]
+    other = SimulatedUser(ctx, goal, "procedural", np.random.default_rng(1))
+    assert [other.say_metres(5.0, (i, 0)) for i in range(200)] != noisy
+
+
+def test_settings_are_paired_on_the_spoken_route(tiny_scene):
+    """The same (seed, goal) asked at the same place says the same route or point in 'procedural' and 'mixed',
+    however often the user spoke before: settings differ only in which kinds are said."""
+    ws, params = tiny_scene
+    ctx = SceneContext(Scene(ws, params, "tiny", STAGES, check=True))
+    compared = 0
+    for goal in ctx.scene.goals.goals:
+        starts = [ep.start for ep in ctx.scene.routes.for_goal(goal.id)]
+        if not starts:
+            continue
+        proc = SimulatedUser(ctx, goal, "procedural", np.random.default_rng([0, 1]))
+        mixed = SimulatedUser(ctx, goal, "mixed", np.random.default_rng([0, 1]))
+        for pose in [*starts, *starts[::-1]]:  # asked again in another order: the same words at the same place
+            said = proc.procedural(pose)
+            if said is None:
+                continue
+            ok, reply, kind = mixed.respond(pose)
+            assert not ok and kind.endswith("procedural") and reply.endswith(" " + said)
+            compared += 1
+    assert compared
