@@ -23,6 +23,7 @@ and ends the episode by raising :class:`~orion_eval.episode.EpisodeOver`.
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass, field
 
@@ -132,10 +133,13 @@ class Modules:
         g = self.ctx.grid
         mask = np.zeros(g.rows * g.cols, bool)
         mask[e.cells] = True
-        key = ("obj", e.source, int(e.cells.min()) if len(e.cells) else 0, len(e.cells))
         # sight the object's centre column at half and full height of its reconstructed top surface
         h = self.ctx.scene.height.reshape(-1)[e.cells] if len(e.cells) else np.array([np.nan])
         top = float(np.clip(np.nanmedian(h), 0.1, 2.0)) if np.isfinite(h).any() else 0.6
+        # the scene caches the region and the planner its field by this key: it names all the target depends on
+        # (two sightings of one object can share their cells' count and first cell, not their cells and centre)
+        key = ("obj", hashlib.blake2b(np.ascontiguousarray(e.cells, np.int64).tobytes()
+                                      + np.asarray(e.center_xy, np.float64).tobytes(), digest_size=16).hexdigest())
         region, view = self.ctx.goal_target(key, mask.reshape(g.rows, g.cols), e.center_xy, (0.5 * top, top))
         route = self.ctx.view_planner.route(self.pose, view, key=key, face_xy=e.center_xy, end_mask=region)
         return self._follow(route)

@@ -211,13 +211,23 @@ class SceneContext:
         return cached_text_features(self.encoder, self._text_cache, texts)
 
     def pose_key(self, pose) -> tuple[int, int, int]:
+        """The place (5 cm) and heading (turn step) a pose is at: what a spin is remembered by, what seeds the
+        detector's and the user's draws. Not what a view is cached by (:meth:`view_key`)."""
         x, y, yaw = pose
         return (round(x / 0.05), round(y / 0.05), round(yaw / math.radians(self.turn_deg)))
 
+    def view_key(self, pose) -> tuple[int, int, int]:
+        """The pose in micrometres and microradians: the ego view and its detections are cached by it and rendered
+        at it (:meth:`view`), so a view is a function of the key alone, whichever pose with that key came first.
+        Walks that reach a pose by the same actions reach it to the float, so their views are shared; a coarser
+        key would give a pose the view of another pose a few centimetres or degrees away, the one an earlier
+        episode in the same process happened to stand at."""
+        return tuple(round(float(v) * 1e6) for v in pose)
+
     def view(self, pose):
-        k = self.pose_key(pose)
+        k = self.view_key(pose)
         if k not in self._view_cache:
-            self._view_cache[k] = self.renderer.render(pose)
+            self._view_cache[k] = self.renderer.render(tuple(v * 1e-6 for v in k))
         return self._view_cache[k]
 
     @cached_property
@@ -253,16 +263,17 @@ class SceneContext:
         """Objects matching ``text`` in the ego view at ``pose`` (cached per pose, text and kind): the simulated
         detector's sightings (``kind`` 'grounded': :attr:`detector`, 'saliency': :attr:`saliency_detector`), else
         (real encoders, the oracle) the cells whose encoder features beat the background, for either kind."""
-        key = (self.pose_key(pose), text, kind)
+        key = (self.view_key(pose), text, kind)
         if key in self._det_cache:
             return self._det_cache[key]
+        pose = tuple(v * 1e-6 for v in key[0])  # where the view is rendered (:meth:`view_key`)
         ep, mp = self.params.eval, self.params.query
         v = self.view(pose)
         detector = self.saliency_detector if kind == "saliency" else self.detector
         if detector is not None:
             T = self.renderer.T_world_camera(pose)
             dirs = self.renderer.dirs_cam.reshape(-1, 3).astype(np.float64) @ T[:3, :3].T
-            found = detector.detect(v, text, T[:3, 3], dirs, ep.detect_max_range_m, key=key[0])
+            found = detector.detect(v, text, T[:3, 3], dirs, ep.detect_max_range_m, key=self.pose_key(pose))
             out = [self._detection(v.points[s.mask][:, :2].astype(np.float64), s.score, int(s.mask.sum()))
                    for s in found]
             out.sort(key=lambda d: -d.pixels)

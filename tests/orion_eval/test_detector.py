@@ -22,12 +22,14 @@ def space():
     return load_text_space(resolve_embeddings(None, "test"))
 
 
-def gt(objects) -> GTScene:
-    """``objects``: (id, cls, colour, box min, box max)."""
+def gt(objects, materials: dict | None = None) -> GTScene:
+    """``objects``: (id, cls, colour, box min, box max); ``materials`` {id: material} (default wood)."""
+    materials = materials or {}
     return GTScene.model_validate({
         "name": "det", "seed": 0, "wall_height_m": 2.5, "rooms": [], "walls": [],
         "objects": [{"id": i, "cls": c, "room": "r", "parts": [{"min": lo, "max": hi}], "color_name": col,
-                     "color_rgb": (1, 2, 3), "material": "wood", "size": "big"} for i, c, col, lo, hi in objects],
+                     "color_rgb": (1, 2, 3), "material": materials.get(i, "wood"), "size": "big"}
+                    for i, c, col, lo, hi in objects],
     })
 
 
@@ -73,6 +75,22 @@ def test_grounding_follows_clip_similarity(space):
     assert det.grounding("armchair", np.array([1]))[0] > 0.5  # a CLIP neighbour is found (a false positive)
     red, blue = det.grounding("red chair", np.array([1])), det.grounding("blue chair", np.array([1]))
     assert red[0] > 0.95 and blue[0] < 0.05  # the colour the query names must match
+
+
+def test_a_description_is_matched_with_every_object_s_own_colour_and_material(space):
+    """A query naming colour and material scores each object, of any class, with the object's own colour and
+    material: a grey fabric sofa answers 'a red wooden chair' less than 'chair', a red wooden table more (CLIP
+    weighs the words, it does not parse them), and a chair of another colour and material falls below both."""
+    box = ((2, -0.3, -0.5), (2.5, 0.3, 0.3))
+    scene = gt([(1, "chair", "red", *box), (2, "sofa", "grey", *box), (3, "table", "red", *box),
+                (4, "chair", "grey", *box)], materials={2: "fabric", 4: "fabric"})
+    det = SimulatedDetector(DetectorParams(), space, scene, _boxes(scene))
+    ids = np.array([1, 2, 3, 4])
+    plain = dict(zip(("goal", "sofa", "table", "chair"), det.grounding("chair", ids)))
+    described = dict(zip(("goal", "sofa", "table", "chair"), det.grounding("a red wooden chair", ids)))
+    assert described["goal"] > 0.99 and plain["goal"] > 0.99
+    assert described["sofa"] < plain["sofa"] and described["table"] > plain["table"]
+    assert described["chair"] < 0.01 < plain["chair"]
 
 
 def _boxes(scene):

@@ -88,6 +88,52 @@ def test_a_spin_is_remembered_where_it_was_made(tiny_scene):
     assert hit is not None and hit[0] == goal.name  # no bicycle anywhere: the goal, seen on the way
 
 
+def _episode(ctx, goal):
+    ep = ctx.scene.routes.for_goal(goal.id)[0]
+    task = Task("tiny", "orion", "yesno", 0, goal.id, ep.id, ep.start, ep.geodesic_m)
+    return EpisodeRun(ctx, task, SimulatedUser(ctx, goal, "yesno", np.random.default_rng(0)), 2000, 5)
+
+
+def test_a_view_and_its_detections_do_not_depend_on_the_views_before_them(tiny_scene):
+    """Two poses a few centimetres and degrees apart (one 5 cm place and turn step) each get their own view and
+    detections, the same in a scene context that rendered the other first as in a fresh one."""
+    ws, params = tiny_scene
+    ctx, goal, run = _run(tiny_scene)
+    x, y, yaw = run.body.pose
+    near = (x + 0.012, y - 0.009, yaw + 0.05)
+    assert ctx.pose_key(near) == ctx.pose_key((x, y, yaw))
+    ctx.detect((x, y, yaw), goal.name)  # the other pose first
+    fresh = SceneContext(Scene(ws, params, "tiny", STAGES, check=True))
+    assert np.array_equal(ctx.view(near).points, fresh.view(near).points)
+    assert not np.array_equal(ctx.view(near).points, ctx.view((x, y, yaw)).points)
+    seen = lambda c: [(d.center_xy.tolist(), d.cells.tolist(), d.score) for d in c.detect(near, goal.name)]  # noqa: E731
+    assert seen(ctx) == seen(fresh)
+
+
+def test_goto_object_targets_each_object_whatever_was_targeted_before(tiny_scene):
+    """Two found objects whose cells share their first cell and their count are two targets: walking to one after
+    the other (one scene context) ends where walking to it alone does."""
+    ws, params = tiny_scene
+    ctx, _, _ = _run(tiny_scene)
+    goals = [g for g in ctx.scene.goals.goals if ctx.scene.routes.for_goal(g.id)]
+    cells = [np.sort(np.flatnonzero(ctx.footprint_mask(g.object_keys).reshape(-1))) for g in goals[:2]]
+    cells.sort(key=lambda c: c[0])
+    n = min(len(c) for c in cells)
+    first, second = cells[0][:n], np.concatenate([cells[0][:1], cells[1][: n - 1]])
+    assert first.min() == second.min() and len(first) == len(second) and not np.array_equal(first, second)
+
+    def walk(c, obj_cells):
+        run = _episode(c, goals[0])
+        rr, cc = np.divmod(obj_cells, c.grid.cols)
+        center = np.median(c.grid.cell_to_world(np.stack([rr, cc], axis=1)), axis=0)
+        assert run.modules.goto_object(run.modules.register(center, obj_cells, "detect"))
+        return run.body.pose
+
+    walk(ctx, first)
+    fresh = SceneContext(Scene(ws, params, "tiny", STAGES, check=True))
+    assert walk(ctx, second) == walk(fresh, second)
+
+
 def test_memory_keeps_names_apart():
     from orion_eval.memory import lexical_feature
 
