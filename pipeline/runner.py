@@ -165,6 +165,13 @@ def _window(client, resources: dict[str, float] | None) -> int:
     return sum(min(int(w.get("resources", {})[k] // n) for k, n in resources.items()) for w in able) + 1
 
 
+# dask worker resource of our local cluster: one per worker process, asked for by every stage task (not by the
+# calls of ordered_tasks). A map stage secedes while it waits for its chunks and folds them; a seceded task keeps
+# its resources, so the worker does not start another stage (a reconstruct's grid, another map's fold) beside
+# the fold it holds: a worker's memory is one stage's plus the chunk calls in flight, not two stages' at once.
+# Its thread still runs chunk calls of any stage, so the cores stay busy while a fold waits.
+STAGE_SLOT = "zipon-stage"
+
 # dask priority of the calls of a running stage (ordered_tasks): above every stage task (run_many gives those
 # their stage's level, 0..len(stages)), so a worker finishes the stages already started before it starts another:
 # the folds in memory stay few, and a started stage's outputs come as early as they can
@@ -286,7 +293,7 @@ def _run_stage(
     if not reason:
         return Outcome(scene, stage, "skipped", reason="up to date")
     t0, cpu0, counters0 = time.perf_counter(), time.process_time(), process_counters()
-    started = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    started = datetime.now(timezone.utc).isoformat(timespec="milliseconds")
     tmp = new_tmp_dir(ws.tmp_dir(scene), stage)
     try:
         inputs = {}
@@ -318,7 +325,7 @@ def _run_stage(
                     "waited_seconds": round(ctx.elsewhere["waited_seconds"], 3),
                     "native_threads": native_threads(),
                     "counters": counters_since(counters0),
-                    "host": socket.gethostname(), "python": platform.python_version()},
+                    "host": socket.gethostname(), "pid": os.getpid(), "python": platform.python_version()},
         )
         check_inputs_unchanged(ws, scene, stage, upstream_stages(stages, params, scene, stage),
                                {("raw_log" if k == SOURCE else k): v for k, v in in_digests.items()})
@@ -375,10 +382,14 @@ def run_many(
     scheduler = scheduler or params.run.scheduler
     levels = stage_levels(stages)
     scenes_in_run = len({scene for scene, _ in pairs})
+    # our own local cluster gives each worker one stage slot (see STAGE_SLOT); a cluster someone else started
+    # offers no such resource, so there the stage tasks ask for none
+    slot = {STAGE_SLOT: 1} if scheduler == "processes" else None
     tasks: dict[tuple[str, str], Any] = {}
     for scene, stage in pairs:
         ups = [tasks[(scene, u)] for u in upstream_stages(stages, params, scene, stage) if (scene, u) in tasks]
-        with dask.annotate(priority=levels[stage]):  # read by dask.distributed only (stage_levels says why)
+        # priority and resources are read by dask.distributed only (stage_levels and STAGE_SLOT say why)
+        with dask.annotate(priority=levels[stage], resources=slot):
             tasks[(scene, stage)] = dask.delayed(_task, pure=False)(
                 ws, params, stages, scene, stage, force, show_progress,
                 stage_threads(params, stages[stage], scenes_in_run, scheduler), *ups,
@@ -400,7 +411,7 @@ def run_many(
         # multiprocessing scheduler), so a stage can spread its own tasks over every worker (ordered_tasks)
         cluster = (LocalCluster(n_workers=params.run.workers, threads_per_worker=1, processes=True, memory_limit=0,
                                 dashboard_address=":0", silence_logs=logging.ERROR,
-                                resources=params.run.encoder_resources or None)
+                                resources={**params.run.encoder_resources, STAGE_SLOT: 1})
                    if scheduler == "processes" else None)
         try:
             with Client(cluster or scheduler) as client:
