@@ -384,12 +384,12 @@ def run_many(
     scenes_in_run = len({scene for scene, _ in pairs})
     # our own local cluster gives each worker one stage slot (see STAGE_SLOT); a cluster someone else started
     # offers no such resource, so there the stage tasks ask for none
-    slot = {STAGE_SLOT: 1} if scheduler == "processes" else None
+    slot = {"resources": {STAGE_SLOT: 1}} if scheduler == "processes" else {}
     tasks: dict[tuple[str, str], Any] = {}
     for scene, stage in pairs:
         ups = [tasks[(scene, u)] for u in upstream_stages(stages, params, scene, stage) if (scene, u) in tasks]
         # priority and resources are read by dask.distributed only (stage_levels and STAGE_SLOT say why)
-        with dask.annotate(priority=levels[stage], resources=slot):
+        with dask.annotate(priority=levels[stage], **slot):
             tasks[(scene, stage)] = dask.delayed(_task, pure=False)(
                 ws, params, stages, scene, stage, force, show_progress,
                 stage_threads(params, stages[stage], scenes_in_run, scheduler), *ups,
@@ -409,10 +409,14 @@ def run_many(
 
         # 'processes': a local dask.distributed cluster of single-threaded worker processes (not dask's
         # multiprocessing scheduler), so a stage can spread its own tasks over every worker (ordered_tasks)
-        cluster = (LocalCluster(n_workers=params.run.workers, threads_per_worker=1, processes=True, memory_limit=0,
-                                dashboard_address=":0", silence_logs=logging.ERROR,
-                                resources={**params.run.encoder_resources, STAGE_SLOT: 1})
-                   if scheduler == "processes" else None)
+        cluster = None
+        if scheduler == "processes":
+            # no queuing on the scheduler: a stage task waiting for its worker's STAGE_SLOT counts as that worker's
+            # work, so queuing would hold back the chunk calls the seceded stage is waiting for (a deadlock)
+            with dask.config.set({"distributed.scheduler.worker-saturation": "inf"}):
+                cluster = LocalCluster(n_workers=params.run.workers, threads_per_worker=1, processes=True,
+                                       memory_limit=0, dashboard_address=":0", silence_logs=logging.ERROR,
+                                       resources={**params.run.encoder_resources, STAGE_SLOT: 1})
         try:
             with Client(cluster or scheduler) as client:
                 results = dask.compute(*values, scheduler=client)
