@@ -117,10 +117,12 @@ def ordered_tasks(fn: Callable[[Any], Any], items: list, *, name: str, threads: 
     (``dask worker --resources GPU=1``), one at a time per unit there; a cluster where no worker offers them is
     an error naming ``run.encoder_resources``, not a wait forever. Outside a cluster they are not needed.
 
-    Memory: what a caller folds (a map's accumulators) grows with the results it consumes, and a worker starts
-    every ready stage while those already started wait, seceded. So in one worker process at most as many
-    callers as it has threads consume results at a time (:func:`_consuming_slots`); the others wait for their
-    turn seceded, holding no worker thread and no results, and their calls are not submitted yet.
+    Memory: what a caller folds (a map's accumulators) grows with the results it consumes. On the local cluster
+    of ``processes`` a worker holds one stage at a time, seceded or not (:data:`STAGE_SLOT`). On a cluster
+    someone else started, a worker starts every ready stage while those already started wait, seceded; there at
+    most as many callers as a worker process has threads consume results at a time (:func:`_consuming_slots`);
+    the others wait for their turn seceded, holding no worker thread and no results, and their calls are not
+    submitted yet.
     """
     client_context = _worker_client()
     if client_context is None:
