@@ -117,10 +117,12 @@ def ordered_tasks(fn: Callable[[Any], Any], items: list, *, name: str, threads: 
     (``dask worker --resources GPU=1``), one at a time per unit there; a cluster where no worker offers them is
     an error naming ``run.encoder_resources``, not a wait forever. Outside a cluster they are not needed.
 
-    Memory: what a caller folds (a map's accumulators) grows with the results it consumes, and a worker starts
-    every ready stage while those already started wait, seceded. So in one worker process at most as many
-    callers as it has threads consume results at a time (:func:`_consuming_slots`); the others wait for their
-    turn seceded, holding no worker thread and no results, and their calls are not submitted yet.
+    Memory: what a caller folds (a map's accumulators) grows with the results it consumes. On the local cluster
+    of ``processes`` a worker holds one stage at a time, seceded or not (:data:`STAGE_SLOT`). On a cluster
+    someone else started, a worker starts every ready stage while those already started wait, seceded; there at
+    most as many callers as a worker process has threads consume results at a time (:func:`_consuming_slots`);
+    the others wait for their turn seceded, holding no worker thread and no results, and their calls are not
+    submitted yet.
     """
     client_context = _worker_client()
     if client_context is None:
@@ -164,6 +166,13 @@ def _window(client, resources: dict[str, float] | None) -> int:
                          "with e.g. `dask worker SCHEDULER --resources GPU=1`, or set run.encoder_resources: {})")
     return sum(min(int(w.get("resources", {})[k] // n) for k, n in resources.items()) for w in able) + 1
 
+
+# dask worker resource of our local cluster: one per worker process, asked for by every stage task (not by the
+# calls of ordered_tasks). A map stage secedes while it waits for its chunks and folds them; a seceded task keeps
+# its resources, so the worker does not start another stage (a reconstruct's grid, another map's fold) beside
+# the fold it holds: a worker's memory is one stage's plus the chunk calls in flight, not two stages' at once.
+# Its thread still runs chunk calls of any stage, so the cores stay busy while a fold waits.
+STAGE_SLOT = "zipon-stage"
 
 # dask priority of the calls of a running stage (ordered_tasks): above every stage task (run_many gives those
 # their stage's level, 0..len(stages)), so a worker finishes the stages already started before it starts another:
@@ -286,7 +295,7 @@ def _run_stage(
     if not reason:
         return Outcome(scene, stage, "skipped", reason="up to date")
     t0, cpu0, counters0 = time.perf_counter(), time.process_time(), process_counters()
-    started = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    started = datetime.now(timezone.utc).isoformat(timespec="milliseconds")
     tmp = new_tmp_dir(ws.tmp_dir(scene), stage)
     try:
         inputs = {}
@@ -318,7 +327,7 @@ def _run_stage(
                     "waited_seconds": round(ctx.elsewhere["waited_seconds"], 3),
                     "native_threads": native_threads(),
                     "counters": counters_since(counters0),
-                    "host": socket.gethostname(), "python": platform.python_version()},
+                    "host": socket.gethostname(), "pid": os.getpid(), "python": platform.python_version()},
         )
         check_inputs_unchanged(ws, scene, stage, upstream_stages(stages, params, scene, stage),
                                {("raw_log" if k == SOURCE else k): v for k, v in in_digests.items()})
@@ -375,10 +384,14 @@ def run_many(
     scheduler = scheduler or params.run.scheduler
     levels = stage_levels(stages)
     scenes_in_run = len({scene for scene, _ in pairs})
+    # our own local cluster gives each worker one stage slot (see STAGE_SLOT); a cluster someone else started
+    # offers no such resource, so there the stage tasks ask for none
+    slot = {"resources": {STAGE_SLOT: 1}} if scheduler == "processes" else {}
     tasks: dict[tuple[str, str], Any] = {}
     for scene, stage in pairs:
         ups = [tasks[(scene, u)] for u in upstream_stages(stages, params, scene, stage) if (scene, u) in tasks]
-        with dask.annotate(priority=levels[stage]):  # read by dask.distributed only (stage_levels says why)
+        # priority and resources are read by dask.distributed only (stage_levels and STAGE_SLOT say why)
+        with dask.annotate(priority=levels[stage], **slot):
             tasks[(scene, stage)] = dask.delayed(_task, pure=False)(
                 ws, params, stages, scene, stage, force, show_progress,
                 stage_threads(params, stages[stage], scenes_in_run, scheduler), *ups,
@@ -398,10 +411,14 @@ def run_many(
 
         # 'processes': a local dask.distributed cluster of single-threaded worker processes (not dask's
         # multiprocessing scheduler), so a stage can spread its own tasks over every worker (ordered_tasks)
-        cluster = (LocalCluster(n_workers=params.run.workers, threads_per_worker=1, processes=True, memory_limit=0,
-                                dashboard_address=":0", silence_logs=logging.ERROR,
-                                resources=params.run.encoder_resources or None)
-                   if scheduler == "processes" else None)
+        cluster = None
+        if scheduler == "processes":
+            # no queuing on the scheduler: a stage task waiting for its worker's STAGE_SLOT counts as that worker's
+            # work, so queuing would hold back the chunk calls the seceded stage is waiting for (a deadlock)
+            with dask.config.set({"distributed.scheduler.worker-saturation": "inf"}):
+                cluster = LocalCluster(n_workers=params.run.workers, threads_per_worker=1, processes=True,
+                                       memory_limit=0, dashboard_address=":0", silence_logs=logging.ERROR,
+                                       resources={**params.run.encoder_resources, STAGE_SLOT: 1})
         try:
             with Client(cluster or scheduler) as client:
                 results = dask.compute(*values, scheduler=client)

@@ -47,12 +47,31 @@ def build(root: Path, *args: str, params: str = PARAMS, scenes: tuple[str, ...] 
             if ws.artifact(name, scene).exists()}
 
 
+def stages_at_once_in_one_worker(root: Path) -> list[tuple[str, str]]:
+    """Pairs of stages whose manifests say they ran in the same worker process at overlapping times (``timing``:
+    pid, start to the millisecond, wall seconds): a worker holding a seceded map stage must not start another
+    stage beside it (pipeline.runner.STAGE_SLOT)."""
+    import json
+    from datetime import datetime
+
+    spans = []
+    for m in sorted(root.glob("manifests/*/*.json")):
+        t = json.loads(m.read_text())["timing"]
+        start = datetime.fromisoformat(t["started"]).timestamp()
+        spans.append((t["pid"], start, start + t["seconds"], f"{m.parent.name}/{m.stem}"))
+    assert len({pid for pid, *_ in spans}) == 2  # both workers ran stages
+    # 5 ms of slack: 'started' is taken just after the stage's staleness check, 'seconds' ends just before publish
+    return [(a[3], b[3]) for i, a in enumerate(spans) for b in spans[i + 1:]
+            if a[0] == b[0] and a[1] < b[2] - 0.005 and b[1] < a[2] - 0.005]
+
+
 @pytest.mark.slow
 def test_every_artifact_has_the_same_digest_in_one_process_and_in_two_worker_processes(tmp_path):
     single = build(tmp_path / "sync")
     assert len(single) == len(SCENES) * len({n for s in STAGES.values() for n in s.outputs})
     workers = build(tmp_path / "processes", "--scheduler", "processes")
     assert {k: v for k, v in workers.items() if v != single[k]} == {}
+    assert stages_at_once_in_one_worker(tmp_path / "processes") == []
     forced = build(tmp_path / "sync", "--stage", "reconstruct", "--force", "--scheduler", "threads")
     assert {k: v for k, v in forced.items() if v != single[k]} == {}
 
