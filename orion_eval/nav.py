@@ -5,6 +5,12 @@ on the navigable bounding box (plus a margin) — a :class:`~pipeline.geometry.G
 with the same cell size — which makes each fast-marching field several times cheaper. Fields are
 cached per target key for the whole scene (targets repeat across episodes, seeds and settings), and so
 are whole routes per start pose and target (:meth:`NavPlanner.route`).
+
+An agent's walk may end off the planner's clearance band (beside a wall, in a goal region that reaches it),
+where no step on the agent's heading lattice follows the planned path ("no collision-free step"). An
+agent's planner (``recover=True``) then gets back into the band first: the fewest turns and steps
+(:data:`RECOVER_ACTIONS` at most) that reach a pose in the band from which the route exists, that route
+appended. Without it, every target would be unreachable from such a pose for the rest of the episode.
 """
 
 from __future__ import annotations
@@ -12,15 +18,20 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.geometry import GridSpec
-from pipeline.routes.actions import Route, RoutePlanner, RouteSettings
+from pipeline.routes.actions import FORWARD, LEFT, RIGHT, Route, RoutePlanner, RouteSettings, route_parts
+from pipeline.routes.fmm import GeodesicPath
+
+RECOVER_ACTIONS = 16  # a stranded agent gets back into the clearance band in at most this many actions
+RECOVER_TRIES = 8  # band poses (nearest first, in actions) a route is tried from
 
 
 class NavPlanner:
     """FMM routes on the cropped navigable grid; masks in and out are on the FULL grid."""
 
-    def __init__(self, navigable: np.ndarray, grid: GridSpec, settings: RouteSettings, margin_cells: int = 4):
+    def __init__(self, navigable: np.ndarray, grid: GridSpec, settings: RouteSettings, margin_cells: int = 4,
+                 *, recover: bool = False):
         nav = np.asarray(navigable, dtype=bool)
-        self.grid, self.settings = grid, settings
+        self.grid, self.settings, self.recover = grid, settings, recover
         if nav.any():
             rr, cc = np.nonzero(nav)
             r0, r1 = max(int(rr.min()) - margin_cells, 0), min(int(rr.max()) + margin_cells + 1, grid.rows)
@@ -67,8 +78,76 @@ class NavPlanner:
                                            end_mask=end)
             except ValueError:  # descent stuck or action budget exceeded: treat as unreachable
                 route = None
+            if route is None and self.recover:
+                route = self._recovered(pose, sub, key=key, face=face, end=end)
         self._routes[memo] = (route, end_mask)
         return route
+
+    def _recovered(self, pose, sub: np.ndarray, *, key, face, end) -> Route | None:
+        """The route from the nearest pose in the clearance band (fewest actions away) from which one exists,
+        with the actions that get there first; None when the target is out of reach on the navigable mask or
+        no band pose within :data:`RECOVER_ACTIONS` has a route."""
+        region = self.settings.stop_radius_m == 0
+        rc = self.crop_grid.world_to_cell(np.asarray(pose[:2], np.float64))
+        if not (self.crop_grid.inside(rc) and np.isfinite(self.planner.field(key, sub, "navigable", region=region)[
+                rc[0], rc[1]])):
+            return None
+        for actions, xy in self._band_poses(pose)[:RECOVER_TRIES]:
+            k = actions.count(LEFT) - actions.count(RIGHT)
+            yaw = float(pose[2]) + k * np.deg2rad(self.settings.turn_deg)
+            try:
+                route = self.planner.route((xy[-1][0], xy[-1][1], yaw), sub, key=key, face_xy=face, region=region,
+                                           end_mask=end)
+            except ValueError:
+                route = None
+            if route is None:
+                continue
+            s = self.settings
+            walk = np.vstack([np.asarray(xy, np.float64), route.path.polyline_xy[1:]])
+            path = GeodesicPath(walk, route.path.geodesic_m + s.step_m * actions.count(FORWARD),
+                                GeodesicPath.polyline_length(walk))
+            all_actions = np.concatenate([np.asarray(actions, np.uint8), route.actions])
+            return Route(path, all_actions, route_parts(all_actions, step_m=s.step_m, turn_deg=s.turn_deg))
+        return None
+
+    def _band_poses(self, pose) -> list[tuple[list[int], list[tuple[float, float]]]]:
+        """Poses in the clearance band reachable from ``pose`` in at most :data:`RECOVER_ACTIONS` turns and
+        collision-free steps, fewest actions first: ``(actions, positions walked through, start first)``; the
+        positions are simulated exactly as the agent moves (headings ``yaw + k * turn_deg``)."""
+        turn = np.deg2rad(self.settings.turn_deg)
+        n_headings = int(round(360.0 / self.settings.turn_deg))
+        start = (float(pose[0]), float(pose[1]))
+        seen = {(round(start[0], 4), round(start[1], 4), 0)}
+        frontier: list[tuple[int, list[int], list[tuple[float, float]]]] = [(0, [], [start])]
+        found = []
+        for _ in range(RECOVER_ACTIONS):
+            nxt = []
+            for k, actions, xy in frontier:
+                x, y = xy[-1]
+                for a in (FORWARD, LEFT, RIGHT):
+                    kk, pts = k, xy
+                    if a == FORWARD:
+                        yaw = float(pose[2]) + k * turn
+                        q = (x + self.settings.step_m * np.cos(yaw), y + self.settings.step_m * np.sin(yaw))
+                        if not self.planner.step_free(np.array([x, y]), np.array(q)):
+                            continue
+                        pts = xy + [q]
+                    else:
+                        kk = k + (1 if a == LEFT else -1)
+                    state = (round(pts[-1][0], 4), round(pts[-1][1], 4), kk % n_headings)
+                    if state in seen:
+                        continue
+                    seen.add(state)
+                    if a == FORWARD and self._in_band(pts[-1]):
+                        found.append((actions + [a], pts))
+                    else:
+                        nxt.append((kk, actions + [a], pts))
+            frontier = nxt
+        return found
+
+    def _in_band(self, xy) -> bool:
+        rc = self.crop_grid.world_to_cell(np.asarray(xy, np.float64))
+        return bool(self.crop_grid.inside(rc) and self.planner.plan_mask[rc[0], rc[1]])
 
     def geodesic(self, pose, target_mask: np.ndarray, *, key) -> float:
         """FMM distance (metres) from ``pose`` to the target region; inf when unreachable."""

@@ -60,9 +60,10 @@ class SceneContext:
         self.step_m, self.turn_deg, self.success_m = scene.action_space()
         self.world = World(self.navigable, self.grid, step_m=self.step_m, turn_deg=self.turn_deg)
         space = {"step_m": self.step_m, "turn_deg": self.turn_deg}
-        # the agents' goto_object stops within their own radius of a found object
+        # the agents' goto_object stops within their own radius of a found object; the agents' planners get an agent
+        # stranded off the clearance band back into it (orion_eval.nav)
         self.planner = NavPlanner(self.navigable, self.grid, RouteSettings.from_config(
-            task, **space, stop_radius_m=ep.goto_stop_radius_m))
+            task, **space, stop_radius_m=ep.goto_stop_radius_m), recover=True)
         # the user's procedural feedback is planned as the routes stage plans, into the stored goal region
         self.user_planner = NavPlanner(self.navigable, self.grid,
                                        RouteSettings.from_config(task, **space, stop_radius_m=0.0))
@@ -70,7 +71,7 @@ class SceneContext:
                                    distance_m=self.success_m, hfov_deg=task.hfov_deg, sight=self.sight)
         # route targets (pipeline.routes.region) are explicit cells: a zero stop radius keeps them as they are
         self.view_planner = NavPlanner(self.navigable, self.grid, RouteSettings.from_config(
-            task, **space, stop_radius_m=0.0))
+            task, **space, stop_radius_m=0.0), recover=True)
         self._map_cache: dict[tuple[str, str], list[MapObject]] = {}
         self._view_cache: dict[tuple, object] = {}
         self._det_cache: dict[tuple, list[Detection]] = {}
