@@ -145,3 +145,12 @@ def test_memory_keeps_names_apart():
     assert pos == [2] and neg == [1]
     assert mem.retrieve("Bob's chair") == ([1], [])
     assert np.isclose(np.linalg.norm(lexical_feature("a b")), 1.0)
+
+
+def test_the_agents_planners_recover_a_stranded_start_and_the_users_plans_as_the_routes_stage(tiny_scene):
+    """The agents' planners get an agent stranded off the clearance band back into it (orion_eval.nav); the
+    simulated user's procedural feedback is planned exactly as the routes stage plans, with no recovery, so what
+    the user says does not change with the agents' navigation."""
+    ctx, _, _ = _run(tiny_scene)
+    assert ctx.planner.recover and ctx.view_planner.recover
+    assert not ctx.user_planner.recover
