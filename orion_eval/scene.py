@@ -225,10 +225,15 @@ class SceneContext:
         episode in the same process happened to stand at."""
         return tuple(round(float(v) * 1e6) for v in pose)
 
+    @staticmethod
+    def view_pose(key: tuple[int, int, int]) -> tuple[float, float, float]:
+        """The pose a :meth:`view_key` names: where its view is rendered and its detections are made."""
+        return tuple(v * 1e-6 for v in key)
+
     def view(self, pose):
         k = self.view_key(pose)
         if k not in self._view_cache:
-            self._view_cache[k] = self.renderer.render(tuple(v * 1e-6 for v in k))
+            self._view_cache[k] = self.renderer.render(self.view_pose(k))
         return self._view_cache[k]
 
     @cached_property
@@ -267,7 +272,7 @@ class SceneContext:
         key = (self.view_key(pose), text, kind)
         if key in self._det_cache:
             return self._det_cache[key]
-        pose = tuple(v * 1e-6 for v in key[0])  # where the view is rendered (:meth:`view_key`)
+        pose = self.view_pose(key[0])
         ep, mp = self.params.eval, self.params.query
         v = self.view(pose)
         detector = self.saliency_detector if kind == "saliency" else self.detector

@@ -18,21 +18,17 @@ def test_every_command_has_help_with_an_example(capsys):
     walk(typer.main.get_command(app), "")
 
 
-def test_config_error_is_a_message_and_exit_1(tmp_path, capsys):
-    (tmp_path / "params.yaml").write_text("scenes:\n  s0: {source: simulate}\ningest:\n  block_frames: -1\n")
+@pytest.mark.parametrize("section, message", [
+    ("ingest:\n  block_frames: -1\n", "ingest.block_frames: Input should be greater than 0"),
+    ("reconstruct:\n  depth_stride: half\n",
+     "reconstruct.depth_stride: expected 'auto' or a whole number from 1 to 8, got 'half'"),
+])
+def test_config_error_is_a_message_and_exit_1(tmp_path, capsys, section, message):
+    (tmp_path / "params.yaml").write_text("scenes:\n  s0: {source: simulate}\n" + section)
     code = main(["--params", str(tmp_path / "params.yaml"), "status"])
     err = capsys.readouterr().err
     assert code == 1
-    assert "ingest.block_frames: Input should be greater than 0" in err
-    assert "Traceback" not in err
-
-
-def test_a_bad_depth_stride_is_one_message_and_exit_1(tmp_path, capsys):
-    (tmp_path / "params.yaml").write_text("scenes:\n  s0: {source: simulate}\nreconstruct:\n  depth_stride: half\n")
-    code = main(["--params", str(tmp_path / "params.yaml"), "status"])
-    err = capsys.readouterr().err
-    assert code == 1
-    assert "reconstruct.depth_stride: expected 'auto' or a whole number from 1 to 8, got 'half'" in err
+    assert message in err
     assert "Traceback" not in err
 
 
