@@ -165,22 +165,31 @@ class Modules:
         self.rotate(self.relative(obj_id)[1])
         return any(self._detects_at(obj_id, text) for text in sorted(self.objects[obj_id].texts) or [""])
 
-    def _detects_at(self, obj_id: int, text: str) -> bool:
+    def _detects_at(self, obj_id: int, text: str, own: bool = False) -> bool:
         """Whether the current ego view detects ``text`` at the object: a detection within 1 m of its centre or
-        on one of its cells."""
+        on one of its cells. ``own``: and no other object of the episode is nearer that detection (a detection is
+        the nearest known object's: a chair beside the goal seen as "chair" is that chair's sighting)."""
         e = self.objects[obj_id]
-        return any(np.linalg.norm(det.center_xy - e.center_xy) <= 1.0 or np.isin(det.cells, e.cells).any()
-                   for det in self.ctx.detect(self.pose, text, self.detector))
+        others = np.array([o.center_xy for o in self.objects.values() if o.obj_id != obj_id]).reshape(-1, 2)
+        for det in self.ctx.detect(self.pose, text, self.detector):
+            d = float(np.linalg.norm(det.center_xy - e.center_xy))
+            if not (d <= 1.0 or np.isin(det.cells, e.cells).any()):
+                continue
+            if own and len(others) and float(np.min(np.hypot(*(others - det.center_xy).T))) < d:
+                continue
+            return True
+        return False
 
     def check_attributes(self, obj_id: int, name: str, description: str) -> bool | None:
         """Face the object and read it with the ego-view detector: True when the view detects ``description``
         there, False when it detects ``name`` but not the description (the object is seen, and its colour or
-        material is not the described one), None when neither (not seen well enough to tell)."""
+        material is not the described one), None when neither (not seen well enough to tell). Only the object's
+        own sightings count: one nearer another object the agent knows of is that object's."""
         self.rotate(self.relative(obj_id)[1])
         self.run.log_event("verify", description)
-        if self._detects_at(obj_id, description):
+        if self._detects_at(obj_id, description, own=True):
             return True
-        return False if self._detects_at(obj_id, name) else None
+        return False if self._detects_at(obj_id, name, own=True) else None
 
     # ------------------------------------------------------------------ exploration
     def _explored_mask(self) -> np.ndarray:

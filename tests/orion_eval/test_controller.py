@@ -13,6 +13,7 @@ from pipeline.routes.actions import LEFT
 from pipeline.scene import Scene
 from stages import STAGES
 from orion_eval.episode import EpisodeRun, Task
+from orion_eval.modules import FoundObject
 from orion_eval.scene import SceneContext
 from orion_eval.user import SimulatedUser
 
@@ -187,7 +188,8 @@ def test_a_detectors_spin_looks_for_the_description_and_the_name(ctx):
 
 def test_a_detector_reads_the_described_colour_off_the_object_in_view(tiny_scene):
     """check_attributes with the simulated detector: seen as the goal's class with its own colour -> True; seen as
-    the class but with another colour -> False (passed over without a question)."""
+    the class but with another colour -> False (passed over without a question). Only the object's own sightings
+    count: with another known object nearer the sighting (a neighbour of the goal's class), neither (None)."""
     from orion_eval.world import Body
 
     ws, params = tiny_scene
@@ -219,6 +221,13 @@ def test_a_detector_reads_the_described_colour_off_the_object_in_view(tiny_scene
         readings.append((seen, right, wrong))
         if seen:  # one draw per view and object: seen as its class, it is seen with its own colour, not another
             assert right is True and wrong is False
+            sighting = next(d for d in ctx.detect(m.pose, obj.cls) if np.isin(d.cells, cells).any())
+            if np.linalg.norm(sighting.center_xy - m.objects[oid].center_xy) > 1e-3:
+                # another object known to be where the sighting is: the sighting is that object's, not the goal's
+                m.objects[2] = FoundObject(2, sighting.center_xy.copy(), sighting.cells, "detect")
+                assert m.check_attributes(oid, obj.cls, f"{other} {obj.cls}") is None
+                assert m.check_attributes(oid, obj.cls, f"{own} {obj.cls}") is None
+                del m.objects[2]
     assert any(r[0] for r in readings)
 
 
