@@ -198,7 +198,7 @@ def test_a_detector_reads_the_described_colour_off_the_object_in_view(tiny_scene
     assert ctx.detector is not None
 
     colours = ("red", "blue", "green", "white", "black", "yellow")
-    readings = []
+    readings, neighbours = [], 0
     for gi in range(len([g for g in ctx.scene.goals.goals if ctx.scene.routes.for_goal(g.id)])):
         goal, run, agent = episode(ctx, "orion", gi)
         obj = ctx.scene.goals.objects[goal.object_keys[0]]
@@ -228,7 +228,9 @@ def test_a_detector_reads_the_described_colour_off_the_object_in_view(tiny_scene
                 assert m.check_attributes(oid, obj.cls, f"{other} {obj.cls}") is None
                 assert m.check_attributes(oid, obj.cls, f"{own} {obj.cls}") is None
                 del m.objects[2]
+                neighbours += 1
     assert any(r[0] for r in readings)
+    assert neighbours, "no sighting away from the registered centre: the neighbour rule was not exercised"
 
 
 def test_an_explorer_searches_on_while_frontiers_are_left(tiny_scene):
