@@ -28,7 +28,7 @@ lines' (one scene, nothing else running). A stage's ``wall_s`` leaves out the ti
 process of the run.
 
 Each run's line also gives its wall time, frames/s over the whole batch, the largest worker's
-peak RSS (``ru_maxrss`` of the run's processes) and the wall time the same rate implies for the
+peak RSS (the workers' ``ru_maxrss`` and zipon's own ``VmHWM``) and the wall time the same rate implies for the
 paper's 14,159 frames (``--target-frames``), and the wall time its CPU seconds imply when the
 workers each have a core of their own (``projected_wall_min_if_cpu_bound``: CPU seconds per frame
 x target frames / workers; the figure for an otherwise idle machine, ignoring scene imbalance), and the wall time
@@ -105,9 +105,13 @@ def write_params(root: Path, scenes: int, frames: int, width: int, height: int) 
     return path
 
 
-ZIPON = ("import resource, sys; from zipon.cli import main; code = main(sys.argv[1:]); "
-         "kid = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss; me = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss; "
-         "print('PEAK_RSS_KB', max(kid, me), file=sys.stderr); sys.exit(code)")
+#: zipon's own peak is its VmHWM, not its ru_maxrss: Linux carries the resident memory of the process that forked
+#: it into an exec'd process's ru_maxrss (this benchmark held 3.4 GB of kernel timings when it started zipon, and
+#: zipon's ru_maxrss said 3,398 MB while its VmHWM was under 0.2 GB). Its workers are spawned from zipon's small
+#: main process, so their ru_maxrss (RUSAGE_CHILDREN) is their own.
+ZIPON = ("import resource, sys; from zipon.cli import main; from pipeline.process import peak_rss_mb; "
+         "code = main(sys.argv[1:]); kid = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss; "
+         "me = int(peak_rss_mb() * 1024); print('PEAK_RSS_KB', max(kid, me), file=sys.stderr); sys.exit(code)")
 
 
 def zipon(params: Path, *args: str) -> tuple[float, float]:
