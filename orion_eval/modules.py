@@ -170,14 +170,13 @@ class Modules:
         on one of its cells. ``own``: and no other object of the episode is nearer that detection (a detection is
         the nearest known object's: a chair beside the goal seen as "chair" is that chair's sighting)."""
         e = self.objects[obj_id]
-        others = np.array([o.center_xy for o in self.objects.values() if o.obj_id != obj_id]).reshape(-1, 2)
+        others = (np.array([o.center_xy for o in self.objects.values() if o.obj_id != obj_id]).reshape(-1, 2)
+                  if own else np.empty((0, 2)))
         for det in self.ctx.detect(self.pose, text, self.detector):
             d = float(np.linalg.norm(det.center_xy - e.center_xy))
-            if not (d <= 1.0 or np.isin(det.cells, e.cells).any()):
-                continue
-            if own and len(others) and float(np.min(np.hypot(*(others - det.center_xy).T))) < d:
-                continue
-            return True
+            if (d <= 1.0 or np.isin(det.cells, e.cells).any()) and not (
+                    len(others) and float(np.min(np.hypot(*(others - det.center_xy).T))) < d):
+                return True
         return False
 
     def check_attributes(self, obj_id: int, name: str, description: str) -> bool | None:

@@ -73,33 +73,37 @@ class NavPlanner:
         route = None
         if sub.any():
             end = None if end_mask is None else self.crop(end_mask)
-            try:
-                route = self.planner.route(pose, sub, key=key, face_xy=face, region=self.settings.stop_radius_m == 0,
-                                           end_mask=end)
-            except ValueError:  # descent stuck or action budget exceeded: treat as unreachable
-                route = None
+            route = self._plan(pose, sub, key=key, face=face, end=end)
             if route is None and self.recover:
                 route = self._recovered(pose, sub, key=key, face=face, end=end)
         self._routes[memo] = (route, end_mask)
         return route
 
+    @property
+    def _region(self) -> bool:
+        """Targets are explicit cells (a zero stop radius), not points to stop near."""
+        return self.settings.stop_radius_m == 0
+
+    def _plan(self, pose, sub: np.ndarray, *, key, face, end) -> Route | None:
+        """The planner's route on the cropped target ``sub``; None when unreachable (descent stuck or action budget
+        exceeded)."""
+        try:
+            return self.planner.route(pose, sub, key=key, face_xy=face, region=self._region, end_mask=end)
+        except ValueError:
+            return None
+
     def _recovered(self, pose, sub: np.ndarray, *, key, face, end) -> Route | None:
         """The route from the nearest pose in the clearance band (fewest actions away) from which one exists,
         with the actions that get there first; None when the target is out of reach on the navigable mask or
         no band pose within :data:`RECOVER_ACTIONS` has a route."""
-        region = self.settings.stop_radius_m == 0
         rc = self.crop_grid.world_to_cell(np.asarray(pose[:2], np.float64))
-        if not (self.crop_grid.inside(rc) and np.isfinite(self.planner.field(key, sub, "navigable", region=region)[
-                rc[0], rc[1]])):
+        if not (self.crop_grid.inside(rc) and np.isfinite(self.planner.field(key, sub, "navigable",
+                                                                             region=self._region)[rc[0], rc[1]])):
             return None
         for actions, xy in self._band_poses(pose)[:RECOVER_TRIES]:
             k = actions.count(LEFT) - actions.count(RIGHT)
             yaw = float(pose[2]) + k * np.deg2rad(self.settings.turn_deg)
-            try:
-                route = self.planner.route((xy[-1][0], xy[-1][1], yaw), sub, key=key, face_xy=face, region=region,
-                                           end_mask=end)
-            except ValueError:
-                route = None
+            route = self._plan((xy[-1][0], xy[-1][1], yaw), sub, key=key, face=face, end=end)
             if route is None:
                 continue
             s = self.settings
@@ -146,8 +150,7 @@ class NavPlanner:
         return found
 
     def _in_band(self, xy) -> bool:
-        rc = self.crop_grid.world_to_cell(np.asarray(xy, np.float64))
-        return bool(self.crop_grid.inside(rc) and self.planner.plan_mask[rc[0], rc[1]])
+        return self.planner._in(self.planner.plan_mask, xy)  # the routes planner's own cell test, on its band
 
     def geodesic(self, pose, target_mask: np.ndarray, *, key) -> float:
         """FMM distance (metres) from ``pose`` to the target region; inf when unreachable."""
