@@ -7,7 +7,8 @@ grounded detector and memory. The controller is scripted and deterministic (the 
 :mod:`orion_eval.llm` stays an option); it never asks which method it is, only which modules it has.
 
 Each turn it **thinks** (ranks candidates), **acts** (walks to the best one; a method with a detector
-double-checks a map candidate before asking) and **asks** ("Is this X?"). The user's reply changes what it
+double-checks a map candidate before asking, once the map has been wrong for several turns:
+:attr:`ModularAgent.double_check_after`) and **asks** ("Is this X?"). The user's reply changes what it
 searches for and where, through the same rules for every method:
 
 - *yes/no*: the place is rejected (and, with memory, remembered as not the goal);
@@ -89,6 +90,7 @@ class SearchState:
     spin_then: np.ndarray | None = None  # where it looks around next when that spin sees nothing (a landmark)
     spotted: list = field(default_factory=list)  # detections of the query from that look-around, nearest first
     landmarks: dict = field(default_factory=dict)  # landmark phrase -> (K,2) places found (or None: not found)
+    map_wrong: int = 0  # map candidates the user has said "No" to (ModularAgent.double_check_after)
 
     @property
     def queries(self) -> list[str]:
@@ -109,6 +111,11 @@ class ModularAgent(Agent):
     """The one controller (see the module docstring); a subclass declares its :attr:`modules`."""
 
     modules: ModuleSet = ModuleSet()
+    #: map candidates the user must reject before a method with a detector double-checks the map's candidates in
+    #: the ego view: it trusts its map until the map has been wrong "for several turns" (the paper's account of its
+    #: LLM controller, Sec. V: it turns to ``double_check`` and ``search_object`` when the map provides wrong objects
+    #: for several turns); until then it asks about the map's candidate, as a method without a detector does
+    double_check_after = 2
 
     def map_name(self) -> str | None:
         which = self.modules.map
@@ -188,7 +195,8 @@ class ModularAgent(Agent):
                 st.rejected.append(m.objects[oid].center_xy)
                 continue
             from_map = m.objects[oid].source in ("vlmap", "cfmap")
-            if mods.detector and from_map and oid not in st.deferred and not m.double_check(oid):
+            checks = mods.detector and from_map and st.map_wrong >= self.double_check_after
+            if checks and oid not in st.deferred and not m.double_check(oid):
                 st.deferred.add(oid)
                 continue
             if mods.detector and st.description and m.check_attributes(oid, st.name, st.description) is False:
@@ -215,6 +223,8 @@ class ModularAgent(Agent):
         """Change the search after a "No" (the same rules for every method; see the module docstring)."""
         if self.modules.memory:
             m.update_memory(oid, fb.corrected_as, goal_name)
+        if m.objects[oid].source in ("vlmap", "cfmap"):
+            st.map_wrong += 1
         st.spotted = [i for i in st.spotted if i != oid]
         if fb.description:
             st.description = fb.description

@@ -307,3 +307,31 @@ def test_after_a_route_a_detector_looks_around_its_end_before_the_landmark(ctx):
     assert far or st.spotted or np.hypot(*(st.focus[1][0] - end)) <= ctx.params.eval.reject_radius_m
     if far:
         assert run.body.actions[-turns:] == [LEFT] * turns
+
+
+def test_the_map_is_trusted_until_it_has_been_wrong_for_several_turns(ctx):
+    """ORION asks about its map's candidate as VLMap does; only once the user has rejected
+    ``double_check_after`` of the map's candidates does it double-check them in the ego view before asking."""
+    goal, run, agent = episode(ctx, "orion")
+    m = run.modules
+    checked = []
+    real = m.double_check
+    m.double_check = lambda oid: checked.append(oid) or real(oid)
+    st = SearchState(name=goal.name)
+    first = agent.next_candidate(m, st, goal.name)
+    assert checked == [] and m.objects[first].source == agent.map_name()  # asked about as the map gave it
+    agent.update(m, st, ParsedFeedback(), first, goal.name)
+    assert st.map_wrong == 1  # the user said "No" to the map's candidate
+    # a rejected detection is not the map's mistake
+    seen = m.register(np.array([-50.0, -50.0]), np.array([0]), "detect")
+    agent.update(m, st, ParsedFeedback(), seen, goal.name)
+    assert st.map_wrong == 1
+    assert agent.double_check_after == 2
+    _, run, agent = episode(ctx, "orion")  # a fresh episode (the "No" above is in this one's memory)
+    m, real = run.modules, run.modules.double_check
+    m.double_check = lambda oid: checked.append(oid) or real(oid)
+    st2 = SearchState(name=goal.name, map_wrong=agent.double_check_after)
+    again = agent.next_candidate(m, st2, goal.name)
+    # wrong twice: the map's first candidate (the same one: ids follow the map's order) is double-checked first
+    assert checked and checked[0] == first
+    assert again == first or first in st2.deferred
