@@ -9,8 +9,9 @@ One :class:`Modules` per episode, on top of the scene's shared :class:`~orion_ev
   ray-cast from the reconstructed mesh, with the agent's detector (:attr:`Modules.detector`: ORION's grounded
   one or CoW's CLIP saliency); ``double_check(obj_id) -> bool``; ``check_attributes(obj_id, name, description)``
   (does the object in view have the described colour / material);
-- exploration: ``search_object(obj_str) -> obj_id | None`` (spin first, then frontiers; ``search_objects``
-  for several things at once); a spin is remembered where it was made (no steps to repeat it there);
+- exploration: ``search_object(obj_str) -> obj_id | None`` (spin first, then frontiers, the view ahead watched
+  every :data:`WATCH_STEPS` forward steps on the way; ``search_objects`` for several things at once); a spin is
+  remembered where it was made (no steps to repeat it there);
 - memory: ``update_memory(obj_id, pos_str, neg_str)``, ``retrieve_memory(obj_str) -> [(obj_id, d, a)]``;
 - interaction: ``talk(content) -> str`` (the user's reply).
 
@@ -34,6 +35,9 @@ from orion_eval.memory import MemoryMaps
 from pipeline.routes.actions import FORWARD, LEFT, RIGHT, wrap_angle
 
 MERGE_M = 0.6
+#: while exploring, the detector looks at the view ahead every this many forward steps (ORION's exploration
+#: "perceives on-the-fly" on the way to each frontier, as CoW's detector runs on its observations)
+WATCH_STEPS = 4
 
 
 def new_memory(ctx) -> MemoryMaps:
@@ -110,21 +114,28 @@ class Modules:
         for _ in range(abs(n)):
             self.run.act(LEFT if n > 0 else RIGHT)
 
-    def _follow(self, route) -> bool:
+    def _follow(self, route, watch=None) -> bool:
+        """Walk ``route``'s actions; ``watch()`` is called after every :data:`WATCH_STEPS` th forward step and stops
+        the walk when it returns True."""
         if route is None:
             return False
+        forward = 0
         for a in route.actions.tolist():
             if a == 0:
                 break
             self.run.act(a)
+            if watch is not None and a == FORWARD:
+                forward += 1
+                if forward % WATCH_STEPS == 0 and watch():
+                    break
         return True
 
-    def goto_point(self, xy) -> bool:
-        """Walk to (near) a world point; False when unreachable."""
+    def goto_point(self, xy, watch=None) -> bool:
+        """Walk to (near) a world point; False when unreachable. ``watch``: see :meth:`_follow`."""
         mask = self.ctx.planner.point_mask(xy)
         rc = self.ctx.grid.world_to_cell(np.asarray(xy, np.float64))
         route = self.ctx.planner.route(self.pose, mask, key=("pt", int(rc[0]), int(rc[1])), face_xy=None)
-        return self._follow(route)
+        return self._follow(route, watch)
 
     def goto_object(self, obj_id: int) -> bool:
         """Walk into the object's goal region (the routes module's definition: within the success distance of
@@ -258,17 +269,30 @@ class Modules:
         obj_id)`` of the first of ``obj_strs`` (in their order) seen at the first place any was, or None;
         ``skip`` maps an obj_str to the test of detections of it to pass over (none: keep all)."""
         skip = skip or {}
+        keep = lambda s, hits: [t for t in hits if not skip.get(s, lambda obj_id: False)(t[0])]  # noqa: E731
         for _ in range(self.ctx.params.eval.explore_max_targets):
             seen = self.look_around_for(obj_strs)
             for s in obj_strs:
-                hits = [t for t in seen[s] if not skip.get(s, lambda obj_id: False)(t[0])]
+                hits = keep(s, seen[s])
                 if hits:
                     return s, hits[0][0]
             target = self.frontier()
             if target is None:
                 return None
-            if not self.goto_point(target):
+            found: list = []
+
+            def watch() -> bool:
+                for s in obj_strs:
+                    hits = keep(s, self.detect_object(s))
+                    if hits:
+                        found.append((s, hits[0][0]))
+                        return True
+                return False
+
+            if not self.goto_point(target, watch):
                 self._explored_mask()[tuple(self.ctx.planner.crop_grid.world_to_cell(target))] = True
+            if found:
+                return found[0]
         return None
 
     # ------------------------------------------------------------------ memory

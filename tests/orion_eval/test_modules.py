@@ -10,6 +10,7 @@ from orion_eval.episode import EpisodeRun, Task
 from orion_eval.memory import MemoryMaps
 from orion_eval.scene import SceneContext
 from orion_eval.user import SimulatedUser
+from pipeline.routes.actions import FORWARD
 
 
 def _run(tiny_scene, goal_index=0):
@@ -154,3 +155,30 @@ def test_the_agents_planners_recover_a_stranded_start_and_the_users_plans_as_the
     ctx, _, _ = _run(tiny_scene)
     assert ctx.planner.recover and ctx.view_planner.recover
     assert not ctx.user_planner.recover
+
+
+def test_exploration_watches_the_view_ahead_on_the_way_to_a_frontier(tiny_scene):
+    """The detector perceives on the fly while exploring: every WATCH_STEPS forward steps of a walk it looks at the
+    view ahead, and a hit ends the walk there (no spin needed at the frontier)."""
+    from orion_eval.modules import WATCH_STEPS
+
+    ctx, goal, run = _run(tiny_scene)
+    m = run.modules
+    calls = []
+    start = np.asarray(m.pose[:2])
+    far = max((np.asarray(p) for p in ctx.planner.crop_grid.cell_to_world(
+        np.argwhere(ctx.planner.planner.plan_mask))), key=lambda p: float(np.hypot(*(p - start))))
+    assert m.goto_point(far, watch=lambda: calls.append(run.body.steps) or len(calls) == 2)
+    forwards = [a for a in run.body.actions if a == FORWARD]
+    assert len(calls) == 2 and len(forwards) == 2 * WATCH_STEPS  # stopped at the second look, short of the point
+    assert float(np.hypot(*(np.asarray(m.pose[:2]) - far))) > 1.0
+    # search_objects uses it: besides its spins' four views each, it looks at the views ahead on its walks
+    ctx2, goal2, run2 = _run(tiny_scene)
+    m2 = run2.modules
+    looks, spins = [], []
+    detect, spin = m2.detect_object, m2.look_around_for
+    m2.detect_object = lambda s: looks.append(s) or detect(s)
+    m2.look_around_for = lambda strs: spins.append(run2.body.steps) or spin(strs)
+    assert m2.search_objects(["bicycle"]) is None  # nothing of the kind anywhere: every frontier target is walked to
+    new_spins = len({round(x, 6) for x in spins})
+    assert len(looks) > 4 * new_spins
