@@ -266,10 +266,14 @@ class Modules:
 
     def search_objects(self, obj_strs: list[str], skip: dict | None = None) -> tuple[str, int] | None:
         """:meth:`search_object` for several things at once (every spin detects all of them): ``(obj_str,
-        obj_id)`` of the first of ``obj_strs`` (in their order) seen at the first place any was, or None;
+        obj_id)`` of the first of ``obj_strs`` (in their order) seen at the first place any was (in a spin, or in
+        a look at the view ahead every :data:`WATCH_STEPS` forward steps on the way to a frontier), or None;
         ``skip`` maps an obj_str to the test of detections of it to pass over (none: keep all)."""
         skip = skip or {}
-        keep = lambda s, hits: [t for t in hits if not skip.get(s, lambda obj_id: False)(t[0])]  # noqa: E731
+
+        def keep(s: str, hits: list) -> list:
+            return [t for t in hits if not skip.get(s, lambda obj_id: False)(t[0])]
+
         for _ in range(self.ctx.params.eval.explore_max_targets):
             seen = self.look_around_for(obj_strs)
             for s in obj_strs:
