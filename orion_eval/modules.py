@@ -57,6 +57,11 @@ class FoundObject:
     score: float = 0.0
     texts: set = field(default_factory=set)
 
+    @property
+    def from_map(self) -> bool:
+        """Found by a semantic map's retrieval (first registered from the vlmap or the cfmap)."""
+        return self.source in ("vlmap", "cfmap")
+
 
 class Modules:
     """The ORION API for one episode (see the module docstring)."""
@@ -274,6 +279,16 @@ class Modules:
         def keep(s: str, hits: list) -> list:
             return [t for t in hits if not skip.get(s, lambda obj_id: False)(t[0])]
 
+        found: list = []  # what a look on the way to a frontier saw
+
+        def watch() -> bool:
+            for s in obj_strs:
+                hits = keep(s, self.detect_object(s))
+                if hits:
+                    found.append((s, hits[0][0]))
+                    return True
+            return False
+
         for _ in range(self.ctx.params.eval.explore_max_targets):
             seen = self.look_around_for(obj_strs)
             for s in obj_strs:
@@ -283,16 +298,6 @@ class Modules:
             target = self.frontier()
             if target is None:
                 return None
-            found: list = []
-
-            def watch() -> bool:
-                for s in obj_strs:
-                    hits = keep(s, self.detect_object(s))
-                    if hits:
-                        found.append((s, hits[0][0]))
-                        return True
-                return False
-
             if not self.goto_point(target, watch):
                 self._explored_mask()[tuple(self.ctx.planner.crop_grid.world_to_cell(target))] = True
             if found:

@@ -194,8 +194,7 @@ class ModularAgent(Agent):
             if not m.goto_object(oid):
                 st.rejected.append(m.objects[oid].center_xy)
                 continue
-            from_map = m.objects[oid].source in ("vlmap", "cfmap")
-            checks = mods.detector and from_map and st.map_wrong >= self.double_check_after
+            checks = mods.detector and m.objects[oid].from_map and st.map_wrong >= self.double_check_after
             if checks and oid not in st.deferred and not m.double_check(oid):
                 st.deferred.add(oid)
                 continue
@@ -223,7 +222,7 @@ class ModularAgent(Agent):
         """Change the search after a "No" (the same rules for every method; see the module docstring)."""
         if self.modules.memory:
             m.update_memory(oid, fb.corrected_as, goal_name)
-        if m.objects[oid].source in ("vlmap", "cfmap"):
+        if m.objects[oid].from_map:
             st.map_wrong += 1
         st.spotted = [i for i in st.spotted if i != oid]
         if fb.description:

@@ -166,8 +166,8 @@ def test_exploration_watches_the_view_ahead_on_the_way_to_a_frontier(tiny_scene)
     m = run.modules
     calls = []
     start = np.asarray(m.pose[:2])
-    far = max((np.asarray(p) for p in ctx.planner.crop_grid.cell_to_world(
-        np.argwhere(ctx.planner.planner.plan_mask))), key=lambda p: float(np.hypot(*(p - start))))
+    cells = ctx.planner.crop_grid.cell_to_world(np.argwhere(ctx.planner.planner.plan_mask))
+    far = cells[int(np.argmax(np.hypot(*(cells - start).T)))]  # the navigable place farthest from the start
     assert m.goto_point(far, watch=lambda: calls.append(run.body.steps) or len(calls) == 2)
     forwards = [a for a in run.body.actions if a == FORWARD]
     assert len(calls) == 2 and len(forwards) == 2 * WATCH_STEPS  # stopped at the second look, short of the point
