@@ -14,16 +14,16 @@ searches for and where, through the same rules for every method:
 - *yes/no*: the place is rejected (and, with memory, remembered as not the goal);
 - *corrective* ("This is Bob's chair, not Alice's chair."): only memory can use it: the object is remembered
   as what the user called it, which helps when a later goal of the scene is that object;
-- *descriptive* ("It is a red chair made of wood."): the description narrows the name, it does not replace
-  it: every spin and exploration of a detector looks for both (what is seen as the description is tried
-  first, what is seen only as the name after it), and the map's candidates of the description are tried
-  before those of the goal's name; a method with a detector also verifies each candidate with it before
-  asking, as the paper's controller filters detections by the description: standing at the candidate, an
-  object its detector sees as the goal's name but not as the description (another colour or material) is
-  passed over without a question and the search goes on
-  (:meth:`~orion_eval.modules.Modules.check_attributes`). What it adds is what the method perceives: an
-  ego-view detector reads colour and material off the object in view; a map keeps only what its fused
-  features kept;
+- *descriptive* ("It is a red chair made of wood."): the description is a detector's prompt, never a map query
+  (the map is asked for the goal's name, as the paper's reference code asks it for the target noun): it narrows
+  the name, it does not replace it: every spin and exploration of a detector looks for both (what is seen as
+  the description is tried first, what is seen only as the name after it); a method with a detector also
+  verifies each candidate with it before asking, as the paper's controller filters detections by the
+  description: standing at the candidate, an object its detector sees as the goal's name but not as the
+  description (another colour or material) is passed over without a question and the search goes on
+  (:meth:`~orion_eval.modules.Modules.check_attributes`). So a description helps what reads the ego view (the
+  paper: detection "maintains the fine-grained visual semantics", a map "may lose these nuances"); a method
+  with only a map gains nothing from it;
 - *landmark* ("It is next to the bed."): the landmarks are located with the method's own modules (map
   retrieval, else a detector's spin that looks for the landmarks and the goal at once, then exploration
   watching for both; each landmark once per episode) and the goal is searched near them: map candidates
@@ -34,12 +34,11 @@ searches for and where, through the same rules for every method:
   point is walked to) and the goal is searched there: map candidates nearest the end first, a
   detector's spin there first;
 - *mixed*: the kinds combine rather than follow one another: the description and the name are the queries
-  of every spin and map look-up (the description's first), the route's end picks which instance of each
-  landmark is meant (the one nearest it), a detector looks around at the route's end first, as the route alone
-  would (without a map, that spin looks for the landmarks and the goal together), and around the landmark only
-  when it saw nothing there, and the map's candidates of the description and of the name form one list ranked
-  by distance to the route's end (in whole metres: the route is not precise), then by the landmarks, the
-  description's candidates first among equals.
+  of every spin (the description's first), the route's end picks which instance of each landmark is meant (the
+  one nearest it), a detector looks around at the route's end first, as the route alone would (without a map,
+  that spin looks for the landmarks and the goal together), and around the landmark only when it saw nothing
+  there, and the map's candidates of the name are ranked by distance to the route's end (in whole metres: the
+  route is not precise), then by the landmarks.
 
 A spin is remembered where it was made (:meth:`~orion_eval.modules.Modules.look_around_for`): looking
 around again there for the same thing costs no steps.
@@ -94,9 +93,10 @@ class SearchState:
 
     @property
     def queries(self) -> list[str]:
-        """What the map and the detector are asked for, in order: the description (once given), then the name.
-        The description narrows the name, it does not replace it: what is seen as the name but not read as the
-        description is still a candidate, after the described ones (and a detector then checks its attributes)."""
+        """What the detector is asked for, in order: the description (once given), then the name (the map is asked
+        for the name only: :meth:`ModularAgent.map_candidates`). The description narrows the name, it does not
+        replace it: what is seen as the name but not read as the description is still a candidate, after the
+        described ones (and the detector then checks its attributes)."""
         return [self.description, self.name] if self.description else [self.name]
 
     def focus_distance(self, xy) -> float:
@@ -141,7 +141,7 @@ class ModularAgent(Agent):
     def ranked(self, m, st: SearchState, ids: list[int], first: set = frozenset()) -> list[int]:
         """Nearest the hints first (the agent's distance breaks ties; without hints: nearest the agent). After a
         route, the distance to its end comes first, in whole metres (the route is not precise), then the hints
-        (the landmarks say where within that metre), then ``first`` (the description's candidates)."""
+        (the landmarks say where within that metre), then ``first`` (what was seen as the description)."""
         def key(i: int):
             xy = m.objects[i].center_xy
             end = 0 if st.route_end is None else round(float(np.hypot(*(xy - st.route_end))))
@@ -149,13 +149,12 @@ class ModularAgent(Agent):
         return sorted(ids, key=key)
 
     def map_candidates(self, m, st: SearchState, which: str) -> list[int]:
-        """The map's candidates of the description, then of the name, each nearest the hints first; after a route,
-        one list: the route's end says where the goal is, the description which one it is there."""
-        lists = [[t[0] for t in m.retrieve_map(q, which)] for q in st.queries]
-        if st.route_end is None:
-            return [i for ids in lists for i in self.ranked(m, st, ids)]
-        described = set(lists[0]) if st.description else set()
-        return self.ranked(m, st, list(dict.fromkeys(i for ids in lists for i in ids)), described)
+        """The map's candidates of the goal's name, nearest the hints first. The map is asked for the name only, never
+        for the description: the paper's ``retrieve_map`` / ``retrieve_memory`` take the target's name (its
+        reference code queries the map with the target noun and gives the description, a short prompt, to
+        ``detect_object``, ``search_object`` and ``double_check`` alone), so a description reaches a map method only
+        through a detector it may have."""
+        return self.ranked(m, st, [t[0] for t in m.retrieve_map(st.name, which)])
 
     def next_candidate(self, m, st: SearchState, goal_name: str) -> int | None:
         """Walk to the next object worth asking about and return its id; None when nothing is left."""

@@ -148,14 +148,19 @@ def test_a_route_picks_the_landmark_instance_at_its_end(ctx):
     assert len(alone.focus) == 1 and len(alone.focus[0]) == len(every)  # without a route: every instance
 
 
-def test_a_description_narrows_the_query(ctx):
+def test_a_description_is_the_detectors_prompt_not_a_map_query(ctx):
+    """As in the paper's reference code, the map is asked for the goal's name only; the description goes to the
+    detector (its spins look for the description, then the name). A method with only a map gains nothing from it."""
     goal, run, agent = episode(ctx, "cf")
     m = run.modules
     st = SearchState(name=goal.name)
     oid = m.retrieve_map(goal.name, "cfmap")[0][0]
+    before = agent.map_candidates(m, st, "cfmap")
     agent.update(m, st, ParsedFeedback(description="red chair made of wood"), oid, goal.name)
     assert run.body.steps == 0
-    assert st.queries == ["red chair made of wood", goal.name]  # the description's candidates, then the name's
+    assert st.queries == ["red chair made of wood", goal.name]  # what a detector looks for, the description first
+    assert agent.map_candidates(m, st, "cfmap") == before
+    assert ("cfmap", "red chair made of wood") not in ctx._map_cache  # the map was never asked for the description
 
 
 def test_a_detectors_spin_looks_for_the_description_and_the_name(ctx):
@@ -266,7 +271,7 @@ def test_after_a_route_the_map_candidates_rank_by_distance_to_its_end(ctx):
     assert np.allclose(st.route_end, m.pose[:2])
     ids = agent.map_candidates(m, st, "vlmap")
     ends = [round(float(np.hypot(*(m.objects[i].center_xy - st.route_end)))) for i in ids]
-    assert ids and ends == sorted(ends)  # one list of both queries' candidates, the route's end first
+    assert ids and ends == sorted(ends)  # the name's candidates, the route's end first
     assert set(ids) >= {t[0] for t in m.retrieve_map(goal.name, "vlmap")}
 
 
