@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/check_findings.py --workspace /tmp/findings --scenes 3   # builds, then evaluates
     .venv/bin/python benchmarks/check_findings.py --workspace /tmp/findings --scenes 10 --seeds 5
+    .venv/bin/python benchmarks/check_findings.py --workspace /tmp/findings --scenes 10 --ablations
 
 The scenes ``findings_00``... are fresh procedural apartments that no test, demo or other benchmark uses
 (their own names and ``simulate.seed`` 2027), built once with the batch pipeline (untimed; a second call
@@ -13,6 +14,11 @@ Prints the SR / SPL / SIT tables next to the paper's Table I (single feedback) a
 Spearman rank correlation and the mean absolute difference over the 28 method x setting cells, and the
 paper's findings (1)-(6) as holds / does not hold with the figures. Every figure has a 95 % interval from a
 bootstrap over goals (a goal's episodes, all seeds and settings, resampled together; ``--boot`` draws).
+
+``--ablations`` also evaluates ORION's ablations in the mixed setting (ORION without its memory, exploration,
+detector or map: the same controller with that module left out, :mod:`orion_eval.agents.orion`) and prints them
+next to the paper's Table II (lower part), with the paper's reading of them as holds / does not hold: every module
+removed costs SR, the map the most, the memory the least.
 """
 
 from __future__ import annotations
@@ -53,6 +59,13 @@ PAPER = {
               "descriptive": (63.7, 37.4, 44.2), "landmark": (69.5, 40.1, 46.8), "procedural": (80.3, 51.1, 52.8),
               "mixed": (83.8, 56.6, 53.5)},
 }
+
+
+#: the ORION paper, Table II's lower part: ORION and its ablations in the mixed setting, (SR, SPL, SIT) percent
+PAPER_ABLATIONS = {"orion": (83.8, 56.6, 53.5), "orion_wo_mem": (81.2, 54.8, 51.2), "orion_wo_exp": (75.9, 51.6, 49.7),
+                   "orion_wo_det": (72.5, 47.7, 42.2), "orion_wo_map": (69.2, 37.5, 41.3)}
+ABLATION_NAMES = {"orion": "ORION", "orion_wo_mem": "w/o mem", "orion_wo_exp": "w/o exp", "orion_wo_det": "w/o det",
+                  "orion_wo_map": "w/o map"}
 
 
 def paper_tables() -> dict[str, np.ndarray]:
@@ -192,6 +205,64 @@ def print_report(res: dict, cells: Cells, draws: int) -> dict:
             "methods": list(METHODS), "settings": list(SETTINGS)}
 
 
+def ablation_figures(episodes: list[dict], draws: int, seed: int = 0) -> dict:
+    """ORION and its ablations in the mixed setting: ``{"rows": {method: (SR, SPL, SIT)}, "drops": {method: SR drop
+    from ORION}, "intervals": {method: (lo, hi) of the drop}, "findings": [(text, holds, detail)]}``. The drops'
+    95 % intervals come from a bootstrap over goals (each goal's episodes of every method resampled together)."""
+    methods = [m for m in PAPER_ABLATIONS if any(e["method"] == m and e["feedback"] == "mixed" for e in episodes)]
+    if "orion" not in methods or len(methods) < 2:
+        raise ValueError("the ablation report needs ORION's and at least one ablation's mixed episodes")
+    goals = sorted({(e["scene"], e["goal"]) for e in episodes if e["method"] in methods and e["feedback"] == "mixed"})
+    gi = {g: i for i, g in enumerate(goals)}
+    sums, counts = np.zeros((len(goals), len(methods), len(METRICS))), np.zeros((len(goals), len(methods)))
+    for e in episodes:
+        if e["method"] in methods and e["feedback"] == "mixed":
+            i, j = gi[(e["scene"], e["goal"])], methods.index(e["method"])
+            counts[i, j] += 1
+            sums[i, j] += [float(e[_KEY[k]]) for k in METRICS]
+
+    def table(w: np.ndarray) -> np.ndarray:  # (methods, metrics) percent, goals weighted by w
+        return 100.0 * np.tensordot(w, sums, axes=1) / np.maximum(np.tensordot(w, counts, axes=1), 1)[:, None]
+
+    t = table(np.ones(len(goals)))
+    rng = np.random.default_rng(seed)
+    boot = np.array([table(np.bincount(rng.integers(0, len(goals), len(goals)), minlength=len(goals)).astype(float))
+                     for _ in range(draws)])  # (draws, methods, metrics)
+    drop_draws = boot[:, :1, 0] - boot[:, :, 0]
+    rows = {m: tuple(float(v) for v in t[j]) for j, m in enumerate(methods)}
+    drops = {m: float(t[0, 0] - t[j, 0]) for j, m in enumerate(methods) if m != "orion"}
+    intervals = {m: (float(np.percentile(drop_draws[:, j], 2.5)), float(np.percentile(drop_draws[:, j], 97.5)))
+                 for j, m in enumerate(methods) if m != "orion"}
+    per = ", ".join(f"{ABLATION_NAMES[m]} {d:+.1f}" for m, d in drops.items())
+    out = [("(A1) every module taken away costs SR (ORION - ablation > 0)", all(d > 0 for d in drops.values()),
+            f"SR drops {per}")]
+    if "orion_wo_map" in drops:
+        others = [d for m, d in drops.items() if m != "orion_wo_map"]
+        out.append(("(A2) taking the map away costs the most", all(drops["orion_wo_map"] > d for d in others),
+                    f"w/o map {drops['orion_wo_map']:+.1f}, the others' largest {max(others, default=float('nan')):+.1f}"))
+    if "orion_wo_mem" in drops:
+        others = [d for m, d in drops.items() if m != "orion_wo_mem"]
+        out.append(("(A3) taking the memory away costs the least", all(drops["orion_wo_mem"] < d for d in others),
+                    f"w/o mem {drops['orion_wo_mem']:+.1f}, the others' smallest {min(others, default=float('nan')):+.1f}"))
+    return {"rows": rows, "drops": drops, "intervals": intervals, "findings": out}
+
+
+def print_ablations(episodes: list[dict], draws: int) -> dict:
+    a = ablation_figures(episodes, draws)
+    print("\nORION's ablations, mixed feedback  (ours / paper, Table II lower part)")
+    print(f"{'':10}" + "".join(f"{m:>14}" for m in METRICS) + f"{'SR drop':>16}")
+    for m, row in a["rows"].items():
+        paper = PAPER_ABLATIONS[m]
+        drop = "" if m == "orion" else (f"{a['drops'][m]:+6.1f}/{PAPER_ABLATIONS['orion'][0] - paper[0]:<+5.1f}"
+                                        f" [{a['intervals'][m][0]:.1f}, {a['intervals'][m][1]:.1f}]")
+        print(f"{ABLATION_NAMES[m]:10}" + "".join(f"{v:7.1f}/{p:<6.1f}" for v, p in zip(row, paper)) + f"  {drop}")
+    print()
+    for text, holds, detail in a["findings"]:
+        print(f"{'HOLDS   ' if holds else 'DOES NOT'} {text}\n         {detail}")
+    return {"rows": a["rows"], "drops": a["drops"], "intervals": a["intervals"],
+            "findings": [{"finding": t, "holds": h, "detail": d} for t, h, d in a["findings"]]}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--workspace", type=Path, default=Path("/tmp/findings"), help="folder for the fresh scenes")
@@ -204,10 +275,14 @@ def main() -> None:
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     ap.add_argument("--results", type=Path, default=None,
                     help="report on an earlier run's results.json instead of building and evaluating")
+    ap.add_argument("--ablations", action="store_true",
+                    help="also evaluate ORION's ablations in the mixed setting and compare them with the paper's")
     args = ap.parse_args()
     if args.results:
         res = json.loads(args.results.read_text())
         doc = print_report(res, Cells(res["episodes"]), args.boot)
+        if args.ablations:
+            doc["ablations"] = print_ablations(res["episodes"], args.boot)
         if args.json:
             args.json.write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
         return
@@ -218,6 +293,12 @@ def main() -> None:
                    feedback=list(FEEDBACK_SETTINGS), seeds=list(range(args.seeds)), progress=False, report=False)
     emit(bench="findings", figure="run", episodes=res["run"]["episodes"], seconds=res["run"]["seconds"])
     doc = print_report(res, Cells(res["episodes"]), args.boot)
+    if args.ablations:
+        abl = evaluate(ws, params, STAGES, args.workspace / "eval_ablations", scenes=list(params.scenes),
+                       methods=[m for m in PAPER_ABLATIONS if m != "orion"], feedback=["mixed"],
+                       seeds=list(range(args.seeds)), progress=False, report=False)
+        emit(bench="findings", figure="ablations", episodes=abl["run"]["episodes"], seconds=abl["run"]["seconds"])
+        doc["ablations"] = print_ablations(res["episodes"] + abl["episodes"], args.boot)
     if args.json:
         args.json.write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
 

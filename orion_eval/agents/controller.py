@@ -45,7 +45,9 @@ around again there for the same thing costs no steps.
 
 Without anything left to try, a method that explores searches the frontiers with its detector, for as long
 as frontiers are left and its search still moves it (``eval.explore_max_targets`` bounds one search, not the
-episode: giving up with unexplored rooms left would waste the step budget); one that cannot explore gives up.
+episode: giving up with unexplored rooms left would waste the step budget); one with a detector and no exploration
+looks around where it stands (the paper's "ORION w/o exp" keeps the 360° spin) and gives up when that shows nothing
+new; one without a detector gives up.
 """
 
 from __future__ import annotations
@@ -175,7 +177,14 @@ class ModularAgent(Agent):
             todo = list(dict.fromkeys(i for i in todo if not skip(i)))
             todo = [i for i in todo if i not in st.deferred] + [i for i in todo if i in st.deferred]
             if not todo:
-                if not (mods.detector and mods.explore):
+                if mods.detector and not mods.explore:
+                    # no exploration: one look around where it stands (remembered there: no steps to repeat it)
+                    seen = m.look_around_for(st.queries)
+                    st.spotted = self.ranked(m, st, list(dict.fromkeys(t[0] for q in st.queries for t in seen[q] if not skip(t[0]))))
+                    if st.spotted:
+                        continue
+                    return None
+                if not mods.detector:
                     return None
                 steps = m.run.body.steps
                 hit = m.search_objects(st.queries, dict.fromkeys(st.queries, skip))

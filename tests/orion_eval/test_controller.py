@@ -2,6 +2,7 @@
 rules, through the modules a method has."""
 
 import math
+from dataclasses import astuple
 
 import numpy as np
 import pytest
@@ -34,12 +35,40 @@ def episode(ctx, method="orion", goal_index=0):
 
 def test_baselines_are_module_subsets_of_one_controller():
     mods = {name: cls.modules for name, cls in AGENTS.items() if issubclass(cls, ModularAgent)}
-    assert set(mods) == {"cow", "vlmap", "cf", "orion"}
+    ablations = {"orion_wo_mem", "orion_wo_exp", "orion_wo_det", "orion_wo_map"}
+    assert set(mods) == {"cow", "vlmap", "cf", "orion"} | ablations
     assert all(AGENTS[n].run is ModularAgent.run for n in mods)  # one policy, no per-method override
     assert mods["cow"] == ModuleSet(detector="saliency", explore=True)
     assert mods["vlmap"] == ModuleSet(map="vlmap") and mods["cf"] == ModuleSet(map="cfmap")
     assert mods["orion"] == ModuleSet(map="orion", detector="grounded", explore=True, memory=True)
     assert mods["cow"].describe() == "no map, saliency detection, exploration, no memory"
+    # ORION's ablations (the paper's Table II): ORION's set with one module taken away (the detector: CoW's CLIP one),
+    # evaluated only when named
+    orion = mods["orion"]
+    assert mods["orion_wo_mem"] == ModuleSet(map="orion", detector="grounded", explore=True)
+    assert mods["orion_wo_exp"] == ModuleSet(map="orion", detector="grounded", memory=True)
+    assert mods["orion_wo_det"] == ModuleSet(map="orion", detector="saliency", explore=True, memory=True)
+    assert mods["orion_wo_map"] == ModuleSet(detector="grounded", explore=True, memory=True)
+    assert not any(AGENTS[n].by_default for n in ablations) and AGENTS["orion"].by_default
+    assert not AGENTS["orion_wo_mem"].persistent_memory and AGENTS["orion_wo_map"].persistent_memory
+    assert all(sum(a != b for a, b in zip(astuple(mods[n]), astuple(orion))) == 1 for n in ablations)
+
+
+def test_a_detector_without_exploration_looks_around_where_it_stands(ctx):
+    """The paper's "ORION w/o exp" keeps the 360 deg spin: with nothing left to try, a method with a detector and no
+    exploration looks around once where it stands (no frontier search) and gives up when that shows nothing new."""
+    class Spinner(ModularAgent):
+        modules = ModuleSet(detector="grounded")
+
+    goal, run, _ = episode(ctx, "orion")
+    agent = Spinner(ctx.params)
+    m = run.modules
+    m.detector = "grounded"
+    steps = run.body.steps
+    assert agent.next_candidate(m, SearchState(name="bicycle"), "bicycle") is None  # nothing of that here
+    spin = run.body.steps - steps
+    assert spin == round(360 / ctx.turn_deg) and m.frontier() is not None  # one spin, no frontier walked to
+    assert agent.next_candidate(m, SearchState(name="bicycle"), "bicycle") is None and run.body.steps == steps + spin
 
 
 def test_cow_detects_with_its_own_detector(ctx):

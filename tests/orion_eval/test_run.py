@@ -131,7 +131,8 @@ def test_zipon_eval_refuses_a_method_no_registry_has(tiny_scene, tmp_path, capsy
                  "--manifests-dir", str(ws.manifests_dir), "eval", "-o", str(tmp_path / "out")])
     assert code == 1
     err = " ".join(capsys.readouterr().err.split())
-    assert "eval.methods: unknown method(s) ['gpt']; choose from ['human', 'cow', 'vlmap', 'cf', 'orion']" in err
+    assert ("eval.methods: unknown method(s) ['gpt']; choose from ['human', 'cow', 'vlmap', 'cf', 'orion', "
+            "'orion_wo_mem', 'orion_wo_exp', 'orion_wo_det', 'orion_wo_map']") in err
     assert not (tmp_path / "out" / "results.json").exists()
 
 

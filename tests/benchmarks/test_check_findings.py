@@ -1,0 +1,63 @@
+"""benchmarks/check_findings.py's ablation report (ORION with one module taken away, against the paper's Table II):
+rows, SR drops with their bootstrap intervals, and the paper's reading of them, on episodes whose outcomes are known.
+
+The check itself builds scenes and evaluates them (minutes; docs/evaluation-modules.md); these tests need neither.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+
+@pytest.fixture
+def check(monkeypatch):
+    folder = Path(__file__).resolve().parents[2] / "benchmarks"
+    monkeypatch.syspath_prepend(str(folder))  # the script imports its neighbour _common
+    spec = importlib.util.spec_from_file_location("check_findings", folder / "check_findings.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def episodes(rates: dict[str, float], goals: int = 20, seeds: int = 5) -> list[dict]:
+    """Mixed-setting episodes: method m succeeds in round(rate * seeds) of each goal's seeds (SPL 0.5, SIT 0.25)."""
+    out = []
+    for m, rate in rates.items():
+        for g in range(goals):
+            for s in range(seeds):
+                ok = s < round(rate * seeds)
+                out.append({"method": m, "feedback": "mixed", "scene": "a", "goal": f"g{g}", "seed": s,
+                            "success": ok, "spl": 0.5 * ok, "sit": 0.25 * ok})
+    return out
+
+
+def test_ablation_rows_drops_and_findings(check):
+    eps = episodes({"orion": 0.8, "orion_wo_mem": 0.8 - 0.2, "orion_wo_exp": 0.4, "orion_wo_det": 0.6,
+                    "orion_wo_map": 0.2})
+    eps += [dict(e, feedback="yesno", success=False) for e in eps[:50]]  # other settings are not read
+    a = check.ablation_figures(eps, draws=200)
+    assert a["rows"]["orion"] == pytest.approx((80.0, 40.0, 20.0))
+    assert a["rows"]["orion_wo_map"] == pytest.approx((20.0, 10.0, 5.0))
+    assert a["drops"] == pytest.approx({"orion_wo_mem": 20.0, "orion_wo_exp": 40.0, "orion_wo_det": 20.0,
+                                        "orion_wo_map": 60.0})
+    # every goal has the same outcomes: every bootstrap draw gives the same drop
+    assert a["intervals"]["orion_wo_map"] == pytest.approx((60.0, 60.0))
+    holds = {text[:4]: ok for text, ok, _ in a["findings"]}
+    assert holds == {"(A1)": True, "(A2)": True, "(A3)": False}  # w/o mem ties w/o det: not the least
+
+
+def test_an_ablation_better_than_orion_fails_the_first_reading(check):
+    a = check.ablation_figures(episodes({"orion": 0.6, "orion_wo_mem": 0.8}), draws=50)
+    assert a["drops"] == pytest.approx({"orion_wo_mem": -20.0})
+    text, holds, detail = a["findings"][0]
+    assert text.startswith("(A1)") and not holds and "w/o mem -20.0" in detail
+
+
+def test_the_report_needs_orion_and_an_ablation(check):
+    with pytest.raises(ValueError, match="ORION's and at least one ablation's mixed episodes"):
+        check.ablation_figures(episodes({"orion": 0.5}), draws=10)
+    with pytest.raises(ValueError, match="ORION's and at least one ablation's mixed episodes"):
+        check.ablation_figures(episodes({"orion_wo_map": 0.5}), draws=10)
