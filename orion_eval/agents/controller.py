@@ -180,7 +180,8 @@ class ModularAgent(Agent):
                 if mods.detector and not mods.explore:
                     # no exploration: one look around where it stands (remembered there: no steps to repeat it)
                     seen = m.look_around_for(st.queries)
-                    st.spotted = self.ranked(m, st, list(dict.fromkeys(t[0] for q in st.queries for t in seen[q] if not skip(t[0]))))
+                    found = dict.fromkeys(t[0] for q in st.queries for t in seen[q] if not skip(t[0]))
+                    st.spotted = self.ranked(m, st, list(found))
                     if st.spotted:
                         continue
                     return None
