@@ -74,18 +74,18 @@ def paper_tables() -> dict[str, np.ndarray]:
 
 
 class Cells:
-    """Per (scene, goal) sums and counts of each metric in each (method, setting) cell, for bootstrap draws."""
+    """Per (scene, goal) sums and counts of each metric in each (method, setting) cell, for bootstrap draws; only the
+    episodes of ``methods`` in ``settings`` count (the goals are those they cover)."""
 
-    def __init__(self, episodes: list[dict]):
+    def __init__(self, episodes: list[dict], methods: tuple[str, ...] = METHODS, settings: tuple[str, ...] = SETTINGS):
+        episodes = [e for e in episodes if e["method"] in methods and e["feedback"] in settings]
         self.goals = sorted({(e["scene"], e["goal"]) for e in episodes})
         gi = {g: i for i, g in enumerate(self.goals)}
-        shape = (len(self.goals), len(METHODS), len(SETTINGS))
+        shape = (len(self.goals), len(methods), len(settings))
         self.sums = {m: np.zeros(shape) for m in METRICS}
         self.counts = np.zeros(shape)
         for e in episodes:
-            if e["method"] not in METHODS:
-                continue
-            idx = (gi[(e["scene"], e["goal"])], METHODS.index(e["method"]), SETTINGS.index(e["feedback"]))
+            idx = (gi[(e["scene"], e["goal"])], methods.index(e["method"]), settings.index(e["feedback"]))
             self.counts[idx] += 1
             for m in METRICS:
                 self.sums[m][idx] += float(e[_KEY[m]])
@@ -155,13 +155,17 @@ def findings(f: dict[str, float]) -> list[tuple[str, bool, str]]:
     ]
 
 
+def resample(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Bootstrap weights of ``n`` goals: how often each is drawn when ``n`` are drawn with replacement."""
+    return np.bincount(rng.integers(0, n, n), minlength=n).astype(np.float64)
+
+
 def bootstrap(cells: Cells, paper: dict[str, np.ndarray], draws: int, seed: int = 0) -> dict[str, tuple[float, float]]:
     """95 % percentile intervals of every figure, goals resampled with replacement."""
     rng = np.random.default_rng(seed)
-    n = len(cells.goals)
     samples: dict[str, list[float]] = {}
     for _ in range(draws):
-        w = np.bincount(rng.integers(0, n, n), minlength=n).astype(np.float64)
+        w = resample(rng, len(cells.goals))
         for k, v in figures(cells.tables(w), paper).items():
             samples.setdefault(k, []).append(v)
     return {k: (float(np.nanpercentile(v, 2.5)), float(np.nanpercentile(v, 97.5))) for k, v in samples.items()}
@@ -209,26 +213,14 @@ def ablation_figures(episodes: list[dict], draws: int, seed: int = 0) -> dict:
     """ORION and its ablations in the mixed setting: ``{"rows": {method: (SR, SPL, SIT)}, "drops": {method: SR drop
     from ORION}, "intervals": {method: (lo, hi) of the drop}, "findings": [(text, holds, detail)]}``. The drops'
     95 % intervals come from a bootstrap over goals (each goal's episodes of every method resampled together)."""
-    methods = [m for m in PAPER_ABLATIONS if any(e["method"] == m and e["feedback"] == "mixed" for e in episodes)]
+    methods = tuple(m for m in PAPER_ABLATIONS if any(e["method"] == m and e["feedback"] == "mixed" for e in episodes))
     if "orion" not in methods or len(methods) < 2:
         raise ValueError("the ablation report needs ORION's and at least one ablation's mixed episodes")
-    goals = sorted({(e["scene"], e["goal"]) for e in episodes if e["method"] in methods and e["feedback"] == "mixed"})
-    gi = {g: i for i, g in enumerate(goals)}
-    sums, counts = np.zeros((len(goals), len(methods), len(METRICS))), np.zeros((len(goals), len(methods)))
-    for e in episodes:
-        if e["method"] in methods and e["feedback"] == "mixed":
-            i, j = gi[(e["scene"], e["goal"])], methods.index(e["method"])
-            counts[i, j] += 1
-            sums[i, j] += [float(e[_KEY[k]]) for k in METRICS]
-
-    def table(w: np.ndarray) -> np.ndarray:  # (methods, metrics) percent, goals weighted by w
-        return 100.0 * np.tensordot(w, sums, axes=1) / np.maximum(np.tensordot(w, counts, axes=1), 1)[:, None]
-
-    t = table(np.ones(len(goals)))
+    cells = Cells(episodes, methods, ("mixed",))
+    t = np.stack([cells.tables()[k][:, 0] for k in METRICS], axis=1)  # (methods, metrics) percent
     rng = np.random.default_rng(seed)
-    boot = np.array([table(np.bincount(rng.integers(0, len(goals), len(goals)), minlength=len(goals)).astype(float))
-                     for _ in range(draws)])  # (draws, methods, metrics)
-    drop_draws = boot[:, :1, 0] - boot[:, :, 0]
+    sr = np.array([cells.tables(resample(rng, len(cells.goals)))["SR"][:, 0] for _ in range(draws)])  # (draws, methods)
+    drop_draws = sr[:, :1] - sr
     rows = {m: tuple(float(v) for v in t[j]) for j, m in enumerate(methods)}
     drops = {m: float(t[0, 0] - t[j, 0]) for j, m in enumerate(methods) if m != "orion"}
     intervals = {m: (float(np.percentile(drop_draws[:, j], 2.5)), float(np.percentile(drop_draws[:, j], 97.5)))
@@ -279,10 +271,20 @@ def main() -> None:
                     help="also evaluate ORION's ablations in the mixed setting and compare them with the paper's")
     args = ap.parse_args()
     if args.results:
-        res = json.loads(args.results.read_text())
-        doc = print_report(res, Cells(res["episodes"]), args.boot)
+        try:
+            res = json.loads(args.results.read_text())
+            episodes = res["episodes"]
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            ap.error(f"--results {args.results}: cannot be read as an evaluation's results.json "
+                     f"({type(err).__name__}: {err}); expected the JSON `zipon eval` writes, with 'episodes'")
+        mixed = {e.get("method") for e in episodes if e.get("feedback") == "mixed"}
+        if args.ablations and ("orion" not in mixed or not mixed & set(PAPER_ABLATIONS) - {"orion"}):
+            ap.error(f"--ablations: {args.results} holds no mixed episodes of ORION and of one of its ablations "
+                     f"(found mixed episodes of {sorted(m for m in mixed if m)}); evaluate them with `zipon eval -f "
+                     f"mixed -m orion -m orion_wo_map ...`")
+        doc = print_report(res, Cells(episodes), args.boot)
         if args.ablations:
-            doc["ablations"] = print_ablations(res["episodes"], args.boot)
+            doc["ablations"] = print_ablations(episodes, args.boot)
         if args.json:
             args.json.write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
         return

@@ -33,6 +33,7 @@ from scipy import ndimage
 
 from orion_eval.memory import MemoryMaps
 from pipeline.routes.actions import FORWARD, LEFT, RIGHT, wrap_angle
+from pipeline.scene import MAP_NAMES
 
 MERGE_M = 0.6
 #: while exploring, the detector looks at the view ahead every this many forward steps (ORION's exploration
@@ -60,7 +61,7 @@ class FoundObject:
     @property
     def from_map(self) -> bool:
         """Found by a semantic map's retrieval (first registered from the vlmap or the cfmap)."""
-        return self.source in ("vlmap", "cfmap")
+        return self.source in MAP_NAMES
 
 
 class Modules:

@@ -61,3 +61,32 @@ def test_the_report_needs_orion_and_an_ablation(check):
         check.ablation_figures(episodes({"orion": 0.5}), draws=10)
     with pytest.raises(ValueError, match="ORION's and at least one ablation's mixed episodes"):
         check.ablation_figures(episodes({"orion_wo_map": 0.5}), draws=10)
+
+
+def run_check(*args: str):
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[2] / "benchmarks" / "check_findings.py"
+    return subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, timeout=300)
+
+
+def test_a_results_file_that_cannot_be_read_is_refused_with_its_name(tmp_path):
+    missing = tmp_path / "nowhere.json"
+    out = run_check("--results", str(missing))
+    assert out.returncode == 2 and f"--results {missing}: cannot be read" in out.stderr and "Traceback" not in out.stderr
+    broken = tmp_path / "broken.json"
+    broken.write_text('{"run": {}}')
+    out = run_check("--results", str(broken))
+    assert out.returncode == 2 and "KeyError" in out.stderr and "with 'episodes'" in out.stderr
+
+
+def test_ablations_asked_of_results_without_them_are_refused(tmp_path):
+    import json
+
+    path = tmp_path / "results.json"
+    path.write_text(json.dumps({"episodes": episodes({"orion": 0.5})}))
+    out = run_check("--results", str(path), "--ablations", "--boot", "10")
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert f"--ablations: {path} holds no mixed episodes of ORION and of one of its ablations" in out.stderr
+    assert "found mixed episodes of ['orion']" in out.stderr and out.stdout == ""
