@@ -151,11 +151,8 @@ def evaluate(ws: Workspace, params: Params, stages: Mapping, out_dir: Path, scen
     log_dir = out_dir / "episodes"
     workers = min(params.eval.workers, len(scenes))
     if workers > 1:
-        import dask
-
-        tasks = [dask.delayed(evaluate_scene, pure=False)(ws, params, stages, s, methods, simulated, seeds, log_dir,
-                                                          agent_classes=agent_classes) for s in scenes]
-        per_scene = dask.compute(*tasks, scheduler="processes", num_workers=workers)
+        per_scene = map_processes(evaluate_scene, [(ws, params, stages, s, methods, simulated, seeds, log_dir)
+                                                   for s in scenes], workers, agent_classes=agent_classes)
     else:
         per_scene = []
         for s in scenes:
@@ -182,6 +179,16 @@ def evaluate(ws: Workspace, params: Params, stages: Mapping, out_dir: Path, scen
 
         write_report(results, out_dir, ws=ws, params=params)
     return results
+
+
+def map_processes(fn, args: list[tuple], workers: int, **kwargs) -> list:
+    """``[fn(*a, **kwargs) for a in args]`` over ``workers`` processes (dask's process scheduler), each task handed
+    out alone as a process frees up: dask's default gives a process 6 tasks at once, which ran up to 6 scenes in one
+    process while the others idled."""
+    import dask
+
+    tasks = [dask.delayed(fn, pure=False)(*a, **kwargs) for a in args]
+    return list(dask.compute(*tasks, scheduler="processes", num_workers=workers, chunksize=1))
 
 
 def human_episodes_path(ws: Workspace, scene: str) -> Path:

@@ -1,8 +1,10 @@
 """The evaluator (``orion_eval.run.evaluate``) end to end on the tiny scene: results, determinism, the report."""
 
 import json
+import os
 import shutil
 import subprocess
+import time
 
 import pytest
 
@@ -168,3 +170,17 @@ def test_feedback_settings_are_paired(tiny_scene):
         assert m_pose == pose and m_kind.endswith("procedural") and m_text.endswith(" " + text.removeprefix("No. "))
         compared += 1
     assert compared
+
+
+def _pid_after(seconds: float) -> int:
+    time.sleep(seconds)
+    return os.getpid()
+
+
+def test_scenes_are_handed_to_every_worker():
+    """Two workers run one of two tasks each (each task outlasts a worker's start): dask's process scheduler otherwise
+    hands a worker 6 tasks at once, and a 2-worker evaluation of up to 6 scenes ran them all in one process."""
+    from orion_eval.run import map_processes
+
+    pids = map_processes(_pid_after, [(2.0,), (2.0,)], 2)
+    assert len(set(pids)) == 2 and os.getpid() not in pids
