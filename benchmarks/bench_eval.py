@@ -44,19 +44,21 @@ from pipeline.paths import Workspace
 METHODS = list(AGENTS)  # every registered agent, in the paper's table order
 
 
-def build_params(n_scenes: int, frames: int, prefix: str = "bench", seed: int = 0) -> str:
+def build_params(n_scenes: int, frames: int, prefix: str = "bench", seed: int = 0, rooms: int | None = None) -> str:
     """The bench workspace's params.yaml: ``n_scenes`` simulated apartments ``<prefix>_00``..., lean frames
-    (320x240); ``seed`` is ``simulate.seed`` (each scene's seed derives from it and the scene's name)."""
+    (320x240); ``seed`` is ``simulate.seed`` (each scene's seed derives from it and the scene's name); ``rooms``:
+    every apartment has that many rooms (None: the simulator's default range)."""
     scenes = "".join(f"  {prefix}_{i:02d}: {{source: simulate}}\n" for i in range(n_scenes))
+    size = "" if rooms is None else f", rooms_min: {rooms}, rooms_max: {rooms}"
     return (f"scenes:\n{scenes}"
             "run: {scheduler: processes, workers: 2}\n"
-            f"simulate: {{frames: {frames}, width: 320, height: 240, seed: {seed}}}\n"
+            f"simulate: {{frames: {frames}, width: 320, height: 240, seed: {seed}{size}}}\n"
             "encoders: {simulated: perception}\n"
             "eval: {workers: 2}\n")
 
 
 def build(root: Path, n_scenes: int, frames: int, rebuild: bool = False, stages: list[str] | None = None,
-          *, prefix: str = "bench", seed: int = 0, bench: str = "eval") -> Workspace:
+          *, prefix: str = "bench", seed: int = 0, bench: str = "eval", rooms: int | None = None) -> Workspace:
     """Write (or keep) ``root/params.yaml`` and build its scenes. Scenes whose artifacts all exist are reused as
     they are (any code change makes them stale to ``zipon run``, and rebuilding ten scenes takes long):
     ``rebuild`` runs the pipeline on them, which reruns what is stale; ``stages`` reruns only those stages (forced,
@@ -65,7 +67,7 @@ def build(root: Path, n_scenes: int, frames: int, rebuild: bool = False, stages:
     from pipeline.runner import run_many
 
     root.mkdir(parents=True, exist_ok=True)
-    text = build_params(n_scenes, frames, prefix, seed)
+    text = build_params(n_scenes, frames, prefix, seed, rooms)
     path = root / "params.yaml"
     if not path.exists() or path.read_text() != text:
         path.write_text(text)

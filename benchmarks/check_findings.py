@@ -7,7 +7,9 @@
 The scenes ``findings_00``... are fresh procedural apartments that no test, demo or other benchmark uses
 (their own names and ``simulate.seed`` 2027), built once with the batch pipeline (untimed; a second call
 reuses them), their maps from the simulated perception models, the CoW and ORION detectors simulated
-(:mod:`orion_eval.detector`). Every method runs the same controller with its own modules
+(:mod:`orion_eval.detector`). They are sized like the paper's HM3D scenes (``--rooms`` 10: about HM3D's 112.5 m2 of
+navigable floor a scene; the check prints each scene's), and an episode ends as the paper's do, on success or after
+I_max questions (``--max-steps`` is only a far bound against a runaway; the report counts the episodes it ended). Every method runs the same controller with its own modules
 (:mod:`orion_eval.agents.controller`); nothing in it or in the perception models is set from these results.
 
 Prints the SR / SPL / SIT tables next to the paper's Table I (single feedback) and Table II (mixed), the
@@ -66,6 +68,28 @@ PAPER_ABLATIONS = {"orion": (83.8, 56.6, 53.5), "orion_wo_mem": (81.2, 54.8, 51.
                    "orion_wo_det": (72.5, 47.7, 42.2), "orion_wo_map": (69.2, 37.5, 41.3)}
 ABLATION_NAMES = {"orion": "ORION", "orion_wo_mem": "w/o mem", "orion_wo_exp": "w/o exp", "orion_wo_det": "w/o det",
                   "orion_wo_map": "w/o map"}
+
+
+#: HM3D's navigable floor a scene: 112.5k m2 over its 1,000 scenes (Ramakrishnan et al., NeurIPS 2021 Datasets and
+#: Benchmarks, abstract); the paper's 10 scenes are from its validation split
+HM3D_NAVIGABLE_M2 = 112.5
+#: apartments of this many rooms have 90-114 m2 of navigable floor (measured on the check's scenes: the report prints
+#: each); the simulator's default 6-7 rooms have 47-66 m2, half of an HM3D scene
+HM3D_ROOMS = 10
+#: the paper ends an episode only on success or after I_max questions (its reference code, navchat, has no step
+#: budget); this bound is far above the longest episode measured (2,028 steps) and only stops a runaway
+MAX_STEPS = 4000
+
+
+def navigable_areas(ws, params) -> dict[str, float]:
+    """m2 of navigable floor of each scene, from its reconstruction."""
+    from pipeline.scene import Scene
+
+    out = {}
+    for name in params.scenes:
+        scene = Scene(ws, params, name, STAGES)
+        out[name] = round(float(np.count_nonzero(scene.navigable)) * scene.grid.cell_size_m ** 2, 1)
+    return out
 
 
 def paper_tables() -> dict[str, np.ndarray]:
@@ -182,6 +206,9 @@ def print_report(res: dict, cells: Cells, draws: int) -> dict:
     maps = sorted({v["kind"] for enc in run["encoders"].values() for v in enc.values()})
     print("maps: " + " | ".join(maps))
     print("detection: " + " | ".join(sorted(set(run["detection"].values()))))
+    capped = sum(e.get("end") == "step budget" for e in res["episodes"])
+    print(f"episodes ended by the step budget (eval.max_steps, a bound the paper has not): {capped} of "
+          f"{len(res['episodes'])}")
     for m in METRICS:
         print(f"\n{m} %  (ours / paper)")
         print(f"{'':6}" + "".join(f"{s:>14}" for s in SETTINGS))
@@ -259,7 +286,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--workspace", type=Path, default=Path("/tmp/findings"), help="folder for the fresh scenes")
     ap.add_argument("--scenes", type=int, default=3)
-    ap.add_argument("--frames", type=int, default=240, help="simulate.frames of the scenes")
+    ap.add_argument("--rooms", type=int, default=HM3D_ROOMS, help="rooms of every apartment (the default sizes them "
+                    "like the paper's HM3D scenes: see HM3D_NAVIGABLE_M2)")
+    ap.add_argument("--frames", type=int, default=480, help="simulate.frames of the scenes")
+    ap.add_argument("--max-steps", type=int, default=MAX_STEPS, help="eval.max_steps: a bound the paper's episodes "
+                    "do not have (they end on success or after I_max questions); the report says if one reached it")
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--workers", type=int, default=2, help="eval.workers: scenes evaluated in parallel processes "
                     "(each scene's episodes are the same whatever the count)")
@@ -288,9 +319,14 @@ def main() -> None:
         if args.json:
             args.json.write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
         return
-    ws = build(args.workspace, args.scenes, args.frames, prefix="findings", seed=2027, bench="findings")
+    ws = build(args.workspace, args.scenes, args.frames, prefix="findings", seed=2027, bench="findings",
+               rooms=args.rooms)
     params = load_params(ws.params_path)
-    params = params.model_copy(update={"eval": params.eval.model_copy(update={"workers": args.workers})})
+    params = params.model_copy(update={"eval": params.eval.model_copy(update={"workers": args.workers,
+                                                                               "max_steps": args.max_steps})})
+    areas = navigable_areas(ws, params)
+    emit(bench="findings", figure="navigable_m2", scenes=areas, mean=round(float(np.mean(list(areas.values()))), 1),
+         hm3d_mean=HM3D_NAVIGABLE_M2)
     res = evaluate(ws, params, STAGES, args.workspace / "eval", scenes=list(params.scenes), methods=list(METHODS),
                    feedback=list(FEEDBACK_SETTINGS), seeds=list(range(args.seeds)), progress=False, report=False)
     emit(bench="findings", figure="run", episodes=res["run"]["episodes"], seconds=res["run"]["seconds"])

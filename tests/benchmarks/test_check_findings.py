@@ -90,3 +90,22 @@ def test_ablations_asked_of_results_without_them_are_refused(tmp_path):
     assert out.returncode == 2 and "Traceback" not in out.stderr
     assert f"--ablations: {path} holds no mixed episodes of ORION and of one of its ablations" in out.stderr
     assert "found mixed episodes of ['orion']" in out.stderr and out.stdout == ""
+
+
+def test_the_checks_apartments_have_the_rooms_asked_for(check, tmp_path):
+    """``--rooms`` reaches the simulator: every findings apartment of the check's params has that many rooms (the
+    default sizes them like an HM3D scene; the report prints each one's measured navigable floor)."""
+    from bench_eval import build_params
+
+    from pipeline.paramsfile import load_params
+    from pipeline.sim.scene import generate_floor
+
+    (tmp_path / "params.yaml").write_text(build_params(3, 480, "findings", 2027, check.HM3D_ROOMS))
+    params = load_params(tmp_path / "params.yaml")
+    assert (params.simulate.rooms_min, params.simulate.rooms_max) == (10, 10)
+    for name in params.scenes:
+        _, plan = generate_floor(name, params.simulate)
+        assert len(plan.rooms) == 10
+    (tmp_path / "params.yaml").write_text(build_params(1, 240, "findings", 2027))
+    default = load_params(tmp_path / "params.yaml").simulate
+    assert (default.rooms_min, default.rooms_max) == (6, 7)  # the simulator's own range when not asked
