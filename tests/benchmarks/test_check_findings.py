@@ -95,7 +95,7 @@ def test_ablations_asked_of_results_without_them_are_refused(tmp_path):
 def test_the_checks_apartments_have_the_rooms_asked_for(check, tmp_path):
     """``--rooms`` reaches the simulator: every findings apartment of the check's params has that many rooms (the
     default sizes them like an HM3D scene; the report prints each one's measured navigable floor)."""
-    from bench_eval import build_params
+    from benchmarks.bench_eval import build_params
 
     from pipeline.paramsfile import load_params
     from pipeline.sim.scene import generate_floor
