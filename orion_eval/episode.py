@@ -63,10 +63,11 @@ class EpisodeRun:
         self.body.poses.append((round(x, 4), round(y, 4), round(yaw, 4)))
         self.modules = Modules(self, memory=self.memory)
 
-    def act(self, action: int) -> None:
+    def act(self, action: int) -> bool:
+        """Execute one action; False when a forward step collided (the agent stays put)."""
         if self.body.steps >= self.max_steps:
             raise EpisodeOver("step budget")
-        self.ctx.world.act(self.body, action)
+        return self.ctx.world.act(self.body, action)
 
     def log_event(self, kind: str, detail: str) -> None:
         self.events.append((self.body.steps, kind, detail))

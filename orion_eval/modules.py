@@ -112,24 +112,31 @@ class Modules:
 
     # ------------------------------------------------------------------ control
     def move(self, dist_m: float) -> None:
+        """Walk straight ahead; a step into a wall ends the walk (the agent stays put: steps after it would too)."""
         for _ in range(max(0, int(round(dist_m / self.ctx.step_m)))):
-            self.run.act(FORWARD)
+            if not self.run.act(FORWARD):
+                return
 
     def rotate(self, angle_rad: float) -> None:
         n = int(round(float(wrap_angle(angle_rad)) / math.radians(self.ctx.turn_deg)))
         for _ in range(abs(n)):
             self.run.act(LEFT if n > 0 else RIGHT)
 
-    def _follow(self, route, watch=None) -> bool:
+    def _follow(self, route, watch=None, *, stop_blocked: bool = False) -> bool:
         """Walk ``route``'s actions; ``watch()`` is called after every :data:`WATCH_STEPS` th forward step and stops
-        the walk when it returns True."""
+        the walk when it returns True. False when there is no route, or (``stop_blocked``) when a forward step
+        collided: the walk ends there, as a robot's planner gives up a blocked goal, instead of walking the rest of
+        its actions from the wrong place (an exploration that walked on from it could retry the same blocked
+        frontier until the step budget). A planner's route does not collide in the evaluation's world (the world
+        tests steps as the planners do, :class:`~orion_eval.scene.SceneContext`); a changed world would."""
         if route is None:
             return False
         forward = 0
         for a in route.actions.tolist():
             if a == 0:
                 break
-            self.run.act(a)
+            if not self.run.act(a) and stop_blocked:
+                return False
             if watch is not None and a == FORWARD:
                 forward += 1
                 if forward % WATCH_STEPS == 0 and watch():
@@ -137,15 +144,17 @@ class Modules:
         return True
 
     def goto_point(self, xy, watch=None) -> bool:
-        """Walk to (near) a world point; False when unreachable. ``watch``: see :meth:`_follow`."""
+        """Walk to (near) a world point; False when unreachable or blocked (:meth:`_follow`). ``watch``: see
+        :meth:`_follow`."""
         mask = self.ctx.planner.point_mask(xy)
         rc = self.ctx.grid.world_to_cell(np.asarray(xy, np.float64))
         route = self.ctx.planner.route(self.pose, mask, key=("pt", int(rc[0]), int(rc[1])), face_xy=None)
-        return self._follow(route, watch)
+        return self._follow(route, watch, stop_blocked=True)
 
     def goto_object(self, obj_id: int) -> bool:
         """Walk into the object's goal region (the routes module's definition: within the success distance of
-        its cells, centre in line of sight), face its centre; False when unreachable."""
+        its cells, centre in line of sight), face its centre; False when unreachable or blocked
+        (:meth:`_follow`)."""
         e = self.objects[obj_id]
         g = self.ctx.grid
         mask = np.zeros(g.rows * g.cols, bool)
@@ -159,7 +168,7 @@ class Modules:
                                       + np.asarray(e.center_xy, np.float64).tobytes(), digest_size=16).hexdigest())
         region, view = self.ctx.goal_target(key, mask.reshape(g.rows, g.cols), e.center_xy, (0.5 * top, top))
         route = self.ctx.view_planner.route(self.pose, view, key=key, face_xy=e.center_xy, end_mask=region)
-        return self._follow(route)
+        return self._follow(route, stop_blocked=True)
 
     # ------------------------------------------------------------------ semantic map
     def retrieve_map(self, obj_str: str, which: str = "vlmap") -> list[tuple[int, float, float]]:

@@ -58,12 +58,16 @@ class SceneContext:
         self.navigable = scene.navigable
         # the action space and success radius routes.zarr was built with (Scene checks the params agree)
         self.step_m, self.turn_deg, self.success_m = scene.action_space()
-        self.world = World(self.navigable, self.grid, step_m=self.step_m, turn_deg=self.turn_deg)
         space = {"step_m": self.step_m, "turn_deg": self.turn_deg}
         # the agents' goto_object stops within their own radius of a found object; the agents' planners get an agent
         # stranded off the clearance band back into it (orion_eval.nav)
         self.planner = NavPlanner(self.navigable, self.grid, RouteSettings.from_config(
             task, **space, stop_radius_m=ep.goto_stop_radius_m), recover=True)
+        # the world tests a step in the planners' frame (their cropped grid; all three crop alike), so a step a
+        # planner judged free is free: a segment is sampled by its length in cells, and the same step measured
+        # in full-grid coordinates (5.0000000001 cells) can get one sample more, which can land in a wall cell
+        self.world = World(self.planner.crop(self.navigable), self.planner.crop_grid, step_m=self.step_m,
+                           turn_deg=self.turn_deg)
         # the user's procedural feedback is planned as the routes stage plans, into the stored goal region
         self.user_planner = NavPlanner(self.navigable, self.grid,
                                        RouteSettings.from_config(task, **space, stop_radius_m=0.0))

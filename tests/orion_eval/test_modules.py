@@ -181,3 +181,54 @@ def test_exploration_watches_the_view_ahead_on_the_way_to_a_frontier(tiny_scene)
     m2.look_around_for = lambda strs: spins.append(run2.body.steps) or spin(strs)
     assert m2.search_objects(["bicycle"]) is None  # nothing of the kind anywhere: every frontier target is walked to
     assert len(looks) > 4 * len(set(spins))  # spins at distinct steps: each a new place
+
+
+def test_the_world_tests_a_step_as_the_agents_planners_do(tiny_scene):
+    """Every step from every lattice cell of the clearance band, at every heading: the world lets the agent take it
+    exactly when the agents' planners judged it free. (The world once tested steps in full-grid coordinates, where a
+    step measured 5.0000000001 cells got one sample more than in the planners' cropped grid; one such step let a
+    route walk into a wall and an exploration retry it until the step budget.)"""
+    from orion_eval.world import Body
+
+    ctx, _, _ = _run(tiny_scene)
+    planner, cg = ctx.planner.planner, ctx.planner.crop_grid
+    starts = cg.cell_to_world(np.argwhere(planner.plan_mask))
+    checked = 0
+    for x, y in starts[:: max(1, len(starts) // 400)].tolist():
+        for k in range(24):
+            yaw = math.radians(15 * k)
+            body = Body(x, y, yaw)
+            moved = ctx.world.act(body, FORWARD)
+            free = planner.step_free(np.array([x, y]), np.array([x + ctx.step_m * math.cos(yaw),
+                                                                  y + ctx.step_m * math.sin(yaw)]))
+            assert moved == free, (x, y, 15 * k)
+            checked += 1
+    assert checked >= 24 * 400
+
+
+def test_a_blocked_walk_ends_at_the_wall(tiny_scene):
+    """When the world differs from what the agent planned on (here a wall across its route), a walk to a place or an
+    object ends at the first collision and reports the place out of reach, and a ``move`` ends at the wall: the
+    agent does not walk the rest of its route's actions from the wrong place."""
+    from orion_eval.world import World
+
+    ctx, _, run = _run(tiny_scene)
+    m = run.modules
+    start = np.asarray(m.pose[:2])
+    cells = ctx.planner.crop_grid.cell_to_world(np.argwhere(ctx.planner.planner.plan_mask))
+    far = cells[int(np.argmax(np.hypot(*(cells - start).T)))]
+    rc = ctx.grid.world_to_cell(np.asarray(far, np.float64))
+    route = ctx.planner.route(m.pose, ctx.planner.point_mask(far), key=("pt", int(rc[0]), int(rc[1])))
+    # a wall across the route's path halfway, where the planners never saw one
+    path = route.path.polyline_xy
+    mid = path[len(path) // 2]
+    nav = ctx.world.nav.copy()
+    r, c = ctx.planner.crop_grid.world_to_cell(np.asarray(mid, np.float64))
+    nav[max(r - 8, 0):r + 9, max(c - 8, 0):c + 9] = False
+    ctx.world = World(nav, ctx.planner.crop_grid, step_m=ctx.step_m, turn_deg=ctx.turn_deg)
+    assert not m.goto_point(far)
+    assert run.body.collisions == 1 and run.body.steps < len(route.actions)
+    steps = run.body.steps
+    assert not ctx.world.act(run.body, FORWARD)  # it stands at the wall, facing it
+    m.move(100.0)
+    assert run.body.steps == steps + 2 and run.body.collisions == 3  # one more collision in move, then it stops
