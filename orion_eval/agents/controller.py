@@ -29,7 +29,9 @@ searches for and where, through the same rules for every method:
   watching for both; each landmark once per episode) and the goal is searched near them: map candidates
   ranked by distance to the landmarks, and, without a map, what the spin spotted of the goal, else a
   detector's spin at the landmark instance nearest the other hints (with a map too: the map says where the
-  landmark is, the detector looks for the goal around it);
+  landmark is, the detector looks for the goal around it); a method with a map and no detector, which cannot look
+  around, tries the name's candidates next to a landmark first, then walks to the landmark itself and asks there
+  (the goal is next to it), then the other candidates (:meth:`ModularAgent.next_to_landmarks`);
 - *procedural* (a route, or "It is about 4 meters to your left."): the route is walked to its end (the
   point is walked to) and the goal is searched there: map candidates nearest the end first, a
   detector's spin there first;
@@ -91,6 +93,7 @@ class SearchState:
     spin_then: np.ndarray | None = None  # where it looks around next when that spin sees nothing (a landmark)
     spotted: list = field(default_factory=list)  # detections of the query from that look-around, nearest first
     landmarks: dict = field(default_factory=dict)  # landmark phrase -> (K,2) places found (or None: not found)
+    landmark_ids: dict = field(default_factory=dict)  # landmark phrase -> ids of the map's objects at those places
     map_wrong: int = 0  # map candidates the user has said "No" to (ModularAgent.double_check_after)
 
     @property
@@ -173,6 +176,8 @@ class ModularAgent(Agent):
             todo += st.spotted
             if which:
                 todo += self.map_candidates(m, st, which)
+                if not mods.detector:
+                    todo = self.next_to_landmarks(m, st, todo)
             skip = self.skip(m, st, negatives)
             todo = list(dict.fromkeys(i for i in todo if not skip(i)))
             todo = [i for i in todo if i not in st.deferred] + [i for i in todo if i in st.deferred]
@@ -211,6 +216,34 @@ class ModularAgent(Agent):
                 st.rejected.append(m.objects[oid].center_xy)  # seen, and not the described colour / material
                 continue
             return oid
+
+    def next_to_landmarks(self, m, st: SearchState, ids: list[int]) -> list[int]:
+        """A method with a map and no detector, told the goal is next to landmarks it located on its map: the
+        name's candidates next to one of them first (footprints within ``goals.landmark_radius_m``, the user's own
+        rule for "next to"), then the landmarks themselves (it walks to one and asks there: it cannot look around,
+        and the goal is next to it), then the other candidates, each tier in :meth:`ranked` order. Only the
+        landmark places in force count (after a route, the instance of each landmark nearest its end)."""
+        places = {tuple(np.round(p, 6)) for pts in st.focus for p in np.asarray(pts).reshape(-1, 2)}
+        marks = [i for ids_ in st.landmark_ids.values() for i in ids_
+                 if tuple(np.round(m.objects[i].center_xy, 6)) in places]
+        if not marks:
+            return ids
+        radius = self.params.goals.landmark_radius_m
+        near = [i for i in ids if any(self.footprint_gap(m, i, j) <= radius for j in marks)]
+        rest = [i for i in ids if i not in near]
+        return near + self.ranked(m, st, [i for i in dict.fromkeys(marks) if i not in near]) + rest
+
+    @staticmethod
+    def footprint_gap(m, i: int, j: int) -> float:
+        """Metres between the nearest cells of objects ``i`` and ``j`` (their footprints; 0 when they share one)."""
+        g = m.ctx.grid
+        pts = []
+        for k in (i, j):
+            cells = m.objects[k].cells
+            rr, cc = np.divmod(cells[:: max(1, len(cells) // 64)], g.cols)
+            pts.append(g.cell_to_world(np.stack([rr, cc], axis=1)) if len(rr) else m.objects[k].center_xy[None])
+        a, b = pts
+        return float(np.sqrt(((a[:, None, :] - b[None, :, :]) ** 2).sum(-1)).min())
 
     def look_at_focus(self, m, st: SearchState) -> None:
         """Walk to the hinted place and look around for the query there (once per hint); when that spin sees
@@ -288,8 +321,9 @@ class ModularAgent(Agent):
         new = [p for p in phrases if p not in st.landmarks]
         if new and which:
             for phrase in new:
-                pts = [m.objects[t[0]].center_xy for t in m.retrieve_map(phrase, which)]
-                st.landmarks[phrase] = np.asarray(pts, np.float64) if pts else None
+                hits = [t[0] for t in m.retrieve_map(phrase, which)]
+                st.landmark_ids[phrase] = hits
+                st.landmarks[phrase] = np.asarray([m.objects[i].center_xy for i in hits], np.float64) if hits else None
         elif new and self.modules.detector:
             # one spin for the landmarks and the goal together: the goal itself may be in sight
             seen = m.look_around_for([*new, *st.queries])

@@ -177,6 +177,38 @@ def test_a_route_picks_the_landmark_instance_at_its_end(ctx):
     assert len(alone.focus) == 1 and len(alone.focus[0]) == len(every)  # without a route: every instance
 
 
+def test_a_map_without_a_detector_tries_next_to_the_landmark_then_asks_at_it(ctx):
+    """VLMap cannot look around a landmark: the name's candidates next to it come first (footprints within the
+    user's own "next to" radius), then the landmark itself (walked to, asked there), then the other candidates;
+    after a route, only the instance of the landmark nearest the route's end is asked at."""
+    goal, run, agent = episode(ctx, "vlmap")
+    m = run.modules
+    phrase = next(o for o in ("bed", "table", "couch", "chair", "cabinet")
+                  if len(m.retrieve_map(o, "vlmap")) >= 2 and o not in goal.name)
+    marks = [t[0] for t in m.retrieve_map(phrase, "vlmap")]
+    oid = m.retrieve_map(goal.name, "vlmap")[0][0]
+    radius = ctx.params.goals.landmark_radius_m
+    for route, asked in (([], len(marks)), ([("forward", 0.5)], 1)):
+        st = SearchState(name=goal.name)
+        agent.update(m, st, ParsedFeedback(landmarks=[phrase], route=route), oid, goal.name)
+        ids = agent.map_candidates(m, st, "vlmap")
+        tiers = agent.next_to_landmarks(m, st, ids)
+        near = [i for i in ids if any(agent.footprint_gap(m, i, j) <= radius for j in marks
+                                      if any(np.allclose(m.objects[j].center_xy, p) for p in st.focus[-1]))]
+        at = [i for i in tiers[len(near):] if i in marks and i not in ids]
+        assert tiers[: len(near)] == near
+        assert tiers[len(near): len(near) + len(at)] == at and 1 <= len(at) <= asked
+        assert tiers[len(near) + len(at):] == [i for i in ids if i not in near]
+    assert all(agent.footprint_gap(m, i, i) == 0.0 for i in marks)
+    assert agent.footprint_gap(m, marks[0], marks[1]) > 0.0
+    # a method with a detector looks around the landmark instead (test_a_method_with_map_and_detector_...)
+    goal, run, orion = episode(ctx, "orion")
+    st, m = SearchState(name=goal.name), run.modules
+    oid = m.retrieve_map(goal.name, orion.map_name())[0][0]
+    orion.update(m, st, ParsedFeedback(landmarks=[phrase]), oid, goal.name)
+    assert st.spin_at is not None
+
+
 def test_a_description_is_the_detectors_prompt_not_a_map_query(ctx):
     """As in the paper's reference code, the map is asked for the goal's name only; the description goes to the
     detector (its spins look for the description, then the name). A method with only a map gains nothing from it."""

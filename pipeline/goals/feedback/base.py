@@ -85,8 +85,13 @@ def register(cls: type[FeedbackKind]) -> type[FeedbackKind]:
     return cls
 
 
+def class_is_unique(key: str, ctx: FeedbackContext) -> bool:
+    """Whether the object is the scene's one instance of its class (one identity: a pair counts once), so that
+    its class name alone finds it: "the fridge"."""
+    cls = ctx.objects[key].cls
+    return len({ctx.identities[k].members for k, o in ctx.objects.items() if o.cls == cls}) == 1
+
+
 def object_phrase(key: str, ctx: FeedbackContext) -> str:
     """How the user names another object: 'the bed', or its identity when its class repeats."""
-    obj = ctx.objects[key]
-    groups = {ctx.identities[k].members for k, o in ctx.objects.items() if o.cls == obj.cls}
-    return ctx.identities[key].name if len(groups) > 1 else f"the {obj.cls}"
+    return f"the {ctx.objects[key].cls}" if class_is_unique(key, ctx) else ctx.identities[key].name

@@ -1,11 +1,17 @@
 """Landmark feedback: salient objects within a radius of the goal and in line of sight, with
-spatial relation words (on, under, next to, near)."""
+spatial relation words (on, under, next to, near); the easy ones to find first.
+
+The paper's landmarks are "common and salient objects near the current goal object" that "are easily
+identifiable in the room": so the objects named by their class alone (the scene's one fridge: "the fridge")
+come before those the user must name by identity because their class repeats ("Alice's shelf": a robot that
+finds shelves still has to tell which), each group nearest first."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from pipeline.goals.feedback.base import FeedbackContext, FeedbackKind, GoalDraft, object_phrase, register
+from pipeline.goals.feedback.base import (FeedbackContext, FeedbackKind, GoalDraft, class_is_unique, object_phrase,
+                                          register)
 from pipeline.goals.objects import ObjectRecord
 from pipeline.routes.fmm import segment_free
 
@@ -41,7 +47,8 @@ def line_of_sight(walls: np.ndarray, grid, a_xy: np.ndarray, b_xy: np.ndarray) -
 
 
 def find_landmarks(goal: GoalDraft, ctx: FeedbackContext) -> list[dict]:
-    """Landmark records ``{object, relation, distance_m}``, nearest first, at most ``max_landmarks``."""
+    """Landmark records ``{object, relation, distance_m}``, at most ``max_landmarks``: those named by their class
+    alone first (:func:`~pipeline.goals.feedback.base.class_is_unique`), then the others, each nearest first."""
     radius = ctx.settings.landmark_radius_m
     limit = ctx.settings.max_landmarks
     min_area = ctx.settings.landmark_min_area_m2
@@ -62,7 +69,8 @@ def find_landmarks(goal: GoalDraft, ctx: FeedbackContext) -> list[dict]:
             rel = relation(g, o, d)
             if k not in found or d < found[k]["distance_m"]:
                 found[k] = {"object": k, "relation": rel, "distance_m": round(d, 3)}
-    return sorted(found.values(), key=lambda r: (r["distance_m"], r["object"]))[:limit]
+    return sorted(found.values(), key=lambda r: (not class_is_unique(r["object"], ctx), r["distance_m"],
+                                                 r["object"]))[:limit]
 
 
 def _join(items: list[str]) -> str:
@@ -77,5 +85,6 @@ class Landmark(FeedbackKind):
         marks = find_landmarks(goal, ctx)
         if not marks:
             return ""
-        phrases = [f"{m['relation']} {object_phrase(m['object'], ctx)}" for m in marks]
+        # the members of a pair share one name: said once
+        phrases = list(dict.fromkeys(f"{m['relation']} {object_phrase(m['object'], ctx)}" for m in marks))
         return f"It is {_join(phrases)}."

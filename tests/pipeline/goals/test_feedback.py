@@ -116,6 +116,27 @@ def test_landmarks_relation_radius_and_line_of_sight(house_goals):
     assert _goal(house_goals, "lamp_0").feedback.landmark.startswith("It is on ")
 
 
+def test_landmarks_easy_to_find_come_first():
+    """The paper's landmarks are "easily identifiable in the room": an object named by its class alone (the scene's
+    one fridge) comes before a nearer one the user must name by identity (one of two beds), and a pair is named
+    once."""
+    from tests.fixtures.goal_scenes import _obj
+
+    gt, grid = house_scene(), house_grid()
+    # a fridge 0.71 m from Carol's chair (chair_2, bedroom 1), whose bed is 0.54 m from it
+    gt.objects.append(_obj(12, "fridge", "bedroom_1", 5.2, 4.4, 5.5, 4.9, 1.8, "white", (240, 240, 240), "metal",
+                           "big"))
+    res = build_goals(objects_from_gt(gt), grid, gt.occupancy(grid, 0.05, 2.5, objects=False),
+                      planner=RoutePlanner(gt_navigable(gt, grid), grid), start_pose=(2.5, 1.8, 0.0),
+                      settings=GoalsParams(max_goals=20))
+    assert [m["object"] for m in res.landmarks["chair_2"]] == ["fridge_0", "bed_0"]
+    assert res.landmarks["chair_2"][0]["distance_m"] > res.landmarks["chair_2"][1]["distance_m"]
+    bed = res.document.objects["bed_0"].identity
+    assert _goal(res, "chair_2").feedback.landmark == f"It is near the fridge and near {bed}."
+    # the table's two chairs are one pair, one identity: named once
+    assert _goal(res, "table_0").feedback.landmark == "It is next to the metal chair."
+
+
 def test_procedural_from_the_start_pose(house_goals):
     # start (2.5, 1.8) facing east; Alice/Bob bedroom 2 through the door at y 1..2
     p = _goal(house_goals, "bed_1").feedback.procedural
