@@ -77,8 +77,8 @@ HM3D_NAVIGABLE_M2 = 112.5
 #: each); the simulator's default 6-7 rooms have 47-66 m2, half of an HM3D scene
 HM3D_ROOMS = 10
 #: the paper ends an episode only on success or after I_max questions (its reference code, navchat, has no step
-#: budget); on the 10 HM3D-sized scenes it ended 7 of 16,240 episodes (6 CoW, 1 ORION), every other one took at most
-#: 2,384 steps: it stops runaways, not searches
+#: budget); on the 10 HM3D-sized scenes it ends none of 16,240 episodes (the longest takes 2,384 steps): it would stop
+#: a runaway, not a search (the 7 it once ended were walks into a wall the world and the planners disagreed about)
 MAX_STEPS = 4000
 
 
