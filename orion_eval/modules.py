@@ -95,13 +95,17 @@ class Modules:
         self.objects[oid] = FoundObject(oid, c, np.asarray(cells, np.int64), source, score, {text} if text else set())
         return oid
 
+    def footprint_points(self, obj_id: int) -> np.ndarray:
+        """``(K,2)`` world points of an object's cells, about 64 of them (its centre when it has no cells)."""
+        e = self.objects[obj_id]
+        rr, cc = np.divmod(e.cells[:: max(1, len(e.cells) // 64)], self.ctx.grid.cols)
+        return self.ctx.grid.cell_to_world(np.stack([rr, cc], axis=1)) if len(rr) else e.center_xy[None]
+
     def relative(self, obj_id: int) -> tuple[float, float]:
         """(distance_m to the nearest cell, bearing of the centre) of an object from the agent."""
         e = self.objects[obj_id]
         x, y, yaw = self.pose
-        g = self.ctx.grid
-        rr, cc = np.divmod(e.cells[:: max(1, len(e.cells) // 64)], g.cols)
-        xy = g.cell_to_world(np.stack([rr, cc], axis=1)) if len(rr) else e.center_xy[None]
+        xy = self.footprint_points(obj_id)
         d = float(np.min(np.hypot(xy[:, 0] - x, xy[:, 1] - y)))
         a = float(wrap_angle(math.atan2(e.center_xy[1] - y, e.center_xy[0] - x) - yaw))
         return d, a

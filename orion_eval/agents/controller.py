@@ -58,6 +58,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.distance import cdist
 
 from orion_eval.agents.base import Agent, ParsedFeedback, parse_feedback
 
@@ -236,14 +237,7 @@ class ModularAgent(Agent):
     @staticmethod
     def footprint_gap(m, i: int, j: int) -> float:
         """Metres between the nearest cells of objects ``i`` and ``j`` (their footprints; 0 when they share one)."""
-        g = m.ctx.grid
-        pts = []
-        for k in (i, j):
-            cells = m.objects[k].cells
-            rr, cc = np.divmod(cells[:: max(1, len(cells) // 64)], g.cols)
-            pts.append(g.cell_to_world(np.stack([rr, cc], axis=1)) if len(rr) else m.objects[k].center_xy[None])
-        a, b = pts
-        return float(np.sqrt(((a[:, None, :] - b[None, :, :]) ** 2).sum(-1)).min())
+        return float(cdist(m.footprint_points(i), m.footprint_points(j)).min())
 
     def look_at_focus(self, m, st: SearchState) -> None:
         """Walk to the hinted place and look around for the query there (once per hint); when that spin sees

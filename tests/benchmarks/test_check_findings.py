@@ -109,3 +109,17 @@ def test_the_checks_apartments_have_the_rooms_asked_for(check, tmp_path):
     (tmp_path / "params.yaml").write_text(build_params(1, 240, "findings", 2027))
     default = load_params(tmp_path / "params.yaml").simulate
     assert (default.rooms_min, default.rooms_max) == (6, 7)  # the simulator's own range when not asked
+
+
+@pytest.mark.parametrize(("option", "field", "expected"), [
+    (["--rooms", "1"], "simulate.rooms_min", "greater than or equal to 2"),
+    (["--max-steps", "0"], "eval.max_steps", "greater than 0"),
+])
+def test_bad_options_are_refused_before_anything_is_built(tmp_path, option, field, expected):
+    """An option outside the params' bounds exits 2 with the field and the bound, and nothing is built or written."""
+    ws = tmp_path / "ws"
+    out = run_check("--workspace", str(ws), "--scenes", "1", *option)
+    assert out.returncode == 2 and "Traceback" not in out.stderr and out.stdout == ""
+    assert f"the check's params: {field}: Input should be {expected}" in out.stderr
+    assert "(set by --scenes, --rooms, --frames, --workers and --max-steps)" in out.stderr
+    assert not ws.exists()
