@@ -95,6 +95,7 @@ class SearchState:
     spotted: list = field(default_factory=list)  # detections of the query from that look-around, nearest first
     landmarks: dict = field(default_factory=dict)  # landmark phrase -> (K,2) places found (or None: not found)
     landmark_ids: dict = field(default_factory=dict)  # landmark phrase -> ids of the map's objects at those places
+    marks: list = field(default_factory=list)  # ids of the map's landmark instances in force (those in the hints)
     map_wrong: int = 0  # map candidates the user has said "No" to (ModularAgent.double_check_after)
 
     @property
@@ -224,15 +225,12 @@ class ModularAgent(Agent):
         rule for "next to"), then the landmarks themselves (it walks to one and asks there: it cannot look around,
         and the goal is next to it), then the other candidates, each tier in :meth:`ranked` order. Only the
         landmark places in force count (after a route, the instance of each landmark nearest its end)."""
-        places = {tuple(np.round(p, 6)) for pts in st.focus for p in np.asarray(pts).reshape(-1, 2)}
-        marks = [i for ids_ in st.landmark_ids.values() for i in ids_
-                 if tuple(np.round(m.objects[i].center_xy, 6)) in places]
-        if not marks:
+        if not st.marks:
             return ids
         radius = self.params.goals.landmark_radius_m
-        near = [i for i in ids if any(self.footprint_gap(m, i, j) <= radius for j in marks)]
+        near = [i for i in ids if any(self.footprint_gap(m, i, j) <= radius for j in st.marks)]
         rest = [i for i in ids if i not in near]
-        return near + self.ranked(m, st, [i for i in dict.fromkeys(marks) if i not in near]) + rest
+        return near + self.ranked(m, st, [i for i in dict.fromkeys(st.marks) if i not in near]) + rest
 
     @staticmethod
     def footprint_gap(m, i: int, j: int) -> float:
@@ -273,7 +271,7 @@ class ModularAgent(Agent):
                 m.goto_point((x + dist * math.cos(yaw + math.radians(bearing)),
                               y + dist * math.sin(yaw + math.radians(bearing))))
             end = np.asarray(m.pose[:2], np.float64)
-            st.focus, st.route_end = [end[None]], end
+            st.focus, st.route_end, st.marks = [end[None]], end, []
             st.spin_at, st.spin_then = (end if self.modules.detector else None), None
             st.spotted = []
         if fb.landmarks:  # located from where the route ended, if one came with them
@@ -282,10 +280,14 @@ class ModularAgent(Agent):
                 st.spotted = []
             hints = self.locate_landmarks(m, st, fb.landmarks)
             if hints:
+                ids = [st.landmark_ids.get(p, []) for p in fb.landmarks if st.landmarks.get(p) is not None]
                 if routed:
-                    # the hints pin each other down: of each landmark, the instances that agree with the route's end
-                    hints = [self.nearest(pts, st.focus) for pts in hints]
+                    # the hints pin each other down: of each landmark, the instance that agrees with the route's end
+                    keep = [self.nearest_index(pts, st.focus) for pts in hints]
+                    hints = [pts[[k]] for pts, k in zip(hints, keep)]
+                    ids = [found[k:k + 1] for found, k in zip(ids, keep)]
                 st.focus = (st.focus if routed else []) + hints
+                st.marks = [i for found in ids for i in found]
                 st.spotted = self.ranked(m, st, st.spotted)
                 if self.modules.detector:
                     # look around at the landmark found nearest the other hints (unless the goal was seen); after
@@ -299,12 +301,9 @@ class ModularAgent(Agent):
                         st.spin_at = at
 
     @staticmethod
-    def nearest(pts: np.ndarray, focus: list) -> np.ndarray:
-        """The ``(1,2)`` point of ``pts`` nearest the hints ``focus`` (all of ``pts`` without hints)."""
-        if not focus:
-            return pts
-        d = [np.mean([np.min(np.hypot(*(f - p).T)) for f in focus]) for p in pts]
-        return pts[[int(np.argmin(d))]]
+    def nearest_index(pts: np.ndarray, focus: list) -> int:
+        """Row of the ``(K,2)`` points ``pts`` nearest the hints ``focus`` (mean over the hints)."""
+        return int(np.argmin([np.mean([np.min(np.hypot(*(f - p).T)) for f in focus]) for p in pts]))
 
     def locate_landmarks(self, m, st: SearchState, phrases: list[str]) -> list[np.ndarray]:
         """Find the landmarks with the method's modules: the map's candidates of each phrase, else the detector (one
