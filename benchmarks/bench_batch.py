@@ -23,7 +23,8 @@ encoder's share of its CPU time (``encoder_share``; target: the oracle at most 5
 A stage's CPU seconds are its worker process's over the stage's span: while a map stage waits for its chunks
 or for its turn to fold them (seceded), its worker runs other tasks, whose CPU is then counted twice, so under
 ``processes`` the per-stage figures are upper bounds, and the map stages' are the in-process ``encoder_share``
-lines' (one scene, nothing else running). A stage's ``wall_s`` leaves out the time it stood in line for a turn
+lines' (one scene, nothing else running; their ``stage_cpu_ratio_to_kernel`` is that stage's CPU a frame over
+the ``index_add`` kernel's). A stage's ``wall_s`` leaves out the time it stood in line for a turn
 (``waited_s``, the manifests' ``timing.waited_seconds``). Each run's ``cpu_s`` is exact: ``getrusage`` of every
 process of the run.
 
@@ -598,8 +599,12 @@ def main() -> None:
                      feature_rows=[h * w, p.encoders.oracle.dim])
                 for kind in ("vlmap", "cfmap"):
                     if kind in args.stages:
-                        emit(bench="batch", kind="encoder_share", scene=scenes[0], frames=args.frames,
-                             **encoder_share(params, root, scenes[0], kind))
+                        share = encoder_share(params, root, scenes[0], kind)
+                        # the stage's own CPU a frame (in this process, nothing else running) over its kernel's:
+                        # the map stages' honest ratio (the per-stage lines below are upper bounds under processes)
+                        own = share["stage_cpu_s"] / args.frames / kernels["index_add"][1]
+                        emit(bench="batch", kind="encoder_share", scene=scenes[0], frames=args.frames, **share,
+                             kernel="index_add", stage_cpu_ratio_to_kernel=round(own, 2))
                 first = False
             timing = manifests(root, scenes, args.stages)
             for stage in args.stages:
