@@ -31,7 +31,9 @@ searches for and where, through the same rules for every method:
   detector's spin at the landmark instance nearest the other hints (with a map too: the map says where the
   landmark is, the detector looks for the goal around it); a method with a map and no detector, which cannot look
   around, tries the name's candidates next to a landmark first, then walks to the landmark itself and asks there
-  (the goal is next to it), then the other candidates (:meth:`ModularAgent.next_to_landmarks`);
+  (the goal is next to it), then the other candidates (:meth:`ModularAgent.next_to_landmarks`); without a map, a
+  landmark instance the user said "No" next to, naming the same landmark again, is passed over and the landmark
+  looked for again (:meth:`ModularAgent.pass_over_sighted`: a sighting is only the instance that was in view);
 - *procedural* (a route, or "It is about 4 meters to your left."): the route is walked to its end (the
   point is walked to) and the goal is searched there: map candidates nearest the end first, a
   detector's spin there first;
@@ -94,8 +96,9 @@ class SearchState:
     spin_then: np.ndarray | None = None  # where it looks around next when that spin sees nothing (a landmark)
     spotted: list = field(default_factory=list)  # detections of the query from that look-around, nearest first
     landmarks: dict = field(default_factory=dict)  # landmark phrase -> (K,2) places found (or None: not found)
-    landmark_ids: dict = field(default_factory=dict)  # landmark phrase -> ids of the map's objects at those places
+    landmark_ids: dict = field(default_factory=dict)  # landmark phrase -> ids of the objects at those places (map or sighted)
     marks: list = field(default_factory=list)  # ids of the map's landmark instances in force (those in the hints)
+    passed: dict = field(default_factory=dict)  # landmark phrase -> ids of sighted instances that proved wrong
     map_wrong: int = 0  # map candidates the user has said "No" to (ModularAgent.double_check_after)
 
     @property
@@ -276,6 +279,8 @@ class ModularAgent(Agent):
             st.spotted = []
         if fb.landmarks:  # located from where the route ended, if one came with them
             routed = bool(fb.route or fb.destination)
+            if not self.map_name():
+                self.pass_over_sighted(m, st, fb.landmarks, oid)
             if not routed:
                 st.spotted = []
             hints = self.locate_landmarks(m, st, fb.landmarks)
@@ -300,6 +305,25 @@ class ModularAgent(Agent):
                     else:
                         st.spin_at = at
 
+    def pass_over_sighted(self, m, st: SearchState, phrases: list[str], oid: int) -> None:
+        """Without a map a landmark is located by a sighting, and a sighting is the instance that happened to be
+        in view (of two shelves, the one the spin saw). When the user says "No" to an object next to it and names
+        the same landmark again, the goal is next to another instance: that one is passed over and the landmark
+        looked for again (a map, which returns every instance, ranks them by the other hints instead)."""
+        radius = self.params.goals.landmark_radius_m
+        for phrase in phrases:
+            ids = st.landmark_ids.get(phrase) or []
+            wrong = [j for j in ids if self.footprint_gap(m, oid, j) <= radius]
+            if not wrong:
+                continue
+            st.passed.setdefault(phrase, set()).update(wrong)
+            left = [j for j in ids if j not in wrong]
+            st.landmark_ids[phrase] = left
+            if left:
+                st.landmarks[phrase] = np.asarray([m.objects[j].center_xy for j in left], np.float64)
+            else:
+                del st.landmarks[phrase]  # looked for again
+
     @staticmethod
     def nearest_index(pts: np.ndarray, focus: list) -> int:
         """Row of the ``(K,2)`` points ``pts`` nearest the hints ``focus`` (mean over the hints)."""
@@ -323,16 +347,20 @@ class ModularAgent(Agent):
             if st.spin_at is not None and float(np.hypot(*(st.spin_at - m.pose[:2]))) <= self.params.eval.reject_radius_m:
                 st.spin_at = None  # the look-around due here (a route's end) is this one
             for phrase in new:
-                pts = [m.objects[t[0]].center_xy for t in seen[phrase]]
-                st.landmarks[phrase] = np.asarray(pts, np.float64) if pts else None
+                ids = [t[0] for t in seen[phrase] if t[0] not in st.passed.get(phrase, ())]
+                st.landmark_ids[phrase] = ids
+                st.landmarks[phrase] = np.asarray([m.objects[i].center_xy for i in ids], np.float64) if ids else None
             self.spot(m, st, [t for q in st.queries for t in seen[q]])
             if all(st.landmarks[p] is None for p in phrases) and self.modules.explore and not st.spotted:
                 # explore for the first landmark, watching for the goal at every spin
                 skip = self.skip(m, st, set())
-                hit = m.search_objects([*st.queries, phrases[0]], dict.fromkeys(st.queries, skip))
+                passed = st.passed.get(phrases[0], set())
+                hit = m.search_objects([*st.queries, phrases[0]],
+                                       {**dict.fromkeys(st.queries, skip), phrases[0]: passed.__contains__})
                 if hit and hit[0] in st.queries:
                     st.spotted = [hit[1]]
                 elif hit:
+                    st.landmark_ids[phrases[0]] = [hit[1]]
                     st.landmarks[phrases[0]] = np.asarray([m.objects[hit[1]].center_xy], np.float64)
         return [st.landmarks[p] for p in phrases if st.landmarks.get(p) is not None]
 

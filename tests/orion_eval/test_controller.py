@@ -209,6 +209,32 @@ def test_a_map_without_a_detector_tries_next_to_the_landmark_then_asks_at_it(ctx
     assert st.spin_at is not None
 
 
+def test_a_sighted_landmark_instance_the_user_rejected_next_to_is_passed_over(ctx):
+    """Without a map a landmark is the instance a spin happened to see; a "No" next to it with the same landmark
+    named again means another instance: that one is passed over and the landmark looked for again. A map, which
+    knows every instance, keeps them all (the hints rank them)."""
+    goal, run, cow = episode(ctx, "cow")
+    m = run.modules
+    st = SearchState(name=goal.name)
+    phrase = next(o for o in ("bed", "table", "couch", "chair", "cabinet")
+                  if o not in goal.name and cow.locate_landmarks(m, st, [o]))
+    first = list(st.landmark_ids[phrase])
+    assert first and len(st.landmarks[phrase]) == len(first)
+    wrong = first[0]
+    cow.update(m, st, ParsedFeedback(landmarks=[phrase]), wrong, goal.name)
+    assert st.passed[phrase] >= {wrong}
+    assert wrong not in st.landmark_ids.get(phrase, [])  # looked for again, that instance passed over
+    if st.landmarks.get(phrase) is not None:
+        assert all(not np.allclose(p, m.objects[wrong].center_xy) for p in st.landmarks[phrase])
+    goal, run, vlmap = episode(ctx, "vlmap")
+    m = run.modules
+    st = SearchState(name=goal.name)
+    every = [t[0] for t in m.retrieve_map(phrase, "vlmap")]
+    if every:
+        vlmap.update(m, st, ParsedFeedback(landmarks=[phrase]), every[0], goal.name)
+        assert not st.passed and st.landmark_ids[phrase] == every
+
+
 def test_a_description_is_the_detectors_prompt_not_a_map_query(ctx):
     """As in the paper's reference code, the map is asked for the goal's name only; the description goes to the
     detector (its spins look for the description, then the name). A method with only a map gains nothing from it."""
