@@ -2,9 +2,10 @@
 spatial relation words (on, under, next to, near); the easy ones to find first.
 
 The paper's landmarks are "common and salient objects near the current goal object" that "are easily
-identifiable in the room": so the objects named by their class alone (the scene's one fridge: "the fridge")
-come before those the user must name by identity because their class repeats ("Alice's shelf": a robot that
-finds shelves still has to tell which), each group nearest first."""
+identifiable in the room", so the user points each one out by what a robot can find it by (:func:`landmark_phrase`):
+its class when the scene has one of it ("the fridge"), else its colour and material when they tell it from the
+others of its class ("the white nightstand made of wood"), else its identity ("Alice's shelf": a robot that finds
+shelves still has to tell which). The landmarks come in that order, each group nearest first."""
 
 from __future__ import annotations
 
@@ -69,8 +70,31 @@ def find_landmarks(goal: GoalDraft, ctx: FeedbackContext) -> list[dict]:
             rel = relation(g, o, d)
             if k not in found or d < found[k]["distance_m"]:
                 found[k] = {"object": k, "relation": rel, "distance_m": round(d, 3)}
-    return sorted(found.values(), key=lambda r: (not class_is_unique(r["object"], ctx), r["distance_m"],
+    return sorted(found.values(), key=lambda r: (not class_is_unique(r["object"], ctx),
+                                                 not looks_unique(r["object"], ctx), r["distance_m"],
                                                  r["object"]))[:limit]
+
+
+def looks_unique(key: str, ctx: FeedbackContext) -> bool:
+    """Whether the object's colour and material tell it from every other object of its class (a pair counts once)."""
+    o = ctx.objects[key]
+    if not (o.color_name and o.material):
+        return False
+    own = set(ctx.identities[key].members)
+    return not any(q.cls == o.cls and k not in own and (q.color_name, q.material) == (o.color_name, o.material)
+                   for k, q in ctx.objects.items())
+
+
+def landmark_phrase(key: str, ctx: FeedbackContext) -> str:
+    """How the user points a landmark out so that it can be found: by its class when the scene has one ("the
+    fridge"), else by what it looks like when that tells it apart ("the white nightstand made of wood"), else by
+    its identity ("Alice's shelf")."""
+    o = ctx.objects[key]
+    if class_is_unique(key, ctx):
+        return f"the {o.cls}"
+    if looks_unique(key, ctx):
+        return f"the {' '.join(o.color_name.lower().split())} {o.cls} made of {o.material}"
+    return object_phrase(key, ctx)
 
 
 def _join(items: list[str]) -> str:
@@ -86,5 +110,5 @@ class Landmark(FeedbackKind):
         if not marks:
             return ""
         # the members of a pair share one name: said once
-        phrases = list(dict.fromkeys(f"{m['relation']} {object_phrase(m['object'], ctx)}" for m in marks))
+        phrases = list(dict.fromkeys(f"{m['relation']} {landmark_phrase(m['object'], ctx)}" for m in marks))
         return f"It is {_join(phrases)}."
