@@ -320,9 +320,14 @@ class ModularAgent(Agent):
             left = [j for j in ids if j not in wrong]
             st.landmark_ids[phrase] = left
             if left:
-                st.landmarks[phrase] = np.asarray([m.objects[j].center_xy for j in left], np.float64)
+                st.landmarks[phrase] = self.places(m, left)
             else:
                 del st.landmarks[phrase]  # looked for again
+
+    @staticmethod
+    def places(m, ids: list[int]) -> np.ndarray | None:
+        """``(K,2)`` centres of the objects ``ids`` (None when there are none: the landmark was not found)."""
+        return np.asarray([m.objects[i].center_xy for i in ids], np.float64) if ids else None
 
     @staticmethod
     def nearest_index(pts: np.ndarray, focus: list) -> int:
@@ -340,7 +345,7 @@ class ModularAgent(Agent):
             for phrase in new:
                 hits = [t[0] for t in m.retrieve_map(phrase, which)]
                 st.landmark_ids[phrase] = hits
-                st.landmarks[phrase] = np.asarray([m.objects[i].center_xy for i in hits], np.float64) if hits else None
+                st.landmarks[phrase] = self.places(m, hits)
         elif new and self.modules.detector:
             # one spin for the landmarks and the goal together: the goal itself may be in sight
             seen = m.look_around_for([*new, *st.queries])
@@ -349,7 +354,7 @@ class ModularAgent(Agent):
             for phrase in new:
                 ids = [t[0] for t in seen[phrase] if t[0] not in st.passed.get(phrase, ())]
                 st.landmark_ids[phrase] = ids
-                st.landmarks[phrase] = np.asarray([m.objects[i].center_xy for i in ids], np.float64) if ids else None
+                st.landmarks[phrase] = self.places(m, ids)
             self.spot(m, st, [t for q in st.queries for t in seen[q]])
             if all(st.landmarks[p] is None for p in phrases) and self.modules.explore and not st.spotted:
                 # explore for the first landmark, watching for the goal at every spin
@@ -361,7 +366,7 @@ class ModularAgent(Agent):
                     st.spotted = [hit[1]]
                 elif hit:
                     st.landmark_ids[phrases[0]] = [hit[1]]
-                    st.landmarks[phrases[0]] = np.asarray([m.objects[hit[1]].center_xy], np.float64)
+                    st.landmarks[phrases[0]] = self.places(m, [hit[1]])
         return [st.landmarks[p] for p in phrases if st.landmarks.get(p) is not None]
 
     def spot(self, m, st: SearchState, found: list) -> None:

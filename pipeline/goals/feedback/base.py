@@ -95,3 +95,10 @@ def class_is_unique(key: str, ctx: FeedbackContext) -> bool:
 def object_phrase(key: str, ctx: FeedbackContext) -> str:
     """How the user names another object: 'the bed', or its identity when its class repeats."""
     return f"the {ctx.objects[key].cls}" if class_is_unique(key, ctx) else ctx.identities[key].name
+
+
+def appearance(obj: ObjectRecord) -> str:
+    """What an object looks like, as the user says it: "white nightstand made of wood" (the colour and material
+    when known). The descriptive feedback says it of the goal, the landmark feedback of a landmark."""
+    words = " ".join(w for w in (obj.color_name, obj.cls) if w)
+    return words + (f" made of {obj.material}" if obj.material else "")

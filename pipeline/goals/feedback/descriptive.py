@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.goals.feedback.base import FeedbackContext, FeedbackKind, GoalDraft, object_phrase, register
+from pipeline.goals.feedback.base import (FeedbackContext, FeedbackKind, GoalDraft, appearance, object_phrase,
+                                          register)
 from pipeline.goals.feedback.landmark import polygon_distance, relation
 
 FUNCTIONS = {
@@ -26,10 +27,9 @@ class Descriptive(FeedbackKind):
         obj = ctx.objects[goal.members[0]]
         if obj.description:
             return " ".join(s.strip().rstrip(".") + "." for s in obj.description if s.strip())
-        words = " ".join(w for w in (obj.color_name, obj.cls) if w)
-        article = "an" if words[:1].lower() in "aeiou" else "a"
-        made = f" made of {obj.material}" if obj.material else ""
-        out = [f"It is {article} {words}{made}."]
+        look = appearance(obj)
+        article = "an" if look[:1].lower() in "aeiou" else "a"
+        out = [f"It is {article} {look}."]
         height = obj.z_range[1]
         if obj.z_range[0] > 0.05:
             gpoly = np.asarray(obj.footprint)

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.goals.feedback.base import (FeedbackContext, FeedbackKind, GoalDraft, class_is_unique, object_phrase,
-                                          register)
+from pipeline.goals.feedback.base import (FeedbackContext, FeedbackKind, GoalDraft, appearance, class_is_unique,
+                                          object_phrase, register)
 from pipeline.goals.objects import ObjectRecord
 from pipeline.routes.fmm import segment_free
 
@@ -93,7 +93,7 @@ def landmark_phrase(key: str, ctx: FeedbackContext) -> str:
     if class_is_unique(key, ctx):
         return f"the {o.cls}"
     if looks_unique(key, ctx):
-        return f"the {' '.join(o.color_name.lower().split())} {o.cls} made of {o.material}"
+        return f"the {appearance(o)}"
     return object_phrase(key, ctx)
 
 
