@@ -119,9 +119,12 @@ SALIENCY_PATCHES = 7
 #: How CoW's CLIP Grad-CAM localiser differs from the grounded detector (:class:`SaliencyDetector`); every value is
 #: derived from a published figure or the model's architecture, none from this evaluator's results:
 SALIENCY_SETTINGS = {
-    # CoW (Gadre et al., CVPR 2023, "CoWs on Pasture", Table 2; recalled, not re-checked here): with the same
-    # exploration, CLIP-Grad-CAM localisation reaches about 0.6 of the OWL-ViT localiser's success on RoboTHOR and
-    # HABITAT; the grounded detector's 0.9 peak recall is scaled by that ratio
+    # CoW (Gadre et al., CVPR 2023, "CoWs on Pasture", Table 2; this ratio recalled, not re-checked here): with the
+    # same exploration, CLIP-Grad-CAM localisation reaches about 0.6 of the OWL-ViT localiser's success on RoboTHOR
+    # and HABITAT; the grounded detector's 0.9 peak recall is scaled by that ratio. The mechanism was re-checked
+    # against CoW's public code (real-stanford/cow, src/models/localization/clip_grad.py): gradient-weighted
+    # attention relevance of the image token to the 7x7 ViT-B/32 patch tokens, upsampled to 224 px and thresholded
+    # into a binary mask (threshold 0.625 for B/32 in hparams/robo.json), whose centroid the agent walks to
     "max_recall": 0.55,
     # one 32 px patch of a 224 px input is 1/49 of the image: a smaller object is below the saliency map's resolution
     "half_recall_area": 1.0 / 49.0,
