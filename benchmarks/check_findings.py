@@ -5,9 +5,10 @@
     .venv/bin/python benchmarks/check_findings.py --workspace /tmp/findings --scenes 10 --ablations
 
 The scenes ``findings_00``... are fresh procedural apartments that no test, demo or other benchmark uses
-(their own names and ``simulate.seed`` 2027), built once with the batch pipeline (untimed; a second call
-reuses them), their maps from the simulated perception models, the CoW and ORION detectors simulated
-(:mod:`orion_eval.detector`). They are sized like the paper's HM3D scenes (``--rooms`` 10: about HM3D's 112.5 m2 of
+(their own names and ``simulate.seed`` 2027), built once with the batch pipeline (untimed; a second call reruns
+only what a code, params or input change made stale, so no figure comes from goals or maps that lag the code;
+``--reuse-stale`` keeps them as they are and the ``build`` line names each one), their maps from the simulated
+perception models, the CoW and ORION detectors simulated (:mod:`orion_eval.detector`). They are sized like the paper's HM3D scenes (``--rooms`` 10: about HM3D's 112.5 m2 of
 navigable floor a scene; the check prints each scene's), and an episode ends as the paper's do, on success or after
 I_max questions (``--max-steps`` is only a far bound against a runaway; the report counts the episodes it ended).
 Every method runs the same controller with its own modules (:mod:`orion_eval.agents.controller`); nothing in it or
@@ -302,6 +303,9 @@ def main() -> None:
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     ap.add_argument("--results", type=Path, default=None,
                     help="report on an earlier run's results.json instead of building and evaluating")
+    ap.add_argument("--reuse-stale", action="store_true",
+                    help="evaluate the scenes' stale artifacts as they are instead of rerunning their stages (the "
+                         "build line names each stale stage and why)")
     ap.add_argument("--ablations", action="store_true",
                     help="also evaluate ORION's ablations in the mixed setting and compare them with the paper's")
     args = ap.parse_args()
@@ -330,7 +334,7 @@ def main() -> None:
     except ConfigError as err:
         ap.error(f"{err}\n(set by --scenes, --rooms, --frames, --workers and --max-steps)")
     ws = build(args.workspace, args.scenes, args.frames, prefix="findings", seed=2027, bench="findings",
-               rooms=args.rooms)
+               rooms=args.rooms, reuse_stale=args.reuse_stale)
     params = load_params(ws.params_path, overrides)
     areas = navigable_areas(ws, params)
     emit(bench="findings", figure="navigable_m2", scenes=areas, mean=round(float(np.mean(list(areas.values()))), 1),
