@@ -3,20 +3,13 @@ the findings check reruns them and the timing names them instead of reading figu
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
 
 import pytest
 
 
 @pytest.fixture
-def bench(monkeypatch):
-    folder = Path(__file__).resolve().parents[2] / "benchmarks"
-    monkeypatch.syspath_prepend(str(folder))  # the script imports its neighbour _common
-    spec = importlib.util.spec_from_file_location("bench_eval", folder / "bench_eval.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+def bench(load_script):
+    return load_script("bench_eval")
 
 
 def test_a_built_scene_has_no_stale_stage_and_a_params_change_names_the_stage_and_the_key(bench, built_scene):

@@ -6,20 +6,14 @@ The check itself builds scenes and evaluates them (minutes; docs/evaluation-modu
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import pytest
 
 
 @pytest.fixture
-def check(monkeypatch):
-    folder = Path(__file__).resolve().parents[2] / "benchmarks"
-    monkeypatch.syspath_prepend(str(folder))  # the script imports its neighbour _common
-    spec = importlib.util.spec_from_file_location("check_findings", folder / "check_findings.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+def check(load_script):
+    return load_script("check_findings")
 
 
 def episodes(rates: dict[str, float], goals: int = 20, seeds: int = 5) -> list[dict]:
