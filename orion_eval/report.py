@@ -229,6 +229,9 @@ def run_notes(run: dict) -> list[str]:
              if v.get("kind") and not v.get("diagnostic")}
     notes += [f"{which} built with {kind}." for which, kind in sorted(kinds)]
     notes += [f"Detection (cow, orion): {kind}." for kind in sorted(set(run.get("detection", {}).values()))]
+    if run.get("stale"):
+        notes.append("Evaluated as built, although they lag their code, params or inputs (rerun them with zipon run): "
+                     + "; ".join(f"{k} ({why})" for k, why in run["stale"].items()) + ".")
     from orion_eval.agents import AGENTS
 
     mods = [f"{AGENTS[m].label}: {AGENTS[m].modules.describe()}" for m in run.get("methods", [])

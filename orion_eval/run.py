@@ -141,6 +141,13 @@ def evaluate(ws: Workspace, params: Params, stages: Mapping, out_dir: Path, scen
     scenes, methods, feedback, seeds = _resolve(params, scenes, methods, feedback, seeds, agent_classes)
     for s in scenes:  # fail early, before any worker starts, on missing or mismatched artifacts
         Scene(ws, params, s, stages, check=True)
+    artifacts, stale = provenance(ws, params, stages, scenes)
+    if stale:
+        import sys
+
+        lines = "".join(f"\n  {k}: {why}" for k, why in stale.items())
+        print(f"eval: evaluating these stages' artifacts as built, although they lag their code, params or inputs "
+              f"(results.json run.stale; rerun them: zipon run):{lines}", file=sys.stderr, flush=True)
     if params.eval.llm.base_url:
         from orion_eval.llm import check_llm_params
 
@@ -170,7 +177,8 @@ def evaluate(ws: Workspace, params: Params, stages: Mapping, out_dir: Path, scen
                       "episodes": len(episodes), "seconds": round(seconds, 2),
                       "episodes_per_s": round(len(episodes) / seconds, 2) if seconds > 0 else None,
                       "success_rule": params.eval.success_rule, "max_talk_turns": params.eval.max_talk_turns,
-                      "encoders": {s: _encoder_names(ws, params, s) for s in scenes}}
+                      "encoders": {s: _encoder_names(ws, params, s) for s in scenes},
+                      "artifacts": artifacts, "stale": stale}
     results["run"]["detection"] = {s: _detection_kind(params, results["run"]["encoders"][s]) for s in scenes}
     out_dir.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out_dir / "results.json", json.dumps(results, indent=2, sort_keys=True) + "\n")
@@ -179,6 +187,27 @@ def evaluate(ws: Workspace, params: Params, stages: Mapping, out_dir: Path, scen
 
         write_report(results, out_dir, ws=ws, params=params)
     return results
+
+
+def provenance(ws: Workspace, params: Params, stages: Mapping, scenes: list[str]) -> tuple[dict, dict]:
+    """What an evaluation reads, for its results: each scene's artifacts as ``{artifact: digest}`` (the digests the
+    publishing manifests record), and ``{"scene/stage": why}`` for each stage whose artifacts lag their code, params
+    or upstream artifacts (:func:`pipeline.stagegraph.staleness`, as ``zipon status`` says). Those are evaluated as
+    built (a built version is a version), but the results say so. The stages that read a scene's raw data are
+    left out of the staleness check: hashing a recording's every byte is ``zipon status``'s job, not each
+    evaluation's."""
+    from pipeline.manifest import Manifest
+    from pipeline.stagegraph import SOURCE, plan, staleness
+
+    artifacts: dict[str, dict[str, str]] = {}
+    stale: dict[str, str] = {}
+    for scene, stage in plan(stages, params, scenes):
+        man = Manifest.read(ws.manifest(scene, stage))
+        if man is not None:
+            artifacts.setdefault(scene, {}).update({name: out.digest for name, out in sorted(man.outputs.items())})
+        if SOURCE not in stages[stage].inputs and (why := staleness(ws, params, stages, stages[stage], scene)):
+            stale[f"{scene}/{stage}"] = why
+    return artifacts, stale
 
 
 def map_processes(fn, args: list[tuple], workers: int, **kwargs) -> list:

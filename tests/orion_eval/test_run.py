@@ -86,6 +86,27 @@ def test_same_seed_same_results(tiny_scene, tmp_path):
     assert (tmp_path / "a" / "episodes" / "tiny.episodes.jsonl.gz").read_bytes() != b""
 
 
+def test_results_name_the_artifacts_evaluated_and_any_stage_that_lags(evaluated, tiny_scene, tmp_path, capsys):
+    from pipeline.manifest import Manifest
+
+    ws, params, _, res = evaluated
+    for stage, name in (("reconstruct", "recon"), ("vlmap", "vlmap"), ("goals", "goals"), ("routes", "routes")):
+        assert res["run"]["artifacts"]["tiny"][name] == Manifest.read(ws.manifest("tiny", stage)).outputs[name].digest
+    assert res["run"]["stale"] == {}
+
+    # the goals' params changed since they were built: evaluated as built, and the results and stderr say so
+    changed = params.model_copy(update={"goals": params.goals.model_copy(update={"max_goals": 9})})
+    capsys.readouterr()
+    res = evaluate(ws, changed, STAGES, tmp_path, methods=["cow"], feedback=["yesno"], seeds=[0], progress=False,
+                   report=False)
+    assert list(res["run"]["stale"]) == ["tiny/goals"] and "goals.max_goals 8 -> 9" in res["run"]["stale"]["tiny/goals"]
+    err = capsys.readouterr().err
+    assert "lag their code, params or inputs" in err and "tiny/goals: params: goals.max_goals 8 -> 9" in err
+    from orion_eval.report import run_notes
+
+    assert any(line.startswith("Evaluated as built") and "tiny/goals" in line for line in run_notes(res["run"]))
+
+
 def test_unknown_names_are_config_errors(tiny_scene, tmp_path):
     ws, params = tiny_scene
     with pytest.raises(ConfigError, match="--methods: unknown method"):
