@@ -8,8 +8,9 @@ upper bound, 5 seeds, on ``eval.workers`` processes (goal: <= 600 s on 2 cores).
 Building the scenes' artifacts is the batch pipeline's job and is NOT timed: with ``--workspace`` the
 scenes ``bench_00``... (fresh procedural apartments, not the demo's) are written to ``DIR/params.yaml``
 and built with ``zipon run``'s runner (``run.scheduler: processes``); a second call reuses them, stale ones
-too unless ``--rebuild`` (the timing does not depend on them; the ``build`` line names every stale stage). Their maps come from the simulated perception models (``encoders.simulated: perception``), and
-the CoW / ORION agents detect with the simulated detector. The timed part is :func:`orion_eval.run.evaluate`
+too unless ``--rebuild`` (the timing does not depend on them; the ``build`` line names every stale stage).
+Their maps come from the simulated perception models (``encoders.simulated: perception``), and the CoW / ORION
+agents detect with the simulated detector. The timed part is :func:`orion_eval.run.evaluate`
 (results.json and the HTML report included) into ``DIR/eval``.
 
 Prints one JSON object per line:

@@ -8,9 +8,10 @@ The scenes ``findings_00``... are fresh procedural apartments that no test, demo
 (their own names and ``simulate.seed`` 2027), built once with the batch pipeline (untimed; a second call reruns
 only what a code, params or input change made stale, so no figure comes from goals or maps that lag the code;
 ``--reuse-stale`` keeps them as they are and the ``build`` line names each one), their maps from the simulated
-perception models, the CoW and ORION detectors simulated (:mod:`orion_eval.detector`). They are sized like the paper's HM3D scenes (``--rooms`` 10: about HM3D's 112.5 m2 of
-navigable floor a scene; the check prints each scene's), and an episode ends as the paper's do, on success or after
-I_max questions (``--max-steps`` is only a far bound against a runaway; the report counts the episodes it ended).
+perception models, the CoW and ORION detectors simulated (:mod:`orion_eval.detector`). They are sized like the
+paper's HM3D scenes (``--rooms`` 10: about HM3D's 112.5 m2 of navigable floor a scene; the check prints each
+scene's), and an episode ends as the paper's do, on success or after I_max questions (``--max-steps`` is only a
+far bound against a runaway; the report counts the episodes it ended).
 Every method runs the same controller with its own modules (:mod:`orion_eval.agents.controller`); nothing in it or
 in the perception models is set from these results.
 

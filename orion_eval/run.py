@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Mapping
@@ -143,8 +144,6 @@ def evaluate(ws: Workspace, params: Params, stages: Mapping, out_dir: Path, scen
         Scene(ws, params, s, stages, check=True)
     artifacts, stale = provenance(ws, params, stages, scenes)
     if stale:
-        import sys
-
         lines = "".join(f"\n  {k}: {why}" for k, why in stale.items())
         print(f"eval: evaluating these stages' artifacts as built, although they lag their code, params or inputs "
               f"(results.json run.stale; rerun them: zipon run):{lines}", file=sys.stderr, flush=True)

@@ -3,7 +3,6 @@ the findings check reruns them and the timing names them instead of reading figu
 
 from __future__ import annotations
 
-
 import pytest
 
 
