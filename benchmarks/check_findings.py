@@ -215,6 +215,11 @@ def print_report(res: dict, cells: Cells, draws: int) -> dict:
     capped = sum(e.get("end") == "step budget" for e in res["episodes"])
     print(f"episodes ended by the step budget (eval.max_steps, a bound the paper has not): {capped} of "
           f"{len(res['episodes'])}")
+    if "stale" not in run:
+        print("artifacts evaluated: not recorded (a results.json from before run.artifacts / run.stale)")
+    elif run["stale"]:
+        print("evaluated on stale artifacts (run.stale; rerun them with zipon run): "
+              + "; ".join(f"{k} ({why})" for k, why in run["stale"].items()))
     for m in METRICS:
         print(f"\n{m} %  (ours / paper)")
         print(f"{'':6}" + "".join(f"{s:>14}" for s in SETTINGS))

@@ -65,6 +65,29 @@ def run_check(*args: str):
     return subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, timeout=300)
 
 
+@pytest.mark.parametrize(("stale", "line"), [
+    ({"a/goals": "code changed: pipeline/goals/feedback/landmark.py"},
+     "evaluated on stale artifacts (run.stale; rerun them with zipon run): a/goals (code changed: "
+     "pipeline/goals/feedback/landmark.py)"),
+    (None, "artifacts evaluated: not recorded (a results.json from before run.artifacts / run.stale)"),
+    ({}, None),
+])
+def test_the_report_says_when_the_episodes_came_from_stale_artifacts(check, capsys, stale, line):
+    # SR varying over the cells (a constant table has no rank correlation)
+    eps = [dict(e, feedback=f) for j, f in enumerate(check.SETTINGS)
+           for e in episodes({m: ((i + j) % 5) / 4 for i, m in enumerate(check.METHODS)}, goals=4, seeds=4)]
+    run = {"scenes": ["a"], "seeds": [0, 1], "encoders": {"a": {"vlmap": {"kind": "simulated"}}},
+           "detection": {"a": "simulated detectors"}}
+    if stale is not None:
+        run["stale"] = stale
+    check.print_report({"run": run, "episodes": eps}, check.Cells(eps), 10)
+    text = capsys.readouterr().out
+    if line is None:
+        assert "stale" not in text and "not recorded" not in text
+    else:
+        assert line in text.splitlines()
+
+
 def test_a_results_file_that_cannot_be_read_is_refused_with_its_name(tmp_path):
     missing = tmp_path / "nowhere.json"
     out = run_check("--results", str(missing))
