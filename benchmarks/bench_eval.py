@@ -68,7 +68,7 @@ def build(root: Path, n_scenes: int, frames: int, rebuild: bool = False, stages:
     their format changed). ``reuse_stale`` (and not ``rebuild``) keeps stale artifacts as they are, for a speed
     measurement that does not depend on them (rebuilding ten scenes after a map change takes long); the ``build``
     line then names every stale stage and why, so no figure is read off artifacts that silently lag the code."""
-    from pipeline.stagegraph import plan
+    from pipeline.stagegraph import plan, stale_stages
     from pipeline.runner import run_many
 
     root.mkdir(parents=True, exist_ok=True)
@@ -80,7 +80,7 @@ def build(root: Path, n_scenes: int, frames: int, rebuild: bool = False, stages:
     params = load_params(ws.params_path)
     pairs = plan(STAGES, params, list(params.scenes), stages or None)
     if not stages:
-        stale = stale_stages(ws, params, pairs)
+        stale = stale_stages(ws, params, STAGES, pairs)
         if not stale or (reuse_stale and not rebuild):
             emit(bench=bench, figure="build", scenes=list(params.scenes), reused="all artifacts", stale=stale,
                  seconds_untimed=0.0)
@@ -93,15 +93,6 @@ def build(root: Path, n_scenes: int, frames: int, rebuild: bool = False, stages:
     emit(bench=bench, figure="build", scenes=list(params.scenes), ran=sum(o.status == "ran" for o in out),
          reused=sum(o.status == "skipped" for o in out), seconds_untimed=round(time.perf_counter() - t, 1))
     return ws
-
-
-def stale_stages(ws: Workspace, params, pairs: list[tuple[str, str]]) -> dict[str, str]:
-    """``{"scene/stage": why}`` for each of the (scene, stage) ``pairs`` whose artifacts lag their code, params or
-    inputs (:func:`pipeline.stagegraph.staleness`, the rule ``zipon run`` and ``zipon status`` follow)."""
-    from pipeline.stagegraph import staleness
-
-    return {f"{scene}/{stage}": why for scene, stage in pairs
-            if (why := staleness(ws, params, STAGES, STAGES[stage], scene))}
 
 
 def _cpu_seconds() -> float:

@@ -196,17 +196,15 @@ def provenance(ws: Workspace, params: Params, stages: Mapping, scenes: list[str]
     left out of the staleness check: hashing a recording's every byte is ``zipon status``'s job, not each
     evaluation's."""
     from pipeline.manifest import Manifest
-    from pipeline.stagegraph import SOURCE, plan, staleness
+    from pipeline.stagegraph import SOURCE, plan, stale_stages
 
+    pairs = plan(stages, params, scenes)
     artifacts: dict[str, dict[str, str]] = {}
-    stale: dict[str, str] = {}
-    for scene, stage in plan(stages, params, scenes):
+    for scene, stage in pairs:
         man = Manifest.read(ws.manifest(scene, stage))
         if man is not None:
             artifacts.setdefault(scene, {}).update({name: out.digest for name, out in sorted(man.outputs.items())})
-        if SOURCE not in stages[stage].inputs and (why := staleness(ws, params, stages, stages[stage], scene)):
-            stale[f"{scene}/{stage}"] = why
-    return artifacts, stale
+    return artifacts, stale_stages(ws, params, stages, [(sc, st) for sc, st in pairs if SOURCE not in stages[st].inputs])
 
 
 def map_processes(fn, args: list[tuple], workers: int, **kwargs) -> list:

@@ -185,6 +185,14 @@ def staleness(ws: Workspace, params: Params, stages: dict[str, StageSpec], spec:
     return " | ".join(reasons)
 
 
+def stale_stages(ws: Workspace, params: Params, stages: dict[str, StageSpec], pairs: list[tuple[str, str]]
+                 ) -> dict[str, str]:
+    """``{"scene/stage": why}`` for each of the (scene, stage) ``pairs`` whose outputs are not up to date
+    (:func:`staleness`, the rule ``zipon run`` and ``zipon status`` follow); up-to-date pairs are left out."""
+    return {f"{scene}/{stage}": why for scene, stage in pairs
+            if (why := staleness(ws, params, stages, stages[stage], scene))}
+
+
 def producers_of(stages: dict[str, StageSpec], name: str) -> set[str]:
     """The stages whose outputs stage ``name`` reads in the stage graph (a raw log's ``SOURCE`` counts as the
     raw log's producer, as for a simulated scene; :func:`upstream_stages` is the per-scene answer)."""
