@@ -2,7 +2,8 @@
 the frames that saw an object, accept a map proposal, draw a footprint, save the objects file, create a goal with
 descriptive and procedural feedback and save it (goals export then holds it and routes.zarr was rebuilt), see an
 invalid edit refused inline with nothing saved, play one episode as the user. A screenshot of each state is written
-under the test's tmp folder.
+under the test's tmp folder (pytest removes a passing test's folder: keep them with
+``-o tmp_path_retention_policy=all -s``, which also prints where they are).
 
 Playwright over Selenium: one pip package (the Python client and its driver; its own browser downloads are never
 used: ``executable_path`` points at Debian's chromium), auto-waiting locators and no chromedriver version to match.
@@ -216,3 +217,36 @@ def test_the_page_end_to_end(page, served, tmp_path):
     assert record["feedback"] == "human" and record["method"] == "vlmap" and record["goal"] == ambiguous
     assert record["talk_turns"] == sum(d["speaker"] == "agent" for d in record["log"]["dialogue"]) >= 1
     print(f"screenshots: {shots}")
+
+
+@pytest.mark.slow
+def test_an_objects_edit_left_before_its_check_or_a_scene_reload_mid_edit_is_dropped_cleanly(page, served):
+    url, root = served
+    pg = page
+    errors = []
+    pg.on("pageerror", lambda e: errors.append(str(e)))
+    pg.goto(url)
+    pg.wait_for_selector(f"body[data-ready={SCENE}]")
+    pg.click("nav button[data-tab=objects]")
+    pg.wait_for_selector("#object-list li")
+    on_disk = pg.evaluate("() => structuredClone(S.objects)")
+
+    # an edit checks the file 200 ms after the last keystroke; leaving the tab sooner drops the edit and its check
+    pg.click("#object-list li >> nth=0")
+    pg.fill("#object-form input[name=color_name]", "purple")
+    pg.click("nav button[data-tab=goals]")
+    pg.wait_for_timeout(600)
+    assert errors == [] and pg.evaluate("() => S.objects") is None
+    assert pg.locator("#object-list li").count() == 0 and pg.inner_text("#objects-error") == ""
+
+    # back on the tab the file is read again; a scene (re)load while editing shows the file as it is on disk
+    pg.click("nav button[data-tab=objects]")
+    pg.wait_for_selector("#object-list li")
+    assert pg.evaluate("() => S.objects") == on_disk
+    pg.click("#object-list li >> nth=0")
+    pg.fill("#object-form input[name=color_name]", "purple")
+    pg.evaluate("() => loadScene(S.scene, true)")
+    pg.wait_for_selector(f"body[data-ready={SCENE}]")
+    pg.wait_for_timeout(600)
+    assert errors == [] and pg.evaluate("() => S.objects") == on_disk
+    assert pg.locator("#object-list li").count() == len(on_disk["objects"]) and pg.is_hidden("#object-form")

@@ -479,6 +479,7 @@ let objectsTimer = null;
 function validateObjects() {
   clearTimeout(objectsTimer);
   objectsTimer = setTimeout(async () => {
+    if (!S.objects) return;  // the edit ended (another tab or scene) before the pause did: nothing to check
     const r = await api(scenePath("/objects/validate"), { method: "POST", body: objectsBody() });
     $("objects-error").textContent = r.ok ? "" : r.body.error;
     $("objects-save").disabled = !r.ok;
@@ -548,9 +549,16 @@ document.querySelectorAll("nav button").forEach((b) => b.addEventListener("click
   if (b.dataset.tab === "objects" && !S.objects) await loadObjects();
   if (b.dataset.tab === "history") await loadHistory();
   if (b.dataset.tab === "play") await loadAgents();
-  if (b.dataset.tab !== "objects") { S.objects = null; S.object = -1; $("object-form").hidden = true; S.proposals = []; S.heatmap = null; }
+  if (b.dataset.tab !== "objects") closeObjects();
   draw();
 }));
+
+// the objects file is edited on its tab only: leaving the tab (or the scene) drops the unsaved copy and its pending check
+function closeObjects() {
+  clearTimeout(objectsTimer);
+  S.objects = null; S.object = -1; $("object-form").hidden = true; S.proposals = []; S.heatmap = null;
+  renderObjects(); renderProposals(); $("objects-error").textContent = ""; $("objects-result").textContent = "";
+}
 ["show-objects", "show-goals", "show-routes", "show-trajectory", "show-rooms"].forEach((id) => $(id).addEventListener("change", draw));
 $("layer").addEventListener("change", async () => { S.layer = $("layer").value; await loadLayer(S.layer); draw(); });
 $("scene").addEventListener("change", () => { location.hash = $("scene").value; loadScene($("scene").value); });
@@ -575,6 +583,8 @@ async function loadScene(name, keepView) {
   $("layer").value = S.layer;
   $("propose-map").replaceChildren(...S.data.maps.map((m) => el("option", m)));
   S.layers = {};
+  closeObjects();  // another scene's objects file, or the same one as it is on disk now
+  if (!$("tab-objects").hidden) await loadObjects();
   const first = loadLayer(S.layer);  // the others are fetched when chosen
   const g = await goalsAsked;
   S.doc = g.ok ? g.body.document : null; S.etag = g.ok ? g.body.digest : null; S.goal = -1;
