@@ -6,7 +6,7 @@ const S = {
   scene: null, data: null, layers: {}, layer: "color",
   view: { s: 40, ox: 0, oy: 0 },
   doc: null, etag: null, goal: -1, selectedObject: null,
-  objects: null, object: -1, proposals: [], heatmap: null,
+  objects: null, objectsDirty: false, object: -1, proposals: [], heatmap: null,
   drawing: null, mode: null, play: null, route: null, routeFor: -1, clicked: null,
 };
 
@@ -476,7 +476,8 @@ function renderProposals() {
 function objectsBody() { return { path: $("objects-path").value, rooms: S.objects.rooms, objects: S.objects.objects }; }
 
 let objectsTimer = null;
-function validateObjects() {
+function validateObjects() {  // called after every edit of the objects file
+  S.objectsDirty = true;
   clearTimeout(objectsTimer);
   objectsTimer = setTimeout(async () => {
     if (!S.objects) return;  // the edit ended (another tab or scene) before the pause did: nothing to check
@@ -489,13 +490,14 @@ function validateObjects() {
 $("objects-save").addEventListener("click", async () => {
   const r = await api(scenePath("/objects"), { method: "PUT", body: objectsBody() });
   $("objects-error").textContent = r.ok ? "" : r.body.error;
+  if (r.ok) S.objectsDirty = false;
   $("objects-result").textContent = r.ok ? `wrote ${r.body.path}: ${r.body.objects} objects, ${r.body.rooms} rooms\nthen ${r.body.next}` : "";
 });
 
 async function loadObjects() {
   const r = await api(scenePath("/objects"));
   if (!r.ok) { $("objects-error").textContent = r.body.error; return; }
-  S.objects = { rooms: r.body.rooms, objects: r.body.objects };
+  S.objects = { rooms: r.body.rooms, objects: r.body.objects }; S.objectsDirty = false;
   $("objects-path").value = r.body.path;
   renderObjects(); draw();
 }
@@ -544,6 +546,7 @@ $("play-send").addEventListener("click", async () => {
 // ------------------------------------------------------------------ tabs, scenes, start
 
 document.querySelectorAll("nav button").forEach((b) => b.addEventListener("click", async () => {
+  if (b.dataset.tab !== "objects" && keepObjectsEdit()) return;
   document.querySelectorAll("nav button").forEach((x) => x.classList.toggle("active", x === b));
   ["goals", "objects", "views", "history", "play"].forEach((t) => { $(`tab-${t}`).hidden = t !== b.dataset.tab; });
   if (b.dataset.tab === "objects" && !S.objects) await loadObjects();
@@ -556,12 +559,20 @@ document.querySelectorAll("nav button").forEach((b) => b.addEventListener("click
 // the objects file is edited on its tab only: leaving the tab (or the scene) drops the unsaved copy and its pending check
 function closeObjects() {
   clearTimeout(objectsTimer);
-  S.objects = null; S.object = -1; $("object-form").hidden = true; S.proposals = []; S.heatmap = null;
+  S.objectsDirty = false; S.objects = null; S.object = -1; $("object-form").hidden = true; S.proposals = []; S.heatmap = null;
   renderObjects(); renderProposals(); $("objects-error").textContent = ""; $("objects-result").textContent = "";
 }
 ["show-objects", "show-goals", "show-routes", "show-trajectory", "show-rooms"].forEach((id) => $(id).addEventListener("change", draw));
 $("layer").addEventListener("change", async () => { S.layer = $("layer").value; await loadLayer(S.layer); draw(); });
-$("scene").addEventListener("change", () => { location.hash = $("scene").value; loadScene($("scene").value); });
+// true when the objects file has edits not saved and the user chose to stay with them
+function keepObjectsEdit() {
+  return Boolean(S.objects && S.objectsDirty) && !confirm("The objects file has edits that are not saved. Drop them?");
+}
+window.addEventListener("beforeunload", (e) => { if (S.objects && S.objectsDirty) e.preventDefault(); });
+$("scene").addEventListener("change", () => {
+  if (keepObjectsEdit()) { $("scene").value = S.scene; return; }
+  location.hash = $("scene").value; loadScene($("scene").value);
+});
 window.addEventListener("resize", draw);
 
 function loadLayer(name) {
