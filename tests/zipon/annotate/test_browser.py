@@ -267,3 +267,18 @@ def test_an_objects_edit_is_dropped_only_when_the_user_says_so_and_cleanly(page,
     assert errors == [] and pg.evaluate("() => S.objects") == on_disk
     assert pg.locator("#object-list li").count() == len(on_disk["objects"]) and pg.is_hidden("#object-form")
     assert pg.inner_text("#object-list li >> nth=0").startswith(first)
+
+    # choosing a scene asks the same (cancel keeps the scene and the edit)
+    pg.click("#object-list li >> nth=0")
+    pg.fill("#object-form input[name=color_name]", "purple")
+    pg.once("dialog", lambda d: (asked.append(d.message), d.dismiss()))
+    pg.evaluate("() => document.getElementById('scene').dispatchEvent(new Event('change'))")
+    assert len(asked) == 3 and pg.evaluate("() => [S.scene, S.objects.objects[0].color_name]") == [SCENE, "purple"]
+    # closing the page: the handler cancels the unload, which is what makes the browser ask (headless Chromium
+    # closes without showing that dialog, so the event is sent here as the browser sends it)
+    leave = ("() => { const e = new Event('beforeunload', {cancelable: true}); window.dispatchEvent(e); "
+             "return e.defaultPrevented; }")
+    assert pg.evaluate(leave) is True
+    pg.click("#objects-save")
+    pg.wait_for_selector("#objects-result:not(:empty)")
+    assert pg.evaluate(leave) is False and errors == []

@@ -568,7 +568,7 @@ $("layer").addEventListener("change", async () => { S.layer = $("layer").value; 
 function keepObjectsEdit() {
   return Boolean(S.objects && S.objectsDirty) && !confirm("The objects file has edits that are not saved. Drop them?");
 }
-window.addEventListener("beforeunload", (e) => { if (S.objects && S.objectsDirty) e.preventDefault(); });
+window.addEventListener("beforeunload", (e) => { if (S.objects && S.objectsDirty) { e.preventDefault(); e.returnValue = ""; } });
 $("scene").addEventListener("change", () => {
   if (keepObjectsEdit()) { $("scene").value = S.scene; return; }
   location.hash = $("scene").value; loadScene($("scene").value);
