@@ -37,6 +37,7 @@ from _common import emit
 from benchmarks.bench_eval import build, build_params
 from scipy.stats import spearmanr
 
+from orion_eval.report import stale_text
 from orion_eval.run import evaluate
 from stages import STAGES
 from orion_eval.user import FEEDBACK_SETTINGS
@@ -218,8 +219,7 @@ def print_report(res: dict, cells: Cells, draws: int) -> dict:
     if "stale" not in run:
         print("artifacts evaluated: not recorded (a results.json from before run.artifacts / run.stale)")
     elif run["stale"]:
-        print("evaluated on stale artifacts (run.stale; rerun them with zipon run): "
-              + "; ".join(f"{k} ({why})" for k, why in run["stale"].items()))
+        print("evaluated on stale artifacts (run.stale; rerun them with zipon run): " + stale_text(run["stale"]))
     for m in METRICS:
         print(f"\n{m} %  (ours / paper)")
         print(f"{'':6}" + "".join(f"{s:>14}" for s in SETTINGS))

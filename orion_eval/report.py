@@ -218,6 +218,11 @@ def _env():
     return env
 
 
+def stale_text(stale: dict[str, str]) -> str:
+    """results.json's ``run.stale`` (``{"scene/stage": why}``) on one line, for the report and the findings check."""
+    return "; ".join(f"{k} ({why})" for k, why in stale.items())
+
+
 def run_notes(run: dict) -> list[str]:
     """Lines under the report's title saying what the maps and detections were built with (one line per fact;
     the place for the perception model's label)."""
@@ -231,7 +236,7 @@ def run_notes(run: dict) -> list[str]:
     notes += [f"Detection (cow, orion): {kind}." for kind in sorted(set(run.get("detection", {}).values()))]
     if run.get("stale"):
         notes.append("Evaluated as built, although they lag their code, params or inputs (rerun them with zipon run): "
-                     + "; ".join(f"{k} ({why})" for k, why in run["stale"].items()) + ".")
+                     + stale_text(run["stale"]) + ".")
     from orion_eval.agents import AGENTS
 
     mods = [f"{AGENTS[m].label}: {AGENTS[m].modules.describe()}" for m in run.get("methods", [])
