@@ -585,6 +585,7 @@ function loadLayer(name) {
 
 async function loadScene(name, keepView) {
   S.scene = name; status(`loading ${name} …`); delete document.body.dataset.ready;
+  closeObjects();  // another scene's objects file, or the same one as it is on disk now (also when the load fails)
   const goalsAsked = api(scenePath("/goals"));  // in parallel with the summary
   const r = await api(scenePath());
   if (!r.ok) { status(r.body.error); S.data = null; draw(); return; }
@@ -594,7 +595,6 @@ async function loadScene(name, keepView) {
   $("layer").value = S.layer;
   $("propose-map").replaceChildren(...S.data.maps.map((m) => el("option", m)));
   S.layers = {};
-  closeObjects();  // another scene's objects file, or the same one as it is on disk now
   if (!$("tab-objects").hidden) await loadObjects();
   const first = loadLayer(S.layer);  // the others are fetched when chosen
   const g = await goalsAsked;
