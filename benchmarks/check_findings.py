@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 from _common import emit
+from findings_drivers import driver_figures, print_drivers, scene_statistics
 from benchmarks.bench_eval import build, build_params
 from scipy.stats import spearmanr
 
@@ -86,6 +87,9 @@ HM3D_ROOMS = 10
 #: budget); on the 10 HM3D-sized scenes it ends none of 16,240 episodes (the longest takes 2,384 steps): it would stop
 #: a runaway, not a search (the 7 it once ended were walks into a wall the world and the planners disagreed about)
 MAX_STEPS = 4000
+#: the check's own scene set: names and ``simulate.seed`` no test, demo or other benchmark uses (``--prefix``,
+#: ``--seed`` choose another, fresh one)
+PREFIX, SEED = "findings", 2027
 
 
 def navigable_areas(ws, params) -> dict[str, float]:
@@ -99,6 +103,20 @@ def navigable_areas(ws, params) -> dict[str, float]:
     return out
 
 
+def workspace_of(root: Path, scenes: list[str]):
+    """``(workspace, params)`` of the check's workspace at ``root`` when it holds every scene of ``scenes``, else
+    None."""
+    from pipeline.paths import Workspace
+
+    path = root / "params.yaml"
+    if not scenes or not path.is_file():
+        return None
+    params = load_params(path)
+    if not set(scenes) <= set(params.scenes):
+        return None
+    return Workspace.resolve(path, data_dir=root / "data", manifests_dir=root / "manifests"), params
+
+
 def paper_tables() -> dict[str, np.ndarray]:
     """metric -> (4 methods, 7 settings) array of the paper's values."""
     return {m: np.array([[PAPER[meth][s][k] for s in SETTINGS] for meth in METHODS]) for k, m in enumerate(METRICS)}
@@ -110,6 +128,7 @@ class Cells:
 
     def __init__(self, episodes: list[dict], methods: tuple[str, ...] = METHODS, settings: tuple[str, ...] = SETTINGS):
         episodes = [e for e in episodes if e["method"] in methods and e["feedback"] in settings]
+        self.methods, self.settings = methods, settings
         self.goals = sorted({(e["scene"], e["goal"]) for e in episodes})
         gi = {g: i for i, g in enumerate(self.goals)}
         shape = (len(self.goals), len(methods), len(settings))
@@ -298,7 +317,13 @@ def main() -> None:
     ap.add_argument("--workspace", type=Path, default=Path("/tmp/findings"), help="folder for the fresh scenes")
     ap.add_argument("--scenes", type=int, default=3)
     ap.add_argument("--rooms", type=int, default=HM3D_ROOMS, help="rooms of every apartment (the default sizes them "
-                    "like the paper's HM3D scenes: see HM3D_NAVIGABLE_M2)")
+                    "like the paper's HM3D scenes: see HM3D_NAVIGABLE_M2; 0: the simulator's default range)")
+    ap.add_argument("--prefix", default=PREFIX, help="the scenes' names are <prefix>_00, <prefix>_01, ...: a fresh "
+                    "prefix and --seed make a scene set the evaluator was never developed on (the JSON records both)")
+    ap.add_argument("--seed", type=int, default=SEED, help="simulate.seed of the scene set (each scene's own seed "
+                    "derives from it and the scene's name)")
+    ap.add_argument("--build-only", action="store_true", help="build the scenes and stop (the evaluation's code is "
+                    "no stage's: a later call evaluates them as built)")
     ap.add_argument("--frames", type=int, default=480, help="simulate.frames of the scenes")
     ap.add_argument("--max-steps", type=int, default=MAX_STEPS, help="eval.max_steps: a bound the paper's episodes "
                     "do not have (they end on success or after I_max questions); the report says if one reached it")
@@ -328,6 +353,13 @@ def main() -> None:
                      f"(found mixed episodes of {sorted(m for m in mixed if m)}); evaluate them with `zipon eval -f "
                      f"mixed -m orion -m orion_wo_map ...`")
         doc = print_report(res, Cells(episodes), args.boot)
+        ws = workspace_of(args.workspace, res["run"].get("scenes") or [])
+        if ws is not None:
+            doc["drivers"] = driver_figures(episodes, scene_statistics(*ws, STAGES), Cells)
+            print_drivers(doc["drivers"], NAMES)
+        else:
+            print(f"\nwhat drives each effect: not computed ({args.workspace} holds no built workspace of these scenes; "
+                  "name it with --workspace)")
         if args.ablations:
             doc["ablations"] = print_ablations(episodes, args.boot)
         if args.json:
@@ -335,12 +367,17 @@ def main() -> None:
         return
     overrides = [f"eval.workers={args.workers}", f"eval.max_steps={args.max_steps}"]
     try:  # the options are checked as params before anything is built (a build of 10 scenes takes 20 minutes)
-        text = build_params(args.scenes, args.frames, "findings", 2027, args.rooms)
+        if not args.prefix.isidentifier():
+            raise ConfigError(f"--prefix {args.prefix!r}: a scene name's prefix must be letters, digits and underscores, "
+                              "not starting with a digit")
+        text = build_params(args.scenes, args.frames, args.prefix, args.seed, args.rooms or None)
         parse_params(parse_yaml(text, origin="the check's params"), origin="the check's params", overrides=overrides)
     except ConfigError as err:
-        ap.error(f"{err}\n(set by --scenes, --rooms, --frames, --workers and --max-steps)")
-    ws = build(args.workspace, args.scenes, args.frames, prefix="findings", seed=2027, bench="findings",
-               rooms=args.rooms, reuse_stale=args.reuse_stale)
+        ap.error(f"{err}\n(set by --scenes, --rooms, --frames, --prefix, --seed, --workers and --max-steps)")
+    ws = build(args.workspace, args.scenes, args.frames, prefix=args.prefix, seed=args.seed, bench="findings",
+               rooms=args.rooms or None, reuse_stale=args.reuse_stale)
+    if args.build_only:
+        return
     params = load_params(ws.params_path, overrides)
     areas = navigable_areas(ws, params)
     emit(bench="findings", figure="navigable_m2", scenes=areas, mean=round(float(np.mean(list(areas.values()))), 1),
@@ -349,6 +386,11 @@ def main() -> None:
                    feedback=list(FEEDBACK_SETTINGS), seeds=list(range(args.seeds)), progress=False, report=False)
     emit(bench="findings", figure="run", episodes=res["run"]["episodes"], seconds=res["run"]["seconds"])
     doc = print_report(res, Cells(res["episodes"]), args.boot)
+    doc["drivers"] = driver_figures(res["episodes"], scene_statistics(ws, params, STAGES), Cells)
+    print_drivers(doc["drivers"], NAMES)
+    doc["scene_set"] = {"prefix": args.prefix, "seed": args.seed, "rooms": args.rooms or "simulator default",
+                        "frames": args.frames, "scenes": list(params.scenes), "seeds": args.seeds,
+                        "navigable_m2": areas}
     if args.ablations:
         abl = evaluate(ws, params, STAGES, args.workspace / "eval_ablations", scenes=list(params.scenes),
                        methods=[m for m in PAPER_ABLATIONS if m != "orion"], feedback=["mixed"],

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import ndimage
+from scipy.spatial.distance import cdist
 
 from orion_eval.memory import MemoryMaps
 from pipeline.routes.actions import FORWARD, LEFT, RIGHT, wrap_angle
@@ -261,8 +262,10 @@ class Modules:
             seen.update(found)
         return {s: self._triples(seen[s]) for s in obj_strs}
 
-    def frontier(self) -> np.ndarray | None:
-        """World xy of the nearest frontier cell (navigable, unexplored, next to explored) at least 1 m away."""
+    def frontier(self, near: np.ndarray | None = None) -> np.ndarray | None:
+        """World xy of the nearest frontier cell (navigable, unexplored, next to explored) at least 1 m away; with
+        ``near`` ((K,2) points the goal is said to be near: a landmark found, a route's end), the frontier nearest
+        them in whole metres first (the goal is searched around what points to it), then the nearest the agent."""
         nav = self.ctx.planner.planner.plan_mask
         ex = self._explored_mask()
         front = nav & ~ex & ndimage.binary_dilation(ex)
@@ -275,7 +278,12 @@ class Modules:
         far = d >= 1.0
         if not far.any():
             return None
-        k = int(np.flatnonzero(far)[np.argmin(d[far])])
+        idx = np.flatnonzero(far)
+        if near is not None and len(near):
+            hint = np.round(cdist(xy[idx], np.asarray(near, np.float64).reshape(-1, 2)).min(axis=1))
+            k = int(idx[np.lexsort((d[idx], hint))[0]])
+        else:
+            k = int(idx[np.argmin(d[idx])])
         return xy[k]
 
     def search_object(self, obj_str: str, skip=lambda obj_id: False) -> int | None:
@@ -283,11 +291,13 @@ class Modules:
         hit = self.search_objects([obj_str], {obj_str: skip})
         return hit[1] if hit else None
 
-    def search_objects(self, obj_strs: list[str], skip: dict | None = None) -> tuple[str, int] | None:
+    def search_objects(self, obj_strs: list[str], skip: dict | None = None,
+                       near: np.ndarray | None = None) -> tuple[str, int] | None:
         """:meth:`search_object` for several things at once (every spin detects all of them): ``(obj_str,
         obj_id)`` of the first of ``obj_strs`` (in their order) seen at the first place any was (in a spin, or in
         a look at the view ahead every :data:`WATCH_STEPS` forward steps on the way to a frontier), or None;
-        ``skip`` maps an obj_str to the test of detections of it to pass over (none: keep all)."""
+        ``skip`` maps an obj_str to the test of detections of it to pass over (none: keep all); ``near``: the
+        frontiers nearest these points first (:meth:`frontier`)."""
         skip = skip or {}
 
         def keep(s: str, hits: list) -> list:
@@ -309,7 +319,7 @@ class Modules:
                 hits = keep(s, seen[s])
                 if hits:
                     return s, hits[0][0]
-            target = self.frontier()
+            target = self.frontier(near)
             if target is None:
                 return None
             if not self.goto_point(target, watch):

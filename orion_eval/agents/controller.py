@@ -100,14 +100,26 @@ class SearchState:
     marks: list = field(default_factory=list)  # ids of the map's landmark instances in force (those in the hints)
     passed: dict = field(default_factory=dict)  # landmark phrase -> ids of sighted instances that proved wrong
     map_wrong: int = 0  # map candidates the user has said "No" to (ModularAgent.double_check_after)
+    one_prompt: bool = False  # the detector holds one prompt (CoW's CLIP saliency): the description replaces the name
 
     @property
     def queries(self) -> list[str]:
         """What the detector is asked for, in order: the description (once given), then the name (the map is asked
-        for the name only: :meth:`ModularAgent.map_candidates`). The description narrows the name, it does not
-        replace it: what is seen as the name but not read as the description is still a candidate, after the
-        described ones (and the detector then checks its attributes)."""
-        return [self.description, self.name] if self.description else [self.name]
+        for the name only: :meth:`ModularAgent.map_candidates`). For a phrase-grounding detector the description
+        narrows the name, it does not replace it: what is seen as the name but not read as the description is still
+        a candidate, after the described ones (and the detector then checks its attributes). A saliency localiser
+        (:attr:`one_prompt`) computes its relevance map for the one prompt it holds, as CoW's Grad-CAM does for its
+        goal text: the name, then the description (which names the class), so same-class objects of other colours
+        or materials are localised only where CLIP's reading of the attributes is unbound
+        (:data:`orion_eval.detector.UNBOUND_ATTRIBUTES`)."""
+        if not self.description:
+            return [self.name]
+        return [self.description] if self.one_prompt else [self.description, self.name]
+
+    def hint_points(self) -> np.ndarray | None:
+        """``(K,2)`` points of every hint in force (the landmarks found, a route's end), or None without hints: where
+        an exploration looks first (:meth:`~orion_eval.modules.Modules.frontier`)."""
+        return np.vstack(self.focus) if self.focus else None
 
     def focus_distance(self, xy) -> float:
         """Mean over the hints of the distance from ``xy`` to the hint's nearest point (0 without hints)."""
@@ -131,10 +143,14 @@ class ModularAgent(Agent):
         which = self.modules.map
         return self.params.eval.orion_map if which == "orion" else which
 
+    def state(self, goal_name: str) -> SearchState:
+        """A fresh episode's search state; a saliency localiser holds one prompt (:attr:`SearchState.one_prompt`)."""
+        return SearchState(name=goal_name, one_prompt=self.modules.detector == "saliency")
+
     def run(self, m, instruction: str, goal_name: str) -> None:
         if self.modules.detector:
             m.detector = self.modules.detector
-        st = SearchState(name=goal_name)
+        st = self.state(goal_name)
         while True:
             oid = self.next_candidate(m, st, goal_name)
             if oid is None:
@@ -198,10 +214,10 @@ class ModularAgent(Agent):
                 if not mods.detector:
                     return None
                 steps = m.run.body.steps
-                hit = m.search_objects(st.queries, dict.fromkeys(st.queries, skip))
+                hit = m.search_objects(st.queries, dict.fromkeys(st.queries, skip), near=st.hint_points())
                 oid = hit[1] if hit else None
                 if oid is None:
-                    if m.frontier() is not None and m.run.body.steps > steps:
+                    if m.frontier(st.hint_points()) is not None and m.run.body.steps > steps:
                         continue  # frontiers left: search on from here
                     return None
                 m.goto_object(oid)
@@ -340,34 +356,43 @@ class ModularAgent(Agent):
         explores). Landmarks already looked for in this episode are not looked for again. One ``(K,2)`` array of
         places per landmark found."""
         which = self.map_name()
-        new = [p for p in phrases if p not in st.landmarks]
-        if new and which:
-            for phrase in new:
+        if which:
+            for phrase in (p for p in phrases if p not in st.landmarks):
                 hits = [t[0] for t in m.retrieve_map(phrase, which)]
                 st.landmark_ids[phrase] = hits
                 st.landmarks[phrase] = self.places(m, hits)
-        elif new and self.modules.detector:
-            # one spin for the landmarks and the goal together: the goal itself may be in sight
-            seen = m.look_around_for([*new, *st.queries])
-            if st.spin_at is not None and float(np.hypot(*(st.spin_at - m.pose[:2]))) <= self.params.eval.reject_radius_m:
-                st.spin_at = None  # the look-around due here (a route's end) is this one
-            for phrase in new:
-                ids = [t[0] for t in seen[phrase] if t[0] not in st.passed.get(phrase, ())]
-                st.landmark_ids[phrase] = ids
-                st.landmarks[phrase] = self.places(m, ids)
-            self.spot(m, st, [t for q in st.queries for t in seen[q]])
-            if all(st.landmarks[p] is None for p in phrases) and self.modules.explore and not st.spotted:
-                # explore for the first landmark, watching for the goal at every spin
-                skip = self.skip(m, st, set())
-                passed = st.passed.get(phrases[0], set())
-                hit = m.search_objects([*st.queries, phrases[0]],
-                                       {**dict.fromkeys(st.queries, skip), phrases[0]: passed.__contains__})
-                if hit and hit[0] in st.queries:
-                    st.spotted = [hit[1]]
-                elif hit:
-                    st.landmark_ids[phrases[0]] = [hit[1]]
-                    st.landmarks[phrases[0]] = self.places(m, [hit[1]])
+        elif self.modules.detector:
+            # a landmark not found yet is looked for again whenever the user names it: the spin where the agent
+            # stands (remembered there: free when it already looked there) and the exploration, which goes on from
+            # the frontiers it left
+            lost = [p for p in phrases if st.landmarks.get(p) is None]
+            if lost:
+                self.find_landmarks(m, st, lost, phrases)
         return [st.landmarks[p] for p in phrases if st.landmarks.get(p) is not None]
+
+    def find_landmarks(self, m, st: SearchState, lost: list[str], phrases: list[str]) -> None:
+        """Without a map: one spin for the landmarks ``lost`` and the goal together (the goal itself may be in sight);
+        when none of ``phrases`` is found and nothing of the goal seen, a method that explores searches the frontiers
+        for every landmark not found, watching for the goal at every look (the landmarks are salient objects, easier to
+        find than the goal: the paper's reason landmarks help exploration-based methods)."""
+        seen = m.look_around_for([*lost, *st.queries])
+        if st.spin_at is not None and float(np.hypot(*(st.spin_at - m.pose[:2]))) <= self.params.eval.reject_radius_m:
+            st.spin_at = None  # the look-around due here (a route's end) is this one
+        for phrase in lost:
+            ids = [t[0] for t in seen[phrase] if t[0] not in st.passed.get(phrase, ())]
+            st.landmark_ids[phrase] = ids
+            st.landmarks[phrase] = self.places(m, ids)
+        self.spot(m, st, [t for q in st.queries for t in seen[q]])
+        if any(st.landmarks.get(p) is not None for p in phrases) or not self.modules.explore or st.spotted:
+            return
+        skip = self.skip(m, st, set())
+        hit = m.search_objects([*st.queries, *lost], {**dict.fromkeys(st.queries, skip),
+                                                     **{p: st.passed.get(p, set()).__contains__ for p in lost}})
+        if hit and hit[0] in st.queries:
+            st.spotted = [hit[1]]
+        elif hit:
+            st.landmark_ids[hit[0]] = [hit[1]]
+            st.landmarks[hit[0]] = self.places(m, [hit[1]])
 
     def spot(self, m, st: SearchState, found: list) -> None:
         """Add detections of the goal's query (``(obj_id, d, a)``) to the places to try, unless rejected."""

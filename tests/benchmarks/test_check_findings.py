@@ -138,5 +138,25 @@ def test_bad_options_are_refused_before_anything_is_built(tmp_path, option, fiel
     out = run_check("--workspace", str(ws), "--scenes", "1", *option)
     assert out.returncode == 2 and "Traceback" not in out.stderr and out.stdout == ""
     assert f"the check's params: {field}: Input should be {expected}" in out.stderr
-    assert "(set by --scenes, --rooms, --frames, --workers and --max-steps)" in out.stderr
+    assert "(set by --scenes, --rooms, --frames, --prefix, --seed, --workers and --max-steps)" in out.stderr
     assert not ws.exists()
+
+
+def test_a_prefix_that_cannot_name_a_scene_is_refused_before_anything_is_built(tmp_path):
+    ws = tmp_path / "ws"
+    out = run_check("--workspace", str(ws), "--scenes", "1", "--prefix", "9 homes")
+    assert out.returncode == 2 and "Traceback" not in out.stderr and out.stdout == ""
+    assert "--prefix '9 homes': a scene name's prefix must be letters, digits and underscores" in out.stderr
+    assert not ws.exists()
+
+
+def test_a_fresh_scene_set_is_named_by_its_prefix_and_seed(check, tmp_path):
+    """``--prefix`` / ``--seed`` choose the scenes' names and ``simulate.seed``: another set of homes."""
+    from benchmarks.bench_eval import build_params
+
+    from pipeline.paramsfile import load_params
+
+    (tmp_path / "params.yaml").write_text(build_params(2, 240, "fresh_df", 60217, None))
+    params = load_params(tmp_path / "params.yaml")
+    assert list(params.scenes) == ["fresh_df_00", "fresh_df_01"] and params.simulate.seed == 60217
+    assert (check.PREFIX, check.SEED) == ("findings", 2027)  # the check's own set when none is named

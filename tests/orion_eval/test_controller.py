@@ -427,3 +427,32 @@ def test_the_map_is_trusted_until_it_has_been_wrong_for_several_turns(ctx):
     # wrong twice: the map's first candidate (the same one: ids follow the map's order) is double-checked first
     assert checked and checked[0] == first
     assert again == first or first in st2.deferred
+
+
+def test_a_saliency_localiser_holds_one_prompt():
+    """CoW's Grad-CAM relevance is computed for the one prompt the agent holds: the name, then the description (which
+    names the class); the grounded detector is asked for the description and the name."""
+    cow, orion, wo_det = (build_agent(n, None) for n in ("cow", "orion", "orion_wo_det"))
+    for agent, one in ((cow, True), (orion, False), (wo_det, True)):
+        st = agent.state("Alice's chair")
+        assert st.one_prompt is one and st.queries == ["Alice's chair"]
+        st.description = "red chair made of wood"
+        assert st.queries == (["red chair made of wood"] if one else ["red chair made of wood", "Alice's chair"])
+
+
+def test_a_landmark_not_found_is_looked_for_again_where_the_exploration_left_off(tiny_scene):
+    """Without a map, a landmark the agent has not found is looked for again each time the user names it: the spin
+    where it stands is remembered (no steps), and the exploration goes on from the frontiers it left."""
+    ws, params = tiny_scene
+    few = params.model_copy(update={"eval": params.eval.model_copy(update={"explore_max_targets": 1})})
+    small = SceneContext(Scene(ws, few, "tiny", STAGES, check=True))
+    goal, run, cow = episode(small, "cow")
+    m = run.modules
+    m.detector = "saliency"
+    st = cow.state(goal.name)
+    assert cow.locate_landmarks(m, st, ["bicycle"]) == []
+    first = run.body.steps
+    assert first >= 24 and st.landmarks["bicycle"] is None
+    left = m.frontier()
+    cow.locate_landmarks(m, st, ["bicycle"])
+    assert left is None or run.body.steps > first  # on to the next frontier, not the same spin again

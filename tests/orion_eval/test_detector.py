@@ -201,3 +201,27 @@ def test_queries_share_one_draw_per_view_and_object(space):
     # the red chair is found as "red chair" exactly in the views where it is found as "chair"; the blue one never
     assert [1 in c for c in chair] == [1 in r for r in red] and not any(2 in r for r in red)
     assert any(2 in c for c in chair)  # the blue chair is seen as a chair: its colour tells it apart
+
+
+def test_saliency_reads_a_prompts_attributes_as_a_bag_of_words_over_the_view(space):
+    """CoW's CLIP relevance for "red chair" does not bind "red" to the chair (ARO): a blue chair beside a red table is
+    localised as a red chair in about UNBOUND_ATTRIBUTES of the views, alone in view seldom (its own blue is read); the
+    grounded detector reads each box's own colour."""
+    from orion_eval.detector import UNBOUND_ATTRIBUTES, SaliencyDetector
+
+    scene = gt([(1, "chair", "blue", (2.0, -0.3, -0.6), (2.5, 0.3, 0.2)), (2, "table", "red", (2.0, 0.5, -0.6),
+                                                                           (2.8, 1.4, 0.0))])
+    saliency = SaliencyDetector(DetectorParams(), space, scene, _boxes(scene))
+    grounded = SimulatedDetector(DetectorParams(), space, scene, _boxes(scene))
+    both, origin, dirs = view_of(grounded, [1, 2])
+    alone, _, _ = view_of(grounded, [1])
+    n = 400
+    unbound = np.mean([1 in saliency.reads("red chair", np.array([1, 2]), ("saliency", k)) for k in range(n)])
+    assert abs(unbound - UNBOUND_ATTRIBUTES) < 0.06
+    assert saliency.reads("chair", np.array([1, 2]), ("saliency", 0)) == {}  # no attribute words: nothing to read
+    # the unbound reads credit the chair with the table's red: localised as a red chair beside it, never alone
+    assert rate(saliency, both, origin, dirs, "red chair", 1, n) > 0.5 * rate(saliency, both, origin, dirs, "chair", 1, n)
+    assert rate(saliency, alone, origin, dirs, "red chair", 1, n) < 0.05
+    assert rate(grounded, both, origin, dirs, "red chair", 1, n) < 0.02
+    # the table itself keeps its own class: "red chair" does not find it
+    assert saliency.reads("red chair", np.array([1, 2]), ("saliency", 3)).get(2, ("red", "wood")) == ("red", "wood")

@@ -232,3 +232,24 @@ def test_a_blocked_walk_ends_at_the_wall(tiny_scene):
     assert not ctx.world.act(run.body, FORWARD)  # it stands at the wall, facing it
     m.move(100.0)
     assert run.body.steps == steps + 2 and run.body.collisions == 3  # one more collision in move, then it stops
+
+
+def test_an_exploration_with_hints_goes_first_to_the_frontier_nearest_them(tiny_scene):
+    """A landmark found (or a route's end) says where the goal is: the frontier nearest it in whole metres comes first,
+    the agent's distance breaks ties; without hints, the nearest frontier."""
+    from scipy import ndimage
+
+    ctx, _, run = _run(tiny_scene)
+    m = run.modules
+    m.look_around("chair")
+    plain = m.frontier()
+    assert plain is not None
+    ex = m._explored_mask()
+    rr, cc = np.nonzero(ctx.planner.planner.plan_mask & ~ex & ndimage.binary_dilation(ex))
+    xy = ctx.planner.crop_grid.cell_to_world(np.stack([rr, cc], axis=1))
+    xy = xy[np.hypot(xy[:, 0] - m.pose[0], xy[:, 1] - m.pose[1]) >= 1.0]
+    far = xy[np.argmax(np.hypot(*(xy - plain).T))]  # the frontier farthest from the nearest one
+    assert np.hypot(*(plain - far)) > 1.0
+    hinted = m.frontier(near=far[None])
+    assert np.hypot(*(hinted - far)) < 0.5  # the frontier at the hint, not the nearest one
+    assert np.array_equal(m.frontier(near=None), plain)

@@ -1,0 +1,97 @@
+"""benchmarks/findings_drivers.py: what drives each feedback's effect — the paper's setting from navchat's goal files,
+and the per-goal splits of the gains — on files and episodes whose answers are known."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+
+
+@pytest.fixture
+def drivers(load_script):
+    return load_script("findings_drivers")
+
+
+def navchat_scene(folder: Path, objects: dict, goals: dict) -> None:
+    """One navchat goal folder: ``objects`` {key: (class, mass)}, ``goals`` {key: final.json entry}."""
+    folder.mkdir(parents=True)
+    (folder / "objects.json").write_text(json.dumps(
+        {k: {"name": c, "center": [0, 0], "mass": m, "contour": []} for k, (c, m) in objects.items()}))
+    (folder / "final.json").write_text(json.dumps({"room_info": {"bedroom": "Alice"}, **goals}))
+
+
+def goal(kind: str, room: str, mass: float, nearby: str = "", same: str | None = None) -> dict:
+    g = {"base": json.dumps({"center": [0, 0], "mass": mass}), "nearby_obj": nearby, "object_desc": "", "attr": None,
+         "room_id": room, "explain": "", "type": kind}
+    if same:
+        g["same_goal"] = same
+    return g
+
+
+def test_the_paper_setting_statistics_from_navchat_files(drivers, tmp_path):
+    navchat_scene(tmp_path / "a", {"chair_0": ("chair", 10), "chair_1": ("chair", 10), "chair_2": ("chair", 10),
+                                   "bed_0": ("bed", 40), "lamp_0": ("lamp", 2)},
+                  {"chair_0": goal("ambiguous", "bedroom_1", 10, "bed_0", same="chair_1"),
+                   "lamp_0": goal("small", "bedroom_1", 2, "bed_0|chair_2"), "bed_0": goal("big", "living_1", 40)})
+    navchat_scene(tmp_path / "b", {"sofa_0": ("sofa", 30)}, {"sofa_0": goal("big", "living_1", 30, "tv_0")})
+    s = drivers.navchat_statistics(tmp_path)
+    assert s["goals"] == 4 and s["types"] == {"ambiguous": 1, "big": 2, "small": 1}
+    # chair_0's group is chair_0 and chair_1: chair_2 is its one distractor; nobody else has one
+    assert s["distractors per goal"] == 0.25 and s["goals with distractors"] == 0.25
+    # landmarks listed in objects.json: chair_0 -> bed (40/10), lamp_0 -> bed and chair (25/2); tv_0 is not listed
+    assert s["landmark / goal footprint"] == pytest.approx((4.0 + 12.5) / 2)
+    assert s["goals with landmarks"] == 0.5 and s["rooms per scene"] == 1.5
+
+
+def test_a_folder_without_navchat_scenes_is_refused(drivers, tmp_path):
+    with pytest.raises(FileNotFoundError, match="no scene folder with a final.json"):
+        drivers.navchat_statistics(tmp_path)
+
+
+NAVCHAT = os.environ.get("ZIPON_NAVCHAT_GOALS")  # navchat's orion/user_simulator/goals (never committed)
+
+
+@pytest.mark.skipif(not NAVCHAT, reason="set ZIPON_NAVCHAT_GOALS to navchat's orion/user_simulator/goals folder")
+def test_the_paper_setting_constants_are_navchats(drivers):
+    s = drivers.navchat_statistics(Path(NAVCHAT))
+    assert s == {k: v for k, v in drivers.PAPER_SETTING.items() if k != "navigable m2"}
+    assert s["types"] == {"ambiguous": 37, "big": 39, "small": 41}  # the paper's 117 goals
+
+
+def episodes(outcomes: dict) -> list[dict]:
+    """``outcomes`` {(goal, method, setting): successes of 4 seeds}: one scene "s"."""
+    out = []
+    for (g, m, f), wins in outcomes.items():
+        out += [{"scene": "s", "goal": g, "method": m, "feedback": f, "seed": k, "success": k < wins, "spl": 0.0,
+                 "sit": 0.0} for k in range(4)]
+    return out
+
+
+def test_gains_are_split_by_what_drives_them(drivers, load_script):
+    check = load_script("check_findings")
+    settings = check.SETTINGS
+    outcomes = {}
+    for g, crowded in (("g1", True), ("g2", False)):
+        for m in check.METHODS:
+            for f in settings:
+                # a description helps only where there are distractors; landmarks only where the landmark shows more
+                wins = 1 + (3 if (f == "descriptive" and crowded) or (f == "landmark" and not crowded) else 0)
+                outcomes[(g, m, f)] = wins
+    stats = {"scenes": {"s": {"rooms": 3, "navigable m2": 50.0, "goals": 2, "distractors per goal": 0.5,
+                              "goals with distractors": 0.5, "landmark / goal seen": 1.0,
+                              "landmark / goal footprint": 2.0, "goals with landmarks": 1.0}},
+             "goals": {"s/g1": {"distractors": 2, "landmark / goal seen": 0.5},
+                       "s/g2": {"distractors": 0, "landmark / goal seen": 3.0}}}
+    doc = drivers.driver_figures(episodes(outcomes), stats, check.Cells)
+    groups = doc["groups"]
+    assert groups["descriptive, goals with same-class distractors"] == {
+        "goals": 1, "gains": {m: 75.0 for m in check.METHODS}}
+    assert groups["descriptive, goals without"]["gains"] == {m: 0.0 for m in check.METHODS}
+    assert groups["landmark, landmark seen from more floor than the goal"]["gains"] == {m: 75.0 for m in check.METHODS}
+    assert groups["landmark, landmark seen from as much floor or less"]["gains"] == {m: 0.0 for m in check.METHODS}
+    scene = doc["scenes"]["s"]["gains"]
+    assert scene["descriptive"] == {m: 37.5 for m in check.METHODS} and scene["procedural"]["cow"] == 0.0
+    assert doc["paper setting"]["goals"] == 117
