@@ -66,41 +66,48 @@ def navchat_statistics(folder: Path) -> dict:
             "goals with landmarks": round(with_landmarks / n, 2), "rooms per scene": round(float(np.mean(rooms)), 1)}
 
 
-def seen_from_m2(ctx, keys: tuple[str, ...], samples: np.ndarray, cell_m2: float) -> float:
-    """Floor (m²) among ``samples`` ((N,2) navigable points) from which the objects ``keys``' mass-centre column is in
-    line of sight within the detector's range."""
-    from orion_eval.user import goal_geometry
+def seen_from_m2(sight, goals, index: np.ndarray, keys: tuple[str, ...], samples: np.ndarray, cell_m2: float,
+                 reach_m: float) -> float:
+    """Floor (m²) among ``samples`` ((N,2) navigable points) from which the mass-centre column of one of the objects
+    ``keys`` is in line of sight (``sight``: the routes module's mesh test) within ``reach_m``; ``index`` is the
+    goals' object index grid."""
+    from pipeline.routes.region import own_cells, sight_levels
 
-    geom = goal_geometry(ctx, keys)
-    reach = ctx.params.eval.detect_max_range_m
+    order = goals.object_keys
+    own = own_cells(np.isin(index, [order.index(k) + 1 for k in keys]))
     seen = np.zeros(len(samples), bool)
-    for k, mc in enumerate(geom.mass_centers):
-        near = np.flatnonzero(np.hypot(*(samples - mc).T) <= reach)
+    for k in keys:
+        o = goals.objects[k]
+        mc = np.asarray(o.mass_center, np.float64)
+        near = np.flatnonzero(np.hypot(*(samples - mc).T) <= reach_m)
         if len(near):
-            seen[near] |= ctx.sight(samples[near], mc, geom.z_levels[k], geom.own_cells)
+            seen[near] |= sight(samples[near], mc, sight_levels(o.z_range), own)
     return float(seen.sum()) * cell_m2
 
 
 def scene_statistics(ws, params, stages) -> dict:
     """``{"scenes": {scene: {...}}, "goals": {"scene/goal": {...}}}``: the statistics of the module docstring."""
-    from orion_eval.scene import SceneContext
+    from pipeline.routes.region import MeshSight
     from pipeline.scene import Scene
 
     out: dict = {"scenes": {}, "goals": {}}
+    reach = params.eval.detect_max_range_m
     for name in params.scenes:
         scene = Scene(ws, params, name, stages)
-        ctx = SceneContext(scene)
         grid, goals = scene.grid, scene.goals
+        sight = MeshSight.from_mesh(scene.recon.mesh_path, floor_z=scene.recon.floor_z,
+                                    camera_height_m=scene.camera_height_m, grid=grid)
         step = max(1, int(round(SAMPLE_M / grid.cell_size_m)))
         rr, cc = np.nonzero(scene.navigable[::step, ::step])
         samples = grid.cell_to_world(np.stack([rr * step, cc * step], axis=1)).astype(np.float64)
         cell_m2 = (step * grid.cell_size_m) ** 2
         classes = Counter(o.cls for o in goals.objects.values())
+        index = goals.object_index()
         seen: dict[tuple[str, ...], float] = {}
 
         def seen_of(keys: tuple[str, ...]) -> float:
             if keys not in seen:
-                seen[keys] = seen_from_m2(ctx, keys, samples, cell_m2)
+                seen[keys] = seen_from_m2(sight, goals, index, keys, samples, cell_m2, reach)
             return seen[keys]
 
         rows = []
@@ -122,7 +129,7 @@ def scene_statistics(ws, params, stages) -> dict:
         ratios = [r["landmark / goal seen"] for r in rows if "landmark / goal seen" in r]
         feet = [r["landmark / goal footprint"] for r in rows if "landmark / goal footprint" in r]
         out["scenes"][name] = {
-            "rooms": len(scene.room_of_cell()[1]), "navigable m2": round(float(scene.navigable.sum()) * grid.cell_size_m ** 2, 1),
+            "rooms": len(scene.room_of_cell[1]), "navigable m2": round(float(scene.navigable.sum()) * grid.cell_size_m ** 2, 1),
             "goals": len(rows), "distractors per goal": round(float(np.mean([r["distractors"] for r in rows])), 2),
             "goals with distractors": round(float(np.mean([r["distractors"] > 0 for r in rows])), 2),
             "landmark / goal seen": round(float(np.median(ratios)), 2) if ratios else None,
