@@ -266,8 +266,10 @@ class GoalRegions:
     def attrs(self) -> tuple[dict, dict]:
         """``(goal_region, sight)`` attrs of ``goals.zarr``: the definition and radius, and the line-of-sight test."""
         sight = self.sight
+        # the words stored since goals.zarr format 1, which named the function where it then lived (now
+        # pipeline.nav.region.group_region): changing them would change every goals digest for no change of content
         return ({"definition": "navigable cells within success_m of a member's footprint that see its mass centre "
-                               "(pipeline.nav.region.group_region)", "success_m": self.success_m},
+                               "(pipeline.routes.region.group_region)", "success_m": self.success_m},
                 {"method": SIGHT_METHOD, "camera_height_m": round(self._camera_height_m, 4),
                  "levels": list(SIGHT_LEVELS), "tolerance_m": sight.tolerance,
                  "own_dilation_cells": OWN_DILATION_CELLS})
