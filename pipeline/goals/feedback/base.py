@@ -55,6 +55,11 @@ class FeedbackContext:
     # read by the routes stage); None = no reconstruction mesh: routes end within the planner's stop radius
     goal_region: Callable[[tuple[str, ...]], np.ndarray] | None = None
     settings: GoalsParams = field(default_factory=GoalsParams)  # the goals params (landmark radius, ...)
+    # a building: its planner over every floor (pipeline.nav.building.BuildingPlanner), the floor the recording
+    # starts on and the floor this context's goals lie on; None: one floor (``planner`` plans everything)
+    building: Any = None
+    start_floor: int = 0
+    floor: int = 0
 
     def footprint_mask(self, keys: tuple[str, ...]) -> np.ndarray:
         idx = [self.object_keys.index(k) + 1 for k in keys]

@@ -31,9 +31,13 @@ class Procedural(FeedbackKind):
             centres = np.array([ctx.objects[k].mass_center for k in goal.members], np.float64).reshape(-1, 2)
             targets = GoalTargets.of(ctx.goal_region(goal.members), footprint, ctx.planner.grid,
                                      stop_radius_m=ctx.planner.settings.stop_radius_m)
-            route = route_to_goal(ctx.planner, ctx.start_pose, targets, key=goal.id, face_xy=centres)
+            if ctx.building is not None:  # from the start's floor, over the stairs when the goal is on another
+                route = ctx.building.route_to_goal(ctx.start_floor, ctx.start_pose, ctx.floor, targets, key=goal.id,
+                                                   face_xy=centres)
+            else:
+                route = route_to_goal(ctx.planner, ctx.start_pose, targets, key=goal.id, face_xy=centres)
         else:
             face = np.asarray(ctx.objects[goal.members[0]].mass_center)
             route = ctx.planner.route(ctx.start_pose, footprint, key=goal.id, face_xy=face)
         # a start already in the region (or a route of turns under 45 deg) has nothing to say: None
-        return None if route is None or not route.parts else route.text
+        return None if route is None or not (route.parts or getattr(route, "climbs", None)) else route.text
