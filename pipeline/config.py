@@ -744,7 +744,7 @@ class TaskParams(Section):
     stop_radius_m: float = Field(
         1.0, gt=0, description="a walk to a goal (the reference routes, the procedural feedback of goals.zarr and of "
         "the simulated user) aims for goal-region cells within this distance of the footprint "
-        "(pipeline.routes.region.route_target), metres"
+        "(pipeline.nav.region.route_target), metres"
     )
     clearance_m: float = Field(
         0.1, ge=0, description="planned paths keep this far from non-navigable cells, beyond recon's robot radius: "

@@ -13,13 +13,13 @@ import pytest
 from zipon.cli import main
 from pipeline.paramsfile import load_params
 from pipeline.errors import LockedError
-from pipeline.locks import lock_holder, output_lock
-from pipeline.runner import run_stage
+from pipeline.engine.locks import lock_holder, output_lock
+from pipeline.engine.runner import run_stage
 from pipeline.store import content_digest
-from pipeline.verify import verify_all
+from pipeline.engine.verify import verify_all
 from tests.fixtures.toy_stages import TOY_STAGES
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 HOST = socket.gethostname()
 
 
@@ -34,7 +34,7 @@ def _spawn(code: str, ready: Path, **env) -> subprocess.Popen:
 
 
 def _hold(lock: Path, ready: Path) -> subprocess.Popen:
-    return _spawn("import time; from pipeline.locks import output_lock\n"
+    return _spawn("import time; from pipeline.engine.locks import output_lock\n"
                   f"with output_lock({str(lock)!r}, 'x'):\n"
                   f"    open({str(ready)!r}, 'w').close(); time.sleep(60)\n", ready)
 
@@ -53,7 +53,7 @@ def test_second_run_of_a_stage_fails_fast_and_the_data_root_stays_consistent(wor
     pause = tmp_path / "paused"
     first = _spawn(  # a forced rebuild that stops mid-write, holding the (s0, ingest) lock
         "from pipeline.paramsfile import load_params; from pipeline.paths import Workspace;"
-        "from pipeline.runner import run_stage; from tests.fixtures.toy_stages import TOY_STAGES;"
+        "from pipeline.engine.runner import run_stage; from tests.fixtures.toy_stages import TOY_STAGES;"
         f"ws = Workspace.resolve({str(workspace.params_path)!r});"
         "run_stage(ws, load_params(ws.params_path, ['simulate.frames=8']), TOY_STAGES, 's0', 'ingest',"
         " force=True, show_progress=False)", pause, TOY_PAUSE_FILE=str(pause))

@@ -1,11 +1,11 @@
-"""A map chunk's frame blocks are read by a background thread while the encoder runs: the same items in the same
-order, an error raised in its turn, and a loop left early stops the thread."""
+"""A stream read ahead by a background thread (the frame blocks of reconstruct and the map stages): the same items in the
+same order, an error raised in its turn, and a loop left early stops the thread."""
 
 import threading
 
 import pytest
 
-from pipeline.maps.build import prefetched
+from pipeline.prefetch import prefetched
 
 
 def test_items_come_in_order_from_another_thread():
@@ -16,7 +16,7 @@ def test_items_come_in_order_from_another_thread():
             seen_in.append(threading.current_thread().name)
             yield i
 
-    assert list(prefetched(items(), depth=2)) == list(range(20))
+    assert list(prefetched(items(), depth=2, name="map-read")) == list(range(20))
     assert set(seen_in) == {"map-read"}
 
 

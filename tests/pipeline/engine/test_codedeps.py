@@ -6,7 +6,7 @@ import shutil
 
 import pytest
 
-from pipeline import codedeps
+from pipeline.engine import codedeps
 from pipeline.errors import ZiponError
 from stages import STAGES
 

@@ -17,7 +17,7 @@ evaluator's success rule (:mod:`orion_eval.world`) uses the same test, so a rout
 region with the mass centre inside the 90 deg view is a success.
 
 :func:`goal_region` computes the region of one object; a same_goal group is the union over its
-members. :func:`route_target` is the part of the region a planner aims for: per connected part of
+members. A route into a goal is planned once, by :func:`route_to_goal`. :func:`route_target` is the part of the region a planner aims for: per connected part of
 the region, cells within ``stop_radius_m`` of the footprint and at least ``margin_cells`` inside the
 region's edge (falling back to the margin alone; specks and strips with no such cell are skipped),
 so a walk that ends up to half a step off its target still ends inside the region. The reference length ``l`` for SPL is the geodesic distance
@@ -28,6 +28,7 @@ Arrays are ``(rows, cols)`` bool on a :class:`~pipeline.geometry.GridSpec`; worl
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -224,30 +225,63 @@ def group_region(navigable: np.ndarray, object_index: np.ndarray, object_keys: l
     return region
 
 
-def route_into_region(planner, pose, region: np.ndarray, object_mask: np.ndarray, *, key, face_xy,
-                      stop_radius_m: float):
-    """The route from ``pose`` (x, y, yaw) into a goal region, planned as the routes stage plans it: to
-    the first of its :func:`route_aims` whose walk (replayed on the planner's grid) ends inside the
-    region (2 cells in, by erosion; else the first ending in it, else the first reachable), facing
-    the nearest of ``face_xy``. ``planner`` is a
-    :class:`pipeline.routes.actions.RoutePlanner`; None when the region is empty or unreachable."""
-    from pipeline.routes.verify import replay
+@dataclass(frozen=True)
+class GoalTargets:
+    """What a route into one goal aims for, computed once per goal: the ``region`` ``(rows, cols)`` bool, its
+    ``inner`` cells (2 cells in, by erosion: a walk ending there ends well inside) and its :func:`route_aims`."""
 
-    if not np.asarray(region, bool).any():
+    region: np.ndarray
+    inner: np.ndarray
+    aims: list[tuple[str, np.ndarray]]
+
+    @classmethod
+    def of(cls, region: np.ndarray, object_mask: np.ndarray, grid: GridSpec, *, stop_radius_m: float
+           ) -> GoalTargets:
+        region = np.asarray(region, bool)
+        aims = route_aims(region, object_mask, grid, stop_radius_m=stop_radius_m) if region.any() else []
+        return cls(region, ndimage.binary_erosion(region, iterations=2), aims)
+
+
+# (route) -> (x, y) world metres where walking the route's actions from its start pose ends
+WalkEnd = Callable[[object], np.ndarray]
+
+
+def route_to_goal(planner, pose, targets: GoalTargets, *, key, face_xy, walk_end: WalkEnd | None = None):
+    """THE route from ``pose`` (x, y, yaw) into a goal region — the one the goals stage's procedural feedback
+    says, the evaluator's simulated user describes and the annotation workbench previews.
+
+    Tries the goal's :func:`route_aims` in order (route target, narrower margins, the region) and keeps the
+    first whose walk ends in ``targets.inner``, else the first ending in the region, else the first reachable;
+    the walk finishes inside the region and faces the nearest of ``face_xy`` ``(K, 2)``. ``planner`` plans to
+    explicit cells (:meth:`pipeline.nav.actions.RoutePlanner.route_into`, or the evaluator's planner);
+    ``walk_end`` walks a route (default: :func:`pipeline.nav.verify.replay` on the planner's grid; the
+    evaluator walks it in its world). None when the region is empty or unreachable."""
+    if not targets.aims:
         return None
-    inner = ndimage.binary_erosion(region, iterations=2)  # 2 cells inside: the exact pose is well inside it
+    grid = planner.grid
+    walk_end = walk_end or _replayed_end(planner, pose)
     best, best_rank = None, -1
-    s = planner.settings
-    for aim, mask in route_aims(region, object_mask, planner.grid, stop_radius_m=stop_radius_m):
-        route = planner.route(pose, mask, key=(key, aim), face_xy=face_xy, region=True, end_mask=region)
+    for aim, mask in targets.aims:
+        route = planner.route_into(pose, mask, key=(key, aim), face_xy=face_xy, end_mask=targets.region)
         if route is None:
             continue
-        end = replay(route.actions, pose, planner.navigable, planner.grid, [], step_m=s.step_m,
-                     turn_deg=s.turn_deg, region=inner)
-        rank = 2 if end.in_region else int(region[planner.grid.world_to_cell(np.array(end.final_xyyaw[:2]))[0],
-                                                   planner.grid.world_to_cell(np.array(end.final_xyyaw[:2]))[1]])
+        rc = grid.world_to_cell(np.asarray(walk_end(route), np.float64))
+        inside = grid.inside(rc)
+        rank = 2 if inside and targets.inner[rc[0], rc[1]] else int(bool(inside and targets.region[rc[0], rc[1]]))
         if rank == 2:
             return route
         if rank > best_rank:
             best, best_rank = route, rank
     return best
+
+
+def _replayed_end(planner, pose) -> WalkEnd:
+    """Where a route's actions end, replayed from ``pose`` on the planner's navigable grid."""
+    from pipeline.nav.verify import replay
+
+    s = planner.settings
+
+    def end(route) -> np.ndarray:
+        res = replay(route.actions, pose, planner.navigable, planner.grid, [], step_m=s.step_m, turn_deg=s.turn_deg)
+        return np.array(res.final_xyyaw[:2])
+    return end

@@ -5,9 +5,9 @@ import numpy as np
 from pipeline.geometry import GridSpec
 from pipeline.config import TaskParams
 from pipeline.routes.episodes import GoalTarget, make_episodes
-from pipeline.routes.fmm import geodesic_field
-from pipeline.routes.region import MeshSight, goal_region, route_target
-from pipeline.routes.verify import replay
+from pipeline.nav.fmm import geodesic_field
+from pipeline.nav.region import MeshSight, goal_region, route_target
+from pipeline.nav.verify import replay
 
 GRID = GridSpec(80, 80, 0.05, (0.0, 4.0))  # 4 m x 4 m, origin at the north-west corner
 

@@ -30,7 +30,7 @@ class Manifest(BaseModel):
     code_digest: str
     code_files: dict[str, str] = Field(
         default_factory=dict, description="source file (relative to the project) -> digest, for every file of the "
-        "stage's import closure (pipeline.codedeps); names what changed when code_digest differs")
+        "stage's import closure (pipeline.engine.codedeps); names what changed when code_digest differs")
     params: dict[str, Any] = Field(description="the stage's config as params keys -> values (exactly what "
                                    "params_digest covers)")
     params_digest: str
@@ -41,12 +41,12 @@ class Manifest(BaseModel):
                                    "cpu_seconds (process CPU time of the stage), peak_rss_mb (the worker process's "
                                    "peak resident memory up to the end of the stage), waited_seconds, native_threads "
                                    "(the BLAS/torch/open3d threads it ran with), counters (the worker process's page faults, "
-                                   "context switches and bytes read over the stage: pipeline.process.process_counters),"
+                                   "context switches and bytes read over the stage: pipeline.engine.process.process_counters),"
                                    " host, python")
     layout: dict[str, str] = Field(default_factory=dict, description="artifact path templates of this zipon")
 
     def text(self) -> str:
-        """The file's exact text (a publication journal carries it, see :mod:`pipeline.publication`)."""
+        """The file's exact text (a publication journal carries it, see :mod:`pipeline.engine.publication`)."""
         return json.dumps(self.model_dump(mode="json"), indent=2, sort_keys=True) + "\n"
 
     def write(self, path: Path) -> None:

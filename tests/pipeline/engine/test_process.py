@@ -9,7 +9,7 @@ import pytest
 FAULTS_SCRIPT = """
 import resource, sys
 import numpy as np
-from pipeline.process import restore_malloc_defaults
+from pipeline.engine.process import restore_malloc_defaults
 if sys.argv[1] == "restore":
     restore_malloc_defaults()
 x = np.ones(1 << 18)  # 2 MiB, as a frame buffer
@@ -37,7 +37,7 @@ def test_a_dask_nanny_malloc_setting_is_undone_in_workers():
 def test_counters_see_a_file_read_twice_and_fresh_pages_touched(tmp_path):
     import mmap
 
-    from pipeline.process import counters_since, process_counters
+    from pipeline.engine.process import counters_since, process_counters
 
     data = tmp_path / "block.bin"
     data.write_bytes(os.urandom(4 << 20))
@@ -56,7 +56,7 @@ def test_counters_see_a_file_read_twice_and_fresh_pages_touched(tmp_path):
 
 TRIM_SCRIPT = """
 import numpy as np
-from pipeline.process import release_free_memory
+from pipeline.engine.process import release_free_memory
 def rss_mb():
     return int(open("/proc/self/statm").read().split()[1]) * 4096 / 2**20
 blocks = [np.ones(8192) for _ in range(4000)]  # 4,000 x 64 KiB from the heap (below the mmap threshold), touched

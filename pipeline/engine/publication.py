@@ -2,7 +2,7 @@
 
 A stage writes its outputs in a private temporary folder (:func:`pipeline.store.new_tmp_dir`). The
 runner then publishes them with :func:`publish_outputs`, holding the (scene, stage) lock
-(:mod:`pipeline.locks`), by this protocol:
+(:mod:`pipeline.engine.locks`), by this protocol:
 
 1. **Intent**: the journal ``artifacts/<scene>/.<stage>.publish.json`` is written atomically
    (temporary file, fsync, rename, fsync of the folder). It lists every move ``tmp -> final``, the
@@ -46,7 +46,7 @@ from pathlib import Path
 from pydantic import BaseModel, ConfigDict
 
 from pipeline.errors import ArtifactError, StageError
-from pipeline.manifest import Manifest
+from pipeline.engine.manifest import Manifest
 from pipeline.paths import Workspace
 from pipeline.store import fsync_dir, remove, write_text_atomic
 

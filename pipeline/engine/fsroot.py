@@ -21,15 +21,15 @@ old or the new set, never a mix.
 Locks: ``artifacts/<scene>/.<stage>.lock`` is created with a conditional write (``If-None-Match: *``, s3fs's
 ``mode="create"``; S3 and moto honour it), so exactly one run builds a (scene, stage); a second fails at once
 with :class:`~pipeline.errors.LockedError`, as on a local root. The lock holds its holder's owner record (pid, host,
-process start token: :func:`pipeline.locks.holder_record`) and a nonce. The rule is that of local locks
-(:mod:`pipeline.locks`): a lock left by a dead process of THIS host (pid gone, or reused by another process: the
+process start token: :func:`pipeline.engine.locks.holder_record`) and a nonce. The rule is that of local locks
+(:mod:`pipeline.engine.locks`): a lock left by a dead process of THIS host (pid gone, or reused by another process: the
 start token differs) is reclaimed automatically, the check-delete-create serialised between this host's processes
 by a host-local file lock; a lock of ANOTHER host is never broken (its process cannot be probed from here): the error
 names the object to delete once that run is known dead. Object stores without conditional writes cannot lock;
 zipon refuses to build there (the error says so) rather than risk two writers.
 
 A stage checks, just before step 2, that the manifests of its inputs are still the ones it pulled; a stage
-whose input was republished meanwhile is not published (as :func:`pipeline.publication.check_inputs_unchanged`).
+whose input was republished meanwhile is not published (as :func:`pipeline.engine.publication.check_inputs_unchanged`).
 ``zipon verify`` re-hashes the published versions in place (:meth:`RemoteRoot.digest`: zarr stores through zarr's
 ``FsspecStore``), then mirrors them like ``zipon status``.
 """
@@ -44,8 +44,8 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 from pipeline.errors import ArtifactError, LockedError, MissingInputError, StageError
-from pipeline.locks import holder_is_dead, holder_record, parse_holder
-from pipeline.manifest import Manifest
+from pipeline.engine.locks import holder_is_dead, holder_record, parse_holder
+from pipeline.engine.manifest import Manifest
 from pipeline.paths import ARTIFACTS, LOCK, MANIFEST, Workspace
 from pipeline.store import (DIGEST_ALGO, content_digest, hash_stream, hash_zarr_group, new_digest, publish, remove,
                             write_text_atomic)
@@ -112,7 +112,7 @@ class RemoteRoot:
     def lock(self, rel: str, what: str) -> Iterator[None]:
         """Hold the lock object ``rel`` for the body (fail fast); ``what`` names the outputs in errors.
 
-        A lock left by a dead process of this host is reclaimed (:func:`pipeline.locks.holder_is_dead`, the rule of
+        A lock left by a dead process of this host is reclaimed (:func:`pipeline.engine.locks.holder_is_dead`, the rule of
         local locks); any other holder makes this raise :class:`LockedError` naming it and the object."""
         body = holder_record() + f"{uuid.uuid4().hex}\n"  # the owner record, then a nonce: release deletes only ours
         if not self._create(rel, body, what):

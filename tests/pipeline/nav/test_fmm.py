@@ -1,7 +1,7 @@
 import numpy as np
 
 from pipeline.geometry import GridSpec
-from pipeline.routes.fmm import geodesic_field, planning_mask, shortest_path, target_region
+from pipeline.nav.fmm import geodesic_field, planning_mask, shortest_path, target_region
 from tests.fixtures.goal_scenes import corridor_grid
 
 

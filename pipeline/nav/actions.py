@@ -21,10 +21,12 @@ from scipy import ndimage
 
 from pipeline.config import TaskParams
 from pipeline.geometry import GridSpec
-from pipeline.routes.store import FORWARD, LEFT, RIGHT, STOP
-from pipeline.routes.fmm import (GeodesicPath, geodesic_field, planning_mask, segment_free, shortest_path,
-                                 target_region)
+from pipeline.nav.fmm import (GeodesicPath, geodesic_field, planning_mask, segment_free, shortest_path,
+                              target_region)
 
+# the discrete action space (Habitat's codes): routes.zarr stores these, the evaluator's agents act with them
+STOP, FORWARD, LEFT, RIGHT = 0, 1, 2, 3
+ACTION_NAMES = {STOP: "stop", FORWARD: "forward", LEFT: "left", RIGHT: "right"}
 DEEP_CELLS = 2  # a walk finishes this many cells inside its aim when a few more steps get it there
 _LETTER = {FORWARD: "f", LEFT: "l", RIGHT: "r"}
 
@@ -309,7 +311,7 @@ class RoutePlanner:
               ) -> np.ndarray:
         """FMM field on the clearance mask (``'clear'``) or the navigable mask to the cells within the stop
         radius of ``object_mask`` — or, with ``region=True``, to the cells of ``object_mask`` itself (a goal
-        region / route target of :mod:`pipeline.routes.region`). Cached per ``(key, mask_kind, region)``."""
+        region / route target of :mod:`pipeline.nav.region`). Cached per ``(key, mask_kind, region)``."""
         ck = (key, mask_kind, bool(region))
         if ck not in self._fields:
             mask = self.plan_mask if mask_kind == "clear" else self.navigable
@@ -317,6 +319,12 @@ class RoutePlanner:
             target = target_region(mask, object_mask, self.grid, radius)
             self._fields[ck] = geodesic_field(mask, target, self.grid)
         return self._fields[ck]
+
+    def route_into(self, pose_xy_yaw, cells: np.ndarray, *, key: object = None, face_xy=None,
+                   end_mask: np.ndarray | None = None) -> Route | None:
+        """:meth:`route` to the explicit ``cells`` ``(rows, cols)`` bool (a goal region or route target of
+        :mod:`pipeline.nav.region`), not to a stop radius around them."""
+        return self.route(pose_xy_yaw, cells, key=key, face_xy=face_xy, region=True, end_mask=end_mask)
 
     def route(self, pose_xy_yaw, object_mask: np.ndarray, *, key: object = None, face_xy=None,
               region: bool = False, end_mask: np.ndarray | None = None) -> Route | None:

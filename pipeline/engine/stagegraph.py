@@ -2,9 +2,9 @@
 makes a stage stale.
 
 A stage is stale when its manifest is missing, an output is missing, a file of its code changed (the import
-closure of its module, :mod:`pipeline.codedeps`), a params key of its config changed, or an input's digest
+closure of its module, :mod:`pipeline.engine.codedeps`), a params key of its config changed, or an input's digest
 changed; :func:`staleness` names which. :func:`plan` lists the (scene, stage) pairs to consider,
-:func:`stage_order` and :func:`stage_levels` order them; :mod:`pipeline.runner` runs them.
+:func:`stage_order` and :func:`stage_levels` order them; :mod:`pipeline.engine.runner` runs them.
 """
 
 from __future__ import annotations
@@ -15,11 +15,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from pipeline import codedeps
+from pipeline.engine import codedeps
 from pipeline.config import Params
 from pipeline.stageconfig import StageConfig, canonical_json, digest_value, project
 from pipeline.errors import MissingInputError, ZiponError
-from pipeline.manifest import Manifest
+from pipeline.engine.manifest import Manifest
 from pipeline.paths import Workspace
 
 SOURCE = "source"  # the pseudo-input naming a scene's raw data (a log, a folder)
@@ -45,7 +45,7 @@ class StageSpec:
         return self.entry.split(":")[0]
 
     def load(self) -> Callable[..., dict]:
-        """The stage function, ``run(ctx: pipeline.runner.StageContext) -> summary``."""
+        """The stage function, ``run(ctx: pipeline.engine.runner.StageContext) -> summary``."""
         module, func = self.entry.split(":")
         return getattr(importlib.import_module(module), func)
 

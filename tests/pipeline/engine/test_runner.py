@@ -10,11 +10,11 @@ import zarr
 
 from pipeline.paramsfile import load_params
 from pipeline.errors import ConfigError, ZiponError
-from pipeline.manifest import Manifest
-from pipeline.stagegraph import plan, staleness
-from pipeline.runner import run_many, run_stage
+from pipeline.engine.manifest import Manifest
+from pipeline.engine.stagegraph import plan, staleness
+from pipeline.engine.runner import run_many, run_stage
 from pipeline.store import content_digest
-from pipeline.verify import verify_all
+from pipeline.engine.verify import verify_all
 from tests.fixtures.toy_stages import TOY_STAGES
 
 
@@ -73,7 +73,7 @@ def test_killed_run_leaves_no_finished_looking_store(workspace, tmp_path):
     pause = tmp_path / "paused"
     code = (
         "from pipeline.paramsfile import load_params; from pipeline.paths import Workspace;"
-        "from pipeline.runner import run_stage; from tests.fixtures.toy_stages import TOY_STAGES;"
+        "from pipeline.engine.runner import run_stage; from tests.fixtures.toy_stages import TOY_STAGES;"
         f"ws = Workspace.resolve({str(workspace.params_path)!r});"
         "p = load_params(ws.params_path, ['simulate.frames=8']);"
         "run_stage(ws, p, TOY_STAGES, 's0', 'ingest', force=True, show_progress=False)"
@@ -183,7 +183,7 @@ def _square_and_worker(x):
 
 
 def _ordered_in_a_worker(items):
-    from pipeline.runner import ordered_tasks
+    from pipeline.engine.runner import ordered_tasks
 
     usage = {}
     return list(ordered_tasks(_square_and_worker, items, name="square", usage=usage)), usage
@@ -192,7 +192,7 @@ def _ordered_in_a_worker(items):
 def test_ordered_tasks_run_on_every_worker_and_yield_in_item_order():
     from distributed import Client, LocalCluster
 
-    from pipeline.runner import ordered_tasks
+    from pipeline.engine.runner import ordered_tasks
 
     assert list(ordered_tasks(lambda x: x * x, range(5), name="square")) == [0, 1, 4, 9, 16]  # no cluster: here
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster, \
@@ -208,7 +208,7 @@ def test_ordered_tasks_run_on_every_worker_and_yield_in_item_order():
 
 def _consume(items):
     """A stage task folding its items' results: (time of its first result, of its last, the results)."""
-    from pipeline.runner import ordered_tasks
+    from pipeline.engine.runner import ordered_tasks
 
     times, out, usage = [], [], {}
     for value in ordered_tasks(_square_and_worker, items, name="square", usage=usage):
@@ -233,7 +233,7 @@ def test_a_worker_folds_one_stage_at_a_time_while_the_others_wait():
 
 
 def _ordered_with_resources(items, resources):
-    from pipeline.runner import ordered_tasks
+    from pipeline.engine.runner import ordered_tasks
 
     return list(ordered_tasks(_square_and_worker, items, name="square", resources=resources))
 
@@ -256,7 +256,7 @@ def test_ordered_tasks_asking_for_a_resource_run_only_on_the_workers_that_offer_
 
 
 def test_a_stage_that_spreads_threads_takes_the_workers_idle_scenes_leave(workspace):
-    from pipeline.runner import stage_threads
+    from pipeline.engine.runner import stage_threads
     from stages import STAGES
 
     cores = os.cpu_count() or 1

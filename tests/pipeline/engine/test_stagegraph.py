@@ -1,7 +1,7 @@
 """The stage graph: the order and levels of the registered stages, and which stages are stale (staleness itself is
 exercised through the runner in test_runner.py)."""
 
-from pipeline.stagegraph import plan, stage_levels, stage_order, stale_stages
+from pipeline.engine.stagegraph import plan, stage_levels, stage_order, stale_stages
 from stages import STAGES
 
 

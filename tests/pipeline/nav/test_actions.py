@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from pipeline.routes.actions import (FORWARD, LEFT, RIGHT, STOP, RoutePlanner, RouteSettings, follow_polyline,
+from pipeline.nav.actions import (FORWARD, LEFT, RIGHT, STOP, RoutePlanner, RouteSettings, follow_polyline,
                                      procedural_allowed, procedural_instruction, route_parts, route_text)
 from tests.fixtures.goal_scenes import corridor_grid
 
@@ -44,7 +44,7 @@ def test_planner_unreachable_returns_none_and_room_rule():
 
 
 def test_a_walk_that_stops_short_of_its_target_finishes_inside_it():
-    from pipeline.routes.verify import replay
+    from pipeline.nav.verify import replay
 
     nav, grid = corridor_grid()
     xy = grid.cell_to_world(np.argwhere(np.ones(nav.shape, bool))).reshape(*nav.shape, 2)

@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline import publication
+from pipeline.engine import publication
 from pipeline.errors import StageError
-from pipeline.manifest import Manifest, OutputRecord
-from pipeline.publication import check_inputs_unchanged, publish_outputs, read_journal, recover
-from pipeline.runner import run_stage
+from pipeline.engine.manifest import Manifest, OutputRecord
+from pipeline.engine.publication import check_inputs_unchanged, publish_outputs, read_journal, recover
+from pipeline.engine.runner import run_stage
 from pipeline.store import artifact_attrs, compressor, content_digest, new_group
-from pipeline.verify import verify_all
+from pipeline.engine.verify import verify_all
 from tests.fixtures.toy_stages import TOY_STAGES
 
 NAMES = ("a.zarr", "b_mesh.ply", "c_points.ply")
@@ -274,8 +274,8 @@ def test_run_stage_recovers_a_publication_killed_by_sigkill(workspace, tmp_path)
         run_stage(workspace, params, TOY_STAGES, "s0", stage, show_progress=False)
     frames = workspace.artifact("frames", "s0")
     code = (
-        "import os, signal; from pipeline import publication; from pipeline.paramsfile import load_params;"
-        "from pipeline.paths import Workspace; from pipeline.runner import run_stage;"
+        "import os, signal; from pipeline.engine import publication; from pipeline.paramsfile import load_params;"
+        "from pipeline.paths import Workspace; from pipeline.engine.runner import run_stage;"
         "from tests.fixtures.toy_stages import TOY_STAGES;"
         "real = publication._replace; n = [0]\n"
         "def hooked(a, b):\n"
@@ -287,7 +287,7 @@ def test_run_stage_recovers_a_publication_killed_by_sigkill(workspace, tmp_path)
         "run_stage(ws, load_params(ws.params_path, ['simulate.frames=8', 'ingest.block_frames=4']), TOY_STAGES,"
         " 's0', 'ingest', show_progress=False)\n"
     )
-    proc = subprocess.run([sys.executable, "-c", code], cwd=str(Path(__file__).parents[2]), timeout=120)
+    proc = subprocess.run([sys.executable, "-c", code], cwd=str(Path(__file__).parents[3]), timeout=120)
     assert proc.returncode == -signal.SIGKILL
     assert not frames.exists() and workspace.journal("s0", "ingest").exists()  # killed amid the set
     new = load_params(workspace.params_path, ["simulate.frames=8", "ingest.block_frames=4"])

@@ -7,13 +7,13 @@ import pytest
 import yaml
 
 from pipeline.paramsfile import load_params, params_yaml, parse_params
-from pipeline.dvcfile import render_dvc_yaml
-from pipeline.manifest import Manifest
+from pipeline.engine.dvcfile import render_dvc_yaml
+from pipeline.engine.manifest import Manifest
 from pipeline.paths import Workspace
-from pipeline.stagegraph import staleness
+from pipeline.engine.stagegraph import staleness
 from stages import STAGES
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 
 
 def test_committed_dvc_yaml_matches_the_stage_registry():
@@ -66,7 +66,7 @@ def _dvc_stale(tmp_path, env) -> set[str]:
 
 
 def _zipon_stale(ws, params) -> set[str]:
-    from pipeline.stagegraph import plan
+    from pipeline.engine.stagegraph import plan
 
     return {f"{scene}/{stage}" for scene, stage in plan(STAGES, params, list(params.scenes))
             if staleness(ws, params, STAGES, STAGES[stage], scene)}

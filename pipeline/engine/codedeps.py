@@ -34,7 +34,7 @@ from pipeline import __version__, plugins
 from pipeline.errors import ZiponError
 from pipeline.paths import ENV_CACHE
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]  # the checkout: pipeline/engine/codedeps.py
 PROJECT_PACKAGES = ("pipeline", "stages", "orion_eval", "zipon", "tests")
 
 

@@ -18,9 +18,9 @@ import zarr
 
 from pipeline.config import Params
 from pipeline.errors import ZiponError
-from pipeline.manifest import Manifest
+from pipeline.engine.manifest import Manifest
 from pipeline.paths import ARTIFACTS, MANIFEST, Workspace
-from pipeline.stagegraph import StageSpec, plan, stage_order
+from pipeline.engine.stagegraph import StageSpec, plan, stage_order
 from pipeline.store import content_digest
 
 

@@ -1,4 +1,4 @@
-"""Object-store data roots (pipeline.fsroot) on a local S3 endpoint (moto's server mode)."""
+"""Object-store data roots (pipeline.engine.fsroot) on a local S3 endpoint (moto's server mode)."""
 
 from __future__ import annotations
 
@@ -16,11 +16,11 @@ import zarr
 from zipon.cli import main
 from pipeline.paramsfile import load_params
 from pipeline.errors import LockedError, StageError
-from pipeline.fsroot import MANIFEST_KEY, RemoteRoot, reclaim_guard, remote_stage, version_key
-from pipeline.manifest import Manifest
+from pipeline.engine.fsroot import MANIFEST_KEY, RemoteRoot, reclaim_guard, remote_stage, version_key
+from pipeline.engine.manifest import Manifest
 from pipeline.paths import ARTIFACTS, Workspace, cache_dir, is_url
-from pipeline.stagegraph import plan
-from pipeline.runner import run_many
+from pipeline.engine.stagegraph import plan
+from pipeline.engine.runner import run_many
 from pipeline.store import content_digest
 from tests.fixtures.toy_stages import TOY_STAGES
 
@@ -343,13 +343,13 @@ def test_goals_import_on_s3_publishes_its_rebuild(built_scene, tiny_on_s3, tmp_p
 
 # ----------------------------------------------------------------------------- locks of dead runs
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 LOCK_REL = "artifacts/tiny/.simulate.lock"
 
 
 def _record_of_exited_process() -> str:
     """The owner record of a process of this host that has exited (its pid is dead)."""
-    return subprocess.run([sys.executable, "-c", "from pipeline.locks import holder_record; "
+    return subprocess.run([sys.executable, "-c", "from pipeline.engine.locks import holder_record; "
                            "print(holder_record(), end='')"], cwd=REPO, capture_output=True, text=True,
                           check=True).stdout
 
@@ -378,10 +378,10 @@ def test_a_dead_runs_lock_of_this_host_is_reclaimed_another_hosts_never(tmp_path
 
 
 def test_a_reused_pid_is_not_taken_for_the_holder(tmp_path, s3_env):
-    from pipeline.locks import parse_holder
+    from pipeline.engine.locks import parse_holder
 
     remote = RemoteRoot(f"s3://{s3_env}/data")
-    live = subprocess.Popen([sys.executable, "-c", "import time; from pipeline.locks import holder_record; "
+    live = subprocess.Popen([sys.executable, "-c", "import time; from pipeline.engine.locks import holder_record; "
                              "import os; print(holder_record(), end='', flush=True); os.close(1); time.sleep(60)"],
                             cwd=REPO, stdout=subprocess.PIPE, text=True)
     try:
@@ -405,7 +405,7 @@ RACER = """
 import sys, time
 from pathlib import Path
 from pipeline.errors import LockedError
-from pipeline.fsroot import RemoteRoot
+from pipeline.engine.fsroot import RemoteRoot
 url, rel, folder, me = sys.argv[1:]
 remote = RemoteRoot(url)
 Path(folder, "ready-" + me).touch()

@@ -1,8 +1,8 @@
 import numpy as np
 
-from pipeline.routes.actions import FORWARD, LEFT, STOP
+from pipeline.nav.actions import FORWARD, LEFT, STOP
 from pipeline.routes.episodes import GoalTarget, make_episodes
-from pipeline.routes.verify import replay
+from pipeline.nav.verify import replay
 from tests.fixtures.goal_scenes import corridor_grid, gt_navigable, house_grid, house_scene
 
 SQUARE = np.array([[5.4, 4.7], [5.6, 4.7], [5.6, 4.9], [5.4, 4.9]])

@@ -5,7 +5,7 @@ Independent of how the actions were made: an agent at (x, y, yaw) executes ``for
 (sampled every third of a cell) lies in a non-navigable cell or off the grid (the agent then stays
 put, as in Habitat). Success: no step collided and the final position is within ``success_m``
 (1.5 m) of the goal's footprint polygon (0 inside it); given the goal ``region``
-(:func:`pipeline.routes.region.goal_region`: within the success distance AND the mass centre in
+(:func:`pipeline.nav.region.goal_region`: within the success distance AND the mass centre in
 line of sight on the reconstruction), the final cell must lie in it; given ``face_xy`` (the mass
 centres) and ``hfov_deg``, one of them must lie inside the final view (|bearing| <= hfov / 2).
 """
@@ -18,8 +18,8 @@ import cv2
 import numpy as np
 
 from pipeline.geometry import GridSpec
-from pipeline.routes.actions import FORWARD, LEFT, RIGHT, STOP
-from pipeline.routes.fmm import segment_free
+from pipeline.nav.actions import FORWARD, LEFT, RIGHT, STOP
+from pipeline.nav.fmm import segment_free
 
 
 @dataclass(frozen=True)

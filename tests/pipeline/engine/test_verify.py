@@ -3,9 +3,9 @@ import shutil
 import pytest
 
 from pipeline.paramsfile import load_params
-from pipeline.stagegraph import plan
-from pipeline.runner import run_many
-from pipeline.verify import content_staleness, locate_corruption, scenes_on_disk, verify_all
+from pipeline.engine.stagegraph import plan
+from pipeline.engine.runner import run_many
+from pipeline.engine.verify import content_staleness, locate_corruption, scenes_on_disk, verify_all
 from tests.fixtures.toy_stages import TOY_STAGES
 
 
@@ -99,7 +99,7 @@ def test_content_staleness_rehashes(built):
 
 
 def test_a_store_digest_recorded_the_older_way_says_so(built):
-    from pipeline.manifest import Manifest
+    from pipeline.engine.manifest import Manifest
 
     ws, params = built
     path = ws.manifest("s0", "ingest")

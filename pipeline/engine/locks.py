@@ -5,7 +5,7 @@ Granularity: one lock per (scene, stage), at ``artifacts/<scene>/.<stage>.lock``
 ``zipon run -s b``, or every worker of a dask cluster) proceed in parallel, as snakemake's
 per-output locks allow; a data-root lock (DVC's repo lock) would serialise them for no gain.
 A stage that *reads* an output another run republishes meanwhile is caught before it publishes
-(:func:`pipeline.publication.check_inputs_unchanged`).
+(:func:`pipeline.engine.publication.check_inputs_unchanged`).
 
 Contention fails fast, as ``dvc repro`` ("Unable to acquire lock") and snakemake ("Directory
 cannot be locked") do: a second run that would rebuild the same outputs stops at once with
@@ -30,8 +30,8 @@ from typing import Iterator
 
 from filelock import SoftFileLock, Timeout
 # filelock's owner identity (host name with its pid namespace, process start token, the staleness probe): the
-# records and the rule its SoftFileLock uses, shared by the object-store locks (pipeline.fsroot). Not a public
-# module: filelock is pinned exactly in pyproject.toml for it (tests/pipeline/test_locks.py covers the probe).
+# records and the rule its SoftFileLock uses, shared by the object-store locks (pipeline.engine.fsroot). Not a public
+# module: filelock is pinned exactly in pyproject.toml for it (tests/pipeline/engine/test_locks.py covers the probe).
 from filelock._identity import host_name, owner_is_stale, process_start_token
 
 from pipeline.errors import LockedError
@@ -39,7 +39,7 @@ from pipeline.errors import LockedError
 
 def holder_record() -> str:
     """This process's owner record as filelock's marker writes it: ``<pid>\\n<host>\\n<start token>\\n`` (the start
-    token is empty where the platform offers none). :mod:`pipeline.fsroot` writes the same record into its lock
+    token is empty where the platform offers none). :mod:`pipeline.engine.fsroot` writes the same record into its lock
     objects, so one rule (:func:`holder_is_dead`) judges both kinds of lock."""
     token = process_start_token(os.getpid())
     return f"{os.getpid()}\n{host_name()}\n{'' if token is None else token}\n"

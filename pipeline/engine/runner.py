@@ -1,4 +1,4 @@
-"""The stage runner: runs the (scene, stage) pairs :mod:`pipeline.stagegraph` plans, one unit of work for the
+"""The stage runner: runs the (scene, stage) pairs :mod:`pipeline.engine.stagegraph` plans, one unit of work for the
 serial path and every dask scheduler, with atomic publication.
 
 A stage is a pure function ``run(ctx: StageContext) -> dict`` (its summary figures). It reads its
@@ -23,18 +23,19 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from pipeline import __version__
-from pipeline import codedeps, logs
+from pipeline import logs
+from pipeline.engine import codedeps
 from pipeline.config import Params, RunParams
 from pipeline.stageconfig import StageConfig, digest_value
 from pipeline.errors import StageError, ZiponError, os_error_message
-from pipeline.manifest import Manifest, OutputRecord
+from pipeline.engine.manifest import Manifest, OutputRecord
 from pipeline.paths import ARTIFACTS, Workspace
-from pipeline.locks import output_lock
-from pipeline.publication import check_inputs_unchanged, publish_outputs, recover
+from pipeline.engine.locks import output_lock
+from pipeline.engine.publication import check_inputs_unchanged, publish_outputs, recover
 from pipeline.store import ArrayDigests, content_digest, new_tmp_dir, remove, sweep_tmp
-from pipeline.process import (counters_since, limit_native_threads, native_threads, peak_rss_mb, process_counters,
+from pipeline.engine.process import (counters_since, limit_native_threads, native_threads, peak_rss_mb, process_counters,
                               release_free_memory)
-from pipeline.stagegraph import (SOURCE, StageSpec, input_digests, source_key, source_paths, stage_code_digest,
+from pipeline.engine.stagegraph import (SOURCE, StageSpec, input_digests, source_key, source_paths, stage_code_digest,
                                  stage_levels, staleness, upstream_stages)
 
 
@@ -251,14 +252,14 @@ class Outcome:
 
 
 def run_stage(ws: Workspace, params: Params, stages: dict[str, StageSpec], scene: str, stage: str, **kw) -> Outcome:
-    """:func:`_run_stage` holding the (scene, stage) lock (:mod:`pipeline.locks`; fails fast with
+    """:func:`_run_stage` holding the (scene, stage) lock (:mod:`pipeline.engine.locks`; fails fast with
     :class:`~pipeline.errors.LockedError`), after finishing or undoing a publication a killed run
-    left and sweeping its temporary folders (:mod:`pipeline.publication`).
+    left and sweeping its temporary folders (:mod:`pipeline.engine.publication`).
 
-    On an object-store data root (``ws.remote``, :mod:`pipeline.fsroot`) this runs in the local cache, holding the
+    On an object-store data root (``ws.remote``, :mod:`pipeline.engine.fsroot`) this runs in the local cache, holding the
     object store's lock of (scene, stage), between a pull of the stage and its inputs and their publication."""
     if ws.remote is not None:
-        from pipeline.fsroot import remote_stage
+        from pipeline.engine.fsroot import remote_stage
 
         ups = upstream_stages(stages, params, scene, stage)
         with remote_stage(ws, scene, stage, {s: stages[s].outputs for s in (stage, *ups)}, ups) as publish_remote:
