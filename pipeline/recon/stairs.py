@@ -189,5 +189,7 @@ def _landing(mask: np.ndarray, floor: Floor, navigable: np.ndarray, grid: GridSp
         r, c = endpoint
         if dist[r, c] * grid.cell_size_m <= _ENDPOINT_SEARCH_M:
             endpoint = np.array([ri[r, c], ci[r, c]])
+    x, y = grid.cell_to_world(endpoint[None, :].astype(np.int64))[0]
     return Landing(floor=floor.id, cells=[(int(r), int(c)) for r, c in cells],
-                   endpoint=(int(endpoint[0]), int(endpoint[1])), z_m=round(float(floor.floor_z_m), 4))
+                   endpoint=(int(endpoint[0]), int(endpoint[1])), xy=(round(float(x), 4), round(float(y), 4)),
+                   z_m=round(float(floor.floor_z_m), 4))
