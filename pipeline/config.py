@@ -19,6 +19,31 @@ from pipeline.section import Section
 
 # ----------------------------------------------------------------------------- scenes
 
+class BuildingParams(Section):
+    """What a simulated scene is (``scenes.<name>.building``; absent: an apartment): the stage ``simulate``'s
+    per-scene settings."""
+
+    kind: Literal["apartment", "house", "office"] = Field(
+        "apartment", description="'apartment': one floor of simulate.rooms_min..rooms_max rooms; 'house': 'stories' "
+        "floors joined by a staircase; 'office': one large floor of 'size_m'"
+    )
+    stories: int = Field(2, ge=2, le=3, description="floors of a house (each with its stair hall)")
+    rooms_per_floor_min: int = Field(3, ge=2, le=6, description="fewest rooms per floor of a house, its hall aside")
+    rooms_per_floor_max: int = Field(4, ge=2, le=6, description="most rooms per floor of a house, its hall aside")
+    size_m: tuple[float, float] = Field(
+        (60.0, 40.0), description="an office floor's extent along x and y, metres (each 10-200)"
+    )
+    room_area_m2: float = Field(90.0, ge=20, le=400, description="an office floor's area per room, m^2")
+
+    @model_validator(mode="after")
+    def _ranges(self) -> "BuildingParams":
+        if self.rooms_per_floor_min > self.rooms_per_floor_max:
+            raise ValueError("rooms_per_floor_min must not exceed rooms_per_floor_max")
+        if not all(10.0 <= v <= 200.0 for v in self.size_m):
+            raise ValueError(f"size_m must be two extents of 10-200 m, got {list(self.size_m)}")
+        return self
+
+
 class SceneSource(Section):
     """Where one scene's raw data comes from."""
 
@@ -32,6 +57,9 @@ class SceneSource(Section):
     )
     format: str = Field("auto", description="reader to use: a built-in or installed reader's name (zipon ingest "
                         "--help lists them); 'auto' detects it from each path")
+    building: BuildingParams | None = Field(
+        None, description="a simulated scene's kind of building (house, office) and its settings; absent: an apartment"
+    )
 
     @model_validator(mode="after")
     def _one_source_key(self) -> "SceneSource":
@@ -43,6 +71,8 @@ class SceneSource(Section):
             raise ValueError("'sources' is empty: list at least one raw log or dataset folder")
         if self.sources is not None and "simulate" in self.sources:
             raise ValueError("'sources' lists paths; a simulated scene is 'source: simulate'")
+        if self.building is not None and self.source != "simulate":
+            raise ValueError("'building' describes a simulated scene: only with 'source: simulate'")
         return self
 
     @field_validator("format")
@@ -60,7 +90,7 @@ class SceneSource(Section):
 
     @model_serializer(mode="wrap")
     def _without_unused_key(self, handler) -> dict:
-        return {k: v for k, v in handler(self).items() if not (k in ("source", "sources") and v is None)}
+        return {k: v for k, v in handler(self).items() if not (k in ("source", "sources", "building") and v is None)}
 
     @property
     def simulated(self) -> bool:
