@@ -140,7 +140,8 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
         conventions={"world": "right-handed, z up, metres (as frames.zarr)", "grid": grids.grid.ORIENTATION},
         source_frames_attrs=store.meta.model_dump(include={"conventions", "provenance"}, exclude_unset=True),
     )
-    write_recon(recon_path, per_floor, poses, fused, attrs, floors=found.floors, stairs=stairs)
+    write_recon(recon_path, per_floor, poses, fused, attrs, stairs=stairs,
+                floors=found.floors if building or p.floors is not None else None)
     return figures
 
 

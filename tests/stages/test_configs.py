@@ -51,6 +51,9 @@ def _other(value: Any, annotation: Any) -> Any:
             return {float: 0.123, int: 2, str: "x"}[inner]
         if value is None:
             inner = next(a for a in args if a is not type(None))
+            if get_origin(inner) is list and issubclass(get_args(inner)[0], BaseModel):  # a list of records
+                item = get_args(inner)[0]
+                return [item.model_validate({k: 0.123 for k, f in item.model_fields.items() if f.is_required()})]
             return {float: 0.123, int: 7, str: "x.pt", bool: True}.get(inner, ("a", "b"))
         return None
     if get_origin(annotation) is Literal:
