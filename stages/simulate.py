@@ -8,7 +8,7 @@ from pipeline.config import BuildingParams, Params, SimulateParams
 from pipeline.stageconfig import StageConfig
 
 if TYPE_CHECKING:
-    from pipeline.runner import StageContext
+    from pipeline.engine.runner import StageContext
 
 
 class Config(StageConfig):

@@ -110,7 +110,7 @@ class SavedEdit:
     scene: str
     path: str  # the stored edit, relative to the params file's folder (the value of goals.edits.<scene>)
     digest: str  # the document's digest (part of the stored file's name)
-    outcomes: tuple  # the rebuild's pipeline.runner.Outcome of goals and routes
+    outcomes: tuple  # the rebuild's pipeline.engine.runner.Outcome of goals and routes
     dvc_note: str  # what happened to dvc.lock ("" when nothing needed saying)
 
 
@@ -132,8 +132,8 @@ def save_goals_edit(ws, scene: str, doc: GoalsDocument, stages: dict, *, overrid
     (same inputs and params, so the same content), and :class:`EditNotSaved` (or the error that stopped the
     rebuild) is raised."""
     from pipeline.paramsfile import load_params
-    from pipeline.runner import run_many
-    from pipeline.stagegraph import plan
+    from pipeline.engine.runner import run_many
+    from pipeline.engine.stagegraph import plan
     from pipeline.store import remove
 
     rel = edit_relpath(doc)
@@ -170,7 +170,7 @@ def save_goals_edit(ws, scene: str, doc: GoalsDocument, stages: dict, *, overrid
         raise failure
     note = ""
     if record_dvc:
-        from pipeline.dvcfile import sync_dvc_lock
+        from pipeline.engine.dvcfile import sync_dvc_lock
 
         params = load_params(ws.params_path, overrides)
         note = sync_dvc_lock(ws, params, stages, [(scene, stage) for stage in REBUILT], overrides)

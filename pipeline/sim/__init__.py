@@ -26,7 +26,7 @@ __all__ = ["FloorTruth", "RaycastFrames", "SceneRaycaster", "SimulatedRecording"
 
 
 def __getattr__(name: str):
-    # explicit imports, not importlib with a computed name: pipeline.codedeps reads them (a stage's code closure)
+    # explicit imports, not importlib with a computed name: pipeline.engine.codedeps reads them (a stage's code closure)
     if name in ("RaycastFrames", "SceneRaycaster"):
         from pipeline.sim import raycast as module
     elif name in ("generate_scene", "scene_seed"):
