@@ -102,6 +102,17 @@ class FloorRoute:
         return np.concatenate(out).astype(np.uint8)
 
     @property
+    def segments(self) -> list[int]:
+        """Actions per piece of :attr:`actions`, in order: leg, climb, leg, ..., the last leg with the stop."""
+        out = []
+        for i, (_, route) in enumerate(self.legs):
+            out.append(0 if route is None else int(np.count_nonzero(route.actions)))
+            if i < len(self.climbs):
+                out.append(len(self.climbs[i].actions))
+        out[-1] += 1
+        return out
+
+    @property
     def length_m(self) -> float:
         legs = sum(float(r.path.length_m) for _, r in self.legs if r is not None)
         return legs + sum(c.link.length_m for c in self.climbs)

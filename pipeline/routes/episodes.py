@@ -56,6 +56,7 @@ class Episode:
     start_floor: int = 0
     floors: tuple[int, ...] = ()
     leg_points: tuple[int, ...] = ()
+    segments: tuple[int, ...] = ()  # actions per piece: leg, climb, leg, ... (the last leg with the stop)
 
 
 @dataclass

@@ -36,7 +36,7 @@ def building_episodes(building: BuildingPlanner, targets: dict[int, list[GoalTar
                             min_geodesic_m=min_geodesic_m, seed=int(np.random.SeedSequence([seed, f]).generate_state(1)[0]),
                             task=task, progress=progress)
         for e in eps.episodes:
-            e.start_floor, e.floors = f, (f,)
+            e.start_floor, e.floors, e.segments = f, (f,), (len(e.actions),)
         out.episodes += eps.episodes
         out.rejected += eps.rejected
         out.unreachable += eps.unreachable
@@ -132,4 +132,5 @@ def _cross_episode(building: BuildingPlanner, eid: str, goal: GoalTarget, aims: 
                  res.distance_to_goal_m, True, 0)
     ep.start_floor, ep.floors = s, tuple(route.floors)
     ep.leg_points = tuple(0 if leg is None else len(leg.path.polyline_xy) for leg in legs)
+    ep.segments = tuple(route.segments)
     return ep, ""

@@ -18,7 +18,8 @@ where the goals stage computes them once)::
     └── action_offset  (E+1,) int64   episode e's actions = actions[action_offset[e]:action_offset[e+1]]
 
 A building's episodes (:mod:`pipeline.routes.floors`) also carry ``start_floor``, ``floors`` (the floors walked,
-in order, a stair between each two) and ``leg_points`` (each floor's leg's points in ``path_xy``); ``start`` and the
+in order, a stair between each two), ``leg_points`` (each floor's leg's points in ``path_xy``) and ``segments``
+(its actions per piece: leg, climb, leg, ...; the last leg ends with the stop); ``start`` and the
 path are on those floors' grids. A single-floor store has none of these keys and is as before floors existed.
 """
 
@@ -91,6 +92,7 @@ class EpisodeRecord(AttrsModel):
     start_floor: int | None = None
     floors: list[int] | None = None
     leg_points: list[int] | None = None
+    segments: list[int] | None = None  # actions per piece: leg, climb, leg, ... (the last leg with the stop)
 
 
 class Verification(AttrsModel):
@@ -129,8 +131,8 @@ def write_routes(path: Path, eps: EpisodeSetSource, *, grid: GridSpec, attrs: di
         "id": e.id, "goal_id": e.goal_id, "start": [round(v, 6) for v in e.start], "geodesic_m": round(e.geodesic_m, 4),
         "path_length_m": round(e.path_length_m, 4), "n_actions": int(len(e.actions)), "instruction": e.instruction,
         "n_parts": e.n_parts, "final_distance_m": round(e.final_distance_m, 4),
-        **({"start_floor": e.start_floor, "floors": list(e.floors), "leg_points": list(e.leg_points or
-                                                                                        [len(e.path_xy)])}
+        **({"start_floor": e.start_floor, "floors": list(e.floors),
+            "leg_points": list(e.leg_points or [len(e.path_xy)]), "segments": list(e.segments or [len(e.actions)])}
            if getattr(e, "floors", ()) else {}),
     } for e in eps.episodes]
     n = eps.generated
