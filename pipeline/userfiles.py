@@ -122,13 +122,14 @@ def parse_yaml(text: str, *, origin: str | Path, limits: Limits = DEFAULT_LIMITS
                              expected=f"at most {limits.max_depth} levels of nesting") from None
 
 
-def parse_json(text: str, *, origin: str | Path, limits: Limits = DEFAULT_LIMITS) -> Any:
-    """One JSON document within ``limits`` (size, depth); errors name ``origin``."""
+def parse_json(text: str, *, origin: str | Path, limits: Limits = DEFAULT_LIMITS, finite: bool = False) -> Any:
+    """One JSON document within ``limits`` (size, depth); errors name ``origin``. ``finite``: refuse NaN and
+    Infinity (JavaScript's JSON has neither)."""
     if len(text.encode("utf-8")) > limits.max_bytes:
         raise InputDataError(f"text is over {limits.max_bytes} bytes", path=origin,
                              expected=f"a JSON document of at most {limits.max_bytes} bytes")
     try:
-        data = json.loads(text)
+        data = json.loads(text, parse_constant=_refuse_constant if finite else None)
     except RecursionError:
         raise InputDataError("document nests too deeply to read", path=origin,
                              expected=f"at most {limits.max_depth} levels of nesting") from None
@@ -139,6 +140,10 @@ def parse_json(text: str, *, origin: str | Path, limits: Limits = DEFAULT_LIMITS
         raise InputDataError(f"document is nested {depth} levels deep", path=origin,
                              expected=f"at most {limits.max_depth} levels of nesting")
     return data
+
+
+def _refuse_constant(name: str):
+    raise ValueError(f"{name} is not a number (numbers must be finite)")
 
 
 def _depth(data: Any) -> int:
