@@ -78,7 +78,7 @@ async def json_body(request: Request, max_body: int) -> dict:
     except InputDataError as err:
         reason = str(err).split(": ", 1)[-1]  # without "file the request body: "
         if "nest" in reason:
-            raise HTTPError(413, f"the body {reason}", "body") from None
+            raise HTTPError(413, f"the body: {reason}", "body") from None
         raise HTTPError(400, f"the body is not JSON: {reason}", "body") from None
     if not isinstance(doc, dict):
         raise HTTPError(400, "the body must be a JSON object", "body")
