@@ -254,7 +254,7 @@ def test_a_stalled_or_endless_reply_is_cut_at_the_deadline_of_the_call(step, wor
         t0 = time.monotonic()
         with pytest.raises(StageError, match=rf"{srv.url}/chat/completions: .*{words}"):
             client.chat(HI)
-        assert time.monotonic() - t0 < 2.0  # the whole call, every try included, within its deadline (+ slack)
+        assert time.monotonic() - t0 < 3.0  # the whole call, every try included, within its deadline (+ slack)
 
 
 def test_a_reply_over_the_size_cap_is_refused():
