@@ -361,10 +361,11 @@ def test_workbench_endpoints(workbench, data):
         st.booleans(), label=f"hostile {m.group(1)}") else ("tiny" if m.group(1) == "scene" else "0"), safe=""), path)
     query = data.draw(st.dictionaries(st.sampled_from(["x", "y", "u", "v", "yaw_deg", "map", "text", "objects",
                                                        "token"]), HOSTILE_TEXT, max_size=4), label="query")
-    headers = {"Origin": data.draw(st.sampled_from(["http://127.0.0.1", "http://evil.example", "null", ""])),
+    headers = {"Origin": data.draw(st.one_of(st.just("http://127.0.0.1"),  # the page's own, half the time
+                                             st.sampled_from(["http://evil.example", "null", ""]))),
                "If-Match": data.draw(st.one_of(HOSTILE_TEXT, st.just('"' + "0" * 64 + '"'))).encode(),
                "X-Zipon-Token": data.draw(st.binary(max_size=8)).replace(b"\n", b"").replace(b"\r", b"")}
-    if data.draw(st.booleans(), label="odd host"):
+    if data.draw(st.integers(0, 3), label="odd host") == 0:
         headers["Host"] = data.draw(st.sampled_from(["evil.example", "127.0.0.1:1", "[::1]", "é"])).encode()
     before = _state(root)
     if method in ("POST", "PUT"):
