@@ -60,7 +60,7 @@ def evaluate_scene(ws: Workspace, params: Params, stages: Mapping, scene: str, m
     """All episodes of one scene (the unit of work); writes ``log_dir/<scene>.episodes.jsonl.gz`` when given.
     ``stages``: the stage registry (``stages.STAGES``: which stage produces which artifact).
     ``agent_classes`` maps method names to user :class:`~orion_eval.agents.Agent` subclasses (beside the registry)."""
-    from pipeline.process import limit_native_threads
+    from pipeline.engine.process import limit_native_threads
 
     limit_native_threads(threads)
     ctx = SceneContext(Scene(ws, params, scene, stages, check=True))
@@ -212,12 +212,12 @@ def finite_json(value):
 def provenance(ws: Workspace, params: Params, stages: Mapping, scenes: list[str]) -> tuple[dict, dict]:
     """What an evaluation reads, for its results: each scene's artifacts as ``{artifact: digest}`` (the digests the
     publishing manifests record), and ``{"scene/stage": why}`` for each stage whose artifacts lag their code, params
-    or upstream artifacts (:func:`pipeline.stagegraph.staleness`, as ``zipon status`` says). Those are evaluated as
+    or upstream artifacts (:func:`pipeline.engine.stagegraph.staleness`, as ``zipon status`` says). Those are evaluated as
     built (a built version is a version), but the results say so. The stages that read a scene's raw data are
     left out of the staleness check: hashing a recording's every byte is ``zipon status``'s job, not each
     evaluation's."""
-    from pipeline.manifest import Manifest
-    from pipeline.stagegraph import SOURCE, plan, stale_stages
+    from pipeline.engine.manifest import Manifest
+    from pipeline.engine.stagegraph import SOURCE, plan, stale_stages
 
     pairs = plan(stages, params, scenes)
     artifacts: dict[str, dict[str, str]] = {}

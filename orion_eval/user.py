@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.goals.feedback import FEEDBACK_KINDS
-from pipeline.routes.actions import procedural_allowed
+from pipeline.nav.actions import procedural_allowed
 
 FEEDBACK_KIND_NAMES = tuple(sorted(FEEDBACK_KINDS))  # the goals' feedback kinds (their registry's names)
 FEEDBACK_SETTINGS = ("none", "yesno", *FEEDBACK_KIND_NAMES, "mixed")

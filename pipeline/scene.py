@@ -33,11 +33,11 @@ import numpy as np
 from pipeline.config import Params
 from pipeline.errors import ConfigError, InputDataError, LineageError, MissingInputError
 from pipeline.geometry import GridSpec
-from pipeline.manifest import Manifest
+from pipeline.engine.manifest import Manifest
 from pipeline.paths import Workspace
 
 if TYPE_CHECKING:
-    from pipeline.stagegraph import StageSpec
+    from pipeline.engine.stagegraph import StageSpec
 
 MAP_NAMES = ("vlmap", "cfmap")
 #: the artifacts a Scene reads
@@ -226,7 +226,7 @@ class Scene:
         """Ego camera height above the floor: ``eval.camera_height_m`` or the recording's median."""
         if self.params.eval.camera_height_m is not None:
             return float(self.params.eval.camera_height_m)
-        from pipeline.routes.region import recorded_camera_height
+        from pipeline.nav.region import recorded_camera_height
 
         return recorded_camera_height(self.recon.poses, self.recon.floor_z)  # what the routes stage sighted from
 

@@ -1010,7 +1010,7 @@ def test_goals_import_whose_routes_fail_changes_nothing(pristine, tmp_path, monk
     edit is removed, and goals are rebuilt without the edit (same content digest as before)."""
     import stages.routes
     from pipeline.errors import StageError
-    from pipeline.manifest import Manifest
+    from pipeline.engine.manifest import Manifest
 
     root = copy_workspace(pristine[0], tmp_path / "ws")
     (tmp_path / "scratch").mkdir()
@@ -1038,7 +1038,7 @@ def test_goals_import_whose_routes_fail_changes_nothing(pristine, tmp_path, monk
 def test_goals_import_records_the_edit_once_rebuilt(pristine, tmp_path, capsys):
     """The good path beside the failures above: the edit is rebuilt into goals.zarr, then params.yaml names it."""
     from pipeline.goals.store import Goals
-    from pipeline.manifest import Manifest
+    from pipeline.engine.manifest import Manifest
 
     root = copy_workspace(pristine[0], tmp_path / "ws")
     (tmp_path / "scratch").mkdir()

@@ -4,7 +4,7 @@
 user file, or navchat annotations; :func:`load_objects`) -> ``goals.zarr``. Landmark line of sight
 uses the GT walls when the scene is simulated, else recon's occupied cells outside object footprints
 (:func:`wall_grid`); procedural text starts from the recording's first camera pose (:func:`start_pose`)
-and ends in the goal's region (:class:`GoalRegions`: :func:`pipeline.routes.region.group_region`, line
+and ends in the goal's region (:class:`GoalRegions`: :func:`pipeline.nav.region.group_region`, line
 of sight on ``recon_mesh.ply``), planned as the routes stage plans its episodes. The regions are
 computed here, once, and stored with the goals; the routes stage and the evaluator read them. A user
 edit (``goals.edits[scene]``, written by ``zipon goals import``) replaces the generated document after
@@ -39,8 +39,8 @@ from pipeline.goals.schema import (Feedback, GoalEntry, GoalsDocument, ObjectEnt
                                    check_against_objects, document_digest, load_document)
 from pipeline.goals.store import write_goals
 from pipeline.recon import OCCUPIED, UNKNOWN, Recon
-from pipeline.routes.actions import RoutePlanner, RouteSettings
-from pipeline.routes.region import (OWN_DILATION_CELLS, SIGHT_LEVELS, SIGHT_METHOD, MeshSight, group_region,
+from pipeline.nav.actions import RoutePlanner, RouteSettings
+from pipeline.nav.region import (OWN_DILATION_CELLS, SIGHT_LEVELS, SIGHT_METHOD, MeshSight, group_region,
                                     recorded_camera_height)
 from pipeline.scene_gt import GTScene
 
@@ -233,7 +233,7 @@ def wall_grid(objset: ObjectSet, recon: Recon, gt: GTScene | None, object_index:
 
 class GoalRegions:
     """The goal regions of one scene, each computed once: ``regions(members, object_index, keys)`` -> ``(rows, cols)``
-    bool region of a same_goal group (:func:`pipeline.routes.region.group_region`: navigable cells within
+    bool region of a same_goal group (:func:`pipeline.nav.region.group_region`: navigable cells within
     ``success_m`` of a member's footprint that see its mass centre, line of sight by ray casting
     ``recon_mesh.ply`` from the recording's median camera height; the mesh is read on first use).
 
@@ -266,6 +266,8 @@ class GoalRegions:
     def attrs(self) -> tuple[dict, dict]:
         """``(goal_region, sight)`` attrs of ``goals.zarr``: the definition and radius, and the line-of-sight test."""
         sight = self.sight
+        # the words stored since goals.zarr format 1, which named the function where it then lived (now
+        # pipeline.nav.region.group_region): changing them would change every goals digest for no change of content
         return ({"definition": "navigable cells within success_m of a member's footprint that see its mass centre "
                                "(pipeline.routes.region.group_region)", "success_m": self.success_m},
                 {"method": SIGHT_METHOD, "camera_height_m": round(self._camera_height_m, 4),

@@ -110,7 +110,7 @@ class SavedEdit:
     scene: str
     path: str  # the stored edit, relative to the params file's folder (the value of goals.edits.<scene>)
     digest: str  # the document's digest (part of the stored file's name)
-    outcomes: tuple  # the rebuild's pipeline.runner.Outcome of goals and routes
+    outcomes: tuple  # the rebuild's pipeline.engine.runner.Outcome of goals and routes
     dvc_note: str  # what happened to dvc.lock ("" when nothing needed saying)
 
 
@@ -134,8 +134,8 @@ def save_goals_edit(ws, scene: str, doc: GoalsDocument, stages: dict, *, overrid
     inputs and params, so the same content), and :class:`EditNotSaved` says which step failed (an error that
     stopped the rebuild itself, such as a held lock, is raised as it is, after the same undoing)."""
     from pipeline.paramsfile import load_params
-    from pipeline.runner import run_many
-    from pipeline.stagegraph import plan
+    from pipeline.engine.runner import run_many
+    from pipeline.engine.stagegraph import plan
 
     rel = edit_relpath(doc)
     stored = ws.root / rel
@@ -160,7 +160,7 @@ def save_goals_edit(ws, scene: str, doc: GoalsDocument, stages: dict, *, overrid
         step = "params"
         record_goals_edit(ws.params_path, scene, rel)
         if record_dvc:
-            from pipeline.dvcfile import sync_dvc_lock
+            from pipeline.engine.dvcfile import sync_dvc_lock
 
             step = "dvc.lock"
             note = sync_dvc_lock(ws, load_params(ws.params_path, overrides), stages,

@@ -19,7 +19,7 @@ Format (version 2; version 2 added the goal regions, which the routes stage and 
     │                             sight {method, camera_height_m, levels (fractions of object height),
     │                                    tolerance_m, own_dilation_cells}
     ├── object_index   (rows, cols) int32  1 + index into attrs.objects (footprints on the grid), 0 = none
-    ├── region_cells   (C,) int64          every goal's region (pipeline.routes.region.group_region) as flat
+    ├── region_cells   (C,) int64          every goal's region (pipeline.nav.region.group_region) as flat
     │                                      row-major cell ids on ``grid``, concatenated
     └── region_offset  (G+1,) int64        goal g's region = region_cells[region_offset[g]:region_offset[g+1]]
 

@@ -21,11 +21,9 @@ so that frames appended to a scene are the only ones fused on the next run.
 from __future__ import annotations
 
 import functools
-import queue
-import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Iterable, Iterator, TypeVar
+from typing import TYPE_CHECKING, Callable, Iterable
 
 import numpy as np
 
@@ -34,12 +32,12 @@ from pipeline.maps.config import MapConfig
 from pipeline.stageconfig import digest_value
 from pipeline.errors import StageError
 from pipeline.frames import FrameStore
+from pipeline.prefetch import prefetched
 from pipeline.store import DIGEST_ALGO, new_digest, update_array
 
 if TYPE_CHECKING:
     from pipeline.maps.fusion import FusionState
 
-T = TypeVar("T")
 
 
 FOLD_FORMAT = 2  # bump when the chunk digests or the fold's content change meaning
@@ -90,44 +88,6 @@ def _open_inputs(frames_path: Path, recon_path: Path, p: MapsParams):
     return fs, recon, poses, usable, lattice
 
 
-def prefetched(items: Iterable[T], depth: int = 1) -> Iterator[T]:
-    """The items of ``items`` in order, the next ``depth`` of them produced by a background thread meanwhile: a map
-    chunk's frame blocks are read and decoded (zarr, blosc and image codecs release the GIL) while the encoder runs
-    on the block before. An exception of ``items`` is raised here, in its turn; leaving the loop early stops the
-    thread."""
-    queue_: queue.Queue = queue.Queue(maxsize=depth)
-    done, stop = object(), threading.Event()
-
-    def produce() -> None:
-        try:
-            for item in items:
-                if stop.is_set():
-                    return
-                queue_.put((True, item))
-            queue_.put((True, done))
-        except BaseException as err:  # noqa: BLE001 (handed to the consumer, raised there)
-            queue_.put((False, err))
-
-    thread = threading.Thread(target=produce, name="map-read", daemon=True)
-    thread.start()
-    try:
-        while True:
-            ok, item = queue_.get()
-            if not ok:
-                raise item
-            if item is done:
-                return
-            yield item
-    finally:
-        stop.set()
-        while thread.is_alive():  # unblock a producer waiting on a full queue
-            try:
-                queue_.get(timeout=0.05)
-            except queue.Empty:
-                pass
-        thread.join()
-
-
 def fuse_chunk(job: MapJob, chunk: tuple[int, int, int], *, fuse: bool = True) -> ChunkResult:
     """The unit of work of a map stage: frames ``[start, stop)`` of ``chunk = (index, start, stop)`` streamed in
     blocks of ``maps.block_frames``, encoded and fused into a fresh accumulator; returns its state and the digest
@@ -155,7 +115,7 @@ def fuse_chunk(job: MapJob, chunk: tuple[int, int, int], *, fuse: bool = True) -
     fused_frames = pixels = 0
     with torch.inference_mode():
         blocks = fs.iter_blocks(p.block_frames, start=start, stop=stop, rgb=job.reads_rgb, instance=fs.has_instance)
-        for block in prefetched(blocks):  # the next block is read and decoded while this one is encoded
+        for block in prefetched(blocks, name="map-read"):  # the next block is read and decoded while this one is encoded
             for array in (block.rgb if job.reads_rgb else None, block.depth_mm, block.instance):
                 if array is not None:
                     update_array(digest, array)

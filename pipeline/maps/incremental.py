@@ -61,7 +61,7 @@ def load_fold(path: Path, key: str, chunk_frames: int) -> Fold | None:
         meta = json.loads((path / "meta.json").read_text())
         if meta.get("format") != FORMAT or meta.get("key") != key or meta.get("chunk_frames") != chunk_frames:
             return None
-        # mapped copy-on-write, not read: a stage standing in line for its turn to fuse (pipeline.runner's
+        # mapped copy-on-write, not read: a stage standing in line for its turn to fuse (pipeline.engine.runner's
         # ordered_tasks) holds none of it; pages are read when the fold is merged
         arrays = {name: np.load(path / f"{name}.npy", mmap_mode="c") for name in _ARRAYS
                   if (path / f"{name}.npy").exists()}

@@ -1,7 +1,7 @@
 """Goals + recon's navigable grid -> episodes with verified geodesic routes (``routes.zarr``): the routes stage's work.
 
 Per goal: its goal region, read from ``goals.zarr`` (computed once by the goals stage:
-:func:`pipeline.routes.region.group_region`, navigable cells within ``task.success_m`` of a member's
+:func:`pipeline.nav.region.group_region`, navigable cells within ``task.success_m`` of a member's
 footprint that see its mass centre, line of sight by ray casting the reconstructed mesh), seeded start
 poses at least ``routes.min_geodesic_m`` away (geodesic), the FMM shortest path into the region, its
 discrete actions (the ``task``'s action space) and procedural text; every route is replayed on the
@@ -23,7 +23,7 @@ from pipeline.errors import LineageError
 from pipeline.goals.store import Goals
 from pipeline.recon import Recon
 from pipeline.routes.episodes import GoalTarget, make_episodes
-from pipeline.routes.region import ROUTE_MARGIN_CELLS
+from pipeline.nav.region import ROUTE_MARGIN_CELLS
 from pipeline.routes.store import write_routes
 
 

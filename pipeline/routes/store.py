@@ -28,6 +28,7 @@ import numpy as np
 
 from pipeline.errors import ArtifactError
 from pipeline.geometry import GridSpec
+from pipeline.nav.actions import ACTION_NAMES
 from pipeline.store import ArtifactAttrs, AttrsModel, GridAttrs, compressor, new_group, open_group
 
 ARTIFACT = "routes"
@@ -35,9 +36,7 @@ FORMAT_VERSION = 3
 
 # ----------------------------------------------------------------------------- the store's types
 
-#: the task's discrete actions, as stored in ``actions`` (pipeline.routes.actions plans with them)
-STOP, FORWARD, LEFT, RIGHT = 0, 1, 2, 3
-ACTION_NAMES = {STOP: "stop", FORWARD: "forward", LEFT: "left", RIGHT: "right"}
+#: the task's discrete actions, as stored in ``actions`` (pipeline.nav.actions plans with them)
 
 
 class EpisodeSource(Protocol):

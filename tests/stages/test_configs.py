@@ -236,7 +236,7 @@ def test_the_status_of_a_simulated_scene_loads_no_numpy_zarr_or_torch(tmp_path):
         "import sys\n"
         "from pipeline.paramsfile import parse_params\n"
         "from pipeline.paths import Workspace\n"
-        "from pipeline.stagegraph import plan, staleness\n"
+        "from pipeline.engine.stagegraph import plan, staleness\n"
         "from stages import STAGES\n"
         f"ws = Workspace.resolve(None, {str(tmp_path / 'data')!r}, None)\n"
         "params = parse_params({'scenes': {'s0': {'source': 'simulate'}}})\n"

@@ -12,7 +12,7 @@ from pipeline.paths import Workspace
 from pipeline.recon import Recon
 from pipeline.recon.build import reconstruct
 from pipeline.recon.evaluate import grid_accuracy
-from pipeline.runner import StageContext
+from pipeline.engine.runner import StageContext
 from stages import STAGES
 from stages.reconstruct import run
 from tests.fixtures.recon_scenes import write_box_room_frames

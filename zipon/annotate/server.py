@@ -73,7 +73,7 @@ class Workbench:
         """Read the first scene's summary and layers and import what a save imports (torch and open3d, through the
         stage runner's thread limits), so the first page and the first save do not wait for them. ``zipon
         annotate`` runs it in a thread while the server starts."""
-        from pipeline.process import limit_native_threads
+        from pipeline.engine.process import limit_native_threads
         from zipon.annotate.scene import LAYERS
 
         ds = self.dataset()
@@ -100,7 +100,7 @@ class Workbench:
 
     def lock_holder(self, scene: str) -> str | None:
         """``"pid P on host H holds PATH"`` for a live lock on any of the scene's stages, else None."""
-        from pipeline.locks import holder_is_dead, parse_holder
+        from pipeline.engine.locks import holder_is_dead, parse_holder
 
         folder = self.workspace.artifact("frames", scene).parent
         for path in sorted(folder.glob(".*.lock")) if folder.is_dir() else ():
@@ -192,7 +192,9 @@ def propose(request, wb, body):
 def route(request, wb, body):
     view = wb.scene(request.path_params["scene"])
     keys = [k for k in (request.query_params.get("objects") or "").split(",") if k]
-    start = (number(request, "x"), number(request, "y"), math.radians(number(request, "yaw_deg", 0.0)))
+    # no x and y: from the recording's start pose, where the goals stage's procedural feedback starts
+    start = None if "x" not in request.query_params and "y" not in request.query_params else (
+        number(request, "x"), number(request, "y"), math.radians(number(request, "yaw_deg", 0.0)))
     return view.route(start, keys)
 
 

@@ -49,7 +49,7 @@ class FeedbackContext:
     walls: np.ndarray  # (rows, cols) bool: cells that block line of sight
     object_index: np.ndarray  # (rows, cols) int32: 1 + index into ``object_keys``, 0 none
     object_keys: list[str]
-    planner: Any = None  # pipeline.routes.actions.RoutePlanner, or None (no navigable grid)
+    planner: Any = None  # pipeline.nav.actions.RoutePlanner, or None (no navigable grid)
     start_pose: tuple[float, float, float] | None = None  # x, y, yaw of the recording's start
     # members -> (rows, cols) bool goal region (pipeline.goals.build.GoalRegions, stored in goals.zarr and
     # read by the routes stage); None = no reconstruction mesh: routes end within the planner's stop radius

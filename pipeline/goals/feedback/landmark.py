@@ -14,7 +14,7 @@ import numpy as np
 from pipeline.goals.feedback.base import (FeedbackContext, FeedbackKind, GoalDraft, appearance, class_is_unique,
                                           object_phrase, register)
 from pipeline.goals.objects import ObjectRecord
-from pipeline.routes.fmm import segment_free
+from pipeline.nav.fmm import segment_free
 
 
 def polygon_distance(a: np.ndarray, b: np.ndarray) -> float:

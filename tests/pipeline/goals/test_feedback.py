@@ -4,7 +4,7 @@ from pipeline.config import GoalsParams
 from pipeline.goals.build import build_goals
 from pipeline.goals.feedback import FEEDBACK_KINDS, FeedbackKind
 from pipeline.goals.objects import objects_from_gt
-from pipeline.routes.actions import RoutePlanner
+from pipeline.nav.actions import RoutePlanner
 from tests.fixtures.goal_scenes import gt_navigable, house_grid, house_scene
 
 

@@ -6,7 +6,8 @@ import pytest
 from pipeline.config import GridParams, ReconstructParams
 from pipeline.errors import ConfigError, StageError
 from pipeline.geometry import GridSpec
-from pipeline.recon.grids import (column_occupancy, enclosed_unknown, estimate_floor, in_front_of_faces, lattice_ratio,
+from pipeline.recon.floors import estimate_floor
+from pipeline.recon.grids import (column_occupancy, enclosed_unknown, in_front_of_faces, lattice_ratio,
                                    navigable_mask, place_grid, surface_occupancy)
 
 
@@ -92,12 +93,11 @@ def test_unseen_back_of_furniture_is_inferred_but_the_outside_world_is_not():
 
 
 def test_an_empty_scene_is_a_stage_error_not_an_empty_map():
-    from pipeline.recon.grids import build_grids
+    from pipeline.recon.grids import placed_grid
 
     empty = np.zeros((0, 3), np.float32)
     with pytest.raises(StageError, match="frames.zarr: the fused volume has no surface"):
-        build_grids(empty, empty, np.zeros((0, 3), np.uint8), iter(()), {0: np.eye(4)}, GridParams(),
-                    ReconstructParams(), source="frames.zarr")
+        placed_grid(empty, {0: np.eye(4)}, GridParams(), ReconstructParams(), source="frames.zarr")
 
 
 def test_furniture_against_an_unseen_outer_wall_is_filled_but_an_unentered_room_is_not():

@@ -75,7 +75,7 @@ def test_two_saves_with_one_etag_one_is_saved_the_other_412(served):
 
 
 def test_a_failed_dvc_lock_record_undoes_the_whole_save(own_root, monkeypatch):
-    import pipeline.dvcfile
+    import pipeline.engine.dvcfile
     from pipeline.errors import ZiponError
     from tests.zipon.annotate.conftest import ORIGIN, make_client
 
@@ -83,7 +83,7 @@ def test_a_failed_dvc_lock_record_undoes_the_whole_save(own_root, monkeypatch):
         (own_root / "dvc.lock").write_text("half written by a failing dvc commit\n")
         raise ZiponError("recording them in dvc.lock failed (OSError: disk full)")
 
-    monkeypatch.setattr(pipeline.dvcfile, "sync_dvc_lock", dvc_fails)
+    monkeypatch.setattr(pipeline.engine.dvcfile, "sync_dvc_lock", dvc_fails)
     client = make_client(own_root)
     got = client.get(f"/api/scenes/{SCENE}/goals")
     doc, etag = got.json()["document"], got.headers["etag"]
