@@ -426,6 +426,12 @@ def _(c):
     return c.argv("-S", "simulate.width=1000000", "run", "-s", SCENE, "--stage", "simulate", "--force")
 
 
+@case("data-dir-s3-without-bucket", 1, "--data-dir s3://: no bucket named (expected s3://BUCKET",
+      never=("Traceback",))
+def _(c):
+    return ["-q", "-p", str(c.root / "params.yaml"), "--data-dir", "s3://", "status"]
+
+
 @case("params-bad-override", 1, "simulate.frames")
 def _(c):
     return c.argv("-S", "simulate.frames=many", "params")
