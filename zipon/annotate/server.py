@@ -508,6 +508,19 @@ def objects_save(request, wb, body):
             "next": f"in params.yaml: goals: {{objects: file, objects_files: {{{view.name}: {rel}}}}}"}
 
 
+@endpoint()
+def feedback_kinds(request, wb, body):
+    """The feedback kinds of the registry (:data:`pipeline.goals.feedback.FEEDBACK_KINDS`), in the goals document's
+    order: the page makes one field of each, edited as the kind's ``form`` says."""
+    from pipeline.goals.feedback import FEEDBACK_KINDS
+    from pipeline.goals.schema import Feedback
+
+    empty = Feedback().model_dump(mode="json")
+    return {"kinds": [{"name": name, "form": FEEDBACK_KINDS[name].form, "description": info.description or "",
+                       "default": empty[name], "new_goal": FEEDBACK_KINDS[name].new_goal}
+                      for name, info in Feedback.model_fields.items()]}
+
+
 # ----------------------------------------------------------------------------- play as the user
 
 MAX_PLAYS = 8  # episodes kept per server (the oldest finished one is dropped first)
@@ -602,6 +615,7 @@ def create_app(params=None, data_dir=None, manifests_dir=None, *, scene=None, ov
         Route(s + "/objects", objects_save, methods=["PUT"]),
         Route(s + "/objects/validate", objects_validate, methods=["POST"]),
         Route("/api/agents", agents),
+        Route("/api/feedback-kinds", feedback_kinds),
         Route(s + "/play", play_start, methods=["POST"]),
         Route(s + "/play/{play}", play_state),
         Route(s + "/play/{play}/reply", play_reply, methods=["POST"]),
