@@ -19,6 +19,8 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any
 
+from pipeline import plugins
+from pipeline.errors import ConfigError
 from pipeline.goals.feedback import FEEDBACK_KINDS
 
 
@@ -106,20 +108,36 @@ class Agent(ABC):
         return any(math.hypot(c[0] - p[0], c[1] - p[1]) <= radius for p in places)
 
 
+#: the agents loaded so far, by name (filled by :func:`agent_class`; importing :mod:`orion_eval.agents` loads the
+#: built-in ones, in their declared order)
 AGENTS: dict[str, type[Agent]] = {}
 
 
-def register(cls: type[Agent]) -> type[Agent]:
-    AGENTS[cls.name] = cls
-    return cls
+def agent_class(name: str) -> type[Agent] | None:
+    """The agent ``name``, built in (:data:`pipeline.plugins.BUILT_IN_AGENTS`) or registered by an installed package
+    (``zipon.agents`` entry points); None for a name neither declares. Raises ConfigError naming the entry point and
+    its package when a registration does not load or does not fit."""
+    return plugins.load_class(plugins.AGENTS_GROUP, name, Agent, "orion_eval.agents.Agent", "agent", loaded=AGENTS)
+
+
+def all_agents() -> dict[str, type[Agent]]:
+    """Every agent of the registry by name: the built-in ones, then the installed packages' (sorted)."""
+    return {name: agent_class(name) for name in plugins.agent_names()}
 
 
 def build_agent(name: str, params, resources: AgentResources = AgentResources(),
                 classes: dict[str, type[Agent]] | None = None) -> Agent:
-    """The agent ``name`` of the registry (or of ``classes``, the caller's own agents) for one scene."""
-    cls = (classes or {}).get(name) or AGENTS.get(name)
+    """The agent ``name`` of the registry (or of ``classes``, the caller's own agents) for one scene; an installed
+    one failing to build is a PluginError naming its entry point."""
+    cls = (classes or {}).get(name) or agent_class(name)
     if cls is None:
-        from pipeline.errors import ConfigError
+        raise ConfigError(f"eval.methods: unknown agent {name!r} (choose from {plugins.agent_names()})")
+    with plugins.running(cls, "build"):
+        return cls.build(params, resources)
 
-        raise ConfigError(f"eval.methods: unknown agent {name!r} (choose from {sorted(AGENTS)})")
-    return cls.build(params, resources)
+
+def run_agent(agent: Agent, m, instruction: str, goal_name: str, passes: tuple[type[BaseException], ...]) -> None:
+    """``agent.run(...)``; an installed agent's failure (not ``passes``: the episode's end) is a PluginError naming
+    its entry point and package."""
+    with plugins.running(type(agent), "run", passes):
+        agent.run(m, instruction, goal_name)

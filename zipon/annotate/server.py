@@ -528,21 +528,22 @@ MAX_PLAYS = 8  # episodes kept per server (the oldest finished one is dropped fi
 
 @endpoint()
 def agents(request, wb, body):
-    from orion_eval.agents import AGENTS
+    from orion_eval.agents import all_agents
 
-    return {"agents": [{"name": name, "label": getattr(cls, "label", name)} for name, cls in AGENTS.items()]}
+    return {"agents": [{"name": name, "label": getattr(cls, "label", "") or name} for name, cls in all_agents().items()]}
 
 
 @endpoint(write=True)
 def play_start(request, wb, body):
-    from orion_eval.agents import AGENTS
+    from orion_eval.agents import agent_class
+    from pipeline import plugins
     from zipon.annotate.play import PlaySession
 
     scene = request.path_params["scene"]
     view = wb.scene(scene)
     method, goal, seed = body.get("method"), body.get("goal"), body.get("seed", 0)
-    if method not in AGENTS:
-        raise HTTPError(400, f"unknown agent {method!r}; choose from {list(AGENTS)}", "method")
+    if not isinstance(method, str) or agent_class(method) is None:
+        raise HTTPError(400, f"unknown agent {method!r}; choose from {plugins.agent_names()}", "method")
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
         raise HTTPError(400, f"seed {seed!r} is not a non-negative integer", "seed")
     if not isinstance(goal, str):
