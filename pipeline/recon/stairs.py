@@ -15,6 +15,8 @@ horizontal run, and whether it is stairs (treads at a few heights) or a ramp (ev
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 from scipy.sparse import coo_matrix
@@ -34,22 +36,51 @@ _RAMP_FILL = 0.5  # a flight whose heights fill more than this fraction of 2 cm 
 _ENDPOINT_SEARCH_M = 1.0  # a landing's endpoint is the navigable cell nearest its centre within this
 
 
-def find_stairs(xyz: np.ndarray, normals: np.ndarray, floors: list[Floor], grid: GridSpec,
-                navigable: list[np.ndarray], p: ReconstructParams) -> list[StairLink]:
-    """The flights joining each pair of consecutive ``floors`` (lowest first), on the floors' shared ``grid``.
+@dataclass
+class Flight:
+    """One climb found between floors ``lower`` and ``upper`` (indices into the floor list): its nodes' cells
+    ``(M,2)`` and heights above the lower floor ``(M,)``, the landing masks on either floor's grid, the rise and
+    the shortest walk over it (``length`` 3-D, ``run`` horizontal), metres."""
 
-    ``xyz``/``normals`` ``(N,3)`` surface points; ``navigable``: each floor's ``(rows, cols)`` bool grid (for
-    the landings' endpoints). Returns the links lowest first, numbered from 0.
-    """
+    lower: int
+    upper: int
+    cells: np.ndarray
+    heights: np.ndarray
+    bottom: np.ndarray
+    top: np.ndarray
+    rise: float
+    length: float
+    run: float
+
+    def mask(self, shape: tuple[int, int]) -> np.ndarray:
+        """``(rows, cols)`` bool: the cells the flight covers."""
+        return _mask(self.cells, shape)
+
+
+def find_flights(xyz: np.ndarray, normals: np.ndarray, floors: list[Floor], grid: GridSpec, p: ReconstructParams
+                 ) -> list[Flight]:
+    """The flights joining each pair of consecutive ``floors`` (lowest first), on the floors' shared ``grid``;
+    ``xyz``/``normals`` ``(N,3)`` surface points."""
     up = normals[:, 2] > _UP_COS
     rc = grid.world_to_cell(xyz[up, :2].astype(np.float64))
     inside = grid.inside(rc)
     rc, z = rc[inside], xyz[up, 2][inside].astype(np.float64)
-    links: list[StairLink] = []
-    for a in range(len(floors) - 1):
-        for flight in _flights(rc, z, floors[a].floor_z_m, floors[a + 1].floor_z_m, grid, p.floor_tolerance_m):
-            links.append(_link(len(links), flight, floors[a], floors[a + 1], grid, navigable[a], navigable[a + 1]))
-    return links
+    return [Flight(a, a + 1, **f) for a in range(len(floors) - 1)
+            for f in _flights(rc, z, floors[a].floor_z_m, floors[a + 1].floor_z_m, grid, p.floor_tolerance_m)]
+
+
+def stair_links(flights: list[Flight], floors: list[Floor], grid: GridSpec, navigable: list[np.ndarray]
+                ) -> list[StairLink]:
+    """Each flight as a :class:`StairLink` numbered from 0; ``navigable``: each floor's ``(rows, cols)`` bool grid
+    (the landings' endpoints are navigable cells)."""
+    return [_link(i, f, floors[f.lower], floors[f.upper], grid, navigable[f.lower], navigable[f.upper])
+            for i, f in enumerate(flights)]
+
+
+def find_stairs(xyz: np.ndarray, normals: np.ndarray, floors: list[Floor], grid: GridSpec,
+                navigable: list[np.ndarray], p: ReconstructParams) -> list[StairLink]:
+    """:func:`find_flights` as :func:`stair_links`."""
+    return stair_links(find_flights(xyz, normals, floors, grid, p), floors, grid, navigable)
 
 
 def unlinked_warnings(floors: list[Floor], links: list[StairLink]) -> list[str]:
@@ -98,7 +129,7 @@ def _flights(rc: np.ndarray, z: np.ndarray, z_lo: float, z_hi: float, grid: Grid
         length, run = _climb(graph, (foot, to_lower[foot], heights[foot]), (head, to_upper[head], rise - heights[head]),
                              cells, grid.cell_size_m)
         out.append({"cells": cells[member], "heights": heights[member], "bottom": bottom, "top": top,
-                    "rise": rise, "length": length, "run": run})
+                    "rise": float(rise), "length": length, "run": run})
     return out
 
 
@@ -163,17 +194,17 @@ def _climb(graph, foot: tuple, head: tuple, cells: np.ndarray, cell_size_m: floa
     return float(dist[end]), run
 
 
-def _link(index: int, flight: dict, lower: Floor, upper: Floor, grid: GridSpec, nav_lower: np.ndarray,
+def _link(index: int, flight: Flight, lower: Floor, upper: Floor, grid: GridSpec, nav_lower: np.ndarray,
           nav_upper: np.ndarray) -> StairLink:
-    bottom = _landing(flight["bottom"], lower, nav_lower, grid)
-    top = _landing(flight["top"], upper, nav_upper, grid)
-    rise, run = float(flight["rise"]), float(flight["run"])
-    bins = np.unique(np.floor(flight["heights"] / 0.02))
+    bottom = _landing(flight.bottom, lower, nav_lower, grid)
+    top = _landing(flight.top, upper, nav_upper, grid)
+    rise, run = flight.rise, flight.run
+    bins = np.unique(np.floor(flight.heights / 0.02))
     kind = "ramp" if len(bins) > _RAMP_FILL * rise / 0.02 else "stairs"
-    cells = flight["cells"]
+    cells = flight.cells
     flat = np.unique(cells[:, 0] * grid.cols + cells[:, 1])
     return StairLink(id=index, kind=kind, bottom=bottom, top=top, rise_m=round(rise, 4), run_m=round(run, 3),
-                     length_m=round(max(float(flight["length"]), float(np.hypot(rise, run))), 3),
+                     length_m=round(max(flight.length, float(np.hypot(rise, run))), 3),
                      flight_cells=int(len(flat)),
                      flight_bbox=(int(cells[:, 0].min()), int(cells[:, 1].min()), int(cells[:, 0].max()),
                                   int(cells[:, 1].max())))
