@@ -74,8 +74,8 @@ def test_a_ramp_is_a_link_and_a_table_is_not():
     nav = [np.ones((GRID.rows, GRID.cols), bool)] * 2
     (link,) = find_stairs(xyz, normals, FLOORS, GRID, nav, ReconstructParams())
     assert link.kind == "ramp" and link.rise_m == 3.0
-    # its ends within floor_tolerance_m (0.05 m: 0.3 m of run) of a floor are that floor; + a cell onto each
-    assert link.run_m == pytest.approx(18.0 - 0.6 + 0.1, abs=0.15)
+    # its ends within floor_tolerance_m (0.05 m: 0.3 m of run) of a floor are that floor
+    assert link.run_m == pytest.approx(18.0 - 0.6, abs=0.15)
     assert link.length_m == pytest.approx(np.hypot(17.5, 2.9), abs=0.2)
     assert unlinked_warnings(FLOORS, [link]) == []
 
