@@ -7,8 +7,9 @@ lower floor's surface and whose high end steps onto the upper floor's. Table top
 walkable-looking surface too, but no chain of small steps leads from the floor onto them, let alone on
 to the next floor. Each flight becomes a :class:`~pipeline.recon.store.StairLink`: the landing cells on
 either floor's grid (where the flight meets the floor), an endpoint per landing (the navigable cell nearest
-the landing's centre, where routes join the floors' grids), its rise, run and walked length, and whether
-it is stairs (treads at a few heights) or a ramp (every height).
+the landing's centre, where routes join the floors' grids), its rise, its walked length (the shortest
+climb over the flight's surface from its foot to its head, any shape of flight) and that length's
+horizontal run, and whether it is stairs (treads at a few heights) or a ramp (every height).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import binary_dilation, distance_transform_edt
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
+from scipy.sparse.csgraph import connected_components, dijkstra
 
 from pipeline.config import ReconstructParams
 from pipeline.geometry import GridSpec
@@ -68,7 +69,8 @@ def _flights(rc: np.ndarray, z: np.ndarray, z_lo: float, z_hi: float, grid: Grid
         return []
     cells, heights = _nodes(rc[mid], z[mid] - z_lo)
     n = len(cells)
-    comp = _components(cells, heights)
+    graph = _step_graph(cells, heights, grid.cell_size_m)
+    comp = connected_components(graph, directed=False)[1]
     rise = z_hi - z_lo
     low_end = heights <= MAX_STEP_M
     high_end = heights >= rise - MAX_STEP_M
@@ -86,8 +88,11 @@ def _flights(rc: np.ndarray, z: np.ndarray, z_lo: float, z_hi: float, grid: Grid
             continue
         bottom = lower & binary_dilation(_mask(cells[member & low_end], shape), np.ones((3, 3), bool))
         top = upper & binary_dilation(_mask(cells[member & high_end], shape), np.ones((3, 3), bool))
+        foot = np.flatnonzero(member & low_end & near_lower)
+        head = np.flatnonzero(member & high_end & near_upper)
+        length, run = _climb(graph, foot, head, cells, heights, grid.cell_size_m)
         out.append({"cells": cells[member], "heights": heights[member], "bottom": bottom, "top": top,
-                    "rise": rise})
+                    "rise": rise, "length": length, "run": run})
     return out
 
 
@@ -110,9 +115,9 @@ def _nodes(rc: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return uniq[:, :2], heights
 
 
-def _components(cells: np.ndarray, heights: np.ndarray) -> np.ndarray:
-    """Connected components of the nodes: neighbouring (or the same) cells whose heights differ by at most
-    :data:`MAX_STEP_M`."""
+def _step_graph(cells: np.ndarray, heights: np.ndarray, cell_size_m: float):
+    """The nodes' graph (sparse, symmetric): an edge joins neighbouring (or the same) cells whose heights differ by
+    at most :data:`MAX_STEP_M`, weighted by the 3-D distance between them (metres; at least 1 mm)."""
     n = len(cells)
     level = np.floor(heights / _LEVEL_M).astype(np.int64)
     reach = int(np.ceil(MAX_STEP_M / _LEVEL_M)) + 1
@@ -137,23 +142,38 @@ def _components(cells: np.ndarray, heights: np.ndarray) -> np.ndarray:
                 src.append(mine[close])
                 dst.append(other[close])
     src, dst = np.concatenate(src), np.concatenate(dst)
-    graph = coo_matrix((np.ones(len(src), np.int8), (src, dst)), shape=(n, n))
-    return connected_components(graph, directed=False)[1]
+    flat = np.linalg.norm((cells[src] - cells[dst]).astype(np.float64), axis=1) * cell_size_m
+    weight = np.maximum(np.hypot(flat, heights[src] - heights[dst]), 1e-3)
+    graph = coo_matrix((np.r_[weight, weight], (np.r_[src, dst], np.r_[dst, src])), shape=(n, n))
+    return graph.tocsr()
+
+
+def _climb(graph, foot: np.ndarray, head: np.ndarray, cells: np.ndarray, heights: np.ndarray, cell_size_m: float
+           ) -> tuple[float, float]:
+    """The shortest walk over the flight from any ``foot`` node to any ``head`` node: its 3-D length and its
+    horizontal run (metres), plus the step onto each floor (one cell, to the floor's height)."""
+    dist, pred, _ = dijkstra(graph, indices=foot, min_only=True, return_predecessors=True)
+    end = int(head[np.argmin(dist[head])])
+    run, node = cell_size_m, end  # one cell from the last tread onto the upper floor
+    while pred[node] >= 0:
+        run += float(np.linalg.norm((cells[node] - cells[pred[node]]).astype(np.float64))) * cell_size_m
+        node = pred[node]
+    run += cell_size_m  # and from the lower floor onto the first
+    return float(dist[end]) + 2 * cell_size_m, run
 
 
 def _link(index: int, flight: dict, lower: Floor, upper: Floor, grid: GridSpec, nav_lower: np.ndarray,
           nav_upper: np.ndarray) -> StairLink:
     bottom = _landing(flight["bottom"], lower, nav_lower, grid)
     top = _landing(flight["top"], upper, nav_upper, grid)
-    centre = [np.argwhere(flight[k]).mean(axis=0) for k in ("bottom", "top")]
-    run = float(np.linalg.norm(centre[1] - centre[0]) * grid.cell_size_m)
-    rise = float(flight["rise"])
+    rise, run = float(flight["rise"]), float(flight["run"])
     bins = np.unique(np.floor(flight["heights"] / 0.02))
     kind = "ramp" if len(bins) > _RAMP_FILL * rise / 0.02 else "stairs"
     cells = flight["cells"]
     flat = np.unique(cells[:, 0] * grid.cols + cells[:, 1])
     return StairLink(id=index, kind=kind, bottom=bottom, top=top, rise_m=round(rise, 4), run_m=round(run, 3),
-                     length_m=round(float(np.hypot(rise, run)), 3), flight_cells=int(len(flat)),
+                     length_m=round(max(float(flight["length"]), float(np.hypot(rise, run))), 3),
+                     flight_cells=int(len(flat)),
                      flight_bbox=(int(cells[:, 0].min()), int(cells[:, 1].min()), int(cells[:, 0].max()),
                                   int(cells[:, 1].max())))
 

@@ -120,8 +120,8 @@ class StairLink(AttrsModel):
     bottom: Landing
     top: Landing
     rise_m: float  # top.z_m - bottom.z_m
-    run_m: float  # horizontal distance between the landings' centres
-    length_m: float  # walked length of the flight, hypot(rise, run)
+    run_m: float  # horizontal length of the shortest walk over the flight, foot to head
+    length_m: float  # its length in 3-D (at least hypot(rise, run)): what routes add for the climb
     flight_cells: int  # cells of the flight (treads) in the bottom floor's grid
     flight_bbox: tuple[int, int, int, int]  # row0, col0, row1, col1 (inclusive) of the flight in that grid
 
