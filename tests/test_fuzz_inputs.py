@@ -390,3 +390,58 @@ def test_workbench_endpoints(workbench, data):
         changed = sorted(k for k in set(before) | set(_state(root)) if before.get(k) != _state(root).get(k))
     assert not changed, (method, url, r.status_code, changed)
     TALLY["workbench endpoints"][f"{method} {path}: {kind}"] += 1
+
+
+# ----------------------------------------------------------------------------- what zipon reads back
+
+HUMAN_RECORD = {"scene": "tiny", "method": "cow", "feedback": "human", "seed": 0, "goal": "g0", "goal_type": "big",
+                "episode": "e0", "success": True, "spl": 0.5, "sit": 1.0, "talk_turns": 1, "steps": 12,
+                "travelled_m": 3.2, "geodesic_m": 1.6, "collisions": 0, "end": "found", "final_distance_m": 0.4,
+                "log": {"dialogue": [{"speaker": "user", "text": "No."}]}}
+
+
+@fuzz_settings(80)
+@given(st.data())
+def test_human_episode_records(data):
+    """A stored human-answered episode with random parts replaced, removed or added: kept as a valid record (its
+    numbers finite), left out (another scene, method or goal), or one error naming the file, the line and a field."""
+    from orion_eval.records import read_human_episodes
+
+    record = mutated(data, HUMAN_RECORD)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "tiny.episodes.jsonl"
+        path.write_text(json.dumps(HUMAN_RECORD) + "\n" + json.dumps(record, allow_nan=True) + "\n")
+        try:
+            read = read_human_episodes(path, "tiny", {"g0"}, ["cow"])
+        except InputDataError as err:
+            assert str(path) in str(err) and "line 2" in str(err) and "\n" not in str(err), str(err)
+            TALLY["human episode records"]["error"] += 1
+            return
+    json.dumps(read.records, allow_nan=False)  # what is kept can be written as strict JSON
+    TALLY["human episode records"]["kept" if len(read.records) == 2 else "left out"] += 1
+
+
+@fuzz_settings(150)
+@given(st.one_of(st.text(max_size=300), st.builds(lambda doc: json.dumps(doc, allow_nan=True), VALUES),
+                 st.builds(lambda pre, action, args, post: pre + json.dumps({"thought": "", "action": action,
+                                                                            "args": args}) + post,
+                           st.text(max_size=20), st.sampled_from(["talk", "move", "goto_object", "fly"]),
+                           st.dictionaries(st.sampled_from(["content", "dist_m", "obj_id"]), SCALARS, max_size=3),
+                           st.text(max_size=20)),
+                 st.builds(lambda n, c: c * n, st.integers(1, 50_000), st.sampled_from(["{", "[", '{"a":', "{{}"]))))
+def test_llm_replies(text):
+    """Whatever a model answers, parsing its reply is one clear error or an action, in linear time."""
+    import time
+
+    from orion_eval.llm import AGENT_FUNCTIONS, parse_action
+
+    t0 = time.perf_counter()
+    try:
+        act = parse_action(text)
+    except InputDataError as err:
+        TALLY["llm replies"]["error"] += 1
+        assert str(err).count("\n") == 0
+    else:
+        assert act.action in AGENT_FUNCTIONS
+        TALLY["llm replies"]["action"] += 1
+    assert time.perf_counter() - t0 < 1.0, len(text)
