@@ -222,7 +222,11 @@ STORE_MODULES = ("pipeline.store", "pipeline.frames", "pipeline.maps.store", "pi
 STORE_MAY_IMPORT = {"pipeline", "pipeline.config", "pipeline.stageconfig", "pipeline.errors", "pipeline.geometry", "pipeline.store",
                     "pipeline.scene_gt", "pipeline.maps.scoring",
                     # the goal document and object record schemas (pydantic) the goals store holds
-                    "pipeline.goals.objects", "pipeline.goals.schema"}
+                    "pipeline.goals.objects", "pipeline.goals.schema",
+                    # the action codes routes.zarr stores (constants only)
+                    "pipeline.nav.codes",
+                    # the floor records (Floor) a building's map stores keep, as recon.zarr defines them
+                    "pipeline.recon.store"}
 
 
 def test_stores_import_no_algorithm_that_fills_them():
