@@ -16,10 +16,36 @@ from pydantic import Field, field_validator, model_serializer, model_validator
 from pipeline.encoder_params import EncodersParams
 from pipeline.eval_params import EvalParams, RoutesParams, TaskParams
 from pipeline.ingest_params import IngestParams
+from pipeline.maps_params import MapsParams, QueryParams
 from pipeline.section import DepthRange, Section
 
 
 # ----------------------------------------------------------------------------- scenes
+
+class BuildingParams(Section):
+    """What a simulated scene is (``scenes.<name>.building``; absent: an apartment): the stage ``simulate``'s
+    per-scene settings."""
+
+    kind: Literal["apartment", "house", "office"] = Field(
+        "apartment", description="'apartment': one floor of simulate.rooms_min..rooms_max rooms; 'house': 'stories' "
+        "floors joined by a staircase; 'office': one large floor of 'size_m'"
+    )
+    stories: int = Field(2, ge=2, le=3, description="floors of a house (each with its stair hall)")
+    rooms_per_floor_min: int = Field(3, ge=2, le=6, description="fewest rooms per floor of a house, its hall aside")
+    rooms_per_floor_max: int = Field(4, ge=2, le=6, description="most rooms per floor of a house, its hall aside")
+    size_m: tuple[float, float] = Field(
+        (60.0, 40.0), description="an office floor's extent along x and y, metres (each 10-200)"
+    )
+    room_area_m2: float = Field(90.0, ge=20, le=400, description="an office floor's area per room, m^2")
+
+    @model_validator(mode="after")
+    def _ranges(self) -> "BuildingParams":
+        if self.rooms_per_floor_min > self.rooms_per_floor_max:
+            raise ValueError("rooms_per_floor_min must not exceed rooms_per_floor_max")
+        if not all(10.0 <= v <= 200.0 for v in self.size_m):
+            raise ValueError(f"size_m must be two extents of 10-200 m, got {list(self.size_m)}")
+        return self
+
 
 class SceneSource(Section):
     """Where one scene's raw data comes from."""
@@ -34,6 +60,9 @@ class SceneSource(Section):
     )
     format: str = Field("auto", description="reader to use: a built-in or installed reader's name (zipon ingest "
                         "--help lists them); 'auto' detects it from each path")
+    building: BuildingParams | None = Field(
+        None, description="a simulated scene's kind of building (house, office) and its settings; absent: an apartment"
+    )
 
     @model_validator(mode="after")
     def _one_source_key(self) -> "SceneSource":
@@ -45,6 +74,8 @@ class SceneSource(Section):
             raise ValueError("'sources' is empty: list at least one raw log or dataset folder")
         if self.sources is not None and "simulate" in self.sources:
             raise ValueError("'sources' lists paths; a simulated scene is 'source: simulate'")
+        if self.building is not None and self.source != "simulate":
+            raise ValueError("'building' describes a simulated scene: only with 'source: simulate'")
         return self
 
     @field_validator("format")
@@ -62,7 +93,7 @@ class SceneSource(Section):
 
     @model_serializer(mode="wrap")
     def _without_unused_key(self, handler) -> dict:
-        return {k: v for k, v in handler(self).items() if not (k in ("source", "sources") and v is None)}
+        return {k: v for k, v in handler(self).items() if not (k in ("source", "sources", "building") and v is None)}
 
     @property
     def simulated(self) -> bool:
@@ -126,11 +157,36 @@ class GridParams(Section):
         None, description="world x, y of the grid's centre, metres (snapped to the TSDF lattice); null = centred "
         "on the surface reconstruct saw. Pin it (and reconstruct.floor_z_m) so appending logs keeps the map's fold"
     )
+    extent: Literal["grow", "fixed"] = Field(
+        "grow", description="'grow': rows x cols when the reconstructed surface (its 0.5-99.5 percentile box plus 1 m "
+        "each side) fits in it, else the smallest grid of whole 128-cell tiles (the zarr chunks) that covers it, so a "
+        "floor of any size needs no hand-set rows/cols; 'fixed': exactly rows x cols (surface outside is counted, "
+        "reconstruct.max_outside_fraction bounds it)"
+    )
 
     @model_serializer(mode="wrap")
     def _without_unpinned_centre(self, handler) -> dict:
-        """An unpinned centre is left out of the section's value: digests of grids without one stay as they were."""
-        return {k: v for k, v in handler(self).items() if not (k == "centre_xy" and v is None)}
+        """An unpinned centre and the default extent are left out of the section's value: digests of grids
+        without them stay as they were (a grid that fits is the same under 'grow' as under the old fixed rule)."""
+        return {k: v for k, v in handler(self).items()
+                if not ((k == "centre_xy" and v is None) or (k == "extent" and v == "grow"))}
+
+
+MIN_STOREY_M = 1.8  # floors (and camera levels) closer than this are one floor
+
+
+class PinnedFloor(Section):
+    """One floor of ``reconstruct.floors``, pinned by hand."""
+
+    floor_z_m: float = Field(description="world z of the floor's walkable surface, metres")
+    ceiling_z_m: float | None = Field(None, description="world z of its ceiling, metres; None = not given")
+    name: str | None = Field(None, description="a name for the floor ('ground floor'); None = 'floor <id>'")
+
+    @model_validator(mode="after")
+    def _ceiling_above(self) -> "PinnedFloor":
+        if self.ceiling_z_m is not None and self.ceiling_z_m <= self.floor_z_m:
+            raise ValueError(f"ceiling_z_m {self.ceiling_z_m} must lie above floor_z_m {self.floor_z_m}")
+        return self
 
 
 class ReconstructParams(DepthRange):
@@ -160,6 +216,11 @@ class ReconstructParams(DepthRange):
     )
     floor_z_m: float | None = Field(
         None, description="floor height in world z, metres; None = estimate it from upward-facing surfaces"
+    )
+    floors: list[PinnedFloor] | None = Field(
+        None, description="the floors of a building pinned by hand, lowest first, at least 1.8 m apart (for "
+        "buildings the rule cannot read; each must have upward-facing surface within floor_tolerance_m of its "
+        "floor_z_m); None = found from the surface and the camera heights (pipeline.recon.floors)"
     )
     floor_tolerance_m: float = Field(
         0.05, gt=0, description="a cell's floor is observed when solid geometry lies within this of the floor"
@@ -247,100 +308,28 @@ class ReconstructParams(DepthRange):
             return v
         raise ValueError(f"expected 'auto' or a whole number from 1 to 8, got {v!r}")
 
+    @model_serializer(mode="wrap")
+    def _without_unpinned_floors(self, handler) -> dict:
+        """Floors not pinned are left out of the section's value: digests of scenes without them stay as they were."""
+        return {k: v for k, v in handler(self).items() if not (k == "floors" and v is None)}
+
     @model_validator(mode="after")
     def _ranges(self) -> "ReconstructParams":
         if self.obstacle_min_height_m >= self.obstacle_max_height_m:
             raise ValueError("obstacle_min_height_m must be below obstacle_max_height_m")
+        if self.floors is not None:
+            if self.floor_z_m is not None:
+                raise ValueError("give either floor_z_m (one floor) or floors (a building), not both")
+            if not self.floors:
+                raise ValueError("floors is empty: list at least one floor, or leave it out (null) to find them")
+            z = [f.floor_z_m for f in self.floors]
+            for i in range(1, len(z)):
+                if z[i] - z[i - 1] < MIN_STOREY_M:
+                    raise ValueError(f"floors[{i}].floor_z_m {z[i]} must lie at least {MIN_STOREY_M} m above "
+                                     f"floors[{i - 1}].floor_z_m {z[i - 1]} (lowest floor first)")
         if self.sdf_trunc_m < self.voxel_size_m:
             raise ValueError("sdf_trunc_m must be at least voxel_size_m")
         return self
-
-
-class MapsParams(DepthRange):
-    """Semantic map fusion (stages ``vlmap`` / ``cfmap``); query settings are in ``query``.
-
-    Height rule (both maps): space above the grid is cut into levels of ``level_height_m``
-    between ``floor + min_height_m`` and ``floor + max_height_m``; a cell's top-down feature is the
-    weighted mean of the points in its HIGHEST observed level (navchat's "top voxel per column",
-    which also matches the top-down colour map and GT footprints, where taller parts win).
-    """
-
-    block_frames: int = Field(16, gt=0, description="frames read, encoded and fused per block")
-    chunk_frames: int = Field(
-        256, gt=0, description="frames of one chunk: chunks (fixed by frame index) are fused as separate tasks on every "
-        "worker and folded in order, so the map does not depend on the workers; a rerun after frames were appended "
-        "reuses the fold of the unchanged complete chunks (best a multiple of block_frames)"
-    )
-    depth_min_m: float = Field(0.1, ge=0, description="depth below this is not fused, metres")
-    depth_max_m: float = Field(5.0, gt=0, description="depth beyond this is not fused (noise grows), metres")
-    max_depth_jump: float = Field(
-        0.1, ge=0, description="a pixel whose depth differs from a 4-neighbour by more than this fraction of its "
-        "depth lies on a depth edge (flying pixel) and is not fused; 0 = keep all"
-    )
-    min_height_m: float = Field(-0.05, description="lowest fused point, metres above the floor (reconstruction's floor_z)")
-    max_height_m: float = Field(2.0, gt=0, description="highest fused point (ceilings left out), metres above the floor")
-    level_height_m: float = Field(0.1, gt=0, description="height of one level (voxel) of the height rule, metres")
-    vlmap_weight_sigma_m: float | None = Field(
-        None, gt=0, description="vlmap point weight exp(-d^2 / 2 sigma^2) of camera distance d; None = every point "
-        "weighs 1 (VLMaps' count-weighted mean)"
-    )
-    cfmap_weight_sigma_m: float | None = Field(
-        0.6, gt=0, description="cfmap point weight exp(-d^2 / 2 sigma^2) (ConceptFusion's confidence, sigma 0.6); "
-        "None = count weights"
-    )
-    cfmap_voxels: bool = Field(True, description="cfmap also stores its sparse 3D voxel feature map")
-    fill_radius_m: float = Field(
-        0.3, ge=0, description="unobserved cells recon does not mark free (the unseen tops of tall objects) take the "
-        "feature of the nearest observed cell within this distance; filled cells have count 0; 0 = no filling"
-    )
-    tile_cells: int = Field(64, gt=0, description="spatial tile edge (cells) of the stored map's chunks")
-    keyframes_only: bool = Field(
-        False, description="fuse only the frames reconstruct fused (its keyframes, with reconstruct.keyframes; "
-        "recon.zarr 'fused'); false = every frame with a pose, keyframe or not"
-    )
-    @model_validator(mode="after")
-    def _ranges(self) -> "MapsParams":
-        if self.min_height_m >= self.max_height_m:
-            raise ValueError("min_height_m must be below max_height_m")
-        if (self.max_height_m - self.min_height_m) / self.level_height_m > 1000:
-            raise ValueError("level_height_m is too small for the height band (more than 1000 levels)")
-        return self
-
-
-class QueryParams(Section):
-    """Text queries on built maps (``zipon query``, the evaluator's map agents). Never part of a digest:
-    changing a query setting rebuilds nothing."""
-
-    background: tuple[str, ...] = Field(
-        ("other", "floor", "wall", "ceiling"),
-        description="background prompts a query competes with per cell (VLMaps: categories + 'other'); "
-        "a cell is a candidate where the query's score beats every background prompt",
-    )
-    temperature: float | None = Field(
-        None, gt=0, description="softmax temperature of the heatmap; None = the encoder's own, else 0.1"
-    )
-    min_probability: float = Field(
-        0.5, ge=0, le=1, description="a cell wins when the query beats every background prompt AND its heatmap "
-        "probability is at least this (0.5: the query outweighs all background prompts together); 0 = argmax only"
-    )
-    min_candidate_area_m2: float = Field(0.01, ge=0, description="smaller winning components are not candidates")
-    min_candidate_score: float = Field(
-        0.7, ge=0, le=1, description="components whose mean heatmap probability is below this are not candidates "
-        "(drops cells the query wins only because every prompt scores about as low; 0.7 lifts the demo scenes' "
-        "top-candidate hit rate from 0.947/0.971 to 0.967/0.995 with the oracle, benchmarks/quality_maps.py)"
-    )
-    max_candidates: int = Field(20, gt=0, description="at most this many candidates per query")
-    query_rank: int = Field(
-        64, ge=0, description="maps with at least query_lowrank_min_cells cells are scored through a rank-k basis "
-        "of their features, with exact rescoring of every cell that could win (exact wins and candidates); 0 = exact"
-    )
-    query_lowrank_min_cells: int = Field(50_000, gt=0, description="smaller maps are always scored exactly")
-    levels: Literal["top", "max"] = Field(
-        "top", description="top: a cell is scored by its top-down feature (its highest level: a table hides the "
-        "chair under it); max: a cfmap that stores voxels (maps.cfmap_voxels) scores each cell by its best height "
-        "level for the query (pipeline.maps.levels: finds the chair under the table, a picture on a wall); a vlmap "
-        "has one level per cell, so max scores it as top"
-    )
 
 
 class NavchatGrid(Section):

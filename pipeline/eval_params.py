@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_serializer, model_validator
 
 from pipeline.encoder_params.perception import DetectorParams
 from pipeline.section import Section
@@ -36,7 +36,7 @@ class TaskParams(Section):
     stop_radius_m: float = Field(
         1.0, gt=0, description="a walk to a goal (the reference routes, the procedural feedback of goals.zarr and of "
         "the simulated user) aims for goal-region cells within this distance of the footprint "
-        "(pipeline.routes.region.route_target), metres"
+        "(pipeline.nav.region.route_target), metres"
     )
     clearance_m: float = Field(
         0.1, ge=0, description="planned paths keep this far from non-navigable cells, beyond recon's robot radius: "
@@ -58,6 +58,17 @@ class RoutesParams(Section):
     seed: int = Field(0, description="seed of the start poses")
     episodes_per_goal: int = Field(3, gt=0, description="episodes (start poses) per goal")
     min_geodesic_m: float = Field(2.0, ge=0, description="start poses are at least this geodesic distance away")
+    cross_floor_per_goal: int = Field(
+        1, ge=0, le=20, description="a building's episodes per goal from each other floor the stairs join to it (0: "
+        "none); a single-floor scene has none")
+
+    @model_serializer(mode="wrap")
+    def _unset_building_keys(self, handler) -> dict:
+        # a building's key at its default is not written, so a single-floor scene's routes digest is as before it
+        data = handler(self)
+        if data.get("cross_floor_per_goal") == 1:
+            data.pop("cross_floor_per_goal")
+        return data
 
 
 class LLMParams(Section):

@@ -234,16 +234,18 @@ def test_stores_import_no_algorithm_that_fills_them():
 
 # pipeline.config (the schema), pipeline.paramsfile (reading it) and pipeline.stageconfig (digests) are read by every
 # command, the fast ones (status, params, query) included: they stay leaves (the params sections live in the schema and
-# its per-area modules, each built-in encoder's settings in a torch-free module beside it; docs: architecture, design
+# its per-area modules, each built-in encoder's settings in its own torch-free module; docs: architecture, design
 # decisions).
-PARAMS_MODULES = {"pipeline.ingest_params", "pipeline.eval_params", "pipeline.encoder_params",
+PARAMS_MODULES = {"pipeline.ingest_params", "pipeline.eval_params", "pipeline.maps_params", "pipeline.encoder_params",
                   "pipeline.encoder_params.perception", "pipeline.encoder_params.lseg",
                   "pipeline.encoder_params.maskclip", "pipeline.encoder_params.conceptfusion",
                   "pipeline.encoder_params.torchscript", "pipeline.encoder_params.oracle"}
 CONFIG_MAY_IMPORT = {"pipeline", "pipeline.errors", "pipeline.plugins", "pipeline.section", *PARAMS_MODULES,
                      "pipeline.config",
                      # the bounded YAML/JSON loader params files are read through (a leaf: errors, yaml, json)
-                     "pipeline.userfiles"}
+                     "pipeline.userfiles",
+                     # the cross-field checks run at load (a leaf: errors, os)
+                     "pipeline.paramchecks"}
 
 
 @pytest.mark.parametrize("start", ["pipeline.config", "pipeline.paramsfile", "pipeline.stageconfig"])

@@ -22,13 +22,15 @@ from pipeline.errors import ConfigError
 
 def run_eval(dataset, out_dir: str | Path = "eval_out", *, agents: Sequence | None = None,
              scenes: Sequence[str] | None = None, feedback: Sequence[str] | None = None,
-             seeds: int | Sequence[int] | None = None, report: bool = True, progress: bool = False) -> dict:
+             seeds: int | Sequence[int] | None = None, report: bool = True, progress: bool = False,
+             strict: bool = False) -> dict:
     """Evaluate agents on built scenes; writes ``out_dir/results.json`` (+ report.html) and returns the results.
 
     ``dataset``: a :class:`~zipon.api.Dataset` or anything :func:`zipon.open` takes; on an object-store data root
     the evaluated scenes are mirrored first. ``agents``: built-in names and/or :class:`~orion_eval.agents.Agent`
     subclasses (default: params ``eval.methods``). ``seeds``: a count (``2`` = seeds 0 and 1) or explicit seeds
-    (default: params ``eval.seeds``).
+    (default: params ``eval.seeds``). ``strict``: stored human-answered episodes of goals a later goals edit removed
+    are an error, not left out with a warning.
     """
     from orion_eval.run import evaluate
     from stages import STAGES
@@ -42,7 +44,7 @@ def run_eval(dataset, out_dir: str | Path = "eval_out", *, agents: Sequence | No
     ds.mirror(list(scenes or ds.params.eval.scenes or ds.params.scenes))  # what it evaluates
     return evaluate(ds.workspace, ds.params, STAGES, Path(out_dir), scenes=list(scenes) if scenes else None,
                     methods=names, feedback=list(feedback) if feedback else None, seeds=seed_list,
-                    progress=progress, report=report, agent_classes=classes or None)
+                    progress=progress, report=report, agent_classes=classes or None, strict=strict)
 
 
 def agent_names(agents: Sequence | None) -> tuple[list[str] | None, dict[str, type]]:

@@ -1,6 +1,6 @@
 """The kinds of user feedback (the paper's FB), one module each (generated, said, read back), registered in
 FEEDBACK_KINDS: every module of this package but ``base`` is a kind, imported here in the order of their names (a new
-kind is its one new module; :mod:`pipeline.codedeps` counts every module here in the code of what imports it)."""
+kind is its one new module; :mod:`pipeline.engine.codedeps` counts every module here in the code of what imports it)."""
 
 import importlib
 import pkgutil

@@ -59,12 +59,17 @@ class FeedbackContext:
     walls: np.ndarray  # (rows, cols) bool: cells that block line of sight
     object_index: np.ndarray  # (rows, cols) int32: 1 + index into ``object_keys``, 0 none
     object_keys: list[str]
-    planner: Any = None  # pipeline.routes.actions.RoutePlanner, or None (no navigable grid)
+    planner: Any = None  # pipeline.nav.actions.RoutePlanner, or None (no navigable grid)
     start_pose: tuple[float, float, float] | None = None  # x, y, yaw of the recording's start
     # members -> (rows, cols) bool goal region (pipeline.goals.build.GoalRegions, stored in goals.zarr and
     # read by the routes stage); None = no reconstruction mesh: routes end within the planner's stop radius
     goal_region: Callable[[tuple[str, ...]], np.ndarray] | None = None
     settings: GoalsParams = field(default_factory=GoalsParams)  # the goals params (landmark radius, ...)
+    # a building: its planner over every floor (pipeline.nav.building.BuildingPlanner), the floor the recording
+    # starts on and the floor this context's goals lie on; None: one floor (``planner`` plans everything)
+    building: Any = None
+    start_floor: int = 0
+    floor: int = 0
 
     def footprint_mask(self, keys: tuple[str, ...]) -> np.ndarray:
         idx = [self.object_keys.index(k) + 1 for k in keys]

@@ -21,7 +21,7 @@ from pydantic import Field
 from pipeline.goals.feedback.base import (FeedbackContext, FeedbackKind, GoalDraft, appearance, class_is_unique,
                                           object_phrase, register)
 from pipeline.goals.objects import ObjectRecord
-from pipeline.routes.fmm import segment_free
+from pipeline.nav.fmm import segment_free
 
 #: the spatial relation words, as :func:`relation` says them and :meth:`Landmark.parse` strips them
 RELATIONS = ("next to", "near", "on", "under")

@@ -2,7 +2,7 @@
 
 With the scene's goal regions (:class:`pipeline.goals.build.GoalRegions`: navigable cells within the
 success distance that see the goal's mass centre, on the reconstructed mesh; stored in goals.zarr, where
-the routes stage reads them) the route is planned exactly as the routes stage plans its episodes (:func:`pipeline.routes.region.route_into_region`:
+the routes stage reads them) the route is planned exactly as the routes stage plans its episodes (:func:`pipeline.nav.region.route_to_goal`:
 into the region's route target, else the region; facing the nearest member's mass centre), so the
 text here and in ``routes.zarr`` / the evaluator's user describe the same goal. Without regions
 (no reconstruction mesh) it ends within the planner's stop radius of the footprint.
@@ -24,8 +24,8 @@ import numpy as np
 from pydantic import Field
 
 from pipeline.goals.feedback.base import FeedbackContext, FeedbackKind, GoalDraft, Speaker, register
-from pipeline.routes.actions import procedural_allowed
-from pipeline.routes.region import route_into_region
+from pipeline.nav.actions import procedural_allowed
+from pipeline.nav.region import GoalTargets, route_to_goal
 
 #: the 8 directions a person points in, counter-clockwise from ahead (45 degrees apart)
 POINTING = ("ahead", "ahead on your left", "to your left", "behind you on the left", "behind you",
@@ -70,13 +70,18 @@ class Procedural(FeedbackKind):
         footprint = ctx.footprint_mask(goal.members)
         if ctx.goal_region is not None:
             centres = np.array([ctx.objects[k].mass_center for k in goal.members], np.float64).reshape(-1, 2)
-            route = route_into_region(ctx.planner, ctx.start_pose, ctx.goal_region(goal.members), footprint,
-                                      key=goal.id, face_xy=centres, stop_radius_m=ctx.planner.settings.stop_radius_m)
+            targets = GoalTargets.of(ctx.goal_region(goal.members), footprint, ctx.planner.grid,
+                                     stop_radius_m=ctx.planner.settings.stop_radius_m)
+            if ctx.building is not None:  # from the start's floor, over the stairs when the goal is on another
+                route = ctx.building.route_to_goal(ctx.start_floor, ctx.start_pose, ctx.floor, targets, key=goal.id,
+                                                   face_xy=centres)
+            else:
+                route = route_to_goal(ctx.planner, ctx.start_pose, targets, key=goal.id, face_xy=centres)
         else:
             face = np.asarray(ctx.objects[goal.members[0]].mass_center)
             route = ctx.planner.route(ctx.start_pose, footprint, key=goal.id, face_xy=face)
         # a start already in the region (or a route of turns under 45 deg) has nothing to say: None
-        return None if route is None or not route.parts else route.text
+        return None if route is None or not (route.parts or getattr(route, "climbs", None)) else route.text
 
     def say(self, value: str | None, user: Speaker, pose) -> str | None:
         """Directions from ``pose`` (see the module docstring); None when the goal cannot be reached from there.

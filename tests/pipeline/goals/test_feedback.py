@@ -4,7 +4,7 @@ from pipeline.config import GoalsParams
 from pipeline.goals.build import build_goals
 from pipeline.goals.feedback import FEEDBACK_KINDS, FeedbackKind
 from pipeline.goals.objects import objects_from_gt
-from pipeline.routes.actions import RoutePlanner
+from pipeline.nav.actions import RoutePlanner
 from tests.fixtures.goal_scenes import gt_navigable, house_grid, house_scene
 
 
@@ -87,7 +87,7 @@ from pipeline.goals.build import build_goals
 from pipeline.goals.feedback import feedback_kind
 from pipeline.goals.objects import objects_from_gt
 from pipeline.goals.schema import Feedback
-from pipeline.routes.actions import RoutePlanner
+from pipeline.nav.actions import RoutePlanner
 from orion_eval.agents import parse_feedback
 from orion_eval.user import FEEDBACK_SETTINGS
 from tests.fixtures.goal_scenes import gt_navigable, house_grid, house_scene
@@ -113,7 +113,7 @@ def test_a_kind_added_as_its_one_module_is_generated_stored_said_and_read(tmp_pa
     import subprocess
     import sys
 
-    from pipeline.codedeps import ROOT
+    from pipeline.engine.codedeps import ROOT
 
     for name in ("pipeline", "orion_eval"):
         shutil.copytree(ROOT / name, tmp_path / name, ignore=shutil.ignore_patterns("__pycache__"))

@@ -353,17 +353,23 @@ $("goal-delete").addEventListener("click", () => {
 });
 
 $("route-pick").addEventListener("click", () => { setMode("click the route's start on the map", "route"); });
+$("route-recorded").addEventListener("click", () => routePreview(null));
 $("route-use").addEventListener("click", () => {
   if (!S.route || !S.route.text) return;
   $("goal-form").procedural.value = S.route.text; readGoalForm(); validateGoals();
 });
 
+// start: [x, y, 0] picked on the map (facing east), or null for the recording's start pose, where the goals
+// stage's procedural feedback starts (the server plans both with the one route_to_goal of pipeline.nav.region)
 async function routePreview(start) {
   const gl = S.doc.goals[S.goal];
-  const r = await api(scenePath(`/route?x=${start[0]}&y=${start[1]}&yaw_deg=0&objects=${encodeURIComponent(gl.objects.join(","))}`));
+  const at = start ? `x=${start[0]}&y=${start[1]}&yaw_deg=0&` : "";
+  const r = await api(scenePath(`/route?${at}objects=${encodeURIComponent(gl.objects.join(","))}`));
   if (!r.ok) { $("route-text").textContent = r.body.error; return; }
+  start = r.body.start;
   S.route = { ...r.body, start };
-  $("route-text").textContent = r.body.reachable ? `from (${start[0]}, ${start[1]}), facing east, ${r.body.length_m} m: ${r.body.text}` : "the goal cannot be reached from there";
+  const from = `from (${start[0].toFixed(2)}, ${start[1].toFixed(2)}), ${(start[2] * 180 / Math.PI).toFixed(0)} deg`;
+  $("route-text").textContent = r.body.reachable ? `${from}, ${r.body.length_m} m: ${r.body.text || "already there"}` : "the goal cannot be reached from there";
   $("route-use").hidden = !r.body.reachable;
   draw();
 }
