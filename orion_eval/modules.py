@@ -33,7 +33,7 @@ from scipy import ndimage
 from scipy.spatial.distance import cdist
 
 from orion_eval.memory import MemoryMaps
-from pipeline.routes.actions import FORWARD, LEFT, RIGHT, wrap_angle
+from pipeline.nav.actions import FORWARD, LEFT, RIGHT, wrap_angle
 from pipeline.scene import MAP_NAMES
 
 MERGE_M = 0.6

@@ -55,7 +55,7 @@ def status(
     """
     from rich.markup import escape
 
-    from pipeline.stagegraph import plan, staleness
+    from pipeline.engine.stagegraph import plan, staleness
     from stages import STAGES
 
     ws, params = G.load()
@@ -66,7 +66,7 @@ def status(
     for scene, stage in plan(STAGES, params, list(params.scenes)):
         why = staleness(ws, params, STAGES, STAGES[stage], scene)
         if rehash:
-            from pipeline.verify import content_staleness
+            from pipeline.engine.verify import content_staleness
 
             tampered = content_staleness(ws, STAGES[stage], scene)
             if tampered:
@@ -89,7 +89,7 @@ def status(
 def verify():
     """Re-hash every artifact on disk and compare it with its manifest (corrupt ones, ones without a manifest and
     scenes no longer in the params file included); exit 1 on any mismatch. Example: `zipon verify`"""
-    from pipeline.verify import verify_all
+    from pipeline.engine.verify import verify_all
     from stages import STAGES
 
     ws, params = G.load()
@@ -159,7 +159,7 @@ def ingest(
     Examples: `zipon ingest robot.mcap --scene kitchen` · `zipon ingest rgbd_dataset_freiburg1_desk --scene desk --format tum`
     """
     from pipeline.paramsfile import parse_params
-    from pipeline.runner import run_many
+    from pipeline.engine.runner import run_many
     from stages import STAGES
 
     ws, params = G.load()
@@ -207,7 +207,7 @@ def dvc_cmd(check: bool = typer.Option(False, "--check", metavar="", help="only 
 
     Example: `zipon dvc && dvc repro`
     """
-    from pipeline.dvcfile import render_dvc_yaml
+    from pipeline.engine.dvcfile import render_dvc_yaml
     from stages import STAGES
 
     ws, params = G.load()
