@@ -71,7 +71,7 @@ def seen_from_m2(sight, goals, index: np.ndarray, keys: tuple[str, ...], samples
     """Floor (m²) among ``samples`` ((N,2) navigable points) from which the mass-centre column of one of the objects
     ``keys`` is in line of sight (``sight``: the routes module's mesh test) within ``reach_m``; ``index`` is the
     goals' object index grid."""
-    from pipeline.routes.region import own_cells, sight_levels
+    from pipeline.nav.region import own_cells, sight_levels
 
     order = goals.object_keys
     own = own_cells(np.isin(index, [order.index(k) + 1 for k in keys]))
@@ -87,7 +87,7 @@ def seen_from_m2(sight, goals, index: np.ndarray, keys: tuple[str, ...], samples
 
 def scene_statistics(ws, params, stages) -> dict:
     """``{"scenes": {scene: {...}}, "goals": {"scene/goal": {...}}}``: the statistics of the module docstring."""
-    from pipeline.routes.region import MeshSight
+    from pipeline.nav.region import MeshSight
     from pipeline.scene import Scene
 
     out: dict = {"scenes": {}, "goals": {}}
