@@ -139,6 +139,21 @@ def test_goal_edits_count_only_for_their_scene():
     assert spec.config_class().extra_inputs(edited, "r0") == {}
 
 
+def test_a_building_counts_only_for_its_scene_and_an_apartment_keeps_its_digest():
+    spec = STAGES["simulate"]
+    base = parse_params({"scenes": {"a": {"source": "simulate"}}})
+    house = parse_params({"scenes": {"a": {"source": "simulate"},
+                                     "h": {"source": "simulate", "building": {"kind": "house", "stories": 3}}}})
+    keys = spec.config_class().param_keys
+    assert keys(base, "a") == keys(house, "a") == ["simulate"]
+    assert project(base, keys(base, "a")) == project(house, keys(house, "a"))  # the apartment is not stale
+    assert keys(house, "h") == ["simulate", "scenes.h.building"]
+    config = spec.config_class().from_params(house, "h")
+    assert config.building.kind == "house" and config.building.stories == 3
+    assert spec.config_class().from_params(house, "a").building is None
+    assert "building" not in base.scenes["a"].model_dump(mode="json")  # an apartment's entry reads as before
+
+
 def test_a_minimal_params_file_maps_simulated_scenes_with_simulated_perception():
     params = parse_params({"scenes": {"a": {"source": "simulate"}}})
     assert STAGES["vlmap"].config_class().from_params(params, "a").encoder == "simulated_lseg"
