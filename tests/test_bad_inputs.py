@@ -344,7 +344,7 @@ def _(c):
     return with_params(c, BASE + "reconstruct: {voxel_size_m: .nan}\n")
 
 
-@case("params-floors-too-close", 1, "reconstruct.floors", "must lie at least 1.8 m above floors[0]")
+@case("params-floors-too-close", 1, "reconstruct.floors", "floor 1 (floor_z_m 1.0) must lie at least 1.8 m above")
 def _(c):
     return with_params(c, BASE + "reconstruct: {floors: [{floor_z_m: 0.0}, {floor_z_m: 1.0}]}\n")
 
