@@ -131,7 +131,7 @@ def test_run_eval_rejects_bad_agents_and_seeds(ds, tmp_path):
 
     with pytest.raises(ConfigError, match="has no `name`"):
         zipon.run_eval(ds, tmp_path, agents=[Nameless])
-    with pytest.raises(ConfigError, match="taken by the built-in"):
+    with pytest.raises(ConfigError, match="is taken by the registered OrionAgent"):
         zipon.run_eval(ds, tmp_path, agents=[Impostor])
     with pytest.raises(ConfigError, match="neither a method name nor a subclass"):
         zipon.run_eval(ds, tmp_path, agents=[object])
