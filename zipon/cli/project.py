@@ -1,8 +1,9 @@
-"""``zipon`` commands of a dataset project (:mod:`pipeline.project`): init, card, diff."""
+"""``zipon`` commands of a dataset project (:mod:`pipeline.project`): init, card, diff, push, pull."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Optional
 
 import typer
 from rich.markup import escape
@@ -77,3 +78,40 @@ def diff_cmd(
         return
     for line in diff_text(d):
         out.print(line, markup=False, highlight=False, soft_wrap=True)
+
+
+REMOTE = typer.Option(None, "--remote", "-r", help="DVC remote name (default: the project's default remote)")
+
+
+@app.command("push")
+def push_cmd(remote: Optional[str] = REMOTE,
+             all_tags: bool = typer.Option(False, "--all-tags", metavar="", help="also every git tag's version")):
+    """Send the artifacts of the checked-out version to a DVC remote (a folder, s3://...). An unreachable remote is
+    one line naming the remote and the artifact asked about, exit 1.
+
+    Example: `dvc remote add -d storage s3://bucket/ds && zipon push --all-tags && git push --tags`
+    """
+    from pipeline.project.remote import push
+    from stages import STAGES
+
+    ws, params = G.load()
+    done = push(ws, params, STAGES, remote, all_tags)
+    out.print(f"remote {done.remote} ({done.url}): {done.files} file(s) pushed; it holds the "
+              f"{len(done.artifacts)} artifacts of this version" + (" and of every tag" if all_tags else ""), highlight=False, soft_wrap=True)
+
+
+@app.command("pull")
+def pull_cmd(remote: Optional[str] = REMOTE):
+    """Restore the artifacts of the checked-out version (its dvc.lock) from a DVC remote. Nothing local changes
+    unless all of it can be restored: a version whose data the remote lacks names the artifacts missing, and an
+    unreachable remote names the remote and the artifact, exit 1.
+
+    Example: `git checkout v1 && zipon pull && zipon verify && zipon status --check`
+    """
+    from pipeline.project.remote import pull
+    from stages import STAGES
+
+    ws, params = G.load()
+    done = pull(ws, params, STAGES, remote)
+    out.print(f"remote {done.remote} ({done.url}): {done.files} file(s) fetched; the {len(done.artifacts)} "
+              "artifacts of this version are restored (`zipon verify` re-hashes them)", highlight=False, soft_wrap=True)
