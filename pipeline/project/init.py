@@ -68,14 +68,15 @@ zipon diff v1 v2          # params keys, stages rebuilt, artifacts and goals tha
 
 ```bash
 dvc remote add -d storage /mnt/datasets/{name}     # or s3://bucket/{name}
-dvc push && git push --tags
+git add .dvc/config && git commit -m "remote"
+zipon push --all-tags && git push --tags
 ```
 
 ## Restore
 
 ```bash
 git clone REPO {name} && cd {name}
-git checkout v1 && dvc pull && zipon verify && zipon status --check
+git checkout v1 && zipon pull && zipon verify && zipon status --check
 ```
 
 `zipon dvc --check` names a `dvc.yaml` edited by hand (it is generated: `zipon dvc`). After upgrading zipon, run

@@ -11,6 +11,7 @@ and the pull fails naming it).
 
 from __future__ import annotations
 
+from contextlib import chdir, contextmanager
 from dataclasses import dataclass
 
 from pipeline.config import Params
@@ -113,28 +114,33 @@ def _locate(repo, ws: Workspace, remote: str, url: str, artifacts: dict[str, str
     return nowhere
 
 
-def pull(ws: Workspace, params: Params, stages: dict[str, StageSpec], remote: str | None = None) -> Transfer:
-    """Restore the checked-out version's artifacts from ``remote`` (default: the project's default remote)."""
+@contextmanager
+def _on_remote(ws: Workspace, params: Params, stages: dict[str, StageSpec], remote: str | None, lacking: str):
+    """The open DVC repo (working directory: the project) and the remote's ``(name, url)``, once every artifact of
+    the checked-out version was found on the remote or in DVC's cache; ``lacking`` words the error otherwise."""
     repo = _open(ws)
-    with repo:
+    with repo, chdir(ws.root):  # DVC resolves stage paths from the working directory
         name, url = _remote(repo, remote)
         missing = _locate(repo, ws, name, url, _artifacts(ws, params, stages))
         if missing:
-            raise RemoteError(f"remote {name} ({url}) lacks the data of this version: {', '.join(missing)} (`zipon "
-                              "push` them from the clone that built them); nothing local was changed")
-        from contextlib import chdir
+            raise RemoteError(lacking.format(remote=f"remote {name} ({url})", artifacts=", ".join(missing)))
+        yield repo, name, url
 
-        with chdir(ws.root):
-            try:
-                fetched = repo.fetch(remote=name)
-            except Exception as err:  # noqa: BLE001 - as in _locate
-                raise RemoteError(f"remote {name} ({url}): fetching the data of this version failed "
-                                  f"({_first_line(err)}); nothing local was changed") from None
-            try:
-                repo.checkout()
-            except Exception as err:  # noqa: BLE001 - DVC's CheckoutError, ConfirmRemoveError: no common base
-                raise ZiponError(f"{ws.data_dir}: restoring the fetched version failed ({_first_line(err)}); "
-                                 "files with changes no version records were kept") from None
+
+def pull(ws: Workspace, params: Params, stages: dict[str, StageSpec], remote: str | None = None) -> Transfer:
+    """Restore the checked-out version's artifacts from ``remote`` (default: the project's default remote)."""
+    with _on_remote(ws, params, stages, remote, "{remote} lacks the data of this version: {artifacts} (`zipon push` "
+                    "them from the clone that built them); nothing local was changed") as (repo, name, url):
+        try:
+            fetched = repo.fetch(remote=name)
+        except Exception as err:  # noqa: BLE001 - as in _locate
+            raise RemoteError(f"remote {name} ({url}): fetching the data of this version failed "
+                              f"({_first_line(err)}); nothing local was changed") from None
+        try:
+            repo.checkout()
+        except Exception as err:  # noqa: BLE001 - DVC's CheckoutError, ConfirmRemoveError: no common base
+            raise ZiponError(f"{ws.data_dir}: restoring the fetched version failed ({_first_line(err)}); "
+                             "files with changes no version records were kept") from None
     return Transfer(name, url, int(fetched or 0), sorted(_artifacts(ws, params, stages).values()))
 
 
@@ -142,23 +148,14 @@ def push(ws: Workspace, params: Params, stages: dict[str, StageSpec], remote: st
          all_tags: bool = False) -> Transfer:
     """Send the checked-out version's artifacts (from DVC's cache) to ``remote``; with ``all_tags`` those of every
     git tag too (each one's ``dvc.lock``), whose objects DVC's cache kept when ``zipon run`` recorded them."""
-    repo = _open(ws)
-    with repo:
-        name, url = _remote(repo, remote)
-        missing = _locate(repo, ws, name, url, _artifacts(ws, params, stages))
-        if missing:
-            raise RemoteError(f"cannot push to remote {name} ({url}): neither DVC's cache here nor the remote holds "
-                              f"{', '.join(missing)} (build them with `zipon run`)")
-        from contextlib import chdir
-
-        with chdir(ws.root):
-            try:
-                pushed = repo.push(remote=name)
-                tags = repo.scm.list_tags() if all_tags else []
-                if tags:  # DVC 3.67's push(all_tags=True) to a remote that is not the default one fails after the
-                    # transfer, updating the workspace's meta: the tags' versions go without the workspace
-                    pushed += repo.push(remote=name, revs=tags, workspace=False)
-            except Exception as err:  # noqa: BLE001 - as in _locate
-                raise RemoteError(f"remote {name} ({url}): pushing failed ({_first_line(err)})") from None
+    with _on_remote(ws, params, stages, remote, "cannot push to {remote}: neither DVC's cache here nor the remote "
+                    "holds {artifacts} (build them with `zipon run`)") as (repo, name, url):
+        try:
+            pushed = repo.push(remote=name)
+            tags = repo.scm.list_tags() if all_tags else []
+            if tags:  # DVC 3.67's push(all_tags=True) to a remote that is not the default one fails after the
+                # transfer, updating the workspace's meta: the tags' versions go without the workspace
+                pushed += repo.push(remote=name, revs=tags, workspace=False)
+        except Exception as err:  # noqa: BLE001 - as in _locate
+            raise RemoteError(f"remote {name} ({url}): pushing failed ({_first_line(err)})") from None
     return Transfer(name, url, int(pushed or 0), sorted(_artifacts(ws, params, stages).values()))
-

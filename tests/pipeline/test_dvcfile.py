@@ -97,6 +97,17 @@ def test_zipon_run_leaves_dvc_with_nothing_to_do_and_both_name_the_same_stale_st
     ws.params_path.write_text(edited)
     params2 = load_params(ws.params_path)
     assert _zipon_stale(ws, params2) == {"t0/vlmap", "t0/cfmap", "t0/goals", "t0/routes"} == _dvc_stale(tmp_path, env)
+    # a zipon upgrade that changed reconstruct's code: dvc.lock holds the identity an older zipon wrote; once
+    # `zipon dvc` writes this zipon's, DVC names exactly that stage
+    ws.params_path.write_text(text)
+    identity = ws.code_id("reconstruct")
+    current = identity.read_text()
+    identity.write_text(current.replace('"code_digest": "blake2b:', '"code_digest": "blake2b:0ld'))
+    _dvc(tmp_path, env, "commit", "-f", "reconstruct@t0")
+    assert _dvc_stale(tmp_path, env) == {"t0/goals", "t0/routes"}
+    assert main(["-p", str(ws.params_path), "dvc", "--check"]) == 1
+    assert main(["-p", str(ws.params_path), "dvc"]) == 0 and identity.read_text() == current
+    assert _dvc_stale(tmp_path, env) == {"t0/reconstruct", "t0/goals", "t0/routes"}
 
 
 @pytest.mark.slow

@@ -1,6 +1,8 @@
 import json
 import shutil
 
+import pytest
+
 from pipeline import __version__, plugins
 from pipeline.paramsfile import parse_params
 from pipeline.paths import Workspace
@@ -10,6 +12,7 @@ from tests.pipeline.project.conftest import artifact_digests, git
 from zipon.cli import main
 
 
+@pytest.mark.slow
 def test_the_card_of_a_version_states_what_it_holds_and_is_committed_with_it(dataset_versions):
     root = dataset_versions.root
     assert {"DATASET.md", "dataset.json"} <= set(git(root, "ls-files").split())
@@ -40,6 +43,7 @@ def test_the_card_of_a_version_states_what_it_holds_and_is_committed_with_it(dat
     assert json.loads(git(root, "show", "v1:dataset.json"))["scenes"]["sim_00"]["goals"] == 3
 
 
+@pytest.mark.slow
 def test_status_check_fails_while_the_card_is_stale(dataset_versions, tmp_path, capsys):
     root = tmp_path / "ds"
     shutil.copytree(dataset_versions.root, root, symlinks=True)

@@ -25,7 +25,7 @@ def test_init_makes_a_git_and_dvc_project_that_zipon_can_run(tmp_path, capsys):
     assert "#   desk: {source: raw/rgbd_dataset_freiburg1_desk, format: tum}" in text and "# frames recorded" in text
     assert "/data/" in (root / ".gitignore").read_text().splitlines()
     readme = (root / "README.md").read_text()
-    assert all(step in readme for step in ("zipon run", "git tag v1", "dvc push", "dvc pull", "zipon verify"))
+    assert all(step in readme for step in ("zipon run", "git tag v1", "zipon push", "zipon pull", "zipon verify"))
     deps = yaml.safe_load((root / "dvc.yaml").read_text())["stages"]["goals"]["do"]["deps"]
     assert ".zipon/code/goals.json" in deps and not [d for d in deps if d.endswith(".py")]
     assert {p.stem for p in (root / ".zipon" / "code").iterdir()} == set(STAGES)
