@@ -25,4 +25,4 @@ def emit(**fields) -> None:
           flush=True)
 
 
-from pipeline.process import peak_rss_mb  # noqa: E402,F401  (the one implementation; manifests record it too)
+from pipeline.engine.process import peak_rss_mb  # noqa: E402,F401  (the one implementation; manifests record it too)

@@ -110,7 +110,7 @@ def write_params(root: Path, scenes: int, frames: int, width: int, height: int) 
 #: it into an exec'd process's ru_maxrss (this benchmark held 3.4 GB of kernel timings when it started zipon, and
 #: zipon's ru_maxrss said 3,398 MB while its VmHWM was under 0.2 GB). Its workers are spawned from zipon's small
 #: main process, so their ru_maxrss (RUSAGE_CHILDREN) is their own.
-ZIPON = ("import resource, sys; from zipon.cli import main; from pipeline.process import peak_rss_mb; "
+ZIPON = ("import resource, sys; from zipon.cli import main; from pipeline.engine.process import peak_rss_mb; "
          "code = main(sys.argv[1:]); kid = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss; "
          "me = int(peak_rss_mb() * 1024); print('PEAK_RSS_KB', max(kid, me), file=sys.stderr); sys.exit(code)")
 
@@ -418,13 +418,13 @@ def _truncated(src: Path, dst: Path, n: int, arrays: tuple[str, ...]) -> Path:
 def incremental_rerun(params_path: Path, root: Path, scene: str, stage: str, append: int) -> dict:
     """Build ``stage`` in this process on the scene cut to ``n - append`` frames keeping its fold, then on all ``n``
     frames (timed); the second map must equal the one ``zipon run`` built from scratch (its digest)."""
-    from pipeline.codedeps import code_digest
+    from pipeline.engine.codedeps import code_digest
     from pipeline.paramsfile import load_params
     from pipeline.frames import FrameStore
     from pipeline.maps.build import build_map
     from pipeline.maps.config import MAP_CONFIGS
     from pipeline.maps.store import FORMAT_VERSION
-    from pipeline.process import limit_native_threads
+    from pipeline.engine.process import limit_native_threads
     from pipeline.store import artifact_attrs, content_digest
 
     params = load_params(params_path)

@@ -63,13 +63,13 @@ def build(root: Path, n_scenes: int, frames: int, rebuild: bool = False, stages:
           *, prefix: str = "bench", seed: int = 0, bench: str = "eval", rooms: int | None = None,
           reuse_stale: bool = False) -> Workspace:
     """Write (or keep) ``root/params.yaml`` and bring its scenes up to date: the pipeline reruns what is stale (a
-    code, params or input change, :func:`pipeline.stagegraph.staleness`) and reuses the rest, so a second call
+    code, params or input change, :func:`pipeline.engine.stagegraph.staleness`) and reuses the rest, so a second call
     with nothing changed runs nothing. ``stages`` reruns only those stages (forced, e.g. goals and routes after
     their format changed). ``reuse_stale`` (and not ``rebuild``) keeps stale artifacts as they are, for a speed
     measurement that does not depend on them (rebuilding ten scenes after a map change takes long); the ``build``
     line then names every stale stage and why, so no figure is read off artifacts that silently lag the code."""
-    from pipeline.stagegraph import plan, stale_stages
-    from pipeline.runner import run_many
+    from pipeline.engine.stagegraph import plan, stale_stages
+    from pipeline.engine.runner import run_many
 
     root.mkdir(parents=True, exist_ok=True)
     text = build_params(n_scenes, frames, prefix, seed, rooms)

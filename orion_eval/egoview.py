@@ -5,7 +5,7 @@ open3d's ``RaycastingScene`` casts one ray per pixel centre (camera direction ``
 the barycentric mix of the hit triangle's vertex colours. For simulated scenes an instance image
 is added by looking up which ground-truth object part box contains each hit point (within
 ``tolerance_m``): only the diagnostic ``oracle`` encoder reads it. Line of sight is the routes
-module's :class:`pipeline.routes.region.MeshSight` on the same ray-casting scene (:meth:`EgoRenderer.sight`).
+module's :class:`pipeline.nav.region.MeshSight` on the same ray-casting scene (:meth:`EgoRenderer.sight`).
 """
 
 from __future__ import annotations
@@ -66,8 +66,8 @@ class EgoRenderer:
                               np.array([np.prod(np.subtract(p.max, p.min)) for _, p in parts], np.float32))
 
     def sight(self, grid):
-        """The shared line-of-sight test (:class:`pipeline.routes.region.MeshSight`) on this mesh and camera."""
-        from pipeline.routes.region import MeshSight
+        """The shared line-of-sight test (:class:`pipeline.nav.region.MeshSight`) on this mesh and camera."""
+        from pipeline.nav.region import MeshSight
 
         return MeshSight(self.scene, cam_z=self.cam_z, floor_z=self.floor_z, grid=grid)
 

@@ -32,7 +32,7 @@ import numpy as np
 from scipy import ndimage
 
 from orion_eval.memory import MemoryMaps
-from pipeline.routes.actions import FORWARD, LEFT, RIGHT, wrap_angle
+from pipeline.nav.actions import FORWARD, LEFT, RIGHT, wrap_angle
 from pipeline.scene import MAP_NAMES
 
 MERGE_M = 0.6

@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.geometry import GridSpec
-from pipeline.routes.actions import FORWARD, LEFT, RIGHT, Route, RoutePlanner, RouteSettings, route_parts
-from pipeline.routes.fmm import GeodesicPath
+from pipeline.nav.actions import FORWARD, LEFT, RIGHT, Route, RoutePlanner, RouteSettings, route_parts
+from pipeline.nav.fmm import GeodesicPath
 
 RECOVER_ACTIONS = 16  # a stranded agent gets back into the clearance band in at most this many actions
 RECOVER_TRIES = 8  # band poses (nearest first, in actions) a route is tried from
@@ -78,6 +78,13 @@ class NavPlanner:
                 route = self._recovered(pose, sub, key=key, face=face, end=end)
         self._routes[memo] = (route, end_mask)
         return route
+
+    def route_into(self, pose, cells: np.ndarray, *, key, face_xy=None, end_mask: np.ndarray | None = None
+                   ) -> Route | None:
+        """:meth:`route` to the explicit ``cells`` (full grid) of a goal region; the planner's stop radius is 0."""
+        if not self._region:
+            raise ValueError("route_into needs a planner whose stop radius is 0 (targets are explicit cells)")
+        return self.route(pose, cells, key=key, face_xy=face_xy, end_mask=end_mask)
 
     @property
     def _region(self) -> bool:

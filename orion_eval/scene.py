@@ -18,12 +18,12 @@ from functools import cached_property
 import cv2
 import numpy as np
 import torch
-from scipy import ndimage
 
 from orion_eval.nav import NavPlanner
 from orion_eval.world import SuccessRule, World
 from pipeline.encoders.base import cached_text_features
-from pipeline.routes.actions import RouteSettings
+from pipeline.errors import StageError
+from pipeline.nav.actions import RouteSettings
 from pipeline.scene import Scene
 
 
@@ -48,10 +48,21 @@ class Detection:
     pixels: int
 
 
+def check_one_floor(name: str, floors) -> None:
+    """Refuse a building: the agents' world, maps and planners are one floor's, and they do not take stairs yet, so
+    episodes on or across its other floors cannot be scored (raises :class:`~pipeline.errors.StageError`)."""
+    if len(floors) > 1:
+        raise StageError(f"scene {name}: a building of {len(floors)} floors "
+                         f"({', '.join(f.name for f in floors)}); the evaluator's agents act on one floor and do not "
+                         "take stairs yet, so its episodes cannot be scored: leave it out of the evaluation "
+                         "(zipon eval --scene NAME for each single-floor scene)")
+
+
 class SceneContext:
     """Per-scene state shared by all episodes (see the module docstring)."""
 
     def __init__(self, scene: Scene):
+        check_one_floor(scene.name, scene.recon.floors)
         self.scene, self.params = scene, scene.params
         ep, task = self.params.eval, self.params.task
         self.grid = scene.grid
@@ -73,7 +84,7 @@ class SceneContext:
                                        RouteSettings.from_config(task, **space, stop_radius_m=0.0))
         self.success = SuccessRule(self.grid, scene.height, scene.camera_height_m, rule=ep.success_rule,
                                    distance_m=self.success_m, hfov_deg=task.hfov_deg, sight=self.sight)
-        # route targets (pipeline.routes.region) are explicit cells: a zero stop radius keeps them as they are
+        # route targets (pipeline.nav.region) are explicit cells: a zero stop radius keeps them as they are
         self.view_planner = NavPlanner(self.navigable, self.grid, RouteSettings.from_config(
             task, **space, stop_radius_m=0.0), recover=True)
         self._map_cache: dict[tuple[str, str], list[MapObject]] = {}
@@ -98,7 +109,7 @@ class SceneContext:
     # ------------------------------------------------------------------ sight and goal regions
     @cached_property
     def mesh_sight(self):
-        """The routes module's line-of-sight test (:class:`pipeline.routes.region.MeshSight`) on the recon mesh."""
+        """The routes module's line-of-sight test (:class:`pipeline.nav.region.MeshSight`) on the recon mesh."""
         return self.renderer.sight(self.grid)
 
     def sight(self, origins_xy, target_xy, z_levels, own, *, every: bool = False) -> np.ndarray:
@@ -108,12 +119,12 @@ class SceneContext:
 
     def goal_target(self, key, object_mask: np.ndarray, center_xy, z_levels) -> tuple[np.ndarray, np.ndarray]:
         """Full-grid ``(region, target)`` for an object the agent found (map candidate, detection): the
-        routes module's :func:`~pipeline.routes.region.goal_region` (routes.zarr's ``success_m``, the same
-        line of sight as the success rule) and its :func:`~pipeline.routes.region.route_target`
+        routes module's :func:`~pipeline.nav.region.goal_region` (routes.zarr's ``success_m``, the same
+        line of sight as the success rule) and its :func:`~pipeline.nav.region.route_target`
         (``eval.goto_stop_radius_m``), which a walk aims for and the region it finishes in. Cached per ``key``."""
         cache = self.__dict__.setdefault("_goal_targets", {})
         if key not in cache:
-            from pipeline.routes.region import goal_region, route_target
+            from pipeline.nav.region import goal_region, route_target
 
             ep = self.params.eval
             region = goal_region(self.navigable, object_mask, self.grid, center_xy, z_levels, self.sight,
@@ -122,34 +133,19 @@ class SceneContext:
         return cache[key]
 
     def route_to_goal(self, planner, pose, goal, *, key, face_xy):
-        """Route into a ground-truth goal's stored region, as the routes stage plans it: to the first of its
-        :func:`~pipeline.routes.region.route_aims` (route target, narrower margins, the region) whose walk
-        ends 2 cells inside the region (erosion), else the first ending in it, else the first
-        reachable; None when unreachable."""
-        from pipeline.routes.region import route_aims
+        """Route into a ground-truth goal's stored region, as the routes stage plans it
+        (:func:`pipeline.nav.region.route_to_goal`), walked in this scene's world; None when unreachable."""
+        from pipeline.nav.region import GoalTargets, route_to_goal
 
-        region = self.stored_goal_region(goal)
-        aims = self.__dict__.setdefault("_stored_aims", {})
-        if goal.id not in aims:
-            aims[goal.id] = route_aims(region, self.footprint_mask(goal.object_keys), self.grid,
-                                       stop_radius_m=self.params.task.stop_radius_m)
-        inner = self.__dict__.setdefault("_stored_inner", {})
-        if goal.id not in inner:  # cells 2 steps inside the region: the exact pose is well inside it
-            inner[goal.id] = ndimage.binary_erosion(region, iterations=2)
-        best, best_rank = None, -1
-        for aim, mask in aims[goal.id]:
-            route = planner.route(pose, mask, key=(key, aim, goal.id), face_xy=face_xy, end_mask=region)
-            if route is None:
-                continue
-            rank = 2 if self.ends_in(route, pose, inner[goal.id]) else int(self.ends_in(route, pose, region))
-            if rank == 2:
-                return route
-            if rank > best_rank:
-                best, best_rank = route, rank
-        return best
+        targets = self.__dict__.setdefault("_stored_targets", {})
+        if goal.id not in targets:
+            targets[goal.id] = GoalTargets.of(self.stored_goal_region(goal), self.footprint_mask(goal.object_keys),
+                                              self.grid, stop_radius_m=self.params.task.stop_radius_m)
+        return route_to_goal(planner, pose, targets[goal.id], key=(key, goal.id), face_xy=face_xy,
+                             walk_end=lambda route: self.walk_end(route, pose))
 
-    def ends_in(self, route, pose, mask: np.ndarray) -> bool:
-        """Whether walking ``route`` from ``pose`` in this scene's world ends in a cell of ``mask``."""
+    def walk_end(self, route, pose) -> np.ndarray:
+        """``(2,)`` world xy where walking ``route`` from ``pose`` in this scene's world ends."""
         from orion_eval.world import Body
 
         body = Body(*(float(v) for v in pose))
@@ -157,8 +153,7 @@ class SceneContext:
             if a == 0:
                 break
             self.world.act(body, a)
-        rc = self.grid.world_to_cell(np.array([body.x, body.y]))
-        return bool(self.grid.inside(rc) and mask[rc[0], rc[1]])
+        return np.array([body.x, body.y])
 
     def stored_goal_region(self, goal) -> np.ndarray:
         """Full-grid goal region of a GROUND-TRUTH goal as stored in goals.zarr (cached per goal)."""

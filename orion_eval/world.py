@@ -4,7 +4,7 @@ Actions (the paper's): ``TurnLeft`` / ``TurnRight`` by ``turn_deg`` (15 deg; lef
 ``MoveForward`` by ``step_m`` (0.25 m) — both as routes.zarr records them — and ``Talk`` (counted by the episode, see
 :mod:`orion_eval.episode`). A forward step collides when any point of it (sampled every third of a
 cell) leaves the navigable cells; the agent then stays put, as in Habitat and in
-:func:`pipeline.routes.verify.replay`.
+:func:`pipeline.nav.verify.replay`.
 
 Success (``eval.success_rule``):
 
@@ -13,7 +13,7 @@ Success (``eval.success_rule``):
 - ``navchat``: navchat's tighter bands on (distance, |bearing|): (0.6 m, 45 deg), (1.2 m, 30 deg),
   (1.4 m, 15 deg — standing in for "enough goal pixels near the image centre"), plus line of sight.
 
-Line of sight: the routes module's one definition (:class:`pipeline.routes.region.MeshSight`,
+Line of sight: the routes module's one definition (:class:`pipeline.nav.region.MeshSight`,
 the same test that defines the goal region the routes and the human agent aim for): rays from the
 camera (above the agent) to the goal's mass-centre column, at half and the top of the object, cast
 against the RECONSTRUCTED mesh; in sight when one ray reaches the target or first hits the goal's
@@ -30,10 +30,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.geometry import GridSpec
-from pipeline.routes.actions import FORWARD, LEFT, RIGHT, STOP, wrap_angle
-from pipeline.routes.fmm import segment_free
-from pipeline.routes.region import SIGHT_LEVELS, own_cells, sight_levels
-from pipeline.routes.verify import point_polygon_distance
+from pipeline.nav.actions import FORWARD, LEFT, RIGHT, STOP, wrap_angle
+from pipeline.nav.fmm import segment_free
+from pipeline.nav.region import SIGHT_LEVELS, own_cells, sight_levels
+from pipeline.nav.verify import point_polygon_distance
 
 ACTION_WORDS = {FORWARD: "MoveForward", LEFT: "TurnLeft", RIGHT: "TurnRight", STOP: "Stop"}
 NAVCHAT_BANDS = ((0.6, 45.0), (1.2, 30.0), (1.4, 15.0))

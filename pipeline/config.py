@@ -19,6 +19,31 @@ from pipeline.section import Section
 
 # ----------------------------------------------------------------------------- scenes
 
+class BuildingParams(Section):
+    """What a simulated scene is (``scenes.<name>.building``; absent: an apartment): the stage ``simulate``'s
+    per-scene settings."""
+
+    kind: Literal["apartment", "house", "office"] = Field(
+        "apartment", description="'apartment': one floor of simulate.rooms_min..rooms_max rooms; 'house': 'stories' "
+        "floors joined by a staircase; 'office': one large floor of 'size_m'"
+    )
+    stories: int = Field(2, ge=2, le=3, description="floors of a house (each with its stair hall)")
+    rooms_per_floor_min: int = Field(3, ge=2, le=6, description="fewest rooms per floor of a house, its hall aside")
+    rooms_per_floor_max: int = Field(4, ge=2, le=6, description="most rooms per floor of a house, its hall aside")
+    size_m: tuple[float, float] = Field(
+        (60.0, 40.0), description="an office floor's extent along x and y, metres (each 10-200)"
+    )
+    room_area_m2: float = Field(90.0, ge=20, le=400, description="an office floor's area per room, m^2")
+
+    @model_validator(mode="after")
+    def _ranges(self) -> "BuildingParams":
+        if self.rooms_per_floor_min > self.rooms_per_floor_max:
+            raise ValueError("rooms_per_floor_min must not exceed rooms_per_floor_max")
+        if not all(10.0 <= v <= 200.0 for v in self.size_m):
+            raise ValueError(f"size_m must be two extents of 10-200 m, got {list(self.size_m)}")
+        return self
+
+
 class SceneSource(Section):
     """Where one scene's raw data comes from."""
 
@@ -32,6 +57,9 @@ class SceneSource(Section):
     )
     format: str = Field("auto", description="reader to use: a built-in or installed reader's name (zipon ingest "
                         "--help lists them); 'auto' detects it from each path")
+    building: BuildingParams | None = Field(
+        None, description="a simulated scene's kind of building (house, office) and its settings; absent: an apartment"
+    )
 
     @model_validator(mode="after")
     def _one_source_key(self) -> "SceneSource":
@@ -43,6 +71,8 @@ class SceneSource(Section):
             raise ValueError("'sources' is empty: list at least one raw log or dataset folder")
         if self.sources is not None and "simulate" in self.sources:
             raise ValueError("'sources' lists paths; a simulated scene is 'source: simulate'")
+        if self.building is not None and self.source != "simulate":
+            raise ValueError("'building' describes a simulated scene: only with 'source: simulate'")
         return self
 
     @field_validator("format")
@@ -60,7 +90,7 @@ class SceneSource(Section):
 
     @model_serializer(mode="wrap")
     def _without_unused_key(self, handler) -> dict:
-        return {k: v for k, v in handler(self).items() if not (k in ("source", "sources") and v is None)}
+        return {k: v for k, v in handler(self).items() if not (k in ("source", "sources", "building") and v is None)}
 
     @property
     def simulated(self) -> bool:
@@ -218,11 +248,36 @@ class GridParams(Section):
         None, description="world x, y of the grid's centre, metres (snapped to the TSDF lattice); null = centred "
         "on the surface reconstruct saw. Pin it (and reconstruct.floor_z_m) so appending logs keeps the map's fold"
     )
+    extent: Literal["grow", "fixed"] = Field(
+        "grow", description="'grow': rows x cols when the reconstructed surface (its 0.5-99.5 percentile box plus 1 m "
+        "each side) fits in it, else the smallest grid of whole 128-cell tiles (the zarr chunks) that covers it, so a "
+        "floor of any size needs no hand-set rows/cols; 'fixed': exactly rows x cols (surface outside is counted, "
+        "reconstruct.max_outside_fraction bounds it)"
+    )
 
     @model_serializer(mode="wrap")
     def _without_unpinned_centre(self, handler) -> dict:
-        """An unpinned centre is left out of the section's value: digests of grids without one stay as they were."""
-        return {k: v for k, v in handler(self).items() if not (k == "centre_xy" and v is None)}
+        """An unpinned centre and the default extent are left out of the section's value: digests of grids
+        without them stay as they were (a grid that fits is the same under 'grow' as under the old fixed rule)."""
+        return {k: v for k, v in handler(self).items()
+                if not ((k == "centre_xy" and v is None) or (k == "extent" and v == "grow"))}
+
+
+MIN_STOREY_M = 1.8  # floors (and camera levels) closer than this are one floor
+
+
+class PinnedFloor(Section):
+    """One floor of ``reconstruct.floors``, pinned by hand."""
+
+    floor_z_m: float = Field(description="world z of the floor's walkable surface, metres")
+    ceiling_z_m: float | None = Field(None, description="world z of its ceiling, metres; None = not given")
+    name: str | None = Field(None, description="a name for the floor ('ground floor'); None = 'floor <id>'")
+
+    @model_validator(mode="after")
+    def _ceiling_above(self) -> "PinnedFloor":
+        if self.ceiling_z_m is not None and self.ceiling_z_m <= self.floor_z_m:
+            raise ValueError(f"ceiling_z_m {self.ceiling_z_m} must lie above floor_z_m {self.floor_z_m}")
+        return self
 
 
 class ReconstructParams(DepthRange):
@@ -252,6 +307,11 @@ class ReconstructParams(DepthRange):
     )
     floor_z_m: float | None = Field(
         None, description="floor height in world z, metres; None = estimate it from upward-facing surfaces"
+    )
+    floors: list[PinnedFloor] | None = Field(
+        None, description="the floors of a building pinned by hand, lowest first, at least 1.8 m apart (for "
+        "buildings the rule cannot read; each must have upward-facing surface within floor_tolerance_m of its "
+        "floor_z_m); None = found from the surface and the camera heights (pipeline.recon.floors)"
     )
     floor_tolerance_m: float = Field(
         0.05, gt=0, description="a cell's floor is observed when solid geometry lies within this of the floor"
@@ -339,10 +399,25 @@ class ReconstructParams(DepthRange):
             return v
         raise ValueError(f"expected 'auto' or a whole number from 1 to 8, got {v!r}")
 
+    @model_serializer(mode="wrap")
+    def _without_unpinned_floors(self, handler) -> dict:
+        """Floors not pinned are left out of the section's value: digests of scenes without them stay as they were."""
+        return {k: v for k, v in handler(self).items() if not (k == "floors" and v is None)}
+
     @model_validator(mode="after")
     def _ranges(self) -> "ReconstructParams":
         if self.obstacle_min_height_m >= self.obstacle_max_height_m:
             raise ValueError("obstacle_min_height_m must be below obstacle_max_height_m")
+        if self.floors is not None:
+            if self.floor_z_m is not None:
+                raise ValueError("give either floor_z_m (one floor) or floors (a building), not both")
+            if not self.floors:
+                raise ValueError("floors is empty: list at least one floor, or leave it out (null) to find them")
+            z = [f.floor_z_m for f in self.floors]
+            for i in range(1, len(z)):
+                if z[i] - z[i - 1] < MIN_STOREY_M:
+                    raise ValueError(f"floors[{i}].floor_z_m {z[i]} must lie at least {MIN_STOREY_M} m above "
+                                     f"floors[{i - 1}].floor_z_m {z[i - 1]} (lowest floor first)")
         if self.sdf_trunc_m < self.voxel_size_m:
             raise ValueError("sdf_trunc_m must be at least voxel_size_m")
         return self
@@ -699,7 +774,7 @@ class TaskParams(Section):
     stop_radius_m: float = Field(
         1.0, gt=0, description="a walk to a goal (the reference routes, the procedural feedback of goals.zarr and of "
         "the simulated user) aims for goal-region cells within this distance of the footprint "
-        "(pipeline.routes.region.route_target), metres"
+        "(pipeline.nav.region.route_target), metres"
     )
     clearance_m: float = Field(
         0.1, ge=0, description="planned paths keep this far from non-navigable cells, beyond recon's robot radius: "
@@ -721,6 +796,17 @@ class RoutesParams(Section):
     seed: int = Field(0, description="seed of the start poses")
     episodes_per_goal: int = Field(3, gt=0, description="episodes (start poses) per goal")
     min_geodesic_m: float = Field(2.0, ge=0, description="start poses are at least this geodesic distance away")
+    cross_floor_per_goal: int = Field(
+        1, ge=0, le=20, description="a building's episodes per goal from each other floor the stairs join to it (0: "
+        "none); a single-floor scene has none")
+
+    @model_serializer(mode="wrap")
+    def _unset_building_keys(self, handler) -> dict:
+        # a building's key at its default is not written, so a single-floor scene's routes digest is as before it
+        data = handler(self)
+        if data.get("cross_floor_per_goal") == 1:
+            data.pop("cross_floor_per_goal")
+        return data
 
 
 class LLMParams(Section):

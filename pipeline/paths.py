@@ -11,7 +11,7 @@ Layout under the data root (``--data-dir`` / ``ZIPON_DATA``, default ``<workspac
         goals.zarr / routes.zarr       stages ``goals`` / ``routes``
         renders/                       PNG pictures (not artifacts; never hashed)
         .tmp/                          stage outputs being written (removed on success)
-        .<stage>.lock                  held while a run builds that stage (pipeline.locks)
+        .<stage>.lock                  held while a run builds that stage (pipeline.engine.locks)
         .<stage>.publish.json          publication journal, present only while one is in flight
         .<stage>.fold/                 vlmap/cfmap: fold of the complete frame chunks (a cache; pipeline.maps.incremental)
     manifests/<scene>/<stage>.json     committed provenance (``--manifests-dir``)
@@ -19,12 +19,12 @@ Layout under the data root (``--data-dir`` / ``ZIPON_DATA``, default ``<workspac
 Beside the params file, committed with it (a dataset project, :mod:`pipeline.project`)::
 
     .zipon/code/<stage>.json           the stage's code identity: zipon's version and the stage's code digest
-                                       (what ``dvc.yaml`` lists as the stage's code, :mod:`pipeline.dvcfile`)
+                                       (what ``dvc.yaml`` lists as the stage's code, :mod:`pipeline.engine.dvcfile`)
     DATASET.md, dataset.json           the dataset card of this version and its machine-readable twin
 
 The same templates are saved into every manifest so a dataset documents its own layout. A data root given as a
 URL (``s3://bucket/prefix``) is an object store: the layout above is then a local cache of it (:func:`cache_dir`)
-and the store holds published versions (``<path>@<digest>``) and the manifests (:mod:`pipeline.fsroot`).
+and the store holds published versions (``<path>@<digest>``) and the manifests (:mod:`pipeline.engine.fsroot`).
 """
 
 from __future__ import annotations
@@ -71,8 +71,21 @@ def is_url(value: str | Path) -> bool:
     return bool(URL.match(str(value)))
 
 
+def check_url(url: str) -> None:
+    """An object-store URL names its bucket (``s3://BUCKET[/PREFIX]``): ``s3://`` alone is refused, not taken as a
+    local folder or the store's root."""
+    from urllib.parse import urlsplit
+
+    from pipeline.errors import ConfigError
+
+    parts = urlsplit(url)
+    if parts.scheme not in ("file", "memory") and not parts.netloc:
+        raise ConfigError(f"--data-dir {url}: no bucket named (expected {parts.scheme}://BUCKET or "
+                          f"{parts.scheme}://BUCKET/PREFIX)")
+
+
 def cache_dir(url: str, workspace_root: Path) -> Path:
-    """The local mirror of the data root ``url`` (:mod:`pipeline.fsroot`): ``$ZIPON_CACHE/<url>`` or
+    """The local mirror of the data root ``url`` (:mod:`pipeline.engine.fsroot`): ``$ZIPON_CACHE/<url>`` or
     ``<workspace>/.zipon-cache/<url>``, the URL made a folder name plus a short hash so two URLs never share one."""
     base = Path(os.environ.get(ENV_CACHE) or Path(workspace_root) / ".zipon-cache")
     name = re.sub(r"[^A-Za-z0-9._-]+", "_", url.rstrip("/")).strip("_")
@@ -88,7 +101,7 @@ class Workspace:
     manifests_dir: Path
     params_file: Path | None = None  # the params file itself (any name); None = root / params.yaml
     # the data root when it is an object-store URL (s3://bucket/prefix); data_dir is then its local cache
-    # (pipeline.fsroot) and manifests_dir defaults to the cache's manifests/
+    # (pipeline.engine.fsroot) and manifests_dir defaults to the cache's manifests/
     remote: str | None = None
 
     @classmethod
@@ -108,6 +121,7 @@ class Workspace:
         data = data_dir or os.environ.get(ENV_DATA) or root / "data"
         remote = None
         if is_url(data):
+            check_url(str(data))
             remote, data = str(data).rstrip("/"), cache_dir(str(data), root)
         manifests = manifests_dir or os.environ.get(ENV_MANIFESTS) or (
             Path(data) / "manifests" if remote else root / "manifests")
@@ -137,7 +151,7 @@ class Workspace:
         return self.manifests_dir / MANIFEST.format(scene=scene, stage=stage)
 
     def code_id(self, stage: str) -> Path:
-        """The stage's code identity file (:mod:`pipeline.dvcfile`), beside the params file."""
+        """The stage's code identity file (:mod:`pipeline.engine.dvcfile`), beside the params file."""
         return self.root / CODE_ID.format(stage=stage)
 
     def renders(self, scene: str) -> Path:

@@ -33,11 +33,11 @@ import numpy as np
 from pipeline.config import Params
 from pipeline.errors import ConfigError, InputDataError, LineageError, MissingInputError
 from pipeline.geometry import GridSpec
-from pipeline.manifest import Manifest
+from pipeline.engine.manifest import Manifest
 from pipeline.paths import Workspace
 
 if TYPE_CHECKING:
-    from pipeline.stagegraph import StageSpec
+    from pipeline.engine.stagegraph import StageSpec
 
 MAP_NAMES = ("vlmap", "cfmap")
 #: the artifacts a Scene reads
@@ -174,6 +174,17 @@ class Scene:
     def grid(self) -> GridSpec:
         return self.recon.grid
 
+    @property
+    def floors(self) -> tuple:
+        """The scene's :class:`~pipeline.recon.store.Floor` s, lowest first (one for a single-floor scene); each
+        floor's grids: ``scene.recon.floor(i)``."""
+        return self.recon.floors
+
+    @property
+    def stairs(self) -> tuple:
+        """The :class:`~pipeline.recon.store.StairLink` s joining the floors (none for a single floor)."""
+        return self.recon.stairs
+
     @cached_property
     def navigable(self) -> np.ndarray:
         return self.recon.navigable
@@ -226,7 +237,7 @@ class Scene:
         """Ego camera height above the floor: ``eval.camera_height_m`` or the recording's median."""
         if self.params.eval.camera_height_m is not None:
             return float(self.params.eval.camera_height_m)
-        from pipeline.routes.region import recorded_camera_height
+        from pipeline.nav.region import recorded_camera_height
 
         return recorded_camera_height(self.recon.poses, self.recon.floor_z)  # what the routes stage sighted from
 

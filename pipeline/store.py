@@ -2,7 +2,7 @@
 
 A stage never writes where readers look. It writes in a folder of ``artifacts/<scene>/.tmp/`` made
 by :func:`new_tmp_dir` (named after its owner: label, host, pid), and the runner publishes the
-finished outputs with their manifest as one set (:mod:`pipeline.publication`), so a crash leaves
+finished outputs with their manifest as one set (:mod:`pipeline.engine.publication`), so a crash leaves
 one whole version and nothing half-written that looks finished. :func:`sweep_tmp` removes the
 folders of dead processes of this host only.
 """
@@ -336,7 +336,7 @@ def publish(tmp_path: Path, final_path: Path) -> None:
 
     The old version is first renamed aside (same filesystem, atomic), then the new one is
     renamed in, then the old one is deleted: readers see the old or the new, never a mix.
-    A stage's outputs are published as one set by :mod:`pipeline.publication` instead.
+    A stage's outputs are published as one set by :mod:`pipeline.engine.publication` instead.
     """
     tmp_path, final_path = Path(tmp_path), Path(final_path)
     final_path.parent.mkdir(parents=True, exist_ok=True)

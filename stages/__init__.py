@@ -1,14 +1,14 @@
 """The stage registry: one module per stage, declared once here.
 
 Each ``stages/<name>.py`` holds the stage's typed ``Config`` (built from params; exactly what its params
-digest covers) and ``run(ctx)``. Its code is the import closure of that module (:mod:`pipeline.codedeps`).
+digest covers) and ``run(ctx)``. Its code is the import closure of that module (:mod:`pipeline.engine.codedeps`).
 ``zipon run`` builds the DAG from these specs; ``dvc.yaml`` declares the same stages and a test
 checks they agree.
 """
 
 from __future__ import annotations
 
-from pipeline.stagegraph import SOURCE, StageSpec
+from pipeline.engine.stagegraph import SOURCE, StageSpec
 
 STAGES: dict[str, StageSpec] = {
     spec.name: spec

@@ -12,7 +12,7 @@ from pipeline.config import GoalsParams, Params, TaskParams
 from pipeline.stageconfig import StageConfig, section_keys
 
 if TYPE_CHECKING:
-    from pipeline.runner import StageContext
+    from pipeline.engine.runner import StageContext
 
 
 # goals.* entries keyed by scene: a scene's config holds only its own entry

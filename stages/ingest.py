@@ -10,10 +10,10 @@ from typing import TYPE_CHECKING
 
 from pipeline.config import IngestParams, Params
 from pipeline.stageconfig import StageConfig
-from pipeline.stagegraph import scene_sources
+from pipeline.engine.stagegraph import scene_sources
 
 if TYPE_CHECKING:
-    from pipeline.runner import StageContext
+    from pipeline.engine.runner import StageContext
 
 
 class Config(StageConfig):

@@ -12,7 +12,7 @@ from pipeline.config import GridParams, ReconstructParams
 from pipeline.stageconfig import StageConfig
 
 if TYPE_CHECKING:
-    from pipeline.runner import StageContext
+    from pipeline.engine.runner import StageContext
 
 
 class Config(StageConfig):

@@ -12,14 +12,14 @@ from typing import TYPE_CHECKING
 from pipeline.maps.config import VlmapConfig
 
 if TYPE_CHECKING:
-    from pipeline.runner import StageContext
+    from pipeline.engine.runner import StageContext
 
 Config = VlmapConfig  # the vlmap stage's config (pipeline.maps.config.MapConfig)
 
 
 def run(ctx: StageContext) -> dict:
     # imported here: reading the stage's Config (`zipon status`) needs none of numpy, zarr or the frame store
-    from pipeline.codedeps import code_digest
+    from pipeline.engine.codedeps import code_digest
     from pipeline.maps.build import build_map
     from pipeline.maps.store import FORMAT_VERSION
     from pipeline.store import artifact_attrs

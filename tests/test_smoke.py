@@ -9,7 +9,7 @@ from pathlib import Path
 import zarr
 
 from zipon.cli import main
-from pipeline.manifest import Manifest
+from pipeline.engine.manifest import Manifest
 from stages import STAGES
 
 REPO = Path(__file__).resolve().parents[1]

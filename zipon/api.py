@@ -29,7 +29,7 @@ def open(source: str | Path = ".", *, data_dir: str | Path | None = None, manife
     ``artifacts/<scene>/``; its params are the ``params.yaml`` beside it when there is one, else the
     defaults). ``overrides`` are ``KEY=VALUE`` strings as for ``zipon -S``.
 
-    ``data_dir`` may be an object store (``s3://bucket/prefix``, :mod:`pipeline.fsroot`): the published version of
+    ``data_dir`` may be an object store (``s3://bucket/prefix``, :mod:`pipeline.engine.fsroot`): the published version of
     an artifact is then brought into the local mirror (:func:`pipeline.paths.cache_dir`) when it is first asked for
     (:meth:`Scene.path`; :meth:`Dataset.mirror` brings whole scenes), and read there.
     """
@@ -78,14 +78,14 @@ class Dataset:
         """Scenes with a published manifest on the object-store data root (none for a local root)."""
         if self.workspace.remote is None:
             return []
-        from pipeline.fsroot import RemoteRoot
+        from pipeline.engine.fsroot import RemoteRoot
 
         return RemoteRoot(self.workspace.remote).scenes()
 
     def mirror(self, scenes: Sequence[str] | None = None, stages: Sequence[str] | None = None) -> None:
         """On an object-store data root: bring the published versions of ``stages`` (default: every stage a Scene
         reads) of ``scenes`` (default: all) into the local mirror, where this dataset reads them
-        (:func:`pipeline.fsroot.pull_stages`: only versions not mirrored yet are downloaded, each digest-checked; a
+        (:func:`pipeline.engine.fsroot.pull_stages`: only versions not mirrored yet are downloaded, each digest-checked; a
         stage never published stays absent). Each (scene, stage) is mirrored once per Dataset; nothing happens on a
         local data root."""
         if self.workspace.remote is None:
@@ -93,7 +93,7 @@ class Dataset:
         todo = [(scene, stage) for scene in dict.fromkeys(self.names if scenes is None else scenes)
                 for stage in (read_stages(STAGES) if stages is None else stages) if (scene, stage) not in self._mirrored]
         if todo:
-            from pipeline.fsroot import pull_stages
+            from pipeline.engine.fsroot import pull_stages
 
             pull_stages(self.workspace, todo)
             self._mirrored.update(todo)

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from orion_eval.agents.base import Agent, register
+from orion_eval.agents.base import Agent
 
 
-@register
 class HumanAgent(Agent):
     """Knows the goal (ground truth): FMM route into the goal region the routes stage stored (within the
     success distance, mass centre in line of sight), face the nearest member's mass centre, Talk."""
@@ -18,7 +17,7 @@ class HumanAgent(Agent):
         goal = m.run.user.goal  # the upper bound may look at the ground truth
         ctx = m.ctx
         centres = np.array([ctx.scene.goals.objects[k].mass_center for k in goal.object_keys], np.float64)
-        # into the routes stage's goal region (pipeline.routes.region), planned as the routes stage plans
+        # into the routes stage's goal region (pipeline.nav.region), planned as the routes stage plans
         route = ctx.route_to_goal(ctx.view_planner, m.pose, goal, key="human", face_xy=centres)
         m._follow(route)
         m.talk(f"I am at {goal_name}.")

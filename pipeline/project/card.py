@@ -20,10 +20,10 @@ from typing import Any
 from pipeline import __version__
 from pipeline.config import Params
 from pipeline.errors import ArtifactError
-from pipeline.manifest import Manifest
+from pipeline.engine.manifest import Manifest
 from pipeline.paths import CARD_JSON, CARD_MD, Workspace
 from pipeline.stageconfig import digest_value
-from pipeline.stagegraph import StageSpec, plan
+from pipeline.engine.stagegraph import StageSpec, plan
 
 CARD_FORMAT = "zipon-dataset-card"
 CARD_FORMAT_VERSION = 1

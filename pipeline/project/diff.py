@@ -17,9 +17,9 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.errors import ArtifactError, ConfigError, ZiponError
-from pipeline.manifest import Manifest
+from pipeline.engine.manifest import Manifest
 from pipeline.paths import CARD_JSON, Workspace
-from pipeline.stagegraph import params_changes
+from pipeline.engine.stagegraph import params_changes
 
 
 @dataclass

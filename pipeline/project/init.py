@@ -3,7 +3,7 @@
 It writes a commented ``params.yaml`` (one simulated scene to start from, the recorded formats as examples, every
 tunable with its description), a ``.gitignore``, a short ``README.md`` (build, version, push, restore), initialises git
 and DVC offline (DVC's analytics and update checks off in ``.dvc/config``) and writes ``dvc.yaml`` with the stages'
-code identity files (:mod:`pipeline.dvcfile`). A folder that already is a zipon project is completed (what it lacks is
+code identity files (:mod:`pipeline.engine.dvcfile`). A folder that already is a zipon project is completed (what it lacks is
 written, nothing it has is changed); any other non-empty folder is refused, naming what is in it.
 """
 
@@ -17,7 +17,7 @@ from pathlib import Path
 from pipeline.config import Params
 from pipeline.errors import ConfigError, ZiponError
 from pipeline.paths import CODE_ID, PARAMS_FILE, Workspace
-from pipeline.stagegraph import StageSpec
+from pipeline.engine.stagegraph import StageSpec
 
 #: entries a folder may hold and still be initialised: an empty git repository (a fresh clone of an empty remote)
 ALLOWED_IN_EMPTY = {".git"}
@@ -95,7 +95,7 @@ class InitResult:
 def is_zipon_project(root: Path) -> bool:
     """Whether ``root`` holds a zipon project: a params file beside a zipon-generated ``dvc.yaml`` or code identity
     files."""
-    from pipeline.dvcfile import HEADER
+    from pipeline.engine.dvcfile import HEADER
 
     if not (root / PARAMS_FILE).is_file():
         return False
@@ -128,7 +128,7 @@ def _refuse_foreign(root: Path) -> None:
 def init_project(root: Path, stages: dict[str, StageSpec]) -> InitResult:
     """Create (or complete) a dataset project at ``root``; see the module doc. Raises :class:`ConfigError` for a
     foreign folder and :class:`ZiponError` when git or DVC cannot initialise it."""
-    from pipeline.dvcfile import write_dvc_files
+    from pipeline.engine.dvcfile import write_dvc_files
     from pipeline.paramsfile import load_params
     from pipeline.store import write_text_atomic
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pipeline.config import Params
 from pipeline.errors import ZiponError
 from pipeline.paths import Workspace
-from pipeline.stagegraph import StageSpec, plan
+from pipeline.engine.stagegraph import StageSpec, plan
 
 
 class RemoteError(ZiponError):
@@ -46,7 +46,7 @@ def _open(ws: Workspace):
     from dvc.repo import Repo
 
     from pipeline import logs
-    from pipeline.dvcfile import dvc_lock_target
+    from pipeline.engine.dvcfile import dvc_lock_target
 
     logs.tame_driven()
     why = dvc_lock_target(ws)

@@ -2,8 +2,9 @@
 ``reconstruct`` stage).
 
 TSDF fusion of every frame (streamed in blocks; optional frame-to-model pose refinement), then
-the mesh and surface points, the floor height and the top-down grids (occupancy, navigable,
-colour, height) on the project grid. The format is documented in :mod:`pipeline.recon.store`.
+the mesh and surface points, the floors (:mod:`pipeline.recon.floors`), each floor's top-down grids
+(occupancy, navigable, colour, height) on the project grid and the stairs joining them
+(:mod:`pipeline.recon.stairs`). The format is documented in :mod:`pipeline.recon.store`.
 """
 
 from __future__ import annotations
@@ -19,7 +20,9 @@ from pipeline.stageconfig import digest_value
 from pipeline.errors import StageError
 from pipeline.frames import FrameStore
 from pipeline.recon import grids as grids_mod
-from pipeline.recon.store import ARTIFACT, FORMAT_VERSION, write_mesh, write_points, write_recon
+from pipeline.recon.floors import find_floors
+from pipeline.recon.stairs import find_flights, stair_links, unlinked_warnings
+from pipeline.recon.store import ARTIFACT, FORMAT_VERSION, floor_bands, write_mesh, write_points, write_recon
 from pipeline.store import artifact_attrs
 
 
@@ -46,6 +49,10 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
     mesh = tsdf.extract_mesh(fusion.volume, p)
     xyz, normals, colors = tsdf.extract_points(fusion.volume, p)
     if len(mesh.triangles) == 0 or len(xyz) == 0:
+        if len(fusion.frames_fused) == 1:
+            raise StageError(f"{frames_path}: a single frame was fused (frame {fusion.frames_fused[0]}): a place counts "
+                             f"as seen in {p.min_weight:g}+ frames (reconstruct.min_weight), so one frame maps "
+                             "nothing; record more frames of the scene")
         raise StageError(f"{frames_path}: the fused volume has no surface ({len(fusion.frames_fused)} frames fused); "
                          f"an empty scene, or no place seen in {p.min_weight:g}+ frames (reconstruct.min_weight)")
     mesh_info = write_mesh(mesh_path, mesh)
@@ -54,12 +61,32 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
     t_extract = time.perf_counter() - t1
 
     t2 = time.perf_counter()
-    voxels = tsdf.iter_voxels(fusion.volume, p, min_weight=p.occupancy_min_weight)
-    grids = grids_mod.build_grids(xyz, normals, colors, voxels, fusion.T_world_camera, grid, p, source=str(frames_path))
+    if xyz.shape[0] == 0:
+        grids_mod.placed_grid(xyz, fusion.T_world_camera, grid, p, source=str(frames_path))  # the empty-scene error
+    camera_z = np.array([fusion.T_world_camera[i][2, 3] for i in sorted(fusion.T_world_camera)])
+    found = find_floors(xyz, normals, camera_z, p)
+    spec = grids_mod.placed_grid(xyz, fusion.T_world_camera, grid, p, source=str(frames_path))
+    building = len(found.floors) > 1
+    per_floor = []
+    for floor, (lo, hi), n_points in zip(found.floors, floor_bands(found.floors), found.floor_points):
+        band = slice(None) if not building else (xyz[:, 2] >= lo) & (xyz[:, 2] < hi)
+        voxels = tsdf.iter_voxels(fusion.volume, p, min_weight=p.occupancy_min_weight)
+        per_floor.append(grids_mod.floor_grids(
+            spec, floor.floor_z_m, xyz[band], normals[band], colors[band], voxels, p, floor_points=n_points,
+            source=str(frames_path), floor_name=f"{floor.name} ({floor.floor_z_m:.2f} m)" if building else None))
+    flights = find_flights(xyz, normals, found.floors, spec, p) if building else []
+    for flight in flights:  # the flight is solid on the floor it rises from
+        per_floor[flight.lower] = grids_mod.with_solid(per_floor[flight.lower], flight.mask((spec.rows, spec.cols)), p)
+    stairs = stair_links(flights, found.floors, spec, [g.navigable for g in per_floor])
+    warnings = found.warnings + (unlinked_warnings(found.floors, stairs) if building else [])
     t_grids = time.perf_counter() - t2
-    if grids.stats["points_outside_grid"]:
-        log(f"warning: {grids.stats['points_outside_grid']} surface points lie outside the grid "
-            f"({grids.stats['points_outside_fraction']:.2%}); they are counted, not mapped")
+    grids = per_floor[0]
+    outside = sum(g.stats["points_outside_grid"] for g in per_floor)
+    if outside:
+        log(f"warning: {outside} surface points lie outside the grid "
+            f"({outside / xyz.shape[0]:.2%}); they are counted, not mapped")
+    for line in warnings:
+        log(f"warning: {line}")
 
     poses = np.full((store.n_frames, 4, 4), np.nan)
     fused = np.zeros(store.n_frames, dtype=bool)
@@ -86,6 +113,14 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
         "points": points_info["count"],
         **grids.stats,
         "grid_origin_xy": [round(v, 4) for v in grids.grid.origin_xy],
+        "grid_shape": [spec.rows, spec.cols],
+        "floors": [f.model_dump(mode="json") for f in found.floors],
+        "floor_evidence": found.figures,
+        **({"floor_stats": {str(f.id): g.stats for f, g in zip(found.floors[1:], per_floor[1:])},
+            "stairs": [{"id": s.id, "kind": s.kind, "floors": [s.bottom.floor, s.top.floor], "rise_m": s.rise_m,
+                        "length_m": s.length_m, "bottom_endpoint": list(s.bottom.endpoint),
+                        "top_endpoint": list(s.top.endpoint)} for s in stairs]} if building else {}),
+        **({"warnings": warnings} if warnings else {}),
         "seconds_fuse": round(t_fuse, 3),
         "seconds_extract": round(t_extract, 3),
         "seconds_grids": round(t_grids, 3),
@@ -95,7 +130,7 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
     }
     attrs = artifact_attrs(
         ARTIFACT, FORMAT_VERSION, "reconstruct", params_digest or digest_value(p.model_dump(mode="json")),
-        floor_estimated=p.floor_z_m is None,
+        floor_estimated=p.floor_z_m is None and p.floors is None,
         robot_radius_m=p.robot_radius_m,
         height_band_m=[p.obstacle_min_height_m, p.obstacle_max_height_m],
         tsdf={"voxel_size_m": p.voxel_size_m, "sdf_trunc_m": p.sdf_trunc_m, "min_weight": p.min_weight,
@@ -108,7 +143,8 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
         conventions={"world": "right-handed, z up, metres (as frames.zarr)", "grid": grids.grid.ORIENTATION},
         source_frames_attrs=store.meta.model_dump(include={"conventions", "provenance"}, exclude_unset=True),
     )
-    write_recon(recon_path, grids, poses, fused, attrs)
+    write_recon(recon_path, per_floor, poses, fused, attrs, stairs=stairs,
+                floors=found.floors if building or p.floors is not None else None)
     return figures
 
 

@@ -37,8 +37,9 @@ row, col). Definitions (heights are above the estimated floor ``floor_z``):
 - **height** / **color**: the highest surface point in the cell (at most ``height_max_m`` above
   the floor, which leaves ceilings out), NaN / black where nothing was seen.
 
-The floor is estimated, not assumed: the lowest strong peak of the height histogram of
-upward-facing surface points below the cameras, refined by their median.
+Each floor's grids are built on its own floor height (:mod:`pipeline.recon.floors` finds the floors)
+from the surface of its band (:func:`pipeline.recon.store.floor_bands`); every floor of a scene shares one
+grid placement (:func:`place_grid`), so a cell is the same place on every floor.
 """
 
 from __future__ import annotations
@@ -53,12 +54,10 @@ from scipy.spatial import cKDTree
 from pipeline.config import GridParams, ReconstructParams
 from pipeline.errors import ConfigError, InputDataError, StageError
 from pipeline.geometry import GridSpec
-from pipeline.recon.store import FREE, OCCUPIED, UNKNOWN, Grids
+from pipeline.recon.store import FREE, OCCUPIED, TILE, UNKNOWN, Grids
 
-_UP_COS = 0.9  # normals within ~25 deg of +z count as horizontal, upward-facing surfaces
-_FLOOR_BIN_M = 0.01
-_FLOOR_MIN_POINTS = 50
-_FLOOR_PEAK_FRACTION = 0.3  # the floor is the lowest bin holding >= 30% of the tallest bin
+_GROW_MARGIN_M = 1.0  # grid.extent 'grow': the surface's percentile box plus this on each side must fit
+_GROW_MAX_CELLS = 20_000  # ... and a grid side longer than this (1 km at 5 cm) is a wrong pose, not a building
 # solid_tops: a voxel closer than 0.9 truncation distances in front of a surface, with the voxel
 # above it at least 0.1 farther (a horizontal surface below; a vertical face keeps tsdf constant).
 _SOLID_TOP_MAX_TSDF = 0.9
@@ -70,35 +69,6 @@ _SLAB_MIN_AREA_M2 = 0.25  # ... where such cells form a patch at least this big
 # a top or underside over it.
 _FACE_NZ, _FACE_RADIUS_CELLS, _FACE_MIN_POINTS, _FLAT_NZ, _FLAT_RADIUS_M = 0.3, 0.4, 5, 0.7, 0.005
 _FACE_BLOCK_ENTRIES = 1 << 19  # candidate cells x neighbours per block (~50 MB of neighbour arrays)
-
-
-# ----------------------------------------------------------------------------- floor
-
-def estimate_floor(xyz: np.ndarray, normals: np.ndarray, camera_z: np.ndarray) -> tuple[float, int]:
-    """Floor height (world z, metres) and the number of floor points it rests on.
-
-    ``xyz``/``normals`` ``(N,3)`` surface points; ``camera_z`` ``(F,)`` camera heights. Raises
-    :class:`StageError` when no upward-facing surface lies below the cameras (e.g. a world that
-    is not z-up: set ``reconstruct.floor_z_m`` or convert the poses at ingest).
-    """
-    below = xyz[:, 2] < np.median(camera_z)
-    z = xyz[(normals[:, 2] > _UP_COS) & below, 2].astype(np.float64)
-    if z.size < _FLOOR_MIN_POINTS:
-        raise StageError(
-            f"no floor found: {z.size} upward-facing surface points below the cameras "
-            f"(expected at least {_FLOOR_MIN_POINTS} in a z-up world); set reconstruct.floor_z_m "
-            "if the floor is not visible or the world frame is not z-up"
-        )
-    lo = np.floor(z.min() / _FLOOR_BIN_M) * _FLOOR_BIN_M
-    n_bins = int(np.ceil((z.max() - lo) / _FLOOR_BIN_M)) + 1
-    hist = np.bincount(((z - lo) / _FLOOR_BIN_M).astype(np.int64), minlength=n_bins).astype(np.float64)
-    smooth = np.convolve(hist, np.ones(3), mode="same")
-    first = int(np.flatnonzero(smooth >= _FLOOR_PEAK_FRACTION * smooth.max())[0])
-    while first + 1 < n_bins and smooth[first + 1] > smooth[first]:  # climb to the local peak
-        first += 1
-    centre = lo + (first + 0.5) * _FLOOR_BIN_M
-    near = z[np.abs(z - centre) <= 2 * _FLOOR_BIN_M]
-    return float(np.median(near)), int(near.size)
 
 
 # ----------------------------------------------------------------------------- grid placement
@@ -118,19 +88,34 @@ def place_grid(xyz: np.ndarray, grid: GridParams, p: ReconstructParams) -> GridS
     """A grid of ``grid.rows x grid.cols`` centred on ``grid.centre_xy`` when pinned, else on the surface
     (0.5-99.5 percentile box of ``xyz`` ``(N,3)``, metres; more frames may move it).
 
-    The origin is snapped so every cell centre is a TSDF lattice column.
+    With ``grid.extent`` 'grow' and no pinned centre, a surface whose box (plus :data:`_GROW_MARGIN_M` each side)
+    does not fit makes the grid the smallest whole number of :data:`TILE`-cell tiles covering it on that axis;
+    a surface that fits gets exactly the rows x cols grid. The origin is snapped so every cell centre is a TSDF
+    lattice column.
     """
     n = lattice_ratio(grid, p)
     v, s = p.voxel_size_m, grid.cell_size_m
+    rows, cols = grid.rows, grid.cols
     if grid.centre_xy is not None:
         centre = np.asarray(grid.centre_xy, np.float64)
     else:
         lo, hi = np.percentile(xyz[:, :2], [0.5, 99.5], axis=0)
         centre = (lo + hi) / 2.0
+        if grid.extent == "grow":
+            need = np.ceil((hi - lo + 2 * _GROW_MARGIN_M) / s).astype(np.int64)  # cells along x, y
+            if need[0] > cols:
+                cols = int(-(-need[0] // TILE) * TILE)
+            if need[1] > rows:
+                rows = int(-(-need[1] // TILE) * TILE)
+            if max(rows, cols) > _GROW_MAX_CELLS:
+                raise ConfigError(
+                    f"grid.extent: the surface spans {(hi - lo)[0]:.0f} x {(hi - lo)[1]:.0f} m, a grid of "
+                    f"{rows} x {cols} cells (more than {_GROW_MAX_CELLS} on a side): a wrong pose or depth scale; "
+                    "set grid.extent: fixed with grid.rows/cols to map part of it")
     off = 0.0 if n % 2 == 0 else 0.5  # cell centre = origin + (j + 1/2) n v must be k v
-    x0 = v * (np.round((centre[0] - grid.cols * s / 2.0) / v - off) + off)
-    y0 = v * (np.round((centre[1] + grid.rows * s / 2.0) / v - off) + off)
-    return GridSpec(grid.rows, grid.cols, s, (float(x0), float(y0)))
+    x0 = v * (np.round((centre[0] - cols * s / 2.0) / v - off) + off)
+    y0 = v * (np.round((centre[1] + rows * s / 2.0) / v - off) + off)
+    return GridSpec(rows, cols, s, (float(x0), float(y0)))
 
 
 # ----------------------------------------------------------------------------- grids
@@ -457,26 +442,19 @@ def top_surface(grid: GridSpec, floor_z: float, xyz: np.ndarray, colors: np.ndar
     return height.reshape(grid.rows, grid.cols), color.reshape(grid.rows, grid.cols, 3), int((~inside).sum())
 
 
-def build_grids(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray,
-                voxels: Iterable[tuple[np.ndarray, np.ndarray]], T_world_camera: dict[int, np.ndarray],
-                grid_params: GridParams, p: ReconstructParams, *, source: str = "frames") -> Grids:
-    """All grids of one reconstruction.
+def placed_grid(xyz: np.ndarray, T_world_camera: dict[int, np.ndarray], grid_params: GridParams,
+                p: ReconstructParams, *, source: str = "frames") -> GridSpec:
+    """The grid every floor of one reconstruction shares (:func:`place_grid`), checked to hold every camera.
 
-    ``xyz``/``normals``/``colors``: surface points; ``voxels``: :func:`pipeline.recon.tsdf.iter_voxels`;
-    ``T_world_camera``: frame index -> pose used. Raises :class:`InputDataError` naming the first
-    camera outside the grid, :class:`StageError` for an empty scene or when more than
-    ``max_outside_fraction`` of the surface falls outside the grid.
+    ``xyz`` ``(N,3)`` surface points; ``T_world_camera``: frame index -> pose used. Raises
+    :class:`StageError` for an empty scene and :class:`InputDataError` naming the first camera outside the grid.
     """
     if xyz.shape[0] == 0:
         raise StageError(f"{source}: the fused volume has no surface (empty scene, or depth never observed "
                          f"{p.min_weight:g}+ times at the same place: reconstruct.min_weight)")
+    grid = place_grid(xyz, grid_params, p)
     cam_idx = np.array(sorted(T_world_camera), dtype=np.int64)
     cam = np.stack([T_world_camera[i][:3, 3] for i in cam_idx])
-    if p.floor_z_m is None:
-        floor_z, floor_points = estimate_floor(xyz, normals, cam[:, 2])
-    else:
-        floor_z, floor_points = float(p.floor_z_m), 0
-    grid = place_grid(xyz, grid_params, p)
     cam_rc = grid.world_to_cell(cam[:, :2])
     out_cam = np.flatnonzero(~grid.inside(cam_rc))
     if out_cam.size:
@@ -489,6 +467,21 @@ def build_grids(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray,
             path=source, field="pose", frame=i,
             expected="poses within the mapped area; a wrong pose, or a larger grid (grid.rows/cols/cell_size_m)",
         )
+    return grid
+
+
+def floor_grids(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray,
+                voxels: Iterable[tuple[np.ndarray, np.ndarray]], p: ReconstructParams, *, floor_points: int = 0,
+                source: str = "frames", floor_name: str | None = None) -> Grids:
+    """All grids of one floor at world height ``floor_z`` on ``grid``.
+
+    ``xyz``/``normals``/``colors``: the surface points of the floor's band (:func:`pipeline.recon.store.floor_bands`;
+    all of them for a single floor); ``voxels``: :func:`pipeline.recon.tsdf.iter_voxels` (the columns read
+    only the heights near this floor). Raises :class:`StageError` when more than ``max_outside_fraction`` of the
+    surface falls outside the grid or no free floor cell was seen (``floor_name`` names the floor of a building).
+    ``floor_points``: the surface points the floor height rests on (a figure of ``stats``).
+    """
+    where = f"{source}: {floor_name}" if floor_name else source
     columns = column_occupancy(grid, floor_z, voxels, p)
     floor_seen, low_air = columns.floor_seen, columns.low_air
     occupied = columns.occupied | surface_occupancy(grid, floor_z, xyz, normals, p)
@@ -496,7 +489,7 @@ def build_grids(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray,
     outside_fraction = outside / xyz.shape[0]
     if outside_fraction > p.max_outside_fraction:
         raise StageError(
-            f"{source}: {outside} of {xyz.shape[0]} surface points ({outside_fraction:.1%}) fall outside the "
+            f"{where}: {outside} of {xyz.shape[0]} surface points ({outside_fraction:.1%}) fall outside the "
             f"{grid.rows}x{grid.cols} grid at {grid.cell_size_m} m (expected at most "
             f"{p.max_outside_fraction:.1%}: enlarge grid.rows/cols or grid.cell_size_m)"
         )
@@ -515,7 +508,7 @@ def build_grids(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray,
     occupancy[occupied] = OCCUPIED
     navigable = navigable_mask(free, occupied, grid.cell_size_m, p.robot_radius_m)
     if not free.any():
-        raise StageError(f"{source}: no free floor cell was observed (floor_z {floor_z:.3f} m); "
+        raise StageError(f"{where}: no free floor cell was observed (floor_z {floor_z:.3f} m); "
                          "the top-down map would be empty")
     stats = {
         "floor_z_m": round(floor_z, 4),
@@ -531,3 +524,18 @@ def build_grids(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray,
         "points_outside_fraction": round(float(outside_fraction), 6),
     }
     return Grids(grid, floor_z, occupancy, navigable, color, height, stats)
+
+
+def with_solid(grids: Grids, solid: np.ndarray, p: ReconstructParams) -> Grids:
+    """``grids`` with the unknown cells of ``solid`` ``(rows, cols)`` bool occupied and navigable recomputed: a stair
+    flight on the floor it rises from (its inside is never seen; where the floor under it was seen, it stays free)."""
+    add = solid & (grids.occupancy == UNKNOWN)
+    if not add.any():
+        return grids
+    occupancy = grids.occupancy.copy()
+    occupancy[add] = OCCUPIED
+    navigable = navigable_mask(occupancy == FREE, occupancy == OCCUPIED, grids.grid.cell_size_m, p.robot_radius_m)
+    stats = {**grids.stats, "cells_occupied": int((occupancy == OCCUPIED).sum()),
+             "cells_unknown": int((occupancy == UNKNOWN).sum()), "cells_navigable": int(navigable.sum()),
+             "cells_occupied_by_stairs": int(grids.stats.get("cells_occupied_by_stairs", 0)) + int(add.sum())}
+    return Grids(grids.grid, grids.floor_z, occupancy, navigable, grids.color, grids.height, stats)

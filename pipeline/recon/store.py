@@ -1,6 +1,6 @@
 """``recon.zarr`` (+ ``recon_mesh.ply`` / ``recon_points.ply`` beside it): the reconstruction artifact.
 
-Format (version 1)::
+Format (version 1: one floor; version 2: a building of several floors, see below)::
 
     recon.zarr/                  attrs: artifact="recon", format_version, stage, params_digest, code_version,
     │                                   grid {rows, cols, cell_size_m, origin_xy, orientation} (GridSpec.to_attrs),
@@ -25,6 +25,23 @@ Format (version 1)::
     │                                       the pose it would have been fused with; NaN: no valid depth
     └── fused      (N,)            bool     frame i went into the volume (with keyframes on: i is a keyframe)
 
+A building (more than one floor, :mod:`pipeline.recon.floors`) is written as version 2: the root keeps
+floor 0's grids exactly as above (``grid``, ``floor_z``, ``stats`` and the four arrays are floor 0's, so a
+reader of floor 0 needs nothing new), and adds::
+
+    recon.zarr/                  attrs (added): floors [{id, name, floor_z_m, ceiling_z_m, source, frames}],
+    │                                           stairs [{id, kind, bottom {floor, cells, endpoint, xy, z_m},
+    │                                                    top {...}, rise_m, run_m, length_m, flight_cells,
+    │                                                    flight_bbox}] (:class:`StairLink`)
+    └── floors/
+        └── <id>/                attrs: grid, floor_z, stats (as the root's, for floor <id> >= 1)
+            ├── occupancy, navigable, color, height    (as the root's, on that floor's grid)
+
+A single-floor store is written as version 1, byte for byte as before floors existed: no ``floors`` attrs
+(unless the floor was pinned with ``reconstruct.floors``, whose record it keeps), no ``floors/`` group;
+:class:`Recon` reads it as one floor (id 0, ``floor_z``, ceiling unknown). Which floor
+a world height belongs to is :func:`floor_bands` of the floor list, nowhere else.
+
 Grids are chunked in 128x128-cell spatial tiles (the whole colour axis in a chunk). Meshes are
 binary PLY with vertex colours and normals, in world metres; vertices and triangles are stored
 in a canonical (sorted) order so the same inputs give the same bytes.
@@ -34,9 +51,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
+from pydantic import ValidationError
 
 from pipeline.errors import ArtifactError, MissingInputError
 from pipeline.geometry import GridSpec
@@ -46,7 +64,10 @@ if TYPE_CHECKING:  # open3d is imported where meshes and points are written or r
     import open3d as o3d
 
 ARTIFACT = "recon"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 1  # one floor (every store before floors existed)
+BUILDING_FORMAT_VERSION = 2  # several floors: a floors/ group and floors/stairs attrs
+FLOOR_GROUP = "floors"  # floors/<id>/ holds floor <id>'s grids (id >= 1; floor 0's are the root's)
+BAND_MARGIN_M = 0.15  # a floor's points start this far below it (its slab's top, seen from above)
 TILE = 128
 MESH_SUFFIX = "_mesh.ply"
 POINTS_SUFFIX = "_points.ply"
@@ -69,6 +90,56 @@ class Grids:
     color: np.ndarray  # uint8 RGB of the highest surface
     height: np.ndarray  # float32 metres above the floor, NaN unknown
     stats: dict = field(default_factory=dict)
+
+
+class Floor(AttrsModel):
+    """One floor of the scene (``attrs.floors[i]``; :mod:`pipeline.recon.floors` finds them)."""
+
+    id: int
+    name: str
+    floor_z_m: float  # world z of the walkable surface
+    ceiling_z_m: float | None = None  # world z of the ceiling above it; None: not seen
+    source: Literal["surface", "cameras", "pinned"] = "surface"  # how floor_z_m was found
+    frames: int = 0  # frames whose camera stood on this floor
+
+
+class Landing(AttrsModel):
+    """Where a stair flight meets a floor: ``cells`` (row, col) of that floor's grid next to the flight, and
+    ``endpoint``, the navigable cell (else the landing cell) nearest their centre, where routes join."""
+
+    floor: int
+    cells: list[tuple[int, int]]
+    endpoint: tuple[int, int]
+    xy: tuple[float, float]  # world x, y of the endpoint's centre, metres
+    z_m: float
+
+
+class StairLink(AttrsModel):
+    """A connected climb of walkable surface (stairs or a ramp) between two floors (``attrs.stairs[i]``)."""
+
+    id: int
+    kind: Literal["stairs", "ramp"]
+    bottom: Landing
+    top: Landing
+    rise_m: float  # top.z_m - bottom.z_m
+    run_m: float  # horizontal length of the shortest walk over the flight, foot to head
+    length_m: float  # its length in 3-D (at least hypot(rise, run)): what routes add for the climb
+    flight_cells: int  # cells of the flight (treads) in the bottom floor's grid
+    flight_bbox: tuple[int, int, int, int]  # row0, col0, row1, col1 (inclusive) of the flight in that grid
+
+
+def floor_bands(floors: list[Floor] | tuple[Floor, ...]) -> list[tuple[float, float]]:
+    """``[(lo, hi)]`` world z of each floor's band (floors sorted by height): floor k holds what lies in
+    ``[floor_z_k - BAND_MARGIN_M, floor_z_k+1 - BAND_MARGIN_M)``; the lowest band starts at -inf, the highest
+    ends at +inf (one floor: everything)."""
+    cuts = [f.floor_z_m - BAND_MARGIN_M for f in floors[1:]]
+    return list(zip([-np.inf, *cuts], [*cuts, np.inf]))
+
+
+def floor_of_z(floors: list[Floor] | tuple[Floor, ...], z: np.ndarray) -> np.ndarray:
+    """Index of the floor (:func:`floor_bands`) each world height ``z`` (any shape, metres) belongs to, int64."""
+    cuts = np.array([f.floor_z_m - BAND_MARGIN_M for f in floors[1:]], dtype=np.float64)
+    return np.searchsorted(cuts, np.asarray(z, dtype=np.float64), side="right").astype(np.int64)
 
 
 class MeshAttrs(AttrsModel):
@@ -106,6 +177,17 @@ class ReconAttrs(ArtifactAttrs):
     stats: dict[str, Any] = {}
     units: dict[str, str] = {}
     conventions: dict[str, str] | None = None
+    floors: list[Floor] | None = None  # version 2 (a building) only
+    stairs: list[StairLink] | None = None
+
+
+class FloorGridAttrs(AttrsModel):
+    """The attrs of ``floors/<id>/`` in a building's store."""
+
+    grid: GridAttrs
+    floor_z: float
+    stats: dict[str, Any] = {}
+
 
 # array -> (zarr dimension_names, units and meaning) so `xarray.open_zarr(recon.zarr)` names every axis
 ARRAY_DIMS: dict[str, tuple[tuple[str, ...], dict]] = {
@@ -118,17 +200,51 @@ ARRAY_DIMS: dict[str, tuple[tuple[str, ...], dict]] = {
 }
 
 
-def write_recon(path: Path, grids: Grids, poses: np.ndarray, fused: np.ndarray, attrs: dict) -> None:
-    """Write a new ``recon.zarr`` at ``path`` (``attrs`` from :func:`pipeline.store.artifact_attrs` + figures)."""
-    g = grids.grid
+def write_recon(path: Path, grids: Grids | list[Grids], poses: np.ndarray, fused: np.ndarray, attrs: dict, *,
+                floors: list[Floor] | None = None, stairs: list[StairLink] | None = None) -> None:
+    """Write a new ``recon.zarr`` at ``path`` (``attrs`` from :func:`pipeline.store.artifact_attrs` + figures).
+
+    ``grids``: one floor's, or one per floor of ``floors`` (in order); more than one floor writes version 2
+    (the module doc), one floor writes version 1 exactly as before floors existed (with ``floors`` given, a
+    ``floors`` attr is added: a floor pinned with ``reconstruct.floors``).
+    """
+    per_floor = [grids] if isinstance(grids, Grids) else list(grids)
+    building = len(per_floor) > 1
+    if (building or floors is not None) and (floors is None or len(floors) != len(per_floor)):
+        raise ValueError(f"{path}: {len(per_floor)} floors' grids need as many floors records")
+    first = per_floor[0]
+    extra = {}
+    if floors is not None:  # one floor: only when pinned by name (reconstruct.floors); else the store stays as it was
+        extra["floors"] = [f.model_dump(mode="json") for f in floors]
+    if building:
+        extra.update(format_version=BUILDING_FORMAT_VERSION, stairs=[s.model_dump(mode="json") for s in stairs or []])
     group = new_group(Path(path), ReconAttrs.checked({
         **attrs,
-        "grid": g.to_attrs(),
-        "floor_z": float(grids.floor_z),
+        "grid": first.grid.to_attrs(),
+        "floor_z": float(first.floor_z),
         "occupancy_codes": {str(k): v for k, v in OCCUPANCY_CODES.items()},
         "units": UNITS,
-        "stats": grids.stats,
+        "stats": first.stats,
+        **extra,
     }, path))
+    _write_grids(group, first)
+    c = compressor(shuffle="noshuffle")
+    for name, (data, chunks, codec, a) in {
+        "pose": (poses.astype(np.float64), (max(len(poses), 1), 4, 4), compressor(), {"frame": "T_world_camera"}),
+        "fused": (fused.astype(bool), (max(len(fused), 1),), c, {}),
+    }.items():
+        _write_array(group, name, data, chunks, codec, a)
+    for floor, g in zip(floors[1:] if building else [], per_floor[1:]):
+        sub = group.require_group(FLOOR_GROUP).create_group(str(floor.id))
+        floor_attrs = {"grid": g.grid.to_attrs(), "floor_z": float(g.floor_z), "stats": g.stats}
+        FloorGridAttrs.model_validate(floor_attrs)  # a writer never stores attrs its reader refuses
+        sub.attrs.update(floor_attrs)
+        _write_grids(sub, g)
+
+
+def _write_grids(group, grids: Grids) -> None:
+    """The four top-down arrays of one floor, in 128x128-cell tiles."""
+    g = grids.grid
     tile = (min(TILE, g.rows), min(TILE, g.cols))
     c = compressor(shuffle="noshuffle")
     arrays = {
@@ -137,15 +253,17 @@ def write_recon(path: Path, grids: Grids, poses: np.ndarray, fused: np.ndarray, 
         "color": (grids.color.astype(np.uint8), tile + (3,), c, {"unit": "8-bit RGB"}),
         "height": (grids.height.astype(np.float32), tile, compressor(shuffle="shuffle"),
                    {"unit": "m above floor_z", "unknown": "NaN"}),
-        "pose": (poses.astype(np.float64), (max(len(poses), 1), 4, 4), compressor(), {"frame": "T_world_camera"}),
-        "fused": (fused.astype(bool), (max(len(fused), 1),), c, {}),
     }
     for name, (data, chunks, codec, a) in arrays.items():
-        dims, meaning = ARRAY_DIMS[name]
-        arr = group.create_array(name, shape=data.shape, chunks=chunks, dtype=data.dtype, compressors=codec,
-                                 fill_value=np.nan if data.dtype == np.float32 else 0, dimension_names=dims)
-        arr[...] = data
-        arr.attrs.update({**meaning, **a})
+        _write_array(group, name, data, chunks, codec, a)
+
+
+def _write_array(group, name: str, data: np.ndarray, chunks: tuple, codec, a: dict) -> None:
+    dims, meaning = ARRAY_DIMS[name]
+    arr = group.create_array(name, shape=data.shape, chunks=chunks, dtype=data.dtype, compressors=codec,
+                             fill_value=np.nan if data.dtype == np.float32 else 0, dimension_names=dims)
+    arr[...] = data
+    arr.attrs.update({**meaning, **a})
 
 
 def canonical_point_order(*columns: np.ndarray) -> np.ndarray:
@@ -223,25 +341,11 @@ def write_points(path: Path, xyz: np.ndarray, normals: np.ndarray, colors: np.nd
     return {"file": Path(path).name, "count": int(len(xyz))}
 
 
-@dataclass
-class Recon:
-    """Read-only view of a ``recon.zarr`` for the maps, routes and evaluator stages.
+class TopDown:
+    """The four top-down grids of one floor, read on access from ``self.group`` (the store's root for floor 0,
+    ``floors/<id>`` for the others)."""
 
-    ``Recon(path)`` checks the artifact, format version and attrs (``meta``: :class:`ReconAttrs`; ``attrs`` the
-    same as a plain dict); arrays are read on access. Reading the grids imports no open3d (only :meth:`mesh`).
-    """
-
-    path: Path
-
-    def __post_init__(self):
-        self.path = Path(self.path)
-        self.group = open_group(self.path, artifact=ARTIFACT, format_version=FORMAT_VERSION)
-        self.attrs = dict(self.group.attrs)
-        self.meta = ReconAttrs.read(self.attrs, self.path)
-        self.grid = self.meta.grid.spec
-        self.floor_z = self.meta.floor_z
-        self.robot_radius_m = self.meta.robot_radius_m
-        self.height_band_m = self.meta.height_band_m
+    group: Any
 
     @property
     def occupancy(self) -> np.ndarray:
@@ -262,6 +366,75 @@ class Recon:
     def height(self) -> np.ndarray:
         """``(rows, cols)`` float32 metres above the floor, NaN unknown."""
         return self.group["height"][...]
+
+
+class FloorGrids(TopDown):
+    """Read-only view of one floor's grids in a ``recon.zarr``: ``occupancy``, ``navigable``, ``color``, ``height``
+    (read on access), ``grid`` (its :class:`GridSpec`), ``floor_z`` (world z, m), ``floor`` (its :class:`Floor`
+    record), ``stats``."""
+
+    def __init__(self, group, floor: Floor, grid: GridSpec, floor_z: float, stats: dict):
+        self.group, self.floor, self.grid, self.floor_z, self.stats = group, floor, grid, floor_z, stats
+
+
+@dataclass
+class Recon(TopDown):
+    """Read-only view of a ``recon.zarr`` for the maps, routes and evaluator stages.
+
+    ``Recon(path)`` checks the artifact, format version and attrs (``meta``: :class:`ReconAttrs`; ``attrs`` the
+    same as a plain dict); arrays are read on access. Reading the grids imports no open3d (only :meth:`mesh`).
+    ``grid``, ``floor_z`` and the grids (``occupancy``, ``navigable``, ``color``, ``height``) are floor 0's (the
+    only floor of a single-floor scene);
+    ``floors``, :meth:`floor` and ``stairs`` give every floor of a building.
+    """
+
+    path: Path
+
+    def __post_init__(self):
+        self.path = Path(self.path)
+        self.group = open_group(self.path, artifact=ARTIFACT)
+        version = self.group.attrs.get("format_version")
+        if version not in (FORMAT_VERSION, BUILDING_FORMAT_VERSION):
+            raise ArtifactError(f"{self.path}: format_version {version!r}, this zipon reads {FORMAT_VERSION} and "
+                                f"{BUILDING_FORMAT_VERSION}; rebuild it with: zipon run --force")
+        self.attrs = dict(self.group.attrs)
+        self.meta = ReconAttrs.read(self.attrs, self.path)
+        self.grid = self.meta.grid.spec
+        self.floor_z = self.meta.floor_z
+        self.robot_radius_m = self.meta.robot_radius_m
+        self.height_band_m = self.meta.height_band_m
+        if version == BUILDING_FORMAT_VERSION and not self.meta.floors:
+            raise ArtifactError(f"{self.path}: attrs.floors missing in a format_version {version} store; "
+                                "rebuild it with: zipon run --force")
+        self.floors: tuple[Floor, ...] = tuple(self.meta.floors or (
+            Floor(id=0, name="floor 0", floor_z_m=self.floor_z, source="pinned" if self.meta.floor_estimated is False
+                  else "surface", frames=int((self.meta.frames or {}).get("fused", 0))),))
+        self.stairs: tuple[StairLink, ...] = tuple(self.meta.stairs or ())
+
+    def floor(self, index: int = 0) -> FloorGrids:
+        """Floor ``index``'s grids (``0``: the root's, as :attr:`occupancy` etc. read them)."""
+        if not 0 <= index < len(self.floors):
+            raise ArtifactError(f"{self.path}: no floor {index}; this scene has {len(self.floors)} "
+                                f"floor{'s' if len(self.floors) != 1 else ''} (0..{len(self.floors) - 1})")
+        record = self.floors[index]
+        if index == 0:
+            return FloorGrids(self.group, record, self.grid, self.floor_z, self.meta.stats)
+        where = f"{FLOOR_GROUP}/{record.id}"
+        try:
+            sub = self.group[where]
+        except KeyError:
+            raise ArtifactError(f"{self.path}: {where} missing (floor {index} listed in attrs.floors); "
+                                "rebuild it with: zipon run --force") from None
+        try:
+            meta = FloorGridAttrs.model_validate(dict(sub.attrs))
+        except ValidationError as err:
+            raise ArtifactError(f"{self.path}/{where}: attrs do not fit ({err.errors()[0]['msg']}); "
+                                "rebuild it with: zipon run --force") from None
+        return FloorGrids(sub, record, meta.grid.spec, meta.floor_z, meta.stats)
+
+    def floor_of_z(self, z: np.ndarray) -> np.ndarray:
+        """Index of the floor each world height ``z`` (metres, any shape) belongs to (:func:`floor_bands`)."""
+        return floor_of_z(self.floors, z)
 
     @property
     def poses(self) -> np.ndarray:

@@ -18,7 +18,6 @@ and the same bytes for any thread count.
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, Iterable, Iterator
 
@@ -29,6 +28,7 @@ from pipeline.config import ReconstructParams
 from pipeline.errors import InputDataError
 from pipeline.frames import FrameBlock, FrameStore
 from pipeline.geometry import Intrinsics, invert_pose
+from pipeline.prefetch import prefetched
 from pipeline.recon.keyframes import KeyframeRule, KeyframeSelector
 from pipeline.recon.store import canonical_point_order
 
@@ -125,27 +125,6 @@ def prepare_block(block: FrameBlock, p: ReconstructParams) -> PreparedBlock:
                          depth.reshape(len(depth), -1).any(axis=1))
 
 
-def prefetched(blocks: Iterator[FrameBlock], p: ReconstructParams) -> Iterator[PreparedBlock]:
-    """:func:`prepare_block` of each block, reading and preparing the next block in a background thread.
-
-    Zarr's decompression and numpy release the GIL, so reading block k+1 overlaps fusing block k.
-    """
-    it = iter(blocks)
-
-    def next_prepared():
-        block = next(it, None)
-        return None if block is None else prepare_block(block, p)
-
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="recon-read") as pool:
-        pending = pool.submit(next_prepared)
-        while True:
-            prepared = pending.result()
-            if prepared is None:
-                return
-            pending = pool.submit(next_prepared)
-            yield prepared
-
-
 def integration_K(intr: Intrinsics) -> np.ndarray:
     """``K`` for open3d's ``integrate``: principal point moved by +0.5 px.
 
@@ -214,7 +193,8 @@ def fuse(store: FrameStore, p: ReconstructParams, *, frames: Iterable[int] | Non
     correction = np.eye(4)  # the last keyframe's refinement: refined pose @ inverse(recorded pose)
     blocks = store.iter_blocks(p.block_frames, start=start, stop=stop)
     n_blocks = -(-(stop - start) // p.block_frames)
-    prepared = prefetched(blocks, p)
+    # block k+1 is read and prepared while block k is fused
+    prepared = prefetched((prepare_block(b, p) for b in blocks), name="recon-read")
     for block in (progress(prepared, n_blocks) if progress else prepared):
         for j in range(len(block.depth_mm)):
             i = block.start + j

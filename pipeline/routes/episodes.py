@@ -1,15 +1,15 @@
 """Episodes tau = (scene, goal, p0): seeded start poses, geodesic routes, actions, text, replay verdict.
 
-The goal region is :func:`pipeline.routes.region.goal_region` (navigable cells within the success
+The goal region is :func:`pipeline.nav.region.goal_region` (navigable cells within the success
 distance from which the goal's mass centre is in line of sight on the reconstruction), given per
-goal; routes aim for its :func:`~pipeline.routes.region.route_aims` (the route target, then narrower
+goal; routes aim for its :func:`~pipeline.nav.region.route_aims` (the route target, then narrower
 margins, then the region; the first whose replay verifies). For each goal, start cells
 are drawn (seeded) among cells of the clearance mask that reach the target with clearance and whose
 FMM distance to the region is at least ``min_geodesic_m``; the heading is one of the
 ``360 / turn_deg`` lattice headings. The reference length ``l`` (for SPL) is the FMM geodesic
 distance on the navigable mask from p0 to the goal REGION (the stored route aims a little inside
 it and may keep some clearance: ``path_length_m``). Every episode's actions are replayed
-(:mod:`pipeline.routes.verify`, which also checks that the walk ends in the region facing the
+(:mod:`pipeline.nav.verify`, which also checks that the walk ends in the region facing the
 goal); only verified episodes are kept, the others are reported; goals with an empty region or no
 reachable start are flagged unreachable.
 """
@@ -22,9 +22,9 @@ import numpy as np
 
 from pipeline.config import TaskParams
 from pipeline.geometry import GridSpec
-from pipeline.routes.actions import RoutePlanner, RouteSettings, route_text
-from pipeline.routes.region import route_aims
-from pipeline.routes.verify import replay
+from pipeline.nav.actions import RoutePlanner, RouteSettings, route_text
+from pipeline.nav.region import route_aims
+from pipeline.nav.verify import replay
 
 
 @dataclass
@@ -34,7 +34,7 @@ class GoalTarget:
     footprints: list[np.ndarray]  # world polygons
     face_xy: np.ndarray  # (2,) or (K,2) mass centre(s) the agent turns to at the end (the nearest)
     room_id: str | None = None
-    region: np.ndarray | None = None  # (rows, cols) bool goal region (pipeline.routes.region); None = stop radius
+    region: np.ndarray | None = None  # (rows, cols) bool goal region (pipeline.nav.region); None = stop radius
 
 
 @dataclass
@@ -51,6 +51,12 @@ class Episode:
     final_distance_m: float
     verified: bool
     collisions: int
+    # a building's episode: the floor it starts on, the floors it walks (in order) and the points of each floor's leg
+    # in ``path_xy`` (a stair lies between consecutive legs); () in a single-floor scene
+    start_floor: int = 0
+    floors: tuple[int, ...] = ()
+    leg_points: tuple[int, ...] = ()
+    segments: tuple[int, ...] = ()  # actions per piece: leg, climb, leg, ... (the last leg with the stop)
 
 
 @dataclass

@@ -17,22 +17,23 @@ if TYPE_CHECKING:
     from pipeline.sim.raycast import RaycastFrames, SceneRaycaster
     from pipeline.sim.scene import generate_scene, scene_seed
     from pipeline.sim.simulate import SimulatedRecording, simulate_scene
-    from pipeline.sim.topdown import draw_scene_topdown, render_scene_png
+    from pipeline.sim.topdown import FloorTruth, draw_scene_topdown, floor_truths, render_scene_png
     from pipeline.sim.trajectory import free_space, plan_actions
 
-__all__ = ["RaycastFrames", "SceneRaycaster", "SimulatedRecording", "draw_scene_topdown", "free_space",
-           "generate_scene", "plan_actions", "render_scene_png", "scene_seed", "simulate_scene"]
+__all__ = ["FloorTruth", "RaycastFrames", "SceneRaycaster", "SimulatedRecording", "draw_scene_topdown",
+           "floor_truths", "free_space", "generate_scene", "plan_actions", "render_scene_png", "scene_seed",
+           "simulate_scene"]
 
 
 def __getattr__(name: str):
-    # explicit imports, not importlib with a computed name: pipeline.codedeps reads them (a stage's code closure)
+    # explicit imports, not importlib with a computed name: pipeline.engine.codedeps reads them (a stage's code closure)
     if name in ("RaycastFrames", "SceneRaycaster"):
         from pipeline.sim import raycast as module
     elif name in ("generate_scene", "scene_seed"):
         from pipeline.sim import scene as module
     elif name in ("SimulatedRecording", "simulate_scene"):
         from pipeline.sim import simulate as module
-    elif name in ("draw_scene_topdown", "render_scene_png"):
+    elif name in ("FloorTruth", "draw_scene_topdown", "floor_truths", "render_scene_png"):
         from pipeline.sim import topdown as module
     elif name in ("free_space", "plan_actions"):
         from pipeline.sim import trajectory as module

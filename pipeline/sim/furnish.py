@@ -40,6 +40,14 @@ RECIPES: dict[str, list[tuple]] = {
     "office": [("desk", 1, 1, "wall", None), ("chair", 1, 1, "front", ("desk",)), ("computer", 1, 1, "on", ("desk",)),
                ("table lamp", 0, 1, "on", ("desk",)), ("shelf", 1, 2, "wall", None), ("plant", 1, 1, "wall", None),
                ("cabinet", 0, 1, "wall", None), ("lamp", 0, 1, "wall", None), ("picture", 0, 1, "high", None)],
+    # buildings (pipeline.sim.building): a house's stair hall, an office floor's shared rooms
+    "hallway": [("plant", 0, 1, "wall", None), ("cabinet", 0, 1, "wall", None), ("picture", 1, 2, "high", None)],
+    "open office": [("desk", 2, 5, "center", None), ("desk", 1, 2, "wall", None), ("chair", 3, 6, "front", ("desk",)),
+                    ("computer", 2, 4, "on", ("desk",)), ("shelf", 1, 1, "wall", None), ("cabinet", 1, 2, "wall", None),
+                    ("plant", 1, 2, "wall", None), ("picture", 0, 1, "high", None)],
+    "meeting room": [("table", 1, 1, "center", None), ("chair", 3, 4, "around", ("table",)),
+                     ("cabinet", 0, 1, "wall", None), ("tv", 1, 1, "on", ("cabinet",)), ("plant", 0, 1, "wall", None),
+                     ("picture", 1, 1, "high", None)],
 }
 # Classes every apartment holds at least this many instances of (each a different colour, so each its own
 # goal): personalized goals are only hard when several instances share a class, as in the paper's HM3D
@@ -65,7 +73,12 @@ class Placed:
 class RoomFurnisher:
     """Places one room's objects; ``placed`` holds the accepted ones."""
 
-    def __init__(self, rng: np.random.Generator, plan: FloorPlan, room: int, robot_radius_m: float):
+    def __init__(self, rng: np.random.Generator, plan: FloorPlan, room: int, robot_radius_m: float,
+                 keep_out: tuple[Rect, ...] = (), blocked: tuple[Rect, ...] = (),
+                 entries: tuple[tuple[float, float], ...] = ()):
+        """``keep_out``: more rectangles to leave empty (a stair landing); ``blocked``: rectangles that are not floor
+        (a flight, an opening), left empty and no way through; ``entries``: more spots (where a flight is taken)
+        that must stay joined to the doorways."""
         r = plan.rooms[room]
         t = WALL_THICKNESS_M / 2
         self.rng = rng
@@ -85,6 +98,9 @@ class RoomFurnisher:
             c = (d.lo + d.hi) / 2
             inside = d.at + sign * (t + 0.3)
             self.entries.append((inside, c) if d.axis == 0 else (c, inside))
+        self.blocked = [(z.x0, z.y0, z.x1, z.y1) for z in blocked]
+        self.door_zones += [(z.x0, z.y0, z.x1, z.y1) for z in keep_out] + self.blocked
+        self.entries += [tuple(e) for e in entries]
         self.shape = (int(np.ceil(self.inner.h / CELL_M)), int(np.ceil(self.inner.w / CELL_M)))
 
     # -- checks
@@ -100,7 +116,7 @@ class RoomFurnisher:
     def _reachable(self, fp) -> bool:
         """Every doorway entry still lies in one free component with room to turn in place."""
         occ = np.zeros(self.shape, dtype=bool)
-        for x0, y0, x1, y1 in [p.footprint for p in self.placed if p.on_floor] + [fp]:
+        for x0, y0, x1, y1 in [p.footprint for p in self.placed if p.on_floor] + [fp] + self.blocked:
             c0, c1 = int((x0 - self.inner.x0) / CELL_M), int(np.ceil((x1 - self.inner.x0) / CELL_M))
             r0, r1 = int((y0 - self.inner.y0) / CELL_M), int(np.ceil((y1 - self.inner.y0) / CELL_M))
             occ[max(r0, 0):r1, max(c0, 0):c1] = True
@@ -251,15 +267,19 @@ def _top_up(rng: np.random.Generator, plan: FloorPlan, furnishers: dict[int, Roo
                         break
 
 
-def furnish(rng: np.random.Generator, plan: FloorPlan, robot_radius_m: float) -> list[GTObject]:
+def furnish(rng: np.random.Generator, plan: FloorPlan, robot_radius_m: float, *,
+            keep_out: dict[int, tuple[Rect, ...]] | None = None, blocked: dict[int, tuple[Rect, ...]] | None = None,
+            entries: dict[int, tuple[tuple[float, float], ...]] | None = None) -> list[GTObject]:
     """Objects for every room of ``plan``: its recipe, then the :data:`MIN_INSTANCES` top-up; ids 1.. in room
-    order; distinct colours within a class."""
+    order; distinct colours within a class. ``keep_out`` / ``blocked`` / ``entries`` per room index: see
+    :class:`RoomFurnisher`."""
     used_colours: dict[str, set[str]] = {}
     objects: list[GTObject] = []
     order = sorted(range(len(plan.rooms)), key=lambda i: plan.ids[i])
     furnishers = {}
     for room in order:
-        fur = furnishers[room] = RoomFurnisher(rng, plan, room, robot_radius_m)
+        fur = furnishers[room] = RoomFurnisher(rng, plan, room, robot_radius_m, (keep_out or {}).get(room, ()),
+                                               (blocked or {}).get(room, ()), (entries or {}).get(room, ()))
         for key, n_min, n_max, mode, arg in RECIPES[plan.types[room]]:
             for _ in range(int(rng.integers(n_min, n_max + 1))):
                 fur.place(key, mode, arg)

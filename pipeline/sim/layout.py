@@ -70,16 +70,28 @@ class FloorPlan:
     walls: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)  # (min, max) boxes
 
 
-def _split_leaves(rng: np.random.Generator, outline: Rect, n_rooms: int):
-    """Split the largest splittable leaf until ``n_rooms`` leaves; returns leaves and the split records."""
+def _split_leaves(rng: np.random.Generator, outline: Rect, n_rooms: int, first_split: tuple[int, float] | None = None):
+    """Split the largest splittable leaf until ``n_rooms`` leaves; returns leaves, their path labels and the split
+    records. ``first_split`` ``(axis, at)`` is made first, without randomness, and its side ``a`` (the low side) is
+    kept whole (a house's stair hall)."""
     leaves = [outline]
     splits = []  # (axis, at, extent lo, extent hi, leaf-index sets filled later)
     # Track which leaves descend from each side of each split by giving leaves a path label.
     labels = [""]
+    whole = set()  # labels of leaves never split
+    if first_split is not None:
+        axis, at = first_split
+        r = outline
+        a, b = (Rect(r.x0, r.y0, at, r.y1), Rect(at, r.y0, r.x1, r.y1)) if axis == 0 else \
+            (Rect(r.x0, r.y0, r.x1, at), Rect(r.x0, at, r.x1, r.y1))
+        splits.append((axis, at, r.y0, r.y1, "") if axis == 0 else (axis, at, r.x0, r.x1, ""))
+        leaves, labels, whole = [a, b], ["a", "b"], {"a"}
     while len(leaves) < n_rooms:
         order = sorted(range(len(leaves)), key=lambda i: -leaves[i].area)
         for i in order:
             r = leaves[i]
+            if labels[i] in whole:
+                continue
             axis = 0 if r.w >= r.h else 1  # split across the longer side
             length = r.w if axis == 0 else r.h
             if length < 2 * MIN_ROOM_SIDE_M:
@@ -105,7 +117,11 @@ def _split_leaves(rng: np.random.Generator, outline: Rect, n_rooms: int):
     return leaves, labels, splits
 
 
-def _place_doors(rng: np.random.Generator, leaves: list[Rect], labels: list[str], splits) -> list[Door]:
+def _place_doors(rng: np.random.Generator, leaves: list[Rect], labels: list[str], splits,
+                 spans: dict[int, tuple[float, float]] | None = None, extra_door_p: float = 0.0) -> list[Door]:
+    """One doorway per split line between a room on each side (a spanning tree of the rooms). ``spans`` limits the
+    doorway of a split (by index) to a stretch of its line; with ``extra_door_p`` > 0 every other pair of rooms
+    sharing a split line gets a doorway too with that probability (loops, as in an office floor)."""
     doors = []
     for k, (axis, at, _, _, label) in enumerate(splits):
         side_a = [i for i, lab in enumerate(labels) if lab.startswith(label + "a")]
@@ -120,15 +136,21 @@ def _place_doors(rng: np.random.Generator, leaves: list[Rect], labels: list[str]
                     lo, hi = max(ri.x0, rj.x0), min(ri.x1, rj.x1)
                 else:
                     continue
+                if spans is not None and k in spans:
+                    lo, hi = max(lo, spans[k][0]), min(hi, spans[k][1])
                 if hi - lo >= 1.4:
                     candidates.append((i, j, lo, hi))
         if not candidates:
             raise RuntimeError("floor plan without a doorway candidate")  # cannot happen with MIN_ROOM_SIDE_M
-        i, j, lo, hi = candidates[int(rng.integers(len(candidates)))]
-        # a doorway keeps 0.25 m of wall either side: on a 1.4-1.55 m shared wall it narrows (not below 0.9 m)
-        width = min(round(float(rng.uniform(0.9, 1.05)), 2), round(hi - lo - 0.5, 2))
-        start = round(float(rng.uniform(lo + 0.25, hi - 0.25 - width)), 2)
-        doors.append(Door(axis, at, start, start + width, (i, j), k))
+        chosen = [int(rng.integers(len(candidates)))]
+        if extra_door_p > 0:
+            chosen += [c for c in range(len(candidates)) if c != chosen[0] and rng.random() < extra_door_p]
+        for c in chosen:
+            i, j, lo, hi = candidates[c]
+            # a doorway keeps 0.25 m of wall either side: on a 1.4-1.55 m shared wall it narrows (not below 0.9 m)
+            width = min(round(float(rng.uniform(0.9, 1.05)), 2), round(hi - lo - 0.5, 2))
+            start = round(float(rng.uniform(lo + 0.25, hi - 0.25 - width)), 2)
+            doors.append(Door(axis, at, start, start + width, (i, j), k))
     return doors
 
 
@@ -200,5 +222,18 @@ def generate_floor_plan(rng: np.random.Generator, n_rooms: int, *, size_range_m=
     types = assign_types(rng, leaves)
     height = round(float(rng.uniform(2.5, 2.8)), 2)
     plan = FloorPlan(outline, leaves, types, room_ids(types, leaves), doors, height)
+    plan.walls = _wall_boxes(outline, splits, doors, height)
+    return plan
+
+
+def split_plan(rng: np.random.Generator, outline: Rect, n_rooms: int, height: float, *,
+               first_split: tuple[int, float] | None = None, door_spans: dict[int, tuple[float, float]] | None = None,
+               extra_door_p: float = 0.0) -> FloorPlan:
+    """A floor of ``outline`` split into ``n_rooms`` rooms with doorways and walls ``height`` high; types and ids are
+    left for the caller (a building names its rooms across floors). See :func:`_split_leaves` and
+    :func:`_place_doors` for ``first_split``, ``door_spans`` and ``extra_door_p``."""
+    leaves, labels, splits = _split_leaves(rng, outline, n_rooms, first_split)
+    doors = _place_doors(rng, leaves, labels, splits, door_spans, extra_door_p)
+    plan = FloorPlan(outline, leaves, [""] * len(leaves), [""] * len(leaves), doors, height)
     plan.walls = _wall_boxes(outline, splits, doors, height)
     return plan

@@ -17,7 +17,9 @@ import numpy as np
 
 from pipeline.geometry import Intrinsics
 from pipeline.scene_gt import GTScene
+from pipeline.sim.building import rect_minus
 from pipeline.sim.catalog import MATERIAL_CODE
+from pipeline.sim.layout import Rect
 
 # Texture codes beyond the object materials.
 TEX_WALL, TEX_PLANKS, TEX_TILES, TEX_CEILING = 100, 101, 102, 103
@@ -26,8 +28,10 @@ CEILING_RGB = (240, 240, 236)
 FLOORS = {  # room type -> (rgb, texture)
     "kitchen": ((200, 196, 186), TEX_TILES), "bathroom": ((214, 222, 228), TEX_TILES),
     "living room": ((170, 128, 88), TEX_PLANKS), "bedroom": ((186, 146, 104), TEX_PLANKS),
-    "office": ((150, 112, 80), TEX_PLANKS),
+    "office": ((150, 112, 80), TEX_PLANKS), "hallway": ((176, 140, 100), TEX_PLANKS),
+    "open office": ((140, 140, 146), TEX_TILES), "meeting room": ((120, 124, 140), TEX_TILES),
 }
+STAIR_RGB = (150, 108, 72)
 LIGHT_DIR = np.array([0.35, 0.55, 0.76]) / np.linalg.norm([0.35, 0.55, 0.76])
 INVALID_ID = np.uint32(0xFFFFFFFF)
 
@@ -62,14 +66,17 @@ def scene_boxes(gt: GTScene):
 
     for wall in gt.walls:
         add(wall.min, wall.max, WALL_RGB, 0, TEX_WALL)
-    for room in gt.rooms:
-        p = np.asarray(room.polygon)
-        colour, code = FLOORS.get(room.type, ((180, 170, 150), TEX_PLANKS))
-        add((p[:, 0].min(), p[:, 1].min(), gt.floor_z - 0.05), (p[:, 0].max(), p[:, 1].max(), gt.floor_z),
-            colour, 0, code)
-    x0, x1, y0, y1 = gt.bounds_xy()
-    top = gt.floor_z + gt.wall_height_m
-    add((x0 - 0.2, y0 - 0.2, top), (x1 + 0.2, y1 + 0.2, top + 0.05), CEILING_RGB, 0, TEX_CEILING)
+    if gt.floors:
+        _building_surfaces(gt, add)
+    else:
+        for room in gt.rooms:
+            p = np.asarray(room.polygon)
+            colour, code = FLOORS.get(room.type, ((180, 170, 150), TEX_PLANKS))
+            add((p[:, 0].min(), p[:, 1].min(), gt.floor_z - 0.05), (p[:, 0].max(), p[:, 1].max(), gt.floor_z),
+                colour, 0, code)
+        x0, x1, y0, y1 = gt.bounds_xy()
+        top = gt.floor_z + gt.wall_height_m
+        add((x0 - 0.2, y0 - 0.2, top), (x1 + 0.2, y1 + 0.2, top + 0.05), CEILING_RGB, 0, TEX_CEILING)
     for obj in gt.objects:
         vols = [np.prod(np.subtract(p.max, p.min)) for p in obj.parts]
         main = int(np.argmax(vols))
@@ -79,6 +86,39 @@ def scene_boxes(gt: GTScene):
             add(part.min, part.max, obj.color_rgb, obj.id, MATERIAL_CODE.get(obj.material, 0), t)
     return (np.asarray(mins, np.float64), np.asarray(maxs, np.float64), np.asarray(rgb, np.float32) / 255.0,
             np.asarray(inst, np.uint16), np.asarray(tex, np.int16), np.asarray(tone, np.float32))
+
+
+def _polygon_rect(polygon) -> Rect:
+    p = np.asarray(polygon, dtype=np.float64)
+    return Rect(float(p[:, 0].min()), float(p[:, 1].min()), float(p[:, 0].max()), float(p[:, 1].max()))
+
+
+def _building_surfaces(gt: GTScene, add) -> None:
+    """Steps, every floor's room surfaces and the slabs between floors, both cut by the stair openings."""
+    for stair in gt.stairs:
+        for step in stair.steps:
+            add(step.min, step.max, STAIR_RGB, 0, TEX_PLANKS)
+    x0, x1, y0, y1 = gt.bounds_xy()
+    floors = gt.all_floors
+    for f in floors:
+        holes = [_polygon_rect(s.opening) for s in gt.stairs if s.upper == f.id]
+        for room in (r for r in gt.rooms if r.floor == f.id):
+            colour, code = FLOORS.get(room.type, ((180, 170, 150), TEX_PLANKS))
+            pieces = [_polygon_rect(room.polygon)]
+            for hole in holes:
+                pieces = [q for piece in pieces for q in rect_minus(piece, hole)]
+            for q in pieces:
+                add((q.x0, q.y0, f.floor_z - 0.05), (q.x1, q.y1, f.floor_z), colour, 0, code)
+        if f.id == 0:
+            continue
+        slab = [Rect(x0 - 0.2, y0 - 0.2, x1 + 0.2, y1 + 0.2)]  # under this floor, over the one below
+        for hole in holes:
+            slab = [q for piece in slab for q in rect_minus(piece, hole)]
+        below = floors[f.id - 1].ceiling_z
+        for q in slab:
+            add((q.x0, q.y0, below), (q.x1, q.y1, f.floor_z - 0.05), CEILING_RGB, 0, TEX_CEILING)
+    top = floors[-1].ceiling_z
+    add((x0 - 0.2, y0 - 0.2, top), (x1 + 0.2, y1 + 0.2, top + 0.05), CEILING_RGB, 0, TEX_CEILING)
 
 
 def boxes_mesh(mins: np.ndarray, maxs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -8,7 +8,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from pipeline.config import SimulateParams
+from pipeline.config import BuildingParams, SimulateParams
 from pipeline.geometry import Intrinsics, interpolate_poses
 from pipeline.scene_gt import GTScene
 from pipeline.sim.raycast import SceneRaycaster
@@ -49,9 +49,10 @@ def jitter_poses(T: np.ndarray, params: SimulateParams, seed: int) -> np.ndarray
 class SimulatedRecording:
     """A planned recording of one scene: ground truth, true frame poses and the recorded pose stream."""
 
-    def __init__(self, scene: str, params: SimulateParams, gt: GTScene | None = None):
+    def __init__(self, scene: str, params: SimulateParams, gt: GTScene | None = None,
+                 building: BuildingParams | None = None):
         self.params = params
-        self.gt = gt if gt is not None else generate_scene(scene, params)
+        self.gt = gt if gt is not None else generate_scene(scene, params, building)
         self.intrinsics = Intrinsics.from_hfov(params.width, params.height, params.hfov_deg)
         min_actions = int(np.ceil(params.min_actions_per_frame * params.frames))
         states, self.visited = plan_actions(self.gt, params.robot_radius_m, min_actions)
@@ -77,9 +78,21 @@ class SimulatedRecording:
             yield start, out.rgb, out.depth_mm(p.depth_min_m, p.depth_max_m), out.instance
 
 
-def simulate_scene(scene: str, params: SimulateParams, out_path: Path, *,
+def frame_floors(gt: GTScene, frame_T: np.ndarray, camera_height_m: float) -> np.ndarray:
+    """``(N,)`` int: the floor each frame's camera stands on (the floor whose band holds the walking surface
+    under it; on a flight, the floor below its middle)."""
+    return np.array([gt.floor_at(float(z) - camera_height_m + 0.5 * _min_story(gt)) for z in frame_T[:, 2, 3]])
+
+
+def _min_story(gt: GTScene) -> float:
+    floors = gt.all_floors
+    return min((b.floor_z - a.floor_z for a, b in zip(floors[:-1], floors[1:])), default=0.0)
+
+
+def simulate_scene(scene: str, params: SimulateParams, out_path: Path, *, building: BuildingParams | None = None,
                    progress: Callable[[Iterable, int], Iterable] | None = None) -> dict:
-    """Generate scene ``scene``, render ``params.frames`` frames and write the ROS 2 MCAP log ``out_path``.
+    """Generate scene ``scene`` (an apartment, or the house / office ``building`` says), render ``params.frames``
+    frames and write the ROS 2 MCAP log ``out_path``.
 
     ``progress(iterable, total)`` may wrap the block loop (e.g. ``StageContext.progress``).
     Memory is bounded by one block of ``params.render_block_frames`` frames. Returns summary figures.
@@ -87,11 +100,13 @@ def simulate_scene(scene: str, params: SimulateParams, out_path: Path, *,
     from pipeline.ros2 import Ros2LogWriter
 
     t0 = time.perf_counter()
-    rec = SimulatedRecording(scene, params)
+    rec = SimulatedRecording(scene, params, building=building)
     raycaster = SceneRaycaster(rec.gt, rec.intrinsics)
     gt = rec.gt
     metadata = {"generator": "zipon simulate", "scene": scene, "seed": str(gt.seed),
                 "params": params.model_dump_json()}
+    if building is not None:  # an apartment's log stays byte for byte what it was
+        metadata["building"] = building.model_dump_json()
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     n_blocks = -(-params.frames // params.render_block_frames)
@@ -116,10 +131,18 @@ def simulate_scene(scene: str, params: SimulateParams, out_path: Path, *,
         for k in range(next_pose, len(rec.pose_ns)):
             writer.write_pose(int(rec.pose_ns[k]), rec.recorded_pose_T[k])
     seconds = time.perf_counter() - t0
-    return {
+    summary = {
         "frames": params.frames, "poses": int(len(rec.pose_ns)), "actions": rec.actions,
         "rooms": len(gt.rooms), "objects": len(gt.objects), "classes": len({o.cls for o in gt.objects}),
         "rooms_visited": len(set(rec.visited)), "scene_seed": gt.seed,
         "render_seconds": round(render_s, 3), "seconds": round(seconds, 3),
         "bytes": out_path.stat().st_size,
     }
+    if gt.floors:
+        on = frame_floors(gt, rec.frame_T, params.camera_height_m)
+        summary.update(floors=len(gt.floors), stairs=len(gt.stairs),
+                       frames_per_floor=[int((on == f.id).sum()) for f in gt.floors])
+    if building is not None:
+        x0, x1, y0, y1 = gt.bounds_xy()
+        summary.update(building=building.kind, extent_m=[round(x1 - x0, 2), round(y1 - y0, 2)])
+    return summary

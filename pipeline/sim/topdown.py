@@ -1,19 +1,67 @@
-"""North-up top-down pictures of a ground-truth scene (rooms, walls, objects, labels, scale bar)."""
+"""North-up top-down pictures of a ground-truth scene (rooms, walls, objects, labels, scale bar), one floor at a
+time, and the ground-truth top-down grids of each floor (:func:`floor_truths`) that a reconstruction's per-floor
+grids are scored against."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.geometry import GridSpec
 from pipeline.pictures import write_png
-from pipeline.scene_gt import GTScene
+from pipeline.scene_gt import GTFloor, GTScene
 
 ROOM_TINTS = {
     "living room": (246, 236, 214), "kitchen": (226, 240, 226), "bathroom": (220, 236, 246),
     "bedroom": (244, 226, 232), "office": (236, 232, 246), "hallway": (236, 236, 236),
+    "open office": (232, 236, 240), "meeting room": (240, 236, 226),
 }
+STAIR_COLOUR, OPENING_COLOUR = (150, 108, 72), (96, 96, 120)  # not a grey text or outline can take
+
+
+@dataclass
+class FloorTruth:
+    """Ground-truth top-down grids of one floor, each ``(rows, cols)`` bool on the grid they were drawn on.
+
+    ``occupied``: a wall, railing, object part or step overlaps the height band above the floor
+    (:meth:`GTScene.occupancy` of :meth:`GTScene.floor_view`); ``free``: inside the floor's rooms (stair
+    openings cut out) and not occupied; ``ambiguous``: cells whose label is floating-point rounding
+    (:meth:`GTScene.ambiguous`), to leave out of scores; ``stairs``: the cells of the flights joining this
+    floor (those rising from it, and the openings of those arriving on it), where a floor's grid meets the
+    next one's.
+    """
+
+    floor: GTFloor
+    occupied: np.ndarray
+    free: np.ndarray
+    ambiguous: np.ndarray
+    stairs: np.ndarray
+
+
+def _polygon_mask(grid: GridSpec, polygons) -> np.ndarray:
+    import cv2
+
+    mask = np.zeros((grid.rows, grid.cols), dtype=np.uint8)
+    for polygon in polygons:
+        rc = grid.world_to_cell(np.asarray(polygon, dtype=np.float64)).astype(np.int32)
+        cv2.fillPoly(mask, [rc[:, ::-1].reshape(-1, 1, 2)], 1)
+    return mask.astype(bool)
+
+
+def floor_truths(gt: GTScene, grid: GridSpec, z_min: float, z_max: float) -> list[FloorTruth]:
+    """:class:`FloorTruth` of every floor of ``gt`` on ``grid``, lowest first, for obstacles between ``z_min`` and
+    ``z_max`` metres above each floor (reconstruct's obstacle band). A single-floor scene gives one."""
+    out = []
+    for f in gt.all_floors:
+        view = gt.floor_view(f.id)
+        occupied = view.occupancy(grid, z_min, z_max)
+        stairs = _polygon_mask(grid, [s.footprint for s in gt.stairs if s.lower == f.id]
+                               + [s.opening for s in gt.stairs if s.upper == f.id])
+        out.append(FloorTruth(floor=f, occupied=occupied, free=view.floor_mask(grid) & ~occupied,
+                              ambiguous=view.ambiguous(grid, z_min, z_max), stairs=stairs))
+    return out
 
 
 def scene_grid(gt: GTScene, cell_size_m: float, margin_m: float = 0.5) -> GridSpec:
@@ -24,10 +72,14 @@ def scene_grid(gt: GTScene, cell_size_m: float, margin_m: float = 0.5) -> GridSp
     return GridSpec(rows, cols, cell_size_m, (x0 - margin_m, y1 + margin_m))
 
 
-def draw_scene_topdown(gt: GTScene, *, px_per_m: float = 50.0, path_xy: np.ndarray | None = None) -> np.ndarray:
-    """``(H,W,3)`` uint8 RGB north-up picture of ``gt`` (optionally a trajectory ``(N,2)`` world x, y)."""
+def draw_scene_topdown(gt: GTScene, *, px_per_m: float = 50.0, path_xy: np.ndarray | None = None,
+                       floor: int = 0) -> np.ndarray:
+    """``(H,W,3)`` uint8 RGB north-up picture of floor ``floor`` of ``gt`` (optionally a trajectory ``(N,2)`` world
+    x, y); flights rising from the floor are drawn brown with their steps, openings in it dark grey."""
     import cv2
 
+    stairs = gt.stairs
+    gt = gt.floor_view(floor)
     grid = scene_grid(gt, 1.0 / px_per_m, margin_m=0.8)
     img = np.full((grid.rows, grid.cols, 3), 255, dtype=np.uint8)
 
@@ -41,8 +93,15 @@ def draw_scene_topdown(gt: GTScene, *, px_per_m: float = 50.0, path_xy: np.ndarr
     for room in gt.rooms:
         poly = rc(room.polygon)[:, ::-1].astype(np.int32)
         cv2.fillPoly(img, [poly.reshape(-1, 1, 2)], ROOM_TINTS.get(room.type, (236, 236, 236)))
+    for stair in (s for s in stairs if s.upper == floor):
+        poly = rc(stair.opening)[:, ::-1].astype(np.int32)
+        cv2.fillPoly(img, [poly.reshape(-1, 1, 2)], OPENING_COLOUR)
+    steps = {(s.min, s.max) for stair in stairs if stair.lower == floor for s in stair.steps}
     for wall in gt.walls:
-        if wall.min[2] <= gt.floor_z + 0.1:  # lintels above doorways are not drawn
+        if (wall.min, wall.max) in steps:
+            rect(wall.min, wall.max, STAIR_COLOUR)
+            rect(wall.min, wall.max, (60, 40, 20), 1)
+        elif wall.min[2] <= gt.floor_z + 0.1:  # lintels above doorways are not drawn
             rect(wall.min, wall.max, (40, 40, 40))
     for obj in sorted(gt.objects, key=lambda o: o.bbox.max[2]):
         colour = tuple(int(v) for v in obj.color_rgb)
@@ -73,6 +132,6 @@ def draw_scene_topdown(gt: GTScene, *, px_per_m: float = 50.0, path_xy: np.ndarr
 
 
 def render_scene_png(gt: GTScene, path: str | Path, *, px_per_m: float = 50.0,
-                     path_xy: np.ndarray | None = None) -> Path:
-    """Write :func:`draw_scene_topdown` as a PNG at ``path``; returns the path."""
-    return write_png(Path(path), draw_scene_topdown(gt, px_per_m=px_per_m, path_xy=path_xy))
+                     path_xy: np.ndarray | None = None, floor: int = 0) -> Path:
+    """Write :func:`draw_scene_topdown` of floor ``floor`` as a PNG at ``path``; returns the path."""
+    return write_png(Path(path), draw_scene_topdown(gt, px_per_m=px_per_m, path_xy=path_xy, floor=floor))

@@ -5,6 +5,13 @@ unvisited room next, geodesic shortest paths on the free grid) and spins in plac
 moves are 0.25 m forward steps and 15 degree turns. If the tour has fewer actions than the
 requested frames, further viewpoints per room are added. The action sequence is then stretched
 over the recording time so that exactly ``frames`` frames sample it.
+
+In a building of several floors the robot tours floor 0, walks to the foot of the stairs, climbs
+them (forward steps along the flight, as a Habitat agent does), tours the next floor, and so on to
+the top; then it walks back down to floor 0. Rounds repeat (further viewpoints) until the walk
+has enough actions. A state carries the height of the walking surface under the robot (a floor,
+or the ramp over a flight's steps, :meth:`pipeline.scene_gt.GTStair.surface_z`), so the camera
+stays at one height above it.
 """
 
 from __future__ import annotations
@@ -18,12 +25,14 @@ from scipy.sparse.csgraph import dijkstra
 
 from pipeline.errors import StageError
 from pipeline.geometry import GridSpec, camera_pose_from_base, interpolate_poses
-from pipeline.scene_gt import GTScene
+from pipeline.scene_gt import GTScene, GTStair
 from pipeline.sim.topdown import scene_grid
 
 STEP_M = 0.25
 TURN_RAD = np.deg2rad(15.0)
 CELL_M = 0.05
+LARGE_CELL_M = 0.1  # planning cell of a floor above LARGE_FLOOR_M2 (an office): 4x fewer cells to search
+LARGE_FLOOR_M2 = 600.0
 BODY_Z = (0.05, 1.5)  # heights that block the robot's body, metres above the floor
 
 
@@ -43,11 +52,20 @@ class FreeSpace:
         return ok & self.navigable[rc[..., 0], rc[..., 1]]
 
 
+def planning_cell_m(gt: GTScene) -> float:
+    """The cell of the planning grid: :data:`CELL_M`, or :data:`LARGE_CELL_M` on a floor of over
+    :data:`LARGE_FLOOR_M2` (an apartment or a house floor is far smaller)."""
+    x0, x1, y0, y1 = gt.bounds_xy()
+    return LARGE_CELL_M if (x1 - x0) * (y1 - y0) > LARGE_FLOOR_M2 else CELL_M
+
+
 def free_space(gt: GTScene, radius_m: float) -> FreeSpace:
-    """Floor minus walls and object parts in the body height band, eroded by ``radius_m``."""
-    grid = scene_grid(gt, CELL_M)
+    """Floor minus walls and object parts in the body height band, eroded by ``radius_m`` (a single floor: pass
+    :meth:`GTScene.floor_view` of a building's floor), on a grid of :func:`planning_cell_m`."""
+    cell = planning_cell_m(gt)
+    grid = scene_grid(gt, cell)
     free = gt.floor_mask(grid) & ~gt.occupancy(grid, *BODY_Z)
-    clearance = ndimage.distance_transform_edt(free) * CELL_M
+    clearance = ndimage.distance_transform_edt(free) * cell
     room = np.full((grid.rows, grid.cols), -1, np.int16)
     centres = grid.cell_to_world(np.stack(np.mgrid[0:grid.rows, 0:grid.cols], axis=-1))
     for k, r in enumerate(gt.rooms):
@@ -70,7 +88,7 @@ def _graph(fs: FreeSpace) -> tuple[csr_matrix, np.ndarray]:
         b = node[dr:R, max(0, dc):C - max(0, -dc)]
         ok = (a >= 0) & (b >= 0)
         rows.append(a[ok]), cols.append(b[ok])
-        weights.append(np.full(int(ok.sum()), CELL_M * np.hypot(dr, dc)))
+        weights.append(np.full(int(ok.sum()), fs.grid.cell_size_m * np.hypot(dr, dc)))
     r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
     n = int(nav.sum())
     g = csr_matrix((np.concatenate([w, w]), (np.concatenate([r, c]), np.concatenate([c, r]))), shape=(n, n))
@@ -86,7 +104,7 @@ def room_viewpoints(fs: FreeSpace, room: int, count: int) -> list[np.ndarray]:
     picks = [int(np.argmax(clear))]
     dist = np.full(len(cells), np.inf)
     for _ in range(count - 1):
-        dist = np.minimum(dist, np.hypot(*(cells - cells[picks[-1]]).T) * CELL_M)
+        dist = np.minimum(dist, np.hypot(*(cells - cells[picks[-1]]).T) * fs.grid.cell_size_m)
         score = np.where(clear > 0.35, dist, -1.0)
         if score.max() < 1.0:
             break
@@ -113,21 +131,48 @@ def _string_pull(fs: FreeSpace, pts: np.ndarray) -> list[np.ndarray]:
 class _Walker:
     """Turns and steps toward waypoints; records (x, y, yaw) after every action."""
 
-    def __init__(self, fs: FreeSpace, xy: np.ndarray, yaw_steps: int = 0):
-        self.fs, self.xy, self.k = fs, np.asarray(xy, float), yaw_steps
-        self.states = [(self.xy[0], self.xy[1], self.k * TURN_RAD)]
+    def __init__(self, fs: FreeSpace, xy: np.ndarray, yaw_steps: int = 0, z: float = 0.0):
+        self.fs, self.xy, self.k, self.z = fs, np.asarray(xy, float), yaw_steps, float(z)
+        self.states = [(self.xy[0], self.xy[1], self.k * TURN_RAD, self.z)]
 
     def _clearance(self, xy: np.ndarray) -> float:
         rc = np.clip(self.fs.grid.world_to_cell(xy), 0, [self.fs.grid.rows - 1, self.fs.grid.cols - 1])
         return float(self.fs.clearance_m[rc[0], rc[1]])
 
     def _record(self):
-        self.states.append((self.xy[0], self.xy[1], self.k * TURN_RAD))
+        self.states.append((self.xy[0], self.xy[1], self.k * TURN_RAD, self.z))
 
     def spin(self):
         for _ in range(24):
             self.k += 1
             self._record()
+
+    def face(self, yaw: float):
+        """Turn (15 degree steps, the short way) to the quantised heading nearest ``yaw``."""
+        diff = (int(np.round((yaw - self.k * TURN_RAD) / TURN_RAD)) + 12) % 24 - 12
+        for _ in range(abs(diff)):
+            self.k += int(np.sign(diff))
+            self._record()
+
+    def take_stairs(self, stair: GTStair, up: bool, arrive: FreeSpace, arrive_z: float, off_m: float):
+        """Face along ``stair`` (up or down) and step forward to ``off_m`` beyond its other end, the height
+        following its surface; ``arrive`` is the free space of the floor reached."""
+        bottom, top = np.asarray(stair.bottom[:2]), np.asarray(stair.top[:2])
+        way = (top - bottom) / np.hypot(*(top - bottom))
+        if not up:
+            way = -way
+        goal = (top if up else bottom) + off_m * way
+        self.face(float(np.arctan2(way[1], way[0])))
+        heading = np.array([np.cos(self.k * TURN_RAD), np.sin(self.k * TURN_RAD)])
+        left = float(np.dot(goal - self.xy, heading))
+        while left > 1e-9:
+            step = min(STEP_M, left)
+            self.xy = self.xy + step * heading
+            self.z = float(stair.surface_z(self.xy))
+            left -= step
+            self._record()
+        self.fs, self.z = arrive, float(arrive_z)
+        self.states[-1] = (self.xy[0], self.xy[1], self.k * TURN_RAD, self.z)
 
     def go(self, target: np.ndarray, start: np.ndarray | None = None):
         """Turn and step to ``target`` along the planned (navigable) segment from ``start`` (default: here)."""
@@ -169,37 +214,23 @@ class _Walker:
         raise StageError(f"trajectory: could not reach waypoint {target.round(2).tolist()}")
 
 
-def plan_actions(gt: GTScene, radius_m: float, min_actions: int) -> tuple[np.ndarray, list[str]]:
-    """``(A+1, 3)`` states (x, y, yaw) after each action, and the room ids in visiting order."""
-    fs = free_space(gt, radius_m)
-    graph, node = _graph(fs)
-    n_rooms = len(gt.rooms)
-    views = [room_viewpoints(fs, k, 6) for k in range(n_rooms)]
-    missing = [gt.rooms[k].id for k in range(n_rooms) if not views[k]]
-    if missing:
-        raise StageError(f"scene {gt.name}: no navigable spot in rooms {missing}")
-    start_room = max(range(n_rooms), key=lambda k: np.ptp(np.asarray(gt.rooms[k].polygon), axis=0).prod())
-    walker = _Walker(fs, views[start_room][0])
-    walker.spin()
-    visited = [gt.rooms[start_room].id]
-    queue = [(k, 0) for k in range(n_rooms) if k != start_room]
-    level = 0
-    while queue:
-        here = fs.grid.world_to_cell(walker.xy)
-        dist, pred = dijkstra(graph, indices=int(node[here[0], here[1]]), return_predecessors=True)
-        # The nearest queued viewpoint (geodesically) is next.
-        cands = [(dist[node[tuple(fs.grid.world_to_cell(views[k][v]))]], k, v) for k, v in queue]
-        d, k, v = min(cands)
-        if not np.isfinite(d):
-            # Furniture can cut a pocket off a room; look from the room's most open reachable spot instead.
-            reachable = np.isfinite(dist[np.maximum(node, 0)]) & (node >= 0) & (fs.room_of_cell == k)
-            if not reachable.any():
-                raise StageError(f"scene {gt.name}: room {gt.rooms[k].id} is not reachable from {visited[0]}")
-            cells = np.argwhere(reachable)
-            views[k][v] = fs.grid.cell_to_world(cells[int(np.argmax(fs.clearance_m[reachable]))])
-            continue
-        queue.remove((k, v))
-        goal = int(node[tuple(fs.grid.world_to_cell(views[k][v]))])
+class _FloorTour:
+    """One floor's free space, its shortest-path graph and its rooms' viewpoints."""
+
+    def __init__(self, gt: GTScene, radius_m: float):
+        self.gt = gt
+        self.fs = free_space(gt, radius_m)
+        self.graph, self.node = _graph(self.fs)
+        self.views = [room_viewpoints(self.fs, k, 6) for k in range(len(gt.rooms))]
+        missing = [gt.rooms[k].id for k in range(len(gt.rooms)) if not self.views[k]]
+        if missing:
+            raise StageError(f"scene {gt.name}: no navigable spot in rooms {missing}")
+
+    def largest_room(self) -> int:
+        return max(range(len(self.gt.rooms)), key=lambda k: np.ptp(np.asarray(self.gt.rooms[k].polygon), axis=0).prod())
+
+    def _walk_path(self, walker: _Walker, here: np.ndarray, pred: np.ndarray, goal: int):
+        fs, node = self.fs, self.node
         path = [goal]
         while path[-1] != node[here[0], here[1]]:
             path.append(int(pred[path[-1]]))
@@ -209,20 +240,115 @@ def plan_actions(gt: GTScene, radius_m: float, min_actions: int) -> tuple[np.nda
         pulled = _string_pull(fs, pts)
         for a, b in zip(pulled[:-1], pulled[1:]):
             walker.go(b, a)
+
+    def visit_next(self, walker: _Walker, queue: list[tuple[int, int]], visited: list[str]):
+        """Walk to the geodesically nearest queued viewpoint ``(room, index)``, spin there, and take it off
+        ``queue``; a viewpoint furniture cut off is first moved to the room's most open reachable spot."""
+        fs, node, views = self.fs, self.node, self.views
+        here = fs.grid.world_to_cell(walker.xy)
+        dist, pred = dijkstra(self.graph, indices=int(node[here[0], here[1]]), return_predecessors=True)
+        cands = [(dist[node[tuple(fs.grid.world_to_cell(views[k][v]))]], k, v) for k, v in queue]
+        d, k, v = min(cands)
+        if not np.isfinite(d):
+            # Furniture can cut a pocket off a room; look from the room's most open reachable spot instead.
+            reachable = np.isfinite(dist[np.maximum(node, 0)]) & (node >= 0) & (fs.room_of_cell == k)
+            if not reachable.any():
+                raise StageError(f"scene {self.gt.name}: room {self.gt.rooms[k].id} is not reachable from "
+                                 f"{visited[0]}")
+            cells = np.argwhere(reachable)
+            views[k][v] = fs.grid.cell_to_world(cells[int(np.argmax(fs.clearance_m[reachable]))])
+            return
+        queue.remove((k, v))
+        self._walk_path(walker, here, pred, int(node[tuple(fs.grid.world_to_cell(views[k][v]))]))
         walker.spin()
-        visited.append(gt.rooms[k].id)
+        visited.append(self.gt.rooms[k].id)
+
+    def walk_to(self, walker: _Walker, xy: np.ndarray, what: str):
+        """Walk the geodesic shortest path to ``xy`` (``what`` names it in the error when it is out of reach)."""
+        here = self.fs.grid.world_to_cell(walker.xy)
+        dist, pred = dijkstra(self.graph, indices=int(self.node[here[0], here[1]]), return_predecessors=True)
+        goal = int(self.node[tuple(self.fs.grid.world_to_cell(xy))])
+        if goal < 0 or not np.isfinite(dist[goal]):
+            raise StageError(f"scene {self.gt.name}: {what} at {np.round(xy, 2).tolist()} is not reachable")
+        self._walk_path(walker, here, pred, goal)
+
+
+def plan_actions(gt: GTScene, radius_m: float, min_actions: int) -> tuple[np.ndarray, list[str]]:
+    """``(A+1, 4)`` states (x, y, yaw, z of the walking surface) after each action, and the room ids in visiting
+    order."""
+    if gt.floors:
+        return _plan_building(gt, radius_m, min_actions)
+    tour = _FloorTour(gt, radius_m)
+    n_rooms = len(gt.rooms)
+    start_room = tour.largest_room()
+    walker = _Walker(tour.fs, tour.views[start_room][0], z=gt.floor_z)
+    walker.spin()
+    visited = [gt.rooms[start_room].id]
+    queue = [(k, 0) for k in range(n_rooms) if k != start_room]
+    level = 0
+    while queue:
+        tour.visit_next(walker, queue, visited)
         if not queue and len(walker.states) - 1 < min_actions:
             level += 1  # another round through the rooms' next viewpoints
-            queue = [(k2, level) for k2 in range(n_rooms) if len(views[k2]) > level]
+            queue = [(k2, level) for k2 in range(n_rooms) if len(tour.views[k2]) > level]
             if not queue:
                 level = 0
                 queue = [(k2, 0) for k2 in range(n_rooms)]
     return np.asarray(walker.states), visited
 
 
+STAIR_SPOT_M = 0.5  # the robot stands this far before a flight's foot / beyond its top to take it
+
+
+def _plan_building(gt: GTScene, radius_m: float, min_actions: int) -> tuple[np.ndarray, list[str]]:
+    """Rounds up through every floor (touring each) and back down to floor 0, until ``min_actions``."""
+    floors = gt.all_floors
+    tours = [_FloorTour(gt.floor_view(f.id), radius_m) for f in floors]
+    by_lower = {s.lower: s for s in gt.stairs}
+    missing = [f.id for f in floors[:-1] if f.id not in by_lower]
+    if missing:
+        raise StageError(f"scene {gt.name}: no stairs up from floors {missing}")
+    start_room = tours[0].largest_room()
+    walker = _Walker(tours[0].fs, tours[0].views[start_room][0], z=floors[0].floor_z)
+    walker.spin()
+    visited = [tours[0].gt.rooms[start_room].id]
+
+    def climb(floor: int, up: bool) -> int:
+        stair = by_lower[floor if up else floor - 1]
+        spot = np.asarray(stair.bottom[:2] if up else stair.top[:2])
+        way = np.subtract(stair.top[:2], stair.bottom[:2])
+        spot = spot + (-1 if up else 1) * STAIR_SPOT_M * way / np.hypot(*way)
+        tours[floor].walk_to(walker, spot, f"the {'foot' if up else 'top'} of {stair.id}")
+        reached = stair.upper if up else stair.lower
+        walker.take_stairs(stair, up, tours[reached].fs, floors[reached].floor_z, STAIR_SPOT_M)
+        return reached
+
+    def enough() -> bool:
+        return len(walker.states) - 1 >= min_actions
+
+    floor, level = 0, 0
+    while True:
+        for f in range(len(floors)):
+            if level > 0 and enough():
+                break  # a later round stops where the walk is long enough, and goes down
+            while floor < f:
+                floor = climb(floor, True)
+            tour = tours[f]
+            queue = [(k, level % len(tour.views[k])) for k in range(len(tour.gt.rooms))
+                     if not (level == 0 and f == 0 and k == start_room)]
+            while queue and not (level > 0 and enough()):
+                tour.visit_next(walker, queue, visited)
+        while floor > 0:
+            floor = climb(floor, False)
+        if enough():
+            return np.asarray(walker.states), visited
+        level += 1
+
+
 def sample_trajectory(states: np.ndarray, frames: int, fps: float, camera_height_m: float,
                       start_ns: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Stretch the action states over ``frames`` frames at ``fps``.
+    """Stretch the action states ``(A+1, 3 or 4)`` (x, y, yaw[, z of the walking surface]) over ``frames`` frames
+    at ``fps``; the camera is ``camera_height_m`` above the walking surface.
 
     Returns key stamps ``(A+1,)`` int64 ns and key poses ``(A+1,4,4)`` (one per action boundary,
     spanning the recording), and frame stamps ``(frames,)`` and frame poses ``(frames,4,4)``.
@@ -230,7 +356,9 @@ def sample_trajectory(states: np.ndarray, frames: int, fps: float, camera_height
     duration_ns = int(round((frames - 1) / fps * 1e9))
     n = len(states)
     key_ns = start_ns + np.round(np.linspace(0, duration_ns, n)).astype(np.int64)
-    key_poses = np.stack([camera_pose_from_base(x, y, yaw, camera_height_m) for x, y, yaw in states])
+    surface = states[:, 3] if states.shape[1] > 3 else np.zeros(n)
+    key_poses = np.stack([camera_pose_from_base(x, y, yaw, camera_height_m + z)
+                          for (x, y, yaw), z in zip(states[:, :3], surface)])
     frame_ns = start_ns + np.round(np.arange(frames) * 1e9 / fps).astype(np.int64)
     frame_ns[-1] = key_ns[-1]
     return key_ns, key_poses, frame_ns, interpolate_poses(key_ns, key_poses, frame_ns)

@@ -10,7 +10,7 @@ import pytest
 from orion_eval.agents import AGENTS, build_agent
 from orion_eval.agents.base import ParsedFeedback
 from orion_eval.agents.controller import ModularAgent, ModuleSet, SearchState
-from pipeline.routes.actions import LEFT
+from pipeline.nav.actions import LEFT
 from pipeline.scene import Scene
 from stages import STAGES
 from orion_eval.episode import EpisodeRun, Task

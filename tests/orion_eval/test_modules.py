@@ -10,7 +10,7 @@ from orion_eval.episode import EpisodeRun, Task
 from orion_eval.memory import MemoryMaps
 from orion_eval.scene import SceneContext
 from orion_eval.user import SimulatedUser
-from pipeline.routes.actions import FORWARD
+from pipeline.nav.actions import FORWARD
 
 
 def _run(tiny_scene, goal_index=0):

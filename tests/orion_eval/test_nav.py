@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from pipeline.geometry import GridSpec
-from pipeline.routes.actions import FORWARD, STOP, RouteSettings
+from pipeline.nav.actions import FORWARD, STOP, RouteSettings
 from orion_eval.nav import RECOVER_ACTIONS, NavPlanner
 from orion_eval.world import Body, World
 

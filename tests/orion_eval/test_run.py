@@ -87,7 +87,7 @@ def test_same_seed_same_results(tiny_scene, tmp_path):
 
 
 def test_results_name_the_artifacts_evaluated_and_any_stage_that_lags(evaluated, tiny_scene, tmp_path, capsys):
-    from pipeline.manifest import Manifest
+    from pipeline.engine.manifest import Manifest
 
     ws, params, _, res = evaluated
     for stage, name in (("reconstruct", "recon"), ("vlmap", "vlmap"), ("goals", "goals"), ("routes", "routes")):

@@ -6,7 +6,7 @@ import numpy as np
 
 from orion_eval.world import Body, SuccessRule, World
 from pipeline.geometry import GridSpec
-from pipeline.routes.actions import FORWARD, LEFT, RIGHT
+from pipeline.nav.actions import FORWARD, LEFT, RIGHT
 
 GRID = GridSpec(rows=100, cols=100, cell_size_m=0.05, origin_xy=(0.0, 5.0))  # x 0..5, y 0..5
 

@@ -50,7 +50,7 @@ def build(root: Path, *args: str, params: str = PARAMS, scenes: tuple[str, ...] 
 def stages_at_once_in_one_worker(root: Path) -> list[tuple[str, str]]:
     """Pairs of stages whose manifests say they ran in the same worker process at overlapping times (``timing``:
     pid, start to the millisecond, wall seconds): a worker holding a seceded map stage must not start another
-    stage beside it (pipeline.runner.STAGE_SLOT)."""
+    stage beside it (pipeline.engine.runner.STAGE_SLOT)."""
     import json
     from datetime import datetime
 

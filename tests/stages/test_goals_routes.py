@@ -13,7 +13,7 @@ from pipeline.goals.edits import export_goals, import_goals, record_goals_edit
 from pipeline.goals.store import Goals
 from pipeline.paths import Workspace
 from pipeline.routes.store import Routes
-from pipeline.runner import StageContext
+from pipeline.engine.runner import StageContext
 from tests.fixtures.goal_scenes import write_house_artifacts
 
 
@@ -56,7 +56,7 @@ def test_goals_store_and_reader(built):
 
 def test_every_stored_route_replays_to_its_goal(built):
     from pipeline.recon import Recon
-    from pipeline.routes.verify import replay
+    from pipeline.nav.verify import replay
 
     tmp, _, _, recon_path, _, r_sum = built
     routes, goals, recon = Routes(tmp / "routes.zarr"), Goals(tmp / "goals.zarr"), Recon(recon_path)
@@ -72,9 +72,9 @@ def test_every_stored_route_replays_to_its_goal(built):
 
 def test_procedural_feedback_ends_in_the_stored_goal_region(built):
     from pipeline.recon import Recon
-    from pipeline.routes.actions import RoutePlanner, RouteSettings
-    from pipeline.routes.region import route_into_region
-    from pipeline.routes.verify import replay
+    from pipeline.nav.actions import RoutePlanner, RouteSettings
+    from pipeline.nav.region import GoalTargets, route_to_goal
+    from pipeline.nav.verify import replay
 
     tmp, _, _, recon_path, *_ = built
     goals, recon = Goals(tmp / "goals.zarr"), Recon(recon_path)
@@ -84,8 +84,9 @@ def test_procedural_feedback_ends_in_the_stored_goal_region(built):
     said = 0
     for g in goals.goals:
         region = goals.goal_region(g.id)
-        route = route_into_region(planner, start, region, goals.footprint_mask(g.object_keys), key=g.id,
-                                  face_xy=g.mass_centers, stop_radius_m=task.stop_radius_m)
+        targets = GoalTargets.of(region, goals.footprint_mask(g.object_keys), recon.grid,
+                                 stop_radius_m=task.stop_radius_m)
+        route = route_to_goal(planner, start, targets, key=g.id, face_xy=g.mass_centers)
         text = route.text if route is not None and route.parts else None
         assert g.feedback["procedural"] == text  # the goals stage plans into the same stored region
         if text:

@@ -12,11 +12,11 @@ from pipeline.paramsfile import parse_params
 from pipeline.stageconfig import param_value
 from pipeline.frames import FrameStore
 from pipeline.geometry import Intrinsics
-from pipeline.manifest import Manifest
+from pipeline.engine.manifest import Manifest
 from pipeline.paths import Workspace
 from pipeline.ros2 import Ros2LogWriter
-from pipeline.stagegraph import input_digests
-from pipeline.runner import run_stage
+from pipeline.engine.stagegraph import input_digests
+from pipeline.engine.runner import run_stage
 from stages import STAGES
 from tests.fixtures.recon_scenes import box_room_gt, box_room_poses, render_frames
 
@@ -186,7 +186,7 @@ def test_dvc_lists_every_log_of_a_scene_as_a_dep_of_its_ingest(two_logs, tmp_pat
     import subprocess
     import sys
 
-    from pipeline.dvcfile import render_dvc_yaml
+    from pipeline.engine.dvcfile import render_dvc_yaml
 
     tmp, _, _ = two_logs
     for name in ("a", "b"):

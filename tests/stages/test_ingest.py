@@ -10,7 +10,7 @@ from pipeline.paramsfile import parse_params
 from pipeline.frames import FrameStore
 from pipeline.paths import Workspace
 from pipeline.readers.ingest import ingest_path
-from pipeline.runner import run_stage
+from pipeline.engine.runner import run_stage
 from pipeline.store import content_digest
 from stages import STAGES
 from tests.fixtures.raw_datasets import make_recording, write_mcap

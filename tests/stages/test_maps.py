@@ -13,7 +13,7 @@ from pipeline.maps.store import SemanticMap
 from pipeline.paths import Workspace
 from pipeline.recon import Recon
 from pipeline.recon.build import reconstruct
-from pipeline.runner import StageContext
+from pipeline.engine.runner import StageContext
 from stages import STAGES
 from stages.cfmap import run as run_cfmap
 from stages.vlmap import run as run_vlmap
@@ -203,7 +203,7 @@ def test_chunks_on_two_dask_workers_give_the_maps_one_process_gives(growing_room
 
     from distributed import Client, LocalCluster, get_task_stream
 
-    from pipeline.runner import ordered_tasks
+    from pipeline.engine.runner import ordered_tasks
     from pipeline.store import artifact_attrs, content_digest
 
     tmp, params, scenes = growing_room

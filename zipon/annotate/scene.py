@@ -248,11 +248,14 @@ class SceneView:
 
     # ------------------------------------------------------------------------- procedural preview
 
-    def route(self, start: tuple[float, float, float], object_keys: list[str]) -> dict:
-        """The route (polyline, metres) and its procedural text from ``start`` = (x, y, yaw radians) to the
-        objects ``object_keys`` of the built goals."""
-        from pipeline.goals.objects import rasterize_polygons
-        from pipeline.routes.actions import RoutePlanner, RouteSettings
+    def route(self, start: tuple[float, float, float] | None, object_keys: list[str]) -> dict:
+        """The route (polyline, metres) and its procedural text from ``start`` = (x, y, yaw radians), or from the
+        recording's start pose when None, into the goal region of the objects ``object_keys`` of the built goals:
+        :func:`pipeline.nav.region.route_to_goal`, the route the goals stage's procedural feedback says (the
+        stored region of the goal with exactly these objects, else the region computed as the goals stage
+        computes it)."""
+        from pipeline.nav.actions import RoutePlanner, RouteSettings
+        from pipeline.nav.region import GoalTargets, route_to_goal
 
         goals = self.goals
         if goals is None:
@@ -261,19 +264,38 @@ class SceneView:
         if unknown or not object_keys:
             raise InputDataError(f"unknown objects {unknown}" if unknown else "no objects given", field="objects",
                                  expected="object keys of the scene")
+        if start is None:
+            if goals.attrs.get("start_pose") is None:
+                raise InputDataError(f"scene {self.name} has no recorded start pose", field="start",
+                                     expected="x and y of a start on the map")
+            start = tuple(float(v) for v in goals.attrs["start_pose"])
         recon = self.recon
         grid = recon.grid
         if not grid.inside(grid.world_to_cell(np.array(start[:2]))):
             raise InputDataError(f"start ({start[0]:g}, {start[1]:g}) is off the map", field="start")
-        planner = self._get("planner", lambda: RoutePlanner(
-            recon.navigable, grid, RouteSettings.from_config(self.scene.params.task)))
-        mask = rasterize_polygons([np.asarray(goals.objects[k].footprint) for k in object_keys], grid) > 0
-        first = goals.objects[object_keys[0]]
-        route = planner.route(start, mask, face_xy=np.asarray(first.mass_center, dtype=np.float64))
+        task = self.scene.params.task
+        planner = self._get("planner", lambda: RoutePlanner(recon.navigable, grid, RouteSettings.from_config(task)))
+        members = tuple(object_keys)
+        targets = self._get(("targets", members), lambda: GoalTargets.of(
+            self._goal_region(members), goals.footprint_mask(list(members)), grid, stop_radius_m=task.stop_radius_m))
+        centres = np.array([goals.objects[k].mass_center for k in members], np.float64).reshape(-1, 2)
+        route = route_to_goal(planner, start, targets, key=("preview", members), face_xy=centres)
         if route is None:
-            return {"reachable": False, "path": [], "text": None}
-        return {"reachable": True, "path": _rounded(route.path.polyline_xy), "text": route.text,
-                "length_m": round(float(route.path.length_m), 2)}
+            return {"reachable": False, "path": [], "text": None, "start": [float(v) for v in start]}
+        return {"reachable": True, "path": _rounded(route.path.polyline_xy), "text": route.text if route.parts else "",
+                "length_m": round(float(route.path.length_m), 2), "start": [float(v) for v in start]}
+
+    def _goal_region(self, members: tuple[str, ...]) -> np.ndarray:
+        """The goal region of ``members``: the stored one of the built goal with exactly these objects, else
+        computed as the goals stage computes it (:class:`pipeline.goals.build.GoalRegions`)."""
+        goals = self.goals
+        for g in goals.goals:
+            if sorted(g.object_keys) == sorted(members):
+                return goals.goal_region(g.id)
+        from pipeline.goals.build import GoalRegions
+
+        return GoalRegions(self.recon, goals.object_set(), goals.success_m)(members, goals.object_index(),
+                                                                            goals.object_keys)
 
 
 # ----------------------------------------------------------------------------- helpers

@@ -56,7 +56,7 @@ def status(
     """
     from rich.markup import escape
 
-    from pipeline.stagegraph import plan, staleness
+    from pipeline.engine.stagegraph import plan, staleness
     from stages import STAGES
 
     ws, params = G.load()
@@ -67,7 +67,7 @@ def status(
     for scene, stage in plan(STAGES, params, list(params.scenes)):
         why = staleness(ws, params, STAGES, STAGES[stage], scene)
         if rehash:
-            from pipeline.verify import content_staleness
+            from pipeline.engine.verify import content_staleness
 
             tampered = content_staleness(ws, STAGES[stage], scene)
             if tampered:
@@ -77,7 +77,7 @@ def status(
         table.add_row(scene, stage, f"[yellow]stale: {escape(why)}[/]" if why else "[green]up to date[/]")
     out.print(table)
     out.print(f"{stale} stale stage(s)")
-    from pipeline.dvcfile import dvc_lock_target
+    from pipeline.engine.dvcfile import dvc_lock_target
 
     card = "" if dvc_lock_target(ws, G.overrides) else _card_staleness(ws, params)
     if card:  # a versioned dataset (a DVC project: dvc.lock follows the runs) states itself in its card
@@ -104,7 +104,7 @@ def _card_staleness(ws, params) -> str:
 def verify():
     """Re-hash every artifact on disk and compare it with its manifest (corrupt ones, ones without a manifest and
     scenes no longer in the params file included); exit 1 on any mismatch. Example: `zipon verify`"""
-    from pipeline.verify import verify_all
+    from pipeline.engine.verify import verify_all
     from stages import STAGES
 
     ws, params = G.load()
@@ -174,7 +174,7 @@ def ingest(
     Examples: `zipon ingest robot.mcap --scene kitchen` · `zipon ingest rgbd_dataset_freiburg1_desk --scene desk --format tum`
     """
     from pipeline.paramsfile import parse_params
-    from pipeline.runner import run_many
+    from pipeline.engine.runner import run_many
     from stages import STAGES
 
     ws, params = G.load()
@@ -225,7 +225,7 @@ def dvc_cmd(check: bool = typer.Option(False, "--check", metavar="",
 
     Examples: `zipon dvc && dvc repro` · `zipon dvc --check` (CI: names a dvc.yaml edited by hand)
     """
-    from pipeline.dvcfile import dvc_files_problems, write_dvc_files
+    from pipeline.engine.dvcfile import dvc_files_problems, write_dvc_files
     from stages import STAGES
 
     ws, params = G.load()

@@ -98,7 +98,7 @@ def _globals(
 
 # ----------------------------------------------------------------------------- helpers
 
-# What each command does on an object-store data root (--data-dir s3://bucket/prefix, pipeline.fsroot; the README's
+# What each command does on an object-store data root (--data-dir s3://bucket/prefix, pipeline.engine.fsroot; the README's
 # "Data root on an object store" says the same). run, stage: build in the local mirror holding the object store's
 # lock, then publish. status, verify: mirror every published stage first. Commands that read artifacts bring the
 # published versions of what they read into the mirror and read it there (zipon.Scene.path, zipon.Dataset.mirror).
@@ -123,13 +123,15 @@ REMOTE_REFUSED = {
 
 
 def remote_root_ready(ws, params, command: str) -> None:
-    """On an object-store data root (:mod:`pipeline.fsroot`): refuse the commands that would write into it outside
+    """On an object-store data root (:mod:`pipeline.engine.fsroot`): refuse the commands that would write into it outside
     the stages, and for ``status`` / ``verify`` mirror every published stage into the local cache first (digests
     checked). Commands that read artifacts mirror the scenes they open themselves (:meth:`zipon.Dataset.mirror`)."""
     from pipeline.errors import ConfigError
-    from pipeline.fsroot import pull_all
-    from pipeline.stagegraph import plan
+    from pipeline.engine.fsroot import pull_all
+    from pipeline.engine.stagegraph import plan
     from stages import STAGES
+
+    from pipeline.engine.fsroot import RemoteRoot
 
     command = command or "(no command)"
     if command in REMOTE_REFUSED:
@@ -138,6 +140,7 @@ def remote_root_ready(ws, params, command: str) -> None:
         raise ConfigError(f"--data-dir {ws.remote}: zipon {command} works on a local data root only; on an object "
                           f"store zipon {', '.join(REMOTE_COMMANDS)} work. After one of them the local mirror is "
                           f"{ws.data_dir}: pass it as --data-dir (and --manifests-dir {ws.manifests_dir})")
+    RemoteRoot(ws.remote).check()  # credentials, bucket and endpoint, once, before any stage
     if command in ("status", "verify"):
         pull_all(ws, plan(STAGES, params, list(params.scenes)), verify=command == "verify")
 
@@ -173,8 +176,8 @@ def run_stages(scenes: list[str], stages_wanted: list[str] | None, force: bool, 
     """Run the plan; then record what is built in dvc.lock (not for `zipon stage`, which `dvc repro` calls
     while it holds DVC's lock and records the result itself)."""
     from pipeline.errors import ConfigError
-    from pipeline.stagegraph import plan
-    from pipeline.runner import run_many
+    from pipeline.engine.stagegraph import plan
+    from pipeline.engine.runner import run_many
     from stages import STAGES
 
     ws, params = G.load()
@@ -185,7 +188,7 @@ def run_stages(scenes: list[str], stages_wanted: list[str] | None, force: bool, 
     outcomes = run_many(ws, params, STAGES, pairs, force=force, scheduler=scheduler, show_progress=not G.quiet)
     ok = print_outcomes(outcomes)
     if record_dvc:
-        from pipeline.dvcfile import sync_dvc_lock
+        from pipeline.engine.dvcfile import sync_dvc_lock
 
         done = [(o.scene, o.stage) for o in outcomes if o.status in ("ran", "skipped")]
         note = sync_dvc_lock(ws, params, STAGES, done, G.overrides)

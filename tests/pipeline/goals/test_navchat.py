@@ -182,7 +182,7 @@ def _house_navchat(tmp_path: Path, frames_path: Path) -> Path:
 def _goals_stage(tmp_path: Path, frames: Path, recon: Path, goals_params: dict):
     from pipeline.paramsfile import parse_params
     from pipeline.paths import Workspace
-    from pipeline.runner import StageContext
+    from pipeline.engine.runner import StageContext
     from stages import STAGES
     from stages import goals as goals_stage
 

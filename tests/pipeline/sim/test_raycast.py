@@ -47,7 +47,7 @@ def test_depth_equals_analytic_wall_distance():
 def test_instance_pixels_backproject_into_their_boxes():
     gt = generate_scene("demo", SimulateParams())
     states, _ = plan_actions(gt, 0.18, 50)
-    poses = np.stack([camera_pose_from_base(x, y, yaw, 0.88) for x, y, yaw in states[::25]])
+    poses = np.stack([camera_pose_from_base(x, y, yaw, 0.88 + z) for x, y, yaw, z in states[::25]])
     out = SceneRaycaster(gt, K).raycast(poses)
     seen = set()
     for i, T in enumerate(poses):

@@ -50,6 +50,20 @@ def refused(r, status: int, *words: str) -> dict:
 
 # ----------------------------------------------------------------------------- reading the scene
 
+def test_feedback_kinds_are_the_registry_with_their_forms_and_defaults(client):
+    """The page makes its feedback fields from this answer: a kind added to the registry appears on the page."""
+    from pipeline.goals.feedback import FEEDBACK_KINDS
+
+    kinds = client.get("/api/feedback-kinds").json()["kinds"]
+    assert [k["name"] for k in kinds] == sorted(FEEDBACK_KINDS) == list(goals_doc(client)[0]["goals"][0]["feedback"])
+    by_name = {k["name"]: k for k in kinds}
+    assert {n: (k["form"], k["default"]) for n, k in by_name.items()} == {
+        "corrective": ("key_lines", {}), "descriptive": ("text", ""), "landmark": ("text", ""),
+        "procedural": ("optional_text", None)}
+    assert by_name["descriptive"]["new_goal"] == "It is a {class}." and by_name["landmark"]["new_goal"] == ""
+    assert by_name["procedural"]["description"].startswith("route in words")
+
+
 def test_page_and_scene_list(client):
     page = client.get("/")
     assert page.status_code == 200 and "<canvas id=\"map\">" in page.text and "/static/app.js" in page.text
@@ -165,6 +179,24 @@ def test_route_preview_is_procedural_feedback(client, summary):
             "unknown objects ['sofa_99']")
     refused(client.get(f"/api/scenes/{SCENE}/route", params={"x": "inf", "y": y, "objects": goal["objects"][0]}),
             400, "not finite")
+
+
+def test_route_preview_from_the_recorded_start_says_every_goals_stored_procedural_feedback(client, shared_root):
+    """The workbench previews the route the goals stage stores (one pipeline.nav.region.route_to_goal): from the
+    recording's start, every goal's preview text is its stored procedural feedback, word for word."""
+    from pipeline.goals.store import Goals
+
+    stored_goals = Goals(next(shared_root.rglob(f"{SCENE}/goals.zarr"))).goals
+    said = 0
+    for goal in stored_goals:
+        body = client.get(f"/api/scenes/{SCENE}/route", params={"objects": ",".join(goal.object_keys)}).json()
+        stored = goal.feedback["procedural"]
+        if stored is None:  # unreachable, or the start already lies in the goal
+            assert not body["reachable"] or body["text"] == "", (goal.id, body)
+            continue
+        assert body["reachable"] and body["text"] == stored, (goal.id, body["text"], stored)
+        said += 1
+    assert said >= 3
 
 
 # ----------------------------------------------------------------------------- goals: validation
@@ -288,7 +320,7 @@ def test_stale_or_missing_etag_saves_nothing(client, shared_root):
 def test_a_scene_being_rebuilt_is_refused_naming_the_holder(own_root):
     import os
 
-    from pipeline.locks import holder_record
+    from pipeline.engine.locks import holder_record
 
     client = make_client(own_root)
     doc, etag = goals_doc(client)
@@ -376,7 +408,7 @@ def test_saved_objects_file_is_what_goals_objects_file_reads(own_root):
 # ----------------------------------------------------------------------------- saving, history, restore
 
 def test_save_rebuilds_then_history_diffs_and_restores(own_root):
-    from pipeline.manifest import Manifest
+    from pipeline.engine.manifest import Manifest
 
     client = make_client(own_root)
     routes_before = Manifest.read(own_root / "manifests" / SCENE / "routes.json")

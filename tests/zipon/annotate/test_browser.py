@@ -82,7 +82,7 @@ def goals_export(root) -> dict:
 @pytest.mark.slow
 def test_the_page_end_to_end(page, served, tmp_path):
     from pipeline.goals.objects import objects_from_file
-    from pipeline.manifest import Manifest
+    from pipeline.engine.manifest import Manifest
 
     url, root = served
     shots = tmp_path / "screenshots"

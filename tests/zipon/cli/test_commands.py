@@ -50,7 +50,7 @@ def test_usage_error_exit_code(capsys):
 def test_simulate_then_ingest_from_the_command_line(tmp_path, capsys):
     """`zipon simulate` writes MCAP logs; `zipon ingest` turns one into a frame store with its manifest."""
     from pipeline.frames import FrameStore
-    from pipeline.manifest import Manifest
+    from pipeline.engine.manifest import Manifest
 
     (tmp_path / "params.yaml").write_text("scenes: {}\n")
     base = ["-q", "-p", str(tmp_path / "params.yaml"), "--data-dir", str(tmp_path / "data"),
