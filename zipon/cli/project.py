@@ -89,7 +89,7 @@ def push_cmd(remote: Optional[str] = REMOTE,
     """Send the artifacts of the checked-out version to a DVC remote (a folder, s3://...). An unreachable remote is
     one line naming the remote and the artifact asked about, exit 1.
 
-    Example: `dvc remote add -d storage s3://bucket/ds && zipon push --all-tags && git push --tags`
+    Example: `zipon push --all-tags` (after `dvc remote add -d storage s3://bucket/ds`), then `git push --tags`
     """
     from pipeline.project.remote import push
     from stages import STAGES
@@ -106,7 +106,7 @@ def pull_cmd(remote: Optional[str] = REMOTE):
     unless all of it can be restored: a version whose data the remote lacks names the artifacts missing, and an
     unreachable remote names the remote and the artifact, exit 1.
 
-    Example: `git checkout v1 && zipon pull && zipon verify && zipon status --check`
+    Example: `zipon pull && zipon verify` (after `git checkout v1`)
     """
     from pipeline.project.remote import pull
     from stages import STAGES

@@ -172,7 +172,7 @@ def test_every_dependency_names_a_path_inside_the_project(tmp_path, where):
 def test_code_identity_changes_for_exactly_the_stage_whose_code_changed(tmp_path, monkeypatch):
     """A zipon upgrade that changes one stage's code digest rewrites that stage's identity file only, and
     `dvc_files_problems` names it until then."""
-    from pipeline import dvcfile
+    from pipeline.engine import dvcfile
 
     params = parse_params({"scenes": {"a": {"source": "simulate"}}})
     ws = Workspace.resolve(tmp_path / "params.yaml", tmp_path / "data", tmp_path / "manifests")
