@@ -67,9 +67,8 @@ zipon diff v1 v2          # params keys, stages rebuilt, artifacts and goals tha
 ## Share
 
 ```bash
-dvc remote add -d storage /mnt/datasets/{name}     # or s3://bucket/{name}
-git add .dvc/config && git commit -m "remote"
-zipon push --all-tags && git push --tags
+dvc remote add -d storage /mnt/datasets/{name}     # or s3://bucket/{name}; commit it: clones then know it
+zipon push --all-tags && git push origin HEAD --tags
 ```
 
 ## Restore

@@ -79,10 +79,14 @@ def status(
     out.print(f"{stale} stale stage(s)")
     from pipeline.engine.dvcfile import dvc_lock_target
 
-    card = "" if dvc_lock_target(ws, G.overrides) else _card_staleness(ws, params)
-    if card:  # a versioned dataset (a DVC project: dvc.lock follows the runs) states itself in its card
+    versioned = not dvc_lock_target(ws, G.overrides)  # a DVC project: dvc.lock follows the runs
+    card, dvc_files = _project_staleness(ws, params) if versioned else ("", [])
+    if card:  # a versioned dataset states itself in its card
         stale += 1
         console.print(f"[yellow]dataset card stale[/yellow]: {escape(card)} (`zipon card` rewrites it)",
+                      highlight=False, soft_wrap=True)
+    for line in dvc_files:  # DVC sees a code or params change only once these are rewritten
+        console.print(f"[yellow]for DVC[/yellow]: {escape(line)} (`zipon dvc` or `zipon run` rewrites it)",
                       highlight=False, soft_wrap=True)
     for line in bad_content:  # one unwrapped line each, so paths can be copied
         console.print(f"[red]content differs[/red] {escape(line)}", highlight=False, soft_wrap=True)
@@ -93,11 +97,13 @@ def status(
         raise typer.Exit(1)
 
 
-def _card_staleness(ws, params) -> str:
+def _project_staleness(ws, params) -> tuple[str, list[str]]:
+    """Why the dataset card is stale ('' if it is not), and what of dvc.yaml and the code identities is not current."""
+    from pipeline.engine.dvcfile import dvc_files_problems
     from pipeline.project.card import card_staleness
     from stages import STAGES
 
-    return card_staleness(ws, params, STAGES)
+    return card_staleness(ws, params, STAGES), dvc_files_problems(ws, params, STAGES)
 
 
 @app.command()

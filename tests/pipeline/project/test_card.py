@@ -62,6 +62,12 @@ def test_status_check_fails_while_the_card_is_stale(dataset_versions, tmp_path, 
     assert main(["-p", params, "status", "--check"]) == 1
     assert "DATASET.md missing" in capsys.readouterr().err
     assert main(["-p", params, "card"]) == 0 and main(["-p", params, "status", "--check"]) == 0
+    identity = root / ".zipon" / "code" / "goals.json"
+    identity.write_text(identity.read_text().replace('"code_digest": "blake2b:', '"code_digest": "blake2b:0ld'))
+    capsys.readouterr()
+    assert main(["-p", params, "status"]) == 0
+    assert "for DVC: .zipon/code/goals.json: stage goals's code identity is out of date" in " ".join(
+        capsys.readouterr().err.split())
     (root / "dataset.json").write_text("[1, 2]")
     assert main(["-p", params, "card", "--check"]) == 1
     assert "not a zipon dataset card" in capsys.readouterr().err
