@@ -10,11 +10,11 @@ import sys
 
 from rich.markup import escape
 
-from zipon.cli import build, inspect
+from zipon.cli import build, inspect, maps
 from zipon.cli.common import G, app, console
 from pipeline.errors import ZiponError
 
-__all__ = ["app", "build", "entry", "inspect", "main"]
+__all__ = ["app", "build", "entry", "inspect", "main", "maps"]
 
 
 def main(argv: list[str] | None = None) -> int:
