@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -104,16 +105,22 @@ def _resolve(params: Params, scenes, methods, feedback, seeds, agent_classes=Non
     unknown = [s for s in scenes if s not in params.scenes]
     if unknown:
         raise ConfigError(f"-s/--scene: unknown scene(s) {unknown}; params.yaml has {sorted(params.scenes)}")
-    from orion_eval.agents import AGENTS
+    from orion_eval.agents import AGENTS, agent_class
+    from pipeline import plugins
 
-    # names are checked against their registries here (params spell none of them); None = every one
+    # names are checked against their registries here (params spell none of them); None = every built-in one
     source = "--methods" if methods else "eval.methods"
-    classes = {**AGENTS, **(agent_classes or {})}
-    usable = [m for m, cls in AGENTS.items() if cls.missing(params) is None]
+    usable = [m for m, cls in AGENTS.items() if m in plugins.BUILT_IN_AGENTS and cls.missing(params) is None]
     methods = list(methods or ep.methods or [m for m in usable if AGENTS[m].by_default])
+    classes = {**(agent_classes or {})}
+    for m in methods:  # the caller's classes, then the registry: built in or an installed package's
+        if m not in classes and (cls := agent_class(m)) is not None:
+            classes[m] = cls
     bad = [m for m in methods if m not in classes]
     if bad:
-        raise ConfigError(f"{source}: unknown method(s) {bad}; choose from {usable}")
+        installed = [m for m in plugins.agent_names() if m not in plugins.BUILT_IN_AGENTS]
+        raise ConfigError(f"{source}: unknown method(s) {bad}; choose from {usable}"
+                          + (f" or the installed {installed}" if installed else ""))
     for m in methods:
         if (why := classes[m].missing(params)) is not None:
             raise ConfigError(f"{source}: method {m!r} cannot run: {why}")
@@ -127,9 +134,13 @@ def _resolve(params: Params, scenes, methods, feedback, seeds, agent_classes=Non
 
 
 def evaluate(ws: Workspace, params: Params, stages: Mapping, out_dir: Path, scenes=None, methods=None, feedback=None,
-             seeds=None, *, progress: bool = True, report: bool = True, agent_classes: dict | None = None) -> dict:
+             seeds=None, *, progress: bool = True, report: bool = True, agent_classes: dict | None = None,
+             strict: bool = False) -> dict:
     """Evaluate, write ``out_dir/results.json`` (+ episode logs, + the HTML report) and return the results: the
     evaluator behind :func:`zipon.run_eval`, the one entry the CLI, the demo and the API call.
+
+    ``strict``: a stored human-answered episode of a goal no longer in the goals store is an error (by default it is
+    left out with a warning naming it).
 
     ``stages``: the stage registry (``stages.STAGES``), which says which stage produces which artifact.
 
@@ -140,8 +151,9 @@ def evaluate(ws: Workspace, params: Params, stages: Mapping, out_dir: Path, scen
 
     out_dir = Path(out_dir)
     scenes, methods, feedback, seeds = _resolve(params, scenes, methods, feedback, seeds, agent_classes)
+    goal_ids = {}
     for s in scenes:  # fail early, before any worker starts, on missing or mismatched artifacts
-        Scene(ws, params, s, stages, check=True)
+        goal_ids[s] = {g.id for g in Scene(ws, params, s, stages, check=True).goals.goals}
     artifacts, stale = provenance(ws, params, stages, scenes)
     if stale:
         lines = "".join(f"\n  {k}: {why}" for k, why in stale.items())
@@ -151,7 +163,7 @@ def evaluate(ws: Workspace, params: Params, stages: Mapping, out_dir: Path, scen
         from orion_eval.llm import check_llm_params
 
         check_llm_params(params.eval.llm)
-    human = human_episodes(ws, scenes, methods) if HUMAN_FEEDBACK in feedback else []
+    human = human_episodes(ws, scenes, methods, goal_ids, strict=strict) if HUMAN_FEEDBACK in feedback else []
     simulated = [f for f in feedback if f != HUMAN_FEEDBACK]
     t0 = time.perf_counter()
     log_dir = out_dir / "episodes"
@@ -180,12 +192,27 @@ def evaluate(ws: Workspace, params: Params, stages: Mapping, out_dir: Path, scen
                       "artifacts": artifacts, "stale": stale}
     results["run"]["detection"] = {s: _detection_kind(params, results["run"]["encoders"][s]) for s in scenes}
     out_dir.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out_dir / "results.json", json.dumps(results, indent=2, sort_keys=True) + "\n")
+    results = finite_json(results)  # NaN / inf (a statistic of too few episodes) are null: results.json is JSON
+    write_text_atomic(out_dir / "results.json", json.dumps(results, indent=2, sort_keys=True, allow_nan=False) + "\n")
     if report:
         from orion_eval.report import write_report
 
         write_report(results, out_dir, ws=ws, params=params)
     return results
+
+
+def finite_json(value):
+    """``value`` with every NaN or infinite float replaced by None (JSON has neither; ``json.dumps`` would write
+    ``NaN``, which no strict JSON reader accepts)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: finite_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_json(v) for v in value]
+    if isinstance(value, np.floating):
+        return finite_json(float(value))
+    return value
 
 
 def provenance(ws: Workspace, params: Params, stages: Mapping, scenes: list[str]) -> tuple[dict, dict]:
@@ -222,26 +249,24 @@ def human_episodes_path(ws: Workspace, scene: str) -> Path:
     return Path(ws.data_dir) / "eval" / HUMAN_FEEDBACK / f"{scene}.episodes.jsonl"
 
 
-def human_episodes(ws: Workspace, scenes: list[str], methods: list[str]) -> list[dict]:
-    """The stored human-answered episodes of ``scenes`` played with ``methods``, as the evaluator's own records;
-    a ConfigError when there are none (so ``-f human`` never reports an empty row)."""
+def human_episodes(ws: Workspace, scenes: list[str], methods: list[str], goal_ids: dict[str, set[str]], *,
+                   strict: bool = False) -> list[dict]:
+    """The stored human-answered episodes of ``scenes`` played with ``methods``, each record validated
+    (:mod:`orion_eval.records`); records of goals not in ``goal_ids[scene]`` are left out with a warning naming them
+    (refused when ``strict``). A ConfigError when none are left (so ``-f human`` never reports an empty row)."""
+    from orion_eval.records import read_human_episodes
+
     found = []
     for scene in scenes:
         path = human_episodes_path(ws, scene)
         if not path.is_file():
             continue
-        with open(path, encoding="utf-8", errors="replace") as lines:  # streamed: the file grows with every play
-            for i, line in enumerate(lines, 1):
-                if not line.strip():
-                    continue
-                try:
-                    record = json.loads(line)
-                except ValueError as err:
-                    raise ConfigError(f"{path}: line {i}: not a JSON episode record ({err})") from None
-                if not isinstance(record, dict) or record.get("feedback") != HUMAN_FEEDBACK or "success" not in record:
-                    raise ConfigError(f"{path}: line {i}: not a human-answered episode record (feedback 'human')")
-                if record.get("method") in methods and record.get("scene") == scene:
-                    found.append(record)
+        read = read_human_episodes(path, scene, goal_ids[scene], methods, strict=strict)
+        found += read.records
+        if read.dropped:
+            left = ", ".join(f"{g} ({n} episode{'s' * (n > 1)})" for g, n in sorted(read.dropped.items()))
+            print(f"eval: {path}: left out the episodes of goals no longer in scene {scene}'s goals store: {left} "
+                  f"(--strict refuses them)", file=sys.stderr, flush=True)
     if not found:
         raise ConfigError(f"--feedback {HUMAN_FEEDBACK}: no human-answered episodes of {methods} stored for "
                           f"{scenes} (play some in `zipon annotate`, tab Play; they are kept in "

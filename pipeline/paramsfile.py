@@ -81,15 +81,19 @@ def parse_params(raw: dict, *, origin: str = "params", overrides: list[str] | tu
         _apply_override(raw, assignment)
     _moved_keys(raw, origin)
     try:
-        return Params.model_validate(raw)
+        params = Params.model_validate(raw)
     except ValidationError as err:
         raise ConfigError(_format_errors(err, origin)) from None
+    from pipeline.paramchecks import check_params
+
+    check_params(params, origin)  # what several keys must agree on (voxel vs cell, memory, bounds)
+    return params
 
 
 def load_params(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> Params:
     """Read and validate ``params.yaml`` (bounded: :mod:`pipeline.userfiles`)."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise ConfigError(f"{path}: params file not found (run zipon from the project folder or pass --params)")
     try:
         raw = parse_yaml(read_user_text(path, what="params YAML"), origin=path) or {}

@@ -61,6 +61,19 @@ def is_url(value: str | Path) -> bool:
     return bool(URL.match(str(value)))
 
 
+def check_url(url: str) -> None:
+    """An object-store URL names its bucket (``s3://BUCKET[/PREFIX]``): ``s3://`` alone is refused, not taken as a
+    local folder or the store's root."""
+    from urllib.parse import urlsplit
+
+    from pipeline.errors import ConfigError
+
+    parts = urlsplit(url)
+    if parts.scheme not in ("file", "memory") and not parts.netloc:
+        raise ConfigError(f"--data-dir {url}: no bucket named (expected {parts.scheme}://BUCKET or "
+                          f"{parts.scheme}://BUCKET/PREFIX)")
+
+
 def cache_dir(url: str, workspace_root: Path) -> Path:
     """The local mirror of the data root ``url`` (:mod:`pipeline.engine.fsroot`): ``$ZIPON_CACHE/<url>`` or
     ``<workspace>/.zipon-cache/<url>``, the URL made a folder name plus a short hash so two URLs never share one."""
@@ -98,6 +111,7 @@ class Workspace:
         data = data_dir or os.environ.get(ENV_DATA) or root / "data"
         remote = None
         if is_url(data):
+            check_url(str(data))
             remote, data = str(data).rstrip("/"), cache_dir(str(data), root)
         manifests = manifests_dir or os.environ.get(ENV_MANIFESTS) or (
             Path(data) / "manifests" if remote else root / "manifests")

@@ -12,6 +12,8 @@ JSON is parsed by the standard library's C scanner (no aliases; its depth is bou
 from __future__ import annotations
 
 import json
+import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -38,6 +40,9 @@ _LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 def read_user_text(path: str | Path, *, limits: Limits = DEFAULT_LIMITS, what: str = "YAML/JSON") -> str:
     """The UTF-8 text of ``path``, refused beyond ``limits.max_bytes`` (at most that many bytes plus one are read)."""
     path = Path(path)
+    kind = special_file_kind(path)
+    if kind:  # refused before opening: a FIFO would block, /dev/zero never ends, a folder is not a document
+        raise InputDataError(f"is {kind}, not a file", path=path, expected=f"a {what} file")
     try:
         with open(path, "rb") as f:
             data = f.read(limits.max_bytes + 1)  # never more: a bigger file (or a pipe that never ends) is refused
@@ -53,6 +58,25 @@ def read_user_text(path: str | Path, *, limits: Limits = DEFAULT_LIMITS, what: s
     except UnicodeDecodeError as err:
         raise InputDataError(f"not UTF-8 text: byte 0x{data[err.start]:02x} at offset {err.start} ({err.reason})",
                              path=path, expected=f"a UTF-8 encoded {what} file") from None
+
+
+def special_file_kind(path: Path) -> str:
+    """What ``path`` is when it is not a regular file (links followed): "a folder", "a FIFO (named pipe)", "a
+    character device", "a block device", "a socket"; "" for a regular file or a path that does not exist."""
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return ""
+    except OSError as err:
+        raise InputDataError(f"cannot be read ({err.strerror})", path=path) from None
+    for test, kind in ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return kind
+    return ""
 
 
 def _check_yaml_events(loader, origin, limits: Limits) -> None:
@@ -117,18 +141,23 @@ def parse_yaml(text: str, *, origin: str | Path, limits: Limits = DEFAULT_LIMITS
             loader.dispose()
     except yaml.YAMLError as err:
         raise InputDataError(f"not valid YAML: {' '.join(str(err).split())}", path=origin) from None
+    except ValueError as err:  # an integer of more digits than int() converts (4,300)
+        digits = re.search(r"value has (\d+) digits", str(err))
+        raise InputDataError(f"holds an integer of {digits.group(1) if digits else 'too many'} digits", path=origin,
+                             expected="integers of at most 4,300 digits") from None
     except RecursionError:
         raise InputDataError("document nests too deeply to read", path=origin,
                              expected=f"at most {limits.max_depth} levels of nesting") from None
 
 
-def parse_json(text: str, *, origin: str | Path, limits: Limits = DEFAULT_LIMITS) -> Any:
-    """One JSON document within ``limits`` (size, depth); errors name ``origin``."""
+def parse_json(text: str, *, origin: str | Path, limits: Limits = DEFAULT_LIMITS, finite: bool = False) -> Any:
+    """One JSON document within ``limits`` (size, depth); errors name ``origin``. ``finite``: refuse NaN and
+    Infinity (JavaScript's JSON has neither)."""
     if len(text.encode("utf-8")) > limits.max_bytes:
         raise InputDataError(f"text is over {limits.max_bytes} bytes", path=origin,
                              expected=f"a JSON document of at most {limits.max_bytes} bytes")
     try:
-        data = json.loads(text)
+        data = json.loads(text, parse_constant=_refuse_constant if finite else None)
     except RecursionError:
         raise InputDataError("document nests too deeply to read", path=origin,
                              expected=f"at most {limits.max_depth} levels of nesting") from None
@@ -139,6 +168,10 @@ def parse_json(text: str, *, origin: str | Path, limits: Limits = DEFAULT_LIMITS
         raise InputDataError(f"document is nested {depth} levels deep", path=origin,
                              expected=f"at most {limits.max_depth} levels of nesting")
     return data
+
+
+def _refuse_constant(name: str):
+    raise ValueError(f"{name} is not a number (numbers must be finite)")
 
 
 def _depth(data: Any) -> int:

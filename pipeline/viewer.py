@@ -232,7 +232,7 @@ def _log_grids(rec, rr, recon, result, floor: int = 0, where: str = "") -> list[
             tex = np.concatenate([colorize(np.nan_to_num(heat), 0.0, 1.0),
                                   np.where(np.isfinite(heat), 255, 0).astype(np.uint8)[..., None]], axis=-1)
         else:
-            img, _ = grid_image(recon, what, floor)
+            img, _ = grid_image(grids, what, recon.robot_radius_m)
             tex = (np.asarray(img)[crop] * 255).round().astype(np.uint8)
         z = grids.floor_z - LAYER_GAP_M * (k + 1)
         rec.log(f"world/grids/{where}{what}", _plane(rr, g, box, z, np.ascontiguousarray(tex)), static=True)

@@ -379,9 +379,83 @@ def _(c):
     return c.argv("params", params=c.scratch / "nowhere.yaml")
 
 
+@case("params-p-is-a-folder", 1, "{scratch}/folder", "is a folder, not a file", never=("not found",))
+def _(c):
+    (c.scratch / "folder").mkdir()
+    return c.argv("params", params=c.scratch / "folder")
+
+
+@case("params-p-is-a-fifo", 1, "{scratch}/pipe", "is a FIFO (named pipe), not a file", never=("not found",))
+def _(c):
+    os.mkfifo(c.scratch / "pipe")  # opened for reading, it would block until a writer came
+    return c.argv("params", params=c.scratch / "pipe")
+
+
+@case("params-p-is-dev-zero", 1, "/dev/zero", "is a character device, not a file", never=("not found",))
+def _(c):
+    return c.argv("params", params=Path("/dev/zero"))
+
+
+@case("params-5000-digit-integer", 1, "override grid.rows", "holds an integer of 5000 digits")
+def _(c):
+    return c.argv("-S", "grid.rows=" + "9" * 5000, "status")
+
+
+@case("params-huge-integer-in-file", 1, "{scratch}/p.yaml", "simulate.seed: an integer of 40 digits is out of range")
+def _(c):
+    return c.argv("params", params=c.file("p.yaml", BASE + "simulate: {seed: " + "9" * 40 + "}\n"))
+
+
+@case("params-voxel-rounds-to-zero", 1, "reconstruct.voxel_size_m: 1e-09 m is below 0.001 m")
+def _(c):
+    return c.argv("-S", "reconstruct.voxel_size_m=0.000000001", "run", "-s", SCENE, "--stage", "reconstruct", "--force")
+
+
+@case("params-grid-of-1e7-rows", 1, "grid.rows: 10,000,000 cells of 0.05 m span 500,000 m")
+def _(c):
+    return c.argv("-S", "grid.rows=10000000", "run", "-s", SCENE, "--stage", "reconstruct", "--force")
+
+
+@case("params-grid-beyond-memory", 1, "grid.rows x grid.cols: 150,000 x 150,000 cells need about", "memory")
+def _(c):
+    return c.argv("-S", "grid.rows=150000", "-S", "grid.cols=150000", "-S", "grid.cell_size_m=0.05", "status")
+
+
+@case("params-simulated-width-1e6", 1, "simulate.width: 1,000,000 pixels (expected at most 16,384)")
+def _(c):
+    return c.argv("-S", "simulate.width=1000000", "run", "-s", SCENE, "--stage", "simulate", "--force")
+
+
+@case("data-dir-s3-without-bucket", 1, "--data-dir s3://: no bucket named (expected s3://BUCKET",
+      never=("Traceback",))
+def _(c):
+    return ["-q", "-p", str(c.root / "params.yaml"), "--data-dir", "s3://", "status"]
+
+
 @case("params-bad-override", 1, "simulate.frames")
 def _(c):
     return c.argv("-S", "simulate.frames=many", "params")
+
+
+@case("params-building-not-simulated", 1, "scenes.tiny", "'building' describes a simulated scene",
+      "source: simulate")
+def _(c):
+    return with_params(c, "scenes:\n  tiny: {source: a.mcap, building: {kind: house}}\n")
+
+
+@case("params-building-stories", 1, "scenes.tiny.building.stories", "less than or equal to 3")
+def _(c):
+    return with_params(c, "scenes:\n  tiny: {source: simulate, building: {kind: house, stories: 4}}\n")
+
+
+@case("params-building-kind", 1, "scenes.tiny.building.kind", "'apartment', 'house' or 'office'")
+def _(c):
+    return with_params(c, "scenes:\n  tiny: {source: simulate, building: {kind: castle}}\n")
+
+
+@case("params-building-office-size", 1, "scenes.tiny.building", "size_m must be two extents of 10-200 m")
+def _(c):
+    return with_params(c, "scenes:\n  tiny: {source: simulate, building: {kind: office, size_m: [5, 40]}}\n")
 
 
 @case("params-source-missing", 1, "{scratch}/gone.mcap", "scenes.tiny")

@@ -293,3 +293,155 @@ def test_byte_mutation_of_frames(data, which):
             assert img.shape[:2] == REC.rgb[0].shape[:2]
             outcome = "decoded"
     TALLY[f"{which} frame"][f"{kind}: {outcome}"] += 1
+
+
+# ----------------------------------------------------------------------------- the workbench's endpoints
+
+HOSTILE_TEXT = st.one_of(st.text(max_size=40), st.sampled_from([
+    "tiny", "..", "../params.yaml", "%2e%2e", "9" * 5000, "-1", "0", "1e400", "NaN", "é", "\x00", "a" * 3000,
+    "recon", "vlmap", "cfmap", "occupancy", "ffffff", "0" * 64]))
+OBJECT_PATHS = st.one_of(HOSTILE_TEXT, st.sampled_from([
+    "params.yaml", "dvc.lock", "manifests/tiny/goals.json", "data/artifacts/tiny/goals.zarr/zarr.json",
+    "objects/../params.yaml", "objects/x.yaml", "goals_edits/tiny-0.yaml", "/etc/passwd", ".dvc/config"]))
+
+
+@pytest.fixture(scope="module")
+def workbench(built_scene, tmp_path_factory):
+    from starlette.routing import Route
+    from starlette.testclient import TestClient
+
+    from tests.zipon.annotate.conftest import ORIGIN, copy_built
+    from zipon.annotate import app
+
+    root = copy_built(built_scene[0], tmp_path_factory.mktemp("fuzz_workbench") / "ws")
+    application = app(root / "params.yaml", root / "data", root / "manifests")
+    routes = [(r.path, sorted(r.methods - {"HEAD"})) for r in application.routes if isinstance(r, Route)]
+    client = TestClient(application, base_url=ORIGIN, raise_server_exceptions=False)
+    goals = client.get("/api/scenes/tiny/goals").json()["document"]
+    return client, root, routes, goals
+
+
+def _state(root: Path) -> dict:
+    return {p.relative_to(root).as_posix(): (p.stat().st_size, p.stat().st_mtime_ns) for p in sorted(root.rglob("*"))
+            if not p.name.endswith(".lock") and "renders" not in p.parts}
+
+
+def _hostile_body(data, goals):
+    kind = data.draw(st.sampled_from(["document", "objects", "play", "reply", "values", "bytes", "deep"]), label="body")
+    if kind == "document":
+        return "json", {"document": mutated(data, goals)}
+    if kind == "objects":
+        return "json", {"path": data.draw(OBJECT_PATHS), "objects": data.draw(VALUES), "rooms": data.draw(VALUES)}
+    if kind == "play":
+        return "json", {"method": data.draw(st.one_of(HOSTILE_TEXT, st.sampled_from(["human", "cow", "orion"]))),
+                        "goal": data.draw(VALUES), "seed": data.draw(SCALARS)}
+    if kind == "reply":
+        return "json", {"text": data.draw(VALUES)}
+    if kind == "values":
+        return "json", data.draw(VALUES)
+    if kind == "bytes":
+        return "raw", data.draw(st.binary(max_size=200))
+    opener = data.draw(st.sampled_from(["[", '{"a":', '{"document":[']))
+    return "raw", (opener * data.draw(st.integers(60, 60_000))).encode()
+
+
+@fuzz_settings(150)
+@given(st.data())
+def test_workbench_endpoints(workbench, data):
+    """Every route of the app with hostile path parameters, query strings, headers and bodies: never a 5xx, every
+    refusal a JSON error naming a field, and nothing on disk changed (an objects file the policy allows is the
+    one write that may happen; it is removed again)."""
+    import re as _re
+    from urllib.parse import quote
+
+    client, root, routes, goals = workbench
+    path, methods = data.draw(st.sampled_from(routes), label="route")
+    method = data.draw(st.sampled_from(methods), label="method")
+    url = _re.sub(r"\{(\w+)(:\w+)?\}", lambda m: quote(data.draw(HOSTILE_TEXT, label=m.group(1)) if data.draw(
+        st.booleans(), label=f"hostile {m.group(1)}") else ("tiny" if m.group(1) == "scene" else "0"), safe=""), path)
+    query = data.draw(st.dictionaries(st.sampled_from(["x", "y", "u", "v", "yaw_deg", "map", "text", "objects",
+                                                       "token"]), HOSTILE_TEXT, max_size=4), label="query")
+    headers = {"Origin": data.draw(st.one_of(st.just("http://127.0.0.1"),  # the page's own, half the time
+                                             st.sampled_from(["http://evil.example", "null", ""]))),
+               "If-Match": data.draw(st.one_of(HOSTILE_TEXT, st.just('"' + "0" * 64 + '"'))).encode(),
+               "X-Zipon-Token": data.draw(st.binary(max_size=8)).replace(b"\n", b"").replace(b"\r", b"")}
+    if data.draw(st.integers(0, 3), label="odd host") == 0:
+        headers["Host"] = data.draw(st.sampled_from(["evil.example", "127.0.0.1:1", "[::1]", "é"])).encode()
+    before = _state(root)
+    if method in ("POST", "PUT"):
+        kind, body = _hostile_body(data, goals)
+        content = json.dumps(body, allow_nan=True).encode() if kind == "json" else body
+        r = client.request(method, url, params=query, headers=headers, content=content)
+    else:
+        r = client.request(method, url, params=query, headers=headers)
+    assert r.status_code < 500, (method, url, r.status_code, r.text[:500])
+    kind = "ok" if r.status_code < 400 else "refused"
+    if r.status_code >= 400:
+        assert r.headers["content-type"] == "application/json", r.text[:200]
+        assert "field" in r.json() and r.json()["error"], r.text[:200]
+    after = _state(root)
+    changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
+    if changed and method == "PUT" and path.endswith("/objects") and r.status_code == 200:
+        written = r.json()["path"]
+        assert all(k == written or k.startswith("objects") for k in changed), changed
+        shutil.rmtree(root / "objects", ignore_errors=True)
+        (root / written).unlink(missing_ok=True)
+        kind = "objects file written"
+        changed = sorted(k for k in set(before) | set(_state(root)) if before.get(k) != _state(root).get(k))
+    assert not changed, (method, url, r.status_code, changed)
+    TALLY["workbench endpoints"][f"{method} {path}: {kind}"] += 1
+
+
+# ----------------------------------------------------------------------------- what zipon reads back
+
+HUMAN_RECORD = {"scene": "tiny", "method": "cow", "feedback": "human", "seed": 0, "goal": "g0", "goal_type": "big",
+                "episode": "e0", "success": True, "spl": 0.5, "sit": 1.0, "talk_turns": 1, "steps": 12,
+                "travelled_m": 3.2, "geodesic_m": 1.6, "collisions": 0, "end": "found", "final_distance_m": 0.4,
+                "log": {"dialogue": [{"speaker": "user", "text": "No."}]}}
+
+
+@fuzz_settings(80)
+@given(st.data())
+def test_human_episode_records(data):
+    """A stored human-answered episode with random parts replaced, removed or added: kept as a valid record (its
+    numbers finite), left out (another scene, method or goal), or one error naming the file, the line and a field."""
+    from orion_eval.records import read_human_episodes
+
+    record = mutated(data, HUMAN_RECORD)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "tiny.episodes.jsonl"
+        path.write_text(json.dumps(HUMAN_RECORD) + "\n" + json.dumps(record, allow_nan=True) + "\n")
+        try:
+            read = read_human_episodes(path, "tiny", {"g0"}, ["cow"])
+        except InputDataError as err:
+            assert str(path) in str(err) and "line 2" in str(err) and "\n" not in str(err), str(err)
+            TALLY["human episode records"]["error"] += 1
+            return
+    json.dumps(read.records, allow_nan=False)  # what is kept can be written as strict JSON
+    TALLY["human episode records"]["kept" if len(read.records) == 2 else "left out"] += 1
+
+
+@fuzz_settings(150)
+@given(st.one_of(st.text(max_size=300), st.builds(lambda doc: json.dumps(doc, allow_nan=True), VALUES),
+                 st.builds(lambda pre, action, args, post: pre + json.dumps({"thought": "", "action": action,
+                                                                            "args": args}) + post,
+                           st.text(max_size=20), st.sampled_from(["talk", "move", "goto_object", "fly"]),
+                           st.dictionaries(st.sampled_from(["content", "dist_m", "obj_id"]), SCALARS, max_size=3),
+                           st.text(max_size=20)),
+                 st.builds(lambda n, c: c * n, st.integers(1, 50_000), st.sampled_from(["{", "[", '{"a":', "{{}"]))))
+def test_llm_replies(text):
+    """Whatever a model answers, parsing its reply is one clear error or an action, in linear time."""
+    import time
+
+    from orion_eval.llm import AGENT_FUNCTIONS, parse_action
+
+    t0 = time.perf_counter()
+    try:
+        act = parse_action(text)
+    except InputDataError as err:
+        TALLY["llm replies"]["error"] += 1
+        assert str(err).count("\n") == 0
+    else:
+        assert act.action in AGENT_FUNCTIONS
+        TALLY["llm replies"]["action"] += 1
+    assert time.perf_counter() - t0 < 1.0, len(text)

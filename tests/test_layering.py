@@ -240,7 +240,9 @@ def test_stores_import_no_algorithm_that_fills_them():
 CONFIG_MAY_IMPORT = {"pipeline", "pipeline.errors", "pipeline.perception_params", "pipeline.plugins", "pipeline.section",
                      "pipeline.config",
                      # the bounded YAML/JSON loader params files are read through (a leaf: errors, yaml, json)
-                     "pipeline.userfiles"}
+                     "pipeline.userfiles",
+                     # the cross-field checks run at load (a leaf: errors, os)
+                     "pipeline.paramchecks"}
 
 
 @pytest.mark.parametrize("start", ["pipeline.config", "pipeline.paramsfile", "pipeline.stageconfig"])

@@ -51,6 +51,9 @@ from pipeline.store import (DIGEST_ALGO, content_digest, hash_stream, hash_zarr_
                             write_text_atomic)
 
 RECLAIM_WAIT_S = 30.0  # at most this long for another process of this host reclaiming the same lock (a few requests)
+CONNECT_TIMEOUT_S = 10.0  # an object store that does not accept a connection in this long is unreachable
+READ_TIMEOUT_S = 60.0  # nor one that does not answer a request in this long
+MAX_ATTEMPTS = 3  # botocore's tries per request (its own backoff between them)
 
 
 def reclaim_guard(uri: str) -> Path:
@@ -74,12 +77,39 @@ class RemoteRoot:
         import fsspec
 
         self.url = url.rstrip("/")
+        options = {}
+        if self.url.startswith(("s3://", "s3a://")):  # every request bounded in time (botocore's defaults: 60 s, 5 tries)
+            options["config_kwargs"] = {"connect_timeout": CONNECT_TIMEOUT_S, "read_timeout": READ_TIMEOUT_S,
+                                        "retries": {"max_attempts": MAX_ATTEMPTS}}
         try:
-            self.fs, self.root = fsspec.core.url_to_fs(self.url)
+            self.fs, self.root = fsspec.core.url_to_fs(self.url, **options)
         except (ImportError, ValueError) as err:
             raise MissingInputError(f"data root {self.url}: cannot open it with fsspec ({err}); for s3:// install "
                                     "zipon's s3 extra: pip install 'zipon[s3]'") from None
         self.root = self.root.rstrip("/")
+        if options and hasattr(self.fs, "retries"):
+            self.fs.retries = 1  # s3fs's own retry loop on top of botocore's would multiply each wait by 5
+
+    def check(self) -> None:
+        """Reach the store once, at start: a missing or refused credential, an unknown bucket or an endpoint that
+        does not answer is one :class:`~pipeline.errors.ConfigError` naming the URL, not a traceback from deep in
+        the first stage."""
+        from pipeline.errors import ConfigError
+
+        try:
+            self.fs.ls(self.root.split("/", 1)[0], detail=False, refresh=True)
+        except FileNotFoundError:
+            raise ConfigError(f"--data-dir {self.url}: bucket {self.root.split('/', 1)[0]!r} does not exist (create "
+                              "it, or check the URL and the endpoint AWS_ENDPOINT_URL_S3)") from None
+        except Exception as err:  # noqa: BLE001 - botocore's and aiohttp's errors have no common base worth naming
+            kind = type(err).__name__
+            hint = ("set AWS_ACCESS_KEY_ID and AWS_SECRET_ACCESS_KEY (or AWS_PROFILE)" if "Credentials" in kind
+                    else "check the credentials' rights on it" if isinstance(err, PermissionError) else
+                    f"check the endpoint (AWS_ENDPOINT_URL_S3) and the network; each request waits at most "
+                    f"{CONNECT_TIMEOUT_S:g} s to connect and {READ_TIMEOUT_S:g} s for an answer")
+            first = str(err).splitlines()[0][:200] if str(err) else ""
+            raise ConfigError(f"--data-dir {self.url}: cannot reach the object store ({kind}: {first}); "
+                              f"{hint}") from None
 
     def key(self, rel: str) -> str:
         return f"{self.root}/{rel}"

@@ -115,12 +115,13 @@ class SavedEdit:
 
 
 class EditNotSaved(StageError):
-    """The rebuild with the edit failed; the params file, the stored edits and the built goals and routes are as
-    they were. ``outcomes`` are the failed rebuild's, ``restored`` the stages rebuilt without the edit."""
+    """The save failed at ``step`` (``"rebuild"``, ``"params"`` or ``"dvc.lock"``) and was undone: the params file,
+    ``dvc.yaml``, ``dvc.lock``, the stored edits and the built goals and routes are as they were. ``outcomes`` are
+    the failed rebuild's, ``restored`` the stages rebuilt without the edit."""
 
-    def __init__(self, message: str, outcomes: tuple = (), restored: tuple[str, ...] = ()):
+    def __init__(self, message: str, outcomes: tuple = (), restored: tuple[str, ...] = (), step: str = "rebuild"):
         super().__init__(message)
-        self.outcomes, self.restored = outcomes, restored
+        self.outcomes, self.restored, self.step = outcomes, restored, step
 
 
 def save_goals_edit(ws, scene: str, doc: GoalsDocument, stages: dict, *, overrides: tuple[str, ...] = (),
@@ -128,17 +129,18 @@ def save_goals_edit(ws, scene: str, doc: GoalsDocument, stages: dict, *, overrid
     """Store the validated ``doc`` content-addressed beside ``ws``'s params file, rebuild ``scene``'s goals and
     routes with it (``stages``: the stage registry; each stage under its lock), then set ``goals.edits.<scene>`` in
     the params file (comments kept) and record both stages in dvc.lock. ``overrides`` are the caller's ``--set``
-    values. On failure the stored file is removed, a stage already republished with the edit is rebuilt without it
-    (same inputs and params, so the same content), and :class:`EditNotSaved` (or the error that stopped the
-    rebuild) is raised."""
+    values. All or nothing: when any step fails, the stored file is removed, the params file, ``dvc.yaml`` and
+    ``dvc.lock`` get their bytes back, a stage already republished with the edit is rebuilt without it (same
+    inputs and params, so the same content), and :class:`EditNotSaved` says which step failed (an error that
+    stopped the rebuild itself, such as a held lock, is raised as it is, after the same undoing)."""
     from pipeline.paramsfile import load_params
     from pipeline.engine.runner import run_many
     from pipeline.engine.stagegraph import plan
-    from pipeline.store import remove
 
     rel = edit_relpath(doc)
     stored = ws.root / rel
     created = [p for p in (stored.parent, stored) if not p.exists()]  # removed again if the import fails
+    kept = {p: _bytes(p) for p in (ws.params_path, ws.root / "dvc.yaml", ws.root / "dvc.lock")}
     write_text_atomic(stored, dump_document(doc, ".yaml"))
     manifests = {stage: ws.manifest(scene, stage) for stage in REBUILT}
     published = {stage: _bytes(path) for stage, path in manifests.items()}
@@ -149,32 +151,44 @@ def save_goals_edit(ws, scene: str, doc: GoalsDocument, stages: dict, *, overrid
         return run_many(ws, params, stages, pairs, scheduler="sync", show_progress=show_progress)
 
     outcomes: list = []
-    failure: Exception | None = None
+    step, note = "rebuild", ""
     try:  # the rebuild sees the edit through an override; the params file is written once it succeeded
         outcomes = rebuild((f"goals.edits.{scene}={rel}",))
         failed = [o for o in outcomes if o.status == "failed"]
         if failed:
-            failure = EditNotSaved(f"{failed[0].scene}/{failed[0].stage}: {failed[0].error.splitlines()[0]}")
-        else:
-            record_goals_edit(ws.params_path, scene, rel)
-    except Exception as err:  # noqa: BLE001 - re-raised below, after undoing what this transaction wrote
-        failure = err
-    if failure is not None:
-        for path in reversed(created):
-            remove(path)
-        restored = tuple(stage for stage, path in manifests.items() if _bytes(path) != published[stage])
-        if restored:
-            rebuild(())
-        if isinstance(failure, EditNotSaved):
-            raise EditNotSaved(f"{failure}; {ws.params_path.name} unchanged", tuple(outcomes), restored) from None
-        raise failure
-    note = ""
-    if record_dvc:
-        from pipeline.engine.dvcfile import sync_dvc_lock
+            raise EditNotSaved(f"{failed[0].scene}/{failed[0].stage}: {failed[0].error.splitlines()[0]}")
+        step = "params"
+        record_goals_edit(ws.params_path, scene, rel)
+        if record_dvc:
+            from pipeline.engine.dvcfile import sync_dvc_lock
 
-        params = load_params(ws.params_path, overrides)
-        note = sync_dvc_lock(ws, params, stages, [(scene, stage) for stage in REBUILT], overrides)
+            step = "dvc.lock"
+            note = sync_dvc_lock(ws, load_params(ws.params_path, overrides), stages,
+                                 [(scene, stage) for stage in REBUILT], overrides)
+    except Exception as err:  # noqa: BLE001 - re-raised below, after undoing what this transaction wrote
+        restored = _undo(created, kept, manifests, published, rebuild)
+        if isinstance(err, EditNotSaved) or step != "rebuild":
+            raise EditNotSaved(f"{err}; {ws.params_path.name} unchanged", tuple(outcomes), restored, step) from None
+        raise
     return SavedEdit(scene, rel, document_digest(doc), tuple(outcomes), note)
+
+
+def _undo(created: list[Path], kept: dict[Path, bytes | None], manifests: dict, published: dict, rebuild) -> tuple:
+    """Put back what a failed save wrote: files it created removed, files it changed given their bytes back, and
+    the stages republished with the edit rebuilt without it. Returns those stages."""
+    from pipeline.store import remove
+
+    for path in reversed(created):
+        remove(path)
+    for path, data in kept.items():
+        if data is None:
+            path.unlink(missing_ok=True)
+        elif _bytes(path) != data:
+            write_text_atomic(path, data.decode("utf-8"))  # the files it changes are UTF-8 text
+    restored = tuple(stage for stage, path in manifests.items() if _bytes(path) != published[stage])
+    if restored:
+        rebuild(())
+    return restored
 
 
 def _bytes(path: Path) -> bytes | None:

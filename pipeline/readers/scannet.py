@@ -43,6 +43,74 @@ def _matrix(file: Path, what: str) -> np.ndarray:
     return M
 
 
+_K_EXPECTED = ("a pinhole camera in the top-left 3x3 of a 4x4 matrix: fx and fy > 0, the principal point inside "
+               "the image, no skew, last row 0 0 1")
+_E_EXPECTED = ("a rigid transform (a rotation and a translation, last row 0 0 0 1) from the camera to the sensor "
+               "rig, orthonormal within ingest.pose_orthonormal_tol")
+
+
+def _intrinsics(file: Path, what: str, width: int, height: int) -> np.ndarray:
+    """The 3x3 ``K`` of a ScanNet ``intrinsic_*.txt``, checked to be a pinhole camera of a ``width`` x ``height``
+    image (:class:`InputDataError` naming the file otherwise)."""
+    K = _matrix(file, what)[:3, :3]
+    if not np.isfinite(K).all():
+        raise InputDataError(f"{what} hold NaN or inf", path=file, expected=_K_EXPECTED)
+    fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+    if fx <= 0 or fy <= 0:
+        raise InputDataError(f"{what}: focal lengths fx {fx:g}, fy {fy:g} (a camera with a focal length of 0 or "
+                             "less projects nothing)", path=file, expected=_K_EXPECTED)
+    if K[0, 1] != 0 or K[1, 0] != 0 or K[2].tolist() != [0.0, 0.0, 1.0]:
+        raise InputDataError(f"{what}: not a pinhole camera matrix: {K.tolist()}", path=file, expected=_K_EXPECTED)
+    if not (0 < cx < width and 0 < cy < height):
+        raise InputDataError(f"{what}: principal point ({cx:g}, {cy:g}) is outside the {width}x{height} images",
+                             path=file, expected=_K_EXPECTED)
+    return K
+
+
+def _extrinsics(file: Path, what: str, tol: float) -> np.ndarray:
+    """A ScanNet ``extrinsic_*.txt``, checked to be rigid: a matrix that scales or shears would stretch every depth
+    pixel silently, so it is refused naming the file (re-orthonormalised by SVD within ``tol``)."""
+    from pipeline.geometry import rigid_error
+
+    E = _matrix(file, what)
+    err = float(rigid_error(E))
+    if not err <= tol:
+        if not np.isfinite(err):
+            why = "hold NaN or inf"
+        else:
+            scales = np.linalg.svd(E[:3, :3], compute_uv=False)
+            why = (f"are not a rigid transform: the 3x3 part scales by {scales.min():.4g} to {scales.max():.4g}"
+                   if np.abs(scales - 1).max() > tol else f"are not a rigid transform (error {err:.2e})")
+        raise InputDataError(f"{what} {why}", path=file, expected=_E_EXPECTED)
+    return nearest_rigid(E, tol=tol, path=file)
+
+
+def _frame_numbers(folder: Path) -> dict[int, str]:
+    """``{N: file name}`` of ``folder``'s ``N.jpg`` / ``N.png`` files. ScanNet's exporter writes ``N`` without
+    padding; an export whose names mix padded (``000012.jpg``) and plain (``12.jpg``) numbers, or that holds one
+    number twice, is refused naming two of the files."""
+    found: dict[int, str] = {}
+    padded = plain = None
+    for p in sorted(folder.iterdir()):
+        m = _NUM.match(p.name)
+        if not m:
+            continue
+        number = int(m.group(1))
+        if number in found:
+            raise InputDataError(f"{found[number]} and {p.name} are both frame {number}", path=folder,
+                                 expected="one colour file per frame number")
+        found[number] = p.name
+        if len(m.group(1)) > 1 and m.group(1).startswith("0"):
+            padded = padded or p.name
+        else:
+            plain = plain or p.name
+    if padded and plain:
+        raise InputDataError(f"frame names mix zero-padded ({folder / padded}) and plain ({folder / plain}) numbers",
+                             path=folder, expected="one naming throughout: ScanNet's exporter writes 0.jpg, 1.jpg, ... "
+                                                   "(no padding)")
+    return found
+
+
 @dataclass(frozen=True)
 class ScanNetFrames:
     """The opened scene: the frame numbers kept (finite pose) with their poses and stamps, the colour files'
@@ -72,7 +140,12 @@ class ScanNetReader(Reader):
             if not (self.path / sub).is_dir():
                 raise InputDataError(f"no {sub}/ folder", path=self.path / sub,
                                      expected="an exported ScanNet scene: color/, depth/, pose/, intrinsic/")
-        ids = sorted(int(m.group(1)) for p in (self.path / "color").iterdir() if (m := _NUM.match(p.name)))
+        names = _frame_numbers(self.path / "color")
+        ids = sorted(names)
+        if names and names[ids[0]] != f"{ids[0]}.{names[ids[0]].rsplit('.', 1)[1]}":
+            raise InputDataError(f"frame names are zero-padded ({self.path / 'color' / names[ids[0]]}); depth/ and "
+                                 f"pose/ are read as {ids[0]}.png and {ids[0]}.txt", path=self.path / "color",
+                                 expected="ScanNet's exporter naming: 0.jpg, 1.jpg, ... (no padding)")
         if not ids:
             raise InputDataError("no color/N.jpg files", path=self.path / "color", expected="color/0.jpg, color/1.jpg, ...")
         color_ext = "jpg" if (self.path / f"color/{ids[0]}.jpg").is_file() else "png"
@@ -96,15 +169,16 @@ class ScanNetReader(Reader):
                             what="colour")
         (hd, wd), (hc, wc) = depth0.shape, color0.shape[:2]
         intr_dir = self.path / "intrinsic"
-        K_c = _matrix(intr_dir / "intrinsic_color.txt", "colour intrinsics")[:3, :3]
+        K_c = _intrinsics(intr_dir / "intrinsic_color.txt", "colour intrinsics", wc, hc)
         depth_file = intr_dir / "intrinsic_depth.txt"
-        K_d = _matrix(depth_file, "depth intrinsics")[:3, :3] if depth_file.is_file() else None
+        K_d = _intrinsics(depth_file, "depth intrinsics", wd, hd) if depth_file.is_file() else None
         o = self.params.camera_override
         color = Intrinsics(o.fx, o.fy, o.cx, o.cy, wc, hc) if o else Intrinsics.from_K(K_c, wc, hc)
         out = color.scaled(wd, hd)
         depth = Intrinsics.from_K(K_d, wd, hd) if K_d is not None else out
-        E = {n: _matrix(intr_dir / f"extrinsic_{n}.txt", f"{n} extrinsics") if (intr_dir / f"extrinsic_{n}.txt").is_file()
-             else np.eye(4) for n in ("color", "depth")}
+        tol = self.params.pose_orthonormal_tol
+        E = {n: _extrinsics(intr_dir / f"extrinsic_{n}.txt", f"{n} extrinsics", tol)
+             if (intr_dir / f"extrinsic_{n}.txt").is_file() else np.eye(4) for n in ("color", "depth")}
         T_color_depth = invert_pose(E["color"]) @ E["depth"]
         same = depth == out and np.allclose(T_color_depth, np.eye(4), rtol=0, atol=1e-12)
         registration = None if same else DepthRegistration(depth, out, T_color_depth)

@@ -148,3 +148,141 @@ def test_the_llm_agent_is_built_from_the_registry_like_any_agent(tiny_scene, tmp
         assert len(srv.requests) == episodes * agent_only.eval.max_talk_turns
     finally:
         srv.close()
+
+
+# ----------------------------------------------------------------------------- a hostile endpoint
+
+class _Scripted:
+    """An OpenAI-compatible endpoint that answers each request by the next step of a script:
+    ``("status", code, retry_after)``, ``("ok", text)``, ``("stall",)`` (headers, then nothing),
+    ``("forever",)`` (a body that never ends, a byte every 20 ms), ``("raw", bytes)`` (a 200 with that body)."""
+
+    def __init__(self, script):
+        import time
+        from http.server import ThreadingHTTPServer
+
+        self.script, self.times = list(script), []
+        outer = self
+
+        class Handler(BaseHTTPRequestHandler):
+            protocol_version = "HTTP/1.1"
+
+            def do_POST(self):
+                self.rfile.read(int(self.headers["Content-Length"]))
+                outer.times.append(time.monotonic())
+                step = outer.script.pop(0) if outer.script else ("ok", "late")
+                if step[0] == "status":
+                    self.send_response(step[1])
+                    if step[2] is not None:
+                        self.send_header("Retry-After", str(step[2]))
+                    self.send_header("Content-Length", "2")
+                    self.end_headers()
+                    self.wfile.write(b"{}")
+                    return
+                if step[0] in ("stall", "forever"):
+                    self.send_response(200)
+                    self.send_header("Content-Type", "application/json")
+                    self.end_headers()
+                    self.wfile.flush()
+                    deadline = time.monotonic() + 10
+                    try:
+                        while time.monotonic() < deadline:
+                            if step[0] == "forever":
+                                self.wfile.write(b" ")
+                                self.wfile.flush()
+                            time.sleep(0.02)
+                    except OSError:  # the client hung up: what it should do
+                        pass
+                    self.close_connection = True
+                    return
+                data = step[1] if step[0] == "raw" else json.dumps(
+                    {"choices": [{"message": {"role": "assistant", "content": step[1]}}]}).encode()
+                self.send_response(200)
+                self.send_header("Content-Type", "application/json")
+                self.send_header("Content-Length", str(len(data)))
+                self.end_headers()
+                self.wfile.write(data)
+
+            def log_message(self, *a):
+                pass
+
+        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.httpd.daemon_threads = True
+        self.url = f"http://127.0.0.1:{self.httpd.server_port}/v1"
+        threading.Thread(target=self.httpd.serve_forever, daemon=True).start()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.httpd.shutdown()
+
+
+HI = [{"role": "user", "content": "hi"}]
+
+
+def test_429_is_retried_after_its_retry_after():
+    with _Scripted([("status", 429, 1), ("ok", "hello")]) as srv:
+        client = ChatClient(srv.url, "m", timeout_s=10, backoff_s=0.05)
+        assert client.chat(HI) == "hello"
+        assert len(srv.times) == 2 and srv.times[1] - srv.times[0] >= 0.95  # waited the server's Retry-After
+
+
+def test_503_three_times_then_a_reply_and_four_times_is_an_error_naming_the_endpoint():
+    with _Scripted([("status", 503, None)] * 3 + [("ok", "fine")]) as srv:
+        assert ChatClient(srv.url, "m", timeout_s=10, backoff_s=0.01).chat(HI) == "fine"
+        gaps = [b - a for a, b in zip(srv.times, srv.times[1:])]
+        assert gaps[1] > gaps[0] and gaps[2] > gaps[1]  # backoff grows
+    with _Scripted([("status", 503, None)] * 4) as srv:
+        with pytest.raises(StageError, match=rf"{srv.url}/chat/completions: no reply after 4 tries .* last: HTTP 503"):
+            ChatClient(srv.url, "m", timeout_s=10, backoff_s=0.01).chat(HI)
+
+
+def test_a_client_error_is_not_retried():
+    with _Scripted([("status", 401, None), ("ok", "never")]) as srv:
+        with pytest.raises(StageError, match=r"HTTP 401 \(not retried"):
+            ChatClient(srv.url, "m", timeout_s=10, backoff_s=0.01).chat(HI)
+        assert len(srv.times) == 1
+
+
+@pytest.mark.parametrize("step, words", [(("stall",), "deadline"), (("forever",), "deadline")])
+def test_a_stalled_or_endless_reply_is_cut_at_the_deadline_of_the_call(step, words):
+    import time
+
+    with _Scripted([step] * 5) as srv:
+        client = ChatClient(srv.url, "m", timeout_s=1.0, backoff_s=0.05)
+        t0 = time.monotonic()
+        with pytest.raises(StageError, match=rf"{srv.url}/chat/completions: .*{words}"):
+            client.chat(HI)
+        assert time.monotonic() - t0 < 3.0  # the whole call, every try included, within its deadline (+ slack)
+
+
+def test_a_reply_over_the_size_cap_is_refused():
+    with _Scripted([("raw", b'{"choices": "' + b"x" * 5000 + b'"}')]) as srv:
+        with pytest.raises(InputDataError, match=r"over 1,000 bytes"):
+            ChatClient(srv.url, "m", timeout_s=10, max_reply_bytes=1000).chat(HI)
+
+
+@pytest.mark.parametrize("body, words", [(b"{not json", "the reply is not JSON"),
+                                         (b'{"choices": []}', r"no choices\[0\].message.content"),
+                                         (b'{"choices": [{"message": {"content": 3}}]}', "is int"),
+                                         (b"[" * 100_000, "the reply is not JSON")])
+def test_malformed_replies_name_the_endpoint(body, words):
+    with _Scripted([("raw", body)]) as srv:
+        with pytest.raises(InputDataError, match=words) as err:
+            ChatClient(srv.url, "m", timeout_s=10).chat(HI)
+        assert f"{srv.url}/chat/completions" in str(err.value)
+
+
+def test_parsing_a_reply_is_linear():
+    import time
+
+    for n in (20_000, 200_000):
+        t0 = time.perf_counter()
+        with pytest.raises(InputDataError):
+            parse_action("{" * n)
+        with pytest.raises(InputDataError):
+            parse_action('{"a": ' * n)
+        assert time.perf_counter() - t0 < 0.5, n  # the regex it replaced took ~11 s on 200,000 braces
+    assert parse_action('note {"action": "talk", "args": {"content": "is it {this}?"}} done').args == {
+        "content": "is it {this}?"}

@@ -12,33 +12,26 @@ import difflib
 import json
 import math
 import re
-import secrets
 import threading
 from pathlib import Path
 
 from starlette.applications import Starlette
-from starlette.concurrency import run_in_threadpool
+from starlette.exceptions import HTTPException
 from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, Response
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
-from pipeline.errors import ConfigError, InputDataError, LockedError, ZiponError
+from pipeline.errors import ConfigError, InputDataError
+from zipon.annotate.writes import OBJECTS_DIR
+from zipon.annotate.http import (LOOPBACK, MAX_BODY, TOKEN_COOKIE, HTTPError, client_error, endpoint,
+                                 error_response, guard, integer, number, server_error)
 
 STATIC = Path(__file__).resolve().parent / "static"
-MAX_BODY = 2_000_000  # bytes of a request body (a goals document of a few hundred goals is ~200 kB)
-TOKEN_COOKIE = "zipon_annotate_token"
-LOOPBACK = ("127.0.0.1", "localhost", "::1", "[::1]")
-
-
-class HTTPError(Exception):
-    def __init__(self, status: int, message: str, field: str | None = None, **extra):
-        super().__init__(message)
-        self.status, self.message, self.field, self.extra = status, message, field, extra
-
 
 class Workbench:
-    """The server's state: the workspace, the open scenes' views, and one lock that serialises saves."""
+    """The server's state: the workspace, the open scenes' views, one lock per scene that serialises its saves (the
+    ETag is checked inside it) and one that serialises writes of the params file."""
 
     def __init__(self, params=None, data_dir=None, manifests_dir=None, *, overrides=(), scene=None, token=None,
                  allowed_hosts=LOOPBACK, max_body=MAX_BODY):
@@ -51,7 +44,9 @@ class Workbench:
         self.max_body = max_body
         self._views: dict = {}
         self._plays: dict = {}  # id -> zipon.annotate.play.PlaySession
-        self._save = threading.Lock()
+        self._locks: dict[str, threading.Lock] = {}
+        self._locks_guard = threading.Lock()
+        self._params_write = threading.Lock()  # every save records its edit in the one params file
         self.default_scene = scene
         if scene is not None:  # an unknown scene fails at start, naming the known ones
             known = self.dataset().params.scenes
@@ -93,6 +88,16 @@ class Workbench:
     def forget(self, name: str) -> None:
         self._views.pop(name, None)
 
+    def scene_lock(self, name: str) -> threading.Lock:
+        with self._locks_guard:
+            return self._locks.setdefault(name, threading.Lock())
+
+    def write_policy(self):
+        """Where objects files may be written, with the params as they are now (:mod:`zipon.annotate.writes`)."""
+        from zipon.annotate.writes import WritePolicy
+
+        return WritePolicy(self.workspace, self.dataset().params.goals.objects_files)
+
     def lock_holder(self, scene: str) -> str | None:
         """``"pid P on host H holds PATH"`` for a live lock on any of the scene's stages, else None."""
         from pipeline.engine.locks import holder_is_dead, parse_holder
@@ -114,103 +119,6 @@ class Workbench:
             raise HTTPError(409, f"scene {scene} is being rebuilt by another zipon run: {holder}; try again when it "
                                  f"has finished", "scene")
 
-    def workspace_path(self, rel: str, field: str) -> Path:
-        """``rel`` (relative to the params file's folder) as a path that stays inside it, YAML or JSON."""
-        root = self.workspace.root.resolve()
-        if not isinstance(rel, str) or not rel or rel.startswith(("/", "\\")) or "\x00" in rel:
-            raise HTTPError(400, f"{rel!r} is not a relative path", field)
-        path = (root / rel).resolve()
-        if not path.is_relative_to(root):
-            raise HTTPError(400, f"{rel!r} leaves the workspace {root}", field)
-        if path.suffix.lower() not in (".yaml", ".yml", ".json"):
-            raise HTTPError(400, f"{rel!r} is not a .yaml, .yml or .json file", field)
-        return path
-
-
-# ----------------------------------------------------------------------------- request helpers
-
-def _guard(request: Request, *, write: bool = False) -> Workbench:
-    wb: Workbench = request.app.state.workbench
-    host = (request.headers.get("host") or "").rsplit(":", 1)[0] if "]" not in (request.headers.get("host") or "") \
-        else request.headers.get("host", "").rsplit("]", 1)[0] + "]"
-    if wb.allowed_hosts is not None and host not in wb.allowed_hosts:
-        raise HTTPError(403, f"host {host!r} is not served here (allowed: {', '.join(wb.allowed_hosts)})", "Host")
-    if wb.token is not None:
-        given = (request.query_params.get("token") or request.headers.get("x-zipon-token")
-                 or request.cookies.get(TOKEN_COOKIE) or "")
-        if not secrets.compare_digest(given, wb.token):
-            raise HTTPError(403, "a token is needed: open the URL zipon annotate printed (…?token=…)", "token")
-    if write:
-        origin = request.headers.get("origin")
-        own = f"{request.url.scheme}://{request.headers.get('host', '')}"
-        if origin != own:
-            raise HTTPError(403, f"cross-origin write refused: Origin {origin!r} is not {own!r}", "Origin")
-    return wb
-
-
-async def _body(request: Request, wb: Workbench) -> dict:
-    length = request.headers.get("content-length")
-    if length is not None and length.isdigit() and int(length) > wb.max_body:
-        raise HTTPError(413, f"request body of {int(length):,} bytes is over the {wb.max_body:,}-byte limit", "body")
-    data = b""
-    async for chunk in request.stream():
-        data += chunk
-        if len(data) > wb.max_body:
-            raise HTTPError(413, f"request body is over the {wb.max_body:,}-byte limit", "body")
-    try:
-        doc = json.loads(data.decode("utf-8"), parse_constant=_no_constant)
-    except (UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise HTTPError(400, f"the body is not JSON: {err}", "body") from None
-    if not isinstance(doc, dict):
-        raise HTTPError(400, "the body must be a JSON object", "body")
-    return doc
-
-
-def _no_constant(name: str):
-    raise HTTPError(400, f"{name} is not a number (coordinates must be finite)", "body")
-
-
-def _number(request: Request, name: str, default: float | None = None) -> float:
-    text = request.query_params.get(name)
-    if text is None:
-        if default is not None:
-            return default
-        raise HTTPError(400, f"missing query parameter {name}", name)
-    try:
-        value = float(text)
-    except ValueError:
-        raise HTTPError(400, f"{name}={text!r} is not a number", name) from None
-    if not math.isfinite(value):
-        raise HTTPError(400, f"{name}={text!r} is not finite", name)
-    return value
-
-
-def _error(err: Exception) -> JSONResponse:
-    if isinstance(err, HTTPError):
-        return JSONResponse({"error": err.message, "field": err.field, **err.extra}, status_code=err.status)
-    if isinstance(err, LockedError):
-        return JSONResponse({"error": str(err), "field": "scene"}, status_code=409)
-    if isinstance(err, InputDataError):
-        return JSONResponse({"error": str(err), "field": err.field}, status_code=422)
-    return JSONResponse({"error": str(err), "field": None}, status_code=400)
-
-
-def endpoint(write: bool = False):
-    """Wrap a handler ``(request, workbench) -> Response|dict``: guard it, run blocking work off the event loop,
-    and turn zipon errors into JSON error responses."""
-    def wrap(fn):
-        async def handler(request: Request):
-            try:
-                wb = _guard(request, write=write)
-                body = await _body(request, wb) if request.method in ("POST", "PUT") else None
-                result = await run_in_threadpool(fn, request, wb, body)
-            except (HTTPError, ZiponError) as err:
-                return _error(err)
-            return result if isinstance(result, Response) else JSONResponse(result)
-        handler.__name__ = fn.__name__
-        return handler
-    return wrap
-
 
 def _png(data: bytes) -> Response:
     return Response(data, media_type="image/png", headers={"Cache-Control": "no-store"})
@@ -220,9 +128,9 @@ def _png(data: bytes) -> Response:
 
 async def index(request: Request):
     try:
-        wb = _guard(request)
+        wb = guard(request)
     except HTTPError as err:
-        return _error(err)
+        return error_response(err)
     response = FileResponse(STATIC / "index.html", headers={"Cache-Control": "no-store"})
     if wb.token is not None:
         response.set_cookie(TOKEN_COOKIE, wb.token, httponly=True, samesite="strict")
@@ -253,7 +161,7 @@ def layer(request, wb, body):
 
 @endpoint()
 def seen(request, wb, body):
-    return wb.scene(request.path_params["scene"]).seen(_number(request, "x"), _number(request, "y"))
+    return wb.scene(request.path_params["scene"]).seen(number(request, "x"), number(request, "y"))
 
 
 @endpoint()
@@ -261,8 +169,8 @@ def frame(request, wb, body):
     view = wb.scene(request.path_params["scene"])
     pixel = None
     if "u" in request.query_params or "v" in request.query_params:
-        pixel = (int(_number(request, "u")), int(_number(request, "v")))
-    return _png(view.ego_png(int(request.path_params["index"]), pixel))
+        pixel = (integer(number(request, "u"), "u", -10**6, 10**6), integer(number(request, "v"), "v", -10**6, 10**6))
+    return _png(view.ego_png(integer(request.path_params["index"], "index", 0, 10**9), pixel))
 
 
 @endpoint()
@@ -286,7 +194,7 @@ def route(request, wb, body):
     keys = [k for k in (request.query_params.get("objects") or "").split(",") if k]
     # no x and y: from the recording's start pose, where the goals stage's procedural feedback starts
     start = None if "x" not in request.query_params and "y" not in request.query_params else (
-        _number(request, "x"), _number(request, "y"), math.radians(_number(request, "yaw_deg", 0.0)))
+        number(request, "x"), number(request, "y"), math.radians(number(request, "yaw_deg", 0.0)))
     return view.route(start, keys)
 
 
@@ -363,24 +271,30 @@ def _if_match(request: Request, digest: str) -> None:
 
 
 def _save(request, wb, doc) -> dict:
+    """The goals save transaction, serialised per scene: the ETag is compared inside the scene's lock with the goals
+    as stored now, so of two saves sent with the same If-Match one is saved and the other answers 412."""
     from pipeline.goals.edits import EditNotSaved, save_goals_edit
     from stages import STAGES
 
     scene = request.path_params["scene"]
-    view = wb.scene(scene)
-    with wb._save:
-        _, digest = _current(view)
+    with wb.scene_lock(scene):
+        wb.forget(scene)  # read the goals as stored now, not as an earlier request saw them
+        _, digest = _current(wb.scene(scene))
         _if_match(request, digest)
         wb.refuse_if_locked(scene)
         try:
-            saved = save_goals_edit(wb.workspace, scene, doc, STAGES, overrides=wb.overrides)
+            with wb._params_write:
+                saved = save_goals_edit(wb.workspace, scene, doc, STAGES, overrides=wb.overrides)
         except EditNotSaved as err:
-            raise HTTPError(422, f"not saved: {err}", "rebuild", restored=list(err.restored),
+            raise HTTPError(422, f"not saved: {err}", "dvc.lock" if err.step == "dvc.lock" else "rebuild",
+                            saved=False, failed_step=err.step, restored=list(err.restored),
                             outcomes=[_outcome(o) for o in err.outcomes]) from None
         finally:
             wb.forget(scene)
-    _, etag = _current(wb.scene(scene))
+        _, etag = _current(wb.scene(scene))
     return {"saved": saved.path, "digest": saved.digest, "etag": etag, "dvc": saved.dvc_note,
+            "steps": ["edit stored", "goals and routes rebuilt", f"{wb.workspace.params_path.name} goals.edits."
+                      f"{scene} set", saved.dvc_note or "dvc.lock: nothing to record"],
             "outcomes": [_outcome(o) for o in saved.outcomes]}
 
 
@@ -467,7 +381,7 @@ def objects_get(request, wb, body):
                                                                                    include={"objects", "rooms"})
     if objset is not None and not data["rooms"]:
         data["rooms"] = [{"id": r["id"], "type": r["type"], "polygon": r["polygon"]} for r in view._rooms()]
-    return {"path": rel or f"objects/{view.name}.yaml", "source": source if objset is not None else "empty", **data}
+    return {"path": rel or f"{OBJECTS_DIR}/{view.name}.yaml", "objects_dir": f"{OBJECTS_DIR}/", "source": source if objset is not None else "empty", **data}
 
 
 def _objects(view, body: dict):
@@ -494,7 +408,7 @@ def objects_save(request, wb, body):
     from pipeline.store import write_text_atomic
 
     view = wb.scene(request.path_params["scene"])
-    path = wb.workspace_path(body.get("path"), "path")
+    path = wb.write_policy().objects_file(body.get("path"), "path")
     try:
         objset = _objects(view, body)
     except InputDataError as err:
@@ -503,11 +417,25 @@ def objects_save(request, wb, body):
     text = (f"# objects of scene {view.name}, written by zipon annotate (the layout zipon goals template starts)\n"
             + (yaml.safe_dump(data, sort_keys=False, allow_unicode=True, width=100) if path.suffix != ".json"
                else json.dumps(data, indent=2)))
-    write_text_atomic(path, text)
-    wb.forget(view.name)
+    with wb.scene_lock(view.name):
+        write_text_atomic(path, text)
+        wb.forget(view.name)
     rel = path.relative_to(wb.workspace.root.resolve()).as_posix()
     return {"path": rel, "objects": len(objset.objects), "rooms": len(objset.rooms),
             "next": f"in params.yaml: goals: {{objects: file, objects_files: {{{view.name}: {rel}}}}}"}
+
+
+@endpoint()
+def feedback_kinds(request, wb, body):
+    """The feedback kinds of the registry (:data:`pipeline.goals.feedback.FEEDBACK_KINDS`), in the goals document's
+    order: the page makes one field of each, edited as the kind's ``form`` says."""
+    from pipeline.goals.feedback import FEEDBACK_KINDS
+    from pipeline.goals.schema import Feedback
+
+    empty = Feedback().model_dump(mode="json")
+    return {"kinds": [{"name": name, "form": FEEDBACK_KINDS[name].form, "description": info.description or "",
+                       "default": empty[name], "new_goal": FEEDBACK_KINDS[name].new_goal}
+                      for name, info in Feedback.model_fields.items()]}
 
 
 # ----------------------------------------------------------------------------- play as the user
@@ -517,21 +445,22 @@ MAX_PLAYS = 8  # episodes kept per server (the oldest finished one is dropped fi
 
 @endpoint()
 def agents(request, wb, body):
-    from orion_eval.agents import AGENTS
+    from orion_eval.agents import all_agents
 
-    return {"agents": [{"name": name, "label": getattr(cls, "label", name)} for name, cls in AGENTS.items()]}
+    return {"agents": [{"name": name, "label": getattr(cls, "label", "") or name} for name, cls in all_agents().items()]}
 
 
 @endpoint(write=True)
 def play_start(request, wb, body):
-    from orion_eval.agents import AGENTS
+    from orion_eval.agents import agent_class
+    from pipeline import plugins
     from zipon.annotate.play import PlaySession
 
     scene = request.path_params["scene"]
     view = wb.scene(scene)
     method, goal, seed = body.get("method"), body.get("goal"), body.get("seed", 0)
-    if method not in AGENTS:
-        raise HTTPError(400, f"unknown agent {method!r}; choose from {list(AGENTS)}", "method")
+    if not isinstance(method, str) or agent_class(method) is None:
+        raise HTTPError(400, f"unknown agent {method!r}; choose from {plugins.agent_names()}", "method")
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
         raise HTTPError(400, f"seed {seed!r} is not a non-negative integer", "seed")
     if not isinstance(goal, str):
@@ -591,7 +520,7 @@ def create_app(params=None, data_dir=None, manifests_dir=None, *, scene=None, ov
         Route(s, scene_summary),
         Route(s + "/layers/{name}.png", layer),
         Route(s + "/seen", seen),
-        Route(s + "/frames/{index:int}.png", frame),
+        Route(s + "/frames/{index}.png", frame),
         Route(s + "/propose", propose),
         Route(s + "/route", route),
         Route(s + "/goals", goals_get, methods=["GET"]),
@@ -604,13 +533,14 @@ def create_app(params=None, data_dir=None, manifests_dir=None, *, scene=None, ov
         Route(s + "/objects", objects_save, methods=["PUT"]),
         Route(s + "/objects/validate", objects_validate, methods=["POST"]),
         Route("/api/agents", agents),
+        Route("/api/feedback-kinds", feedback_kinds),
         Route(s + "/play", play_start, methods=["POST"]),
         Route(s + "/play/{play}", play_state),
         Route(s + "/play/{play}/reply", play_reply, methods=["POST"]),
         Route(s + "/play/{play}/ego.png", play_ego),
         Mount("/static", StaticFiles(directory=STATIC), name="static"),
     ]
-    app = Starlette(routes=routes)
+    app = Starlette(routes=routes, exception_handlers={HTTPException: client_error, Exception: server_error})
     app.state.workbench = Workbench(params, data_dir, manifests_dir, overrides=overrides, scene=scene, token=token,
                                     allowed_hosts=allowed_hosts, max_body=max_body)
     return app

@@ -139,6 +139,8 @@ def remote_root_ready(ws, params, command: str) -> None:
     from pipeline.engine.stagegraph import plan
     from stages import STAGES
 
+    from pipeline.engine.fsroot import RemoteRoot
+
     command = command or "(no command)"
     if command in REMOTE_REFUSED:
         raise ConfigError(f"--data-dir {ws.remote}: zipon {command} {REMOTE_REFUSED[command]}")
@@ -146,6 +148,7 @@ def remote_root_ready(ws, params, command: str) -> None:
         raise ConfigError(f"--data-dir {ws.remote}: zipon {command} works on a local data root only; on an object "
                           f"store zipon {', '.join(REMOTE_COMMANDS)} work. After one of them the local mirror is "
                           f"{ws.data_dir}: pass it as --data-dir (and --manifests-dir {ws.manifests_dir})")
+    RemoteRoot(ws.remote).check()  # credentials, bucket and endpoint, once, before any stage
     if command in ("status", "verify"):
         pull_all(ws, plan(STAGES, params, list(params.scenes)), verify=command == "verify")
 

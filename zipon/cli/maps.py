@@ -1,7 +1,7 @@
 """``zipon`` commands that draw and query a scene's top-down products, floor by floor: render and query.
 
 On a building (a scene of several floors) both work per floor: ``--floor N`` picks one floor (0 = the lowest);
-without it, ``render`` writes one picture per floor (``WHAT.floor<id>.png``) and ``query`` answers from every floor,
+without it, ``render`` writes one picture per floor (``WHAT_floor<id>.png``) and ``query`` answers from every floor,
 each candidate with its floor.
 """
 
@@ -49,9 +49,9 @@ def render(
     scene: str = typer.Argument(..., help="scene name"),
     what: str = typer.Option("color", "--what", "-w", help=" | ".join(RENDERS)),
     out_png: Optional[Path] = typer.Option(None, "--out", "-o", help="PNG path (default DATA/artifacts/SCENE/renders/"
-                                           "WHAT.png; a building's floors: WHAT.floor<id>.png)"),
-    floor: Optional[int] = typer.Option(None, "--floor", min=0, help="the floor to draw (0 = the lowest); default: "
-                                        f"every floor of a building, one PNG each ({', '.join(PER_FLOOR)})"),
+                                           "WHAT.png; a building's floors: WHAT_floor<id>.png)"),
+    floor: Optional[int] = typer.Option(None, "--floor", "-f", min=0, help="the floor to draw (0 = the lowest); "
+                                        f"default: every floor of a building, one PNG each ({', '.join(PER_FLOOR)})"),
 ):
     """Draw an artifact as a north-up PNG with a scale bar.
 
@@ -102,9 +102,9 @@ def render(
 
 
 def _floor_target(path: Path, floor: int, n_floors: int) -> Path:
-    """``path`` itself for a single-floor scene, else ``NAME.floor<k>.png`` beside it."""
+    """``path`` itself for a single-floor scene, else ``NAME_floor<k>.png`` beside it."""
     path = Path(path)
-    return path if n_floors == 1 else path.with_name(f"{path.stem}.floor{floor}{path.suffix or '.png'}")
+    return path if n_floors == 1 else path.with_name(f"{path.stem}_floor{floor}{path.suffix or '.png'}")
 
 
 def _object_keys(scene) -> dict[int, str]:

@@ -461,3 +461,69 @@ def test_processes_reclaiming_one_dead_lock_take_turns_and_exactly_one_wins(tmp_
             r.kill()
             r.wait()
     assert RemoteRoot(url).read_text(LOCK_REL) is None
+
+
+# ----------------------------------------------------------------------------- reaching the store, once, at start
+
+@pytest.mark.parametrize("url", ["s3://", "s3:///prefix", "gs://"])
+def test_an_object_store_url_without_a_bucket_is_refused(tmp_path, url):
+    from pipeline.errors import ConfigError
+    from pipeline.paths import Workspace
+
+    with pytest.raises(ConfigError, match=rf"--data-dir {url}: no bucket named \(expected \w+://BUCKET"):
+        Workspace.resolve(tmp_path / "params.yaml", url)
+    assert not any(tmp_path.iterdir())
+
+
+def test_missing_credentials_are_named_once_with_the_url(tmp_path, monkeypatch):
+    import s3fs
+
+    from pipeline.engine.fsroot import RemoteRoot
+    from pipeline.errors import ConfigError
+
+    for key in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_SESSION_TOKEN", "AWS_PROFILE"):
+        monkeypatch.delenv(key, raising=False)
+    monkeypatch.setenv("AWS_SHARED_CREDENTIALS_FILE", str(tmp_path / "none"))
+    monkeypatch.setenv("AWS_CONFIG_FILE", str(tmp_path / "none"))
+    monkeypatch.setenv("AWS_EC2_METADATA_DISABLED", "true")
+    s3fs.S3FileSystem.clear_instance_cache()
+    with pytest.raises(ConfigError, match=r"--data-dir s3://bucket/prefix: cannot reach the object store "
+                                          r"\(NoCredentialsError.*set AWS_ACCESS_KEY_ID"):
+        RemoteRoot("s3://bucket/prefix").check()
+
+
+def test_an_endpoint_that_never_answers_times_out_naming_the_url(tmp_path, monkeypatch):
+    import socket
+    import time
+
+    import s3fs
+
+    import pipeline.engine.fsroot as fsroot
+    from pipeline.errors import ConfigError
+
+    silent = socket.socket()
+    silent.bind(("127.0.0.1", 0))
+    silent.listen(8)  # accepts connections (the kernel's backlog) and never answers
+    endpoint = f"http://127.0.0.1:{silent.getsockname()[1]}"
+    for key, value in {"AWS_ENDPOINT_URL_S3": endpoint, "AWS_ENDPOINT_URL": endpoint, "AWS_ACCESS_KEY_ID": "k",
+                       "AWS_SECRET_ACCESS_KEY": "s", "AWS_DEFAULT_REGION": "us-east-1"}.items():
+        monkeypatch.setenv(key, value)
+    monkeypatch.setattr(fsroot, "READ_TIMEOUT_S", 1.0)
+    monkeypatch.setattr(fsroot, "MAX_ATTEMPTS", 1)
+    s3fs.S3FileSystem.clear_instance_cache()
+    t0 = time.monotonic()
+    try:
+        with pytest.raises(ConfigError, match=r"--data-dir s3://bucket/p: cannot reach the object store \(.*Timeout"):
+            fsroot.RemoteRoot("s3://bucket/p").check()
+    finally:
+        silent.close()
+    assert time.monotonic() - t0 < 20
+
+
+def test_a_bucket_that_does_not_exist(s3_env):
+    from pipeline.engine.fsroot import RemoteRoot
+    from pipeline.errors import ConfigError
+
+    RemoteRoot(f"s3://{s3_env}/data").check()  # the fresh bucket exists
+    with pytest.raises(ConfigError, match=r"bucket 'zipon-nowhere-0' does not exist"):
+        RemoteRoot("s3://zipon-nowhere-0/data").check()

@@ -54,3 +54,67 @@ def test_missing_pose_file(tmp_path):
     (root / "pose/2.txt").unlink()
     with pytest.raises(InputDataError, match=r"file .*pose/2\.txt; frame 2: color/2\.jpg has no pose file"):
         ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
+
+
+# ----------------------------------------------------------------------------- calibration files are input too
+
+def _write_matrix(path, M) -> None:
+    np.savetxt(path, np.asarray(M, dtype=float), fmt="%.6f")
+
+
+@pytest.mark.parametrize("scale, words", [(np.diag([2.0, 2.0, 2.0, 1.0]), "the 3x3 part scales by 2 to 2"),
+                                          (np.diag([1.0, 1.0, 1.5, 1.0]), "the 3x3 part scales by 1 to 1.5")])
+def test_an_extrinsic_that_scales_is_refused_naming_the_file(tmp_path, capsys, scale, words):
+    root = write_scannet(tmp_path, make_recording(2))
+    _write_matrix(root / "intrinsic/extrinsic_depth.txt", scale)
+    with pytest.raises(InputDataError) as err:
+        ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
+    text = str(err.value)
+    assert f"file {root}/intrinsic/extrinsic_depth.txt" in text and words in text and "rigid transform" in text, text
+    assert "depth/" not in text  # not blamed on the depth images
+    assert not (tmp_path / "f.zarr").exists()
+    code, out = cli_ingest(tmp_path, root, "s", capsys=capsys)
+    assert code == 1 and "extrinsic_depth.txt" in out and "Traceback" not in out
+
+
+@pytest.mark.parametrize("name, change, words", [
+    ("intrinsic_depth.txt", {(0, 0): 0.0}, "depth intrinsics: focal lengths fx 0"),
+    ("intrinsic_depth.txt", {(1, 1): -5.0}, "fy -5"),
+    ("intrinsic_color.txt", {(0, 2): 1e6}, "colour intrinsics: principal point (1e+06"),
+    ("intrinsic_color.txt", {(0, 1): 0.3}, "not a pinhole camera matrix"),
+    ("intrinsic_depth.txt", {(0, 0): float("nan")}, "depth intrinsics hold NaN or inf"),
+])
+def test_intrinsics_that_cannot_project_are_refused_naming_the_file(tmp_path, name, change, words):
+    root = write_scannet(tmp_path, make_recording(2))
+    M = np.loadtxt(root / "intrinsic" / name)
+    for at, value in change.items():
+        M[at] = value
+    _write_matrix(root / "intrinsic" / name, M)
+    with pytest.raises(InputDataError) as err:
+        ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
+    assert f"file {root}/intrinsic/{name}" in str(err.value) and words in str(err.value), str(err.value)
+
+
+def test_mixed_padded_and_plain_frame_names_name_both_files(tmp_path):
+    root = write_scannet(tmp_path, make_recording(3))
+    (root / "color/1.jpg").rename(root / "color/000001.jpg")
+    with pytest.raises(InputDataError) as err:
+        ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
+    text = str(err.value)
+    assert "mix zero-padded" in text and f"{root}/color/000001.jpg" in text and f"{root}/color/0.jpg" in text, text
+
+
+def test_one_frame_number_twice_names_both_files(tmp_path):
+    root = write_scannet(tmp_path, make_recording(3))
+    (root / "color/2.jpg").rename(root / "color/02.jpg")
+    (root / "color/2.jpg").write_bytes((root / "color/02.jpg").read_bytes())
+    with pytest.raises(InputDataError, match=r"02\.jpg and 2\.jpg are both frame 2"):
+        ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)
+
+
+def test_an_export_padded_throughout_is_named(tmp_path):
+    root = write_scannet(tmp_path, make_recording(2))
+    for i in range(2):
+        (root / f"color/{i}.jpg").rename(root / f"color/{i:06d}.jpg")
+    with pytest.raises(InputDataError, match=r"frame names are zero-padded \(.*color/000000\.jpg\)"):
+        ingest_path(root, tmp_path / "f.zarr", IngestParams(), **QUIET)

@@ -4,22 +4,11 @@ tables and stair-less buildings on synthetic surfaces."""
 import numpy as np
 import pytest
 
-from pipeline.config import GridParams, ReconstructParams
+from pipeline.config import ReconstructParams
 from pipeline.geometry import GridSpec
-from pipeline.recon import Recon
-from pipeline.recon.build import reconstruct
 from pipeline.recon.stairs import find_stairs, unlinked_warnings
 from pipeline.recon.store import Floor
-from tests.fixtures.recon_scenes import STOREY_M, write_two_storey_frames
-
-
-@pytest.fixture(scope="module")
-def house(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("house")
-    frames, gt = write_two_storey_frames(tmp / "frames.zarr")
-    summary = reconstruct(frames, tmp / "recon.zarr", tmp / "mesh.ply", tmp / "points.ply", ReconstructParams(),
-                          GridParams(rows=160, cols=200))
-    return summary, Recon(tmp / "recon.zarr"), gt
+from tests.fixtures.recon_scenes import STOREY_M
 
 
 def test_a_two_storey_house_is_two_floors_joined_by_its_stairs(house):
@@ -34,6 +23,7 @@ def test_a_two_storey_house_is_two_floors_joined_by_its_stairs(house):
     assert 3.0 <= stairs.run_m <= 3.6 and stairs.length_m >= np.hypot(stairs.rise_m, stairs.run_m)
     g = recon.grid
     bottom, top = g.cell_to_world(np.array([stairs.bottom.endpoint, stairs.top.endpoint]))
+    assert [*bottom, *top] == pytest.approx([*stairs.bottom.xy, *stairs.top.xy], abs=1e-4)
     assert 1.0 <= bottom[0] <= 1.8 and 0.0 <= bottom[1] <= 1.2  # at the foot of the flight (x 1.75)
     assert 5.0 <= top[0] <= 6.0 and 0.0 <= top[1] <= 1.2  # at its head (x 5.5)
     assert recon.floor(0).navigable[stairs.bottom.endpoint] and recon.floor(1).navigable[stairs.top.endpoint]
@@ -84,8 +74,8 @@ def test_a_ramp_is_a_link_and_a_table_is_not():
     nav = [np.ones((GRID.rows, GRID.cols), bool)] * 2
     (link,) = find_stairs(xyz, normals, FLOORS, GRID, nav, ReconstructParams())
     assert link.kind == "ramp" and link.rise_m == 3.0
-    # its ends within floor_tolerance_m (0.05 m: 0.3 m of run) of a floor are that floor; + a cell onto each
-    assert link.run_m == pytest.approx(18.0 - 0.6 + 0.1, abs=0.15)
+    # its ends within floor_tolerance_m (0.05 m: 0.3 m of run) of a floor are that floor
+    assert link.run_m == pytest.approx(18.0 - 0.6, abs=0.15)
     assert link.length_m == pytest.approx(np.hypot(17.5, 2.9), abs=0.2)
     assert unlinked_warnings(FLOORS, [link]) == []
 

@@ -15,11 +15,11 @@ def test_render_draws_each_floor_of_a_building_or_the_one_asked_for(two_storey_m
     ws = two_storey_maps[0]
     capsys.readouterr()
     assert cli(ws, "render", "house", "--what", "color", "-o", str(tmp_path / "color.png")) == 0
-    assert capsys.readouterr().out.split() == [str(tmp_path / "color.floor0.png"), str(tmp_path / "color.floor1.png")]
-    assert (tmp_path / "color.floor0.png").stat().st_size != (tmp_path / "color.floor1.png").stat().st_size
+    assert capsys.readouterr().out.split() == [str(tmp_path / "color_floor0.png"), str(tmp_path / "color_floor1.png")]
+    assert (tmp_path / "color_floor0.png").stat().st_size != (tmp_path / "color_floor1.png").stat().st_size
     assert cli(ws, "render", "house", "--what", "cfmap", "--floor", "1") == 0
-    assert capsys.readouterr().out.split() == [str(ws.renders("house") / "cfmap.floor1.png")]
-    assert (ws.renders("house") / "cfmap.floor1.png").is_file()
+    assert capsys.readouterr().out.split() == [str(ws.renders("house") / "cfmap_floor1.png")]
+    assert (ws.renders("house") / "cfmap_floor1.png").is_file()
 
 
 def test_render_refuses_a_floor_the_scene_has_not_or_a_whole_scene_picture(two_storey_maps, capsys):
