@@ -170,12 +170,6 @@ class Scene:
 
         return Recon(self.existing("recon"))
 
-    @property
-    def floors(self) -> tuple:
-        """The scene's floors (:class:`~pipeline.recon.store.Floor`: id, name, floor_z_m, ceiling_z_m), lowest
-        first, as reconstruct found them; one for a single-floor scene."""
-        return self.recon.floors
-
     @cached_property
     def grid(self) -> GridSpec:
         return self.recon.grid
