@@ -351,7 +351,7 @@ def check_conceptfusion(path: Path, rgb, depth, rgb_file: Path, work: Path, arch
     from open_clip.model import get_model_preprocess_cfg
     from open_clip.transform import PreprocessCfg, image_transform_v2
 
-    from pipeline.config import RegionParams
+    from pipeline.encoder_params.conceptfusion import RegionParams
     from pipeline.encoders.conceptfusion import ConceptFusionEncoder
     from pipeline.encoders.maskclip import load_open_clip
     from pipeline.encoders.regions import Regions, RGBDRegions

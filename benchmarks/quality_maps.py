@@ -42,7 +42,7 @@ from pipeline.maps.build import build_map  # noqa: E402
 from pipeline.maps.config import MAP_CONFIGS  # noqa: E402
 from pipeline.maps.evaluate import class_masks, evaluate_map, sample_poses  # noqa: E402
 from pipeline.maps.query import MapQuery, gt_floor, open_query  # noqa: E402
-from pipeline.perception_params import PUBLISHED  # noqa: E402
+from pipeline.encoder_params.perception import PUBLISHED  # noqa: E402
 from pipeline.recon import Recon  # noqa: E402
 from pipeline.scene_gt import GTScene  # noqa: E402
 from pipeline.store import artifact_attrs  # noqa: E402

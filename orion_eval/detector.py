@@ -4,7 +4,7 @@ and CoW's CLIP-saliency localiser (:class:`SaliencyDetector`, Grad-CAM on CLIP V
 Used by the CoW and ORION agents on simulated scenes instead of ground-truth visibility (the exact
 encoder-based detection stays for the ``oracle`` diagnostic and for real scenes, see
 :meth:`orion_eval.scene.SceneContext.detect`). Settings and the figures they were set from:
-:class:`pipeline.perception_params.DetectorParams`. Not a trained model.
+:class:`pipeline.encoder_params.perception.DetectorParams`. Not a trained model.
 
 For each object visible in the rendered view (its instance pixels within ``eval.detect_max_range_m``):
 
@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.encoders.perception_text import ClipTextSpace
-from pipeline.perception_params import DetectorParams
+from pipeline.encoder_params.perception import DetectorParams
 
 
 @dataclass

@@ -344,6 +344,19 @@ def _(c):
     return with_params(c, BASE + "reconstruct: {voxel_size_m: .nan}\n")
 
 
+@case("params-floors-too-close", 1, "reconstruct.floors", "floor 1 (floor_z_m 1.0) must lie at least 1.8 m above")
+def _(c):
+    return with_params(c, BASE + "reconstruct: {floors: [{floor_z_m: 0.0}, {floor_z_m: 1.0}]}\n")
+
+
+@case("floors-pinned-without-surface", 1, "reconstruct.floors[1].floor_z_m: no floor at 3.00 m",
+      "upward-facing surface points")
+def _(c):
+    params = yaml.safe_load((c.root / "params.yaml").read_text())
+    params.setdefault("reconstruct", {})["floors"] = [{"floor_z_m": 0.0}, {"floor_z_m": 3.0}]
+    return with_params(c, yaml.safe_dump(params), "run", "--stage", "reconstruct", "--force", "--scheduler", "sync")
+
+
 @case("params-unknown-scheduler", 1, "run.scheduler", "fastest")
 def _(c):
     return with_params(c, BASE + "run: {scheduler: fastest}\n")

@@ -223,7 +223,9 @@ STORE_MAY_IMPORT = {"pipeline", "pipeline.config", "pipeline.stageconfig", "pipe
                     "pipeline.scene_gt", "pipeline.maps.scoring",
                     # the goal document and object record schemas (pydantic) the goals store holds
                     "pipeline.goals.objects", "pipeline.goals.schema",
-                    # the floor records (pipeline.recon.store.Floor) a building's map stores repeat from recon.zarr
+                    # the action codes routes.zarr stores (constants only)
+                    "pipeline.nav.codes",
+                    # the floor records (Floor) a building's map stores keep, as recon.zarr defines them
                     "pipeline.recon.store"}
 
 
@@ -235,9 +237,14 @@ def test_stores_import_no_algorithm_that_fills_them():
 
 
 # pipeline.config (the schema), pipeline.paramsfile (reading it) and pipeline.stageconfig (digests) are read by every
-# command, the fast ones (status, params, query) included: they stay leaves (the params sections live in the schema,
-# not beside their packages; docs: architecture, design decisions).
-CONFIG_MAY_IMPORT = {"pipeline", "pipeline.errors", "pipeline.perception_params", "pipeline.plugins", "pipeline.section",
+# command, the fast ones (status, params, query) included: they stay leaves (the params sections live in the schema and
+# its per-area modules, each built-in encoder's settings in its own torch-free module; docs: architecture, design
+# decisions).
+PARAMS_MODULES = {"pipeline.ingest_params", "pipeline.eval_params", "pipeline.maps_params", "pipeline.encoder_params",
+                  "pipeline.encoder_params.perception", "pipeline.encoder_params.lseg",
+                  "pipeline.encoder_params.maskclip", "pipeline.encoder_params.conceptfusion",
+                  "pipeline.encoder_params.torchscript", "pipeline.encoder_params.oracle"}
+CONFIG_MAY_IMPORT = {"pipeline", "pipeline.errors", "pipeline.plugins", "pipeline.section", *PARAMS_MODULES,
                      "pipeline.config",
                      # the bounded YAML/JSON loader params files are read through (a leaf: errors, yaml, json)
                      "pipeline.userfiles",
@@ -256,4 +263,4 @@ def test_config_and_what_it_imports_are_leaves(start):
             assert dep in CONFIG_MAY_IMPORT | {start}, f"{modules[name]}:{line} imports {dep}"
             if dep not in seen and dep != "pipeline":
                 todo.append(dep)
-    assert {"pipeline.config", "pipeline.section", "pipeline.perception_params"} <= seen | {start}
+    assert {"pipeline.config", "pipeline.section", *PARAMS_MODULES} <= seen | {start}

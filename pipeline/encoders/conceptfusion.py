@@ -27,7 +27,7 @@ from open_clip.model import get_model_preprocess_cfg
 from open_clip.transform import PreprocessCfg, image_transform_v2
 from PIL import Image
 
-from pipeline.config import ConceptFusionParams, RegionParams
+from pipeline.encoder_params.conceptfusion import ConceptFusionParams, RegionParams
 from pipeline.encoders.base import DenseFeatures, Encoder, OpenClipText, l2_normalize, require_file
 from pipeline.encoders.maskclip import clip_tokens, load_open_clip
 from pipeline.encoders.regions import RegionGenerator, Regions, build_region_generator

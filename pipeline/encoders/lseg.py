@@ -23,7 +23,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from pipeline.config import LSegParams
+from pipeline.encoder_params.lseg import LSegParams
 from pipeline.encoders.base import (
     DenseFeatures,
     Encoder,

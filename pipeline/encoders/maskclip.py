@@ -22,7 +22,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from pipeline.config import MaskClipParams
+from pipeline.encoder_params.maskclip import MaskClipParams
 from pipeline.encoders.base import (
     CLIP_MEAN,
     CLIP_STD,

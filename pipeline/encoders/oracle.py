@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from pipeline.config import OracleParams
+from pipeline.encoder_params.oracle import OracleParams
 from pipeline.encoders.base import DenseFeatures, Encoder, PaletteFeatures
 from pipeline.encoders.oracle_text import BACKGROUND, VERSION, OracleText, _words
 from pipeline.errors import ConfigError, InputDataError

@@ -4,7 +4,7 @@ No trained LSeg / CLIP / SAM weights exist on these machines, so the embedded sc
 perception MODELS with the error structure of the real ones, in the real CLIP ViT-B/32 text space
 (:mod:`pipeline.encoders.perception_text`). They are not trained networks, and every map records
 ``kind: simulated ... perception`` in its encoder identity; the exact ``oracle`` stays the
-ground-truth diagnostic. Settings and the figure each was set from: :mod:`pipeline.perception_params`;
+ground-truth diagnostic. Settings and the figure each was set from: :mod:`pipeline.encoder_params.perception`;
 ``benchmarks/quality_maps.py`` prints the maps' mAcc / F-mIoU next to the published ones.
 
 Both read the frame's instance image and the scene's ground truth (``bind_scene``). Per object,
@@ -50,7 +50,7 @@ from pipeline.encoders.base import DenseFeatures, Encoder, PaletteFeatures, l2_n
 from pipeline.encoders.perception_text import (TEMPERATURE, VERSIONS, ClipTextSpace, load_text_space,
                                                resolve_embeddings)
 from pipeline.errors import ConfigError, InputDataError
-from pipeline.perception_params import SimulatedCFParams, SimulatedLSegParams
+from pipeline.encoder_params.perception import SimulatedCFParams, SimulatedLSegParams
 from pipeline.sim.catalog import COLOURS, MATERIALS
 
 if TYPE_CHECKING:

@@ -24,7 +24,7 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
-from pipeline.config import RegionParams
+from pipeline.encoder_params.conceptfusion import RegionParams
 from pipeline.errors import ConfigError, InputDataError, MissingInputError
 
 

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from pipeline.config import TorchScriptParams
+from pipeline.encoder_params.torchscript import TorchScriptParams
 from pipeline.encoders.base import DenseFeatures, Encoder, file_digest, l2_normalize, require_file, to_tensor01
 from pipeline.errors import ConfigError, StageError
 

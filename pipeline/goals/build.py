@@ -32,7 +32,7 @@ from pipeline.frames import FrameStore
 from pipeline.geometry import GridSpec, camera_yaw
 from pipeline.goals.feedback import FEEDBACK_KINDS, FeedbackContext, GoalDraft
 from pipeline.goals.feedback.landmark import find_landmarks
-from pipeline.goals.floors import Building, FloorParts, floor_object_index, floors_of_objects
+from pipeline.goals.floors import Building, FloorParts, floor_object_index, floors_of_objects, walkable_start
 from pipeline.goals.naming import assign_rooms, ensure_unique, personalize, same_goal_groups
 from pipeline.goals.navchat import check_navchat_coverage, import_navchat, navchat_frame
 from pipeline.goals.objects import ObjectSet, objects_from_file, objects_from_gt, rasterize_polygons
@@ -371,8 +371,14 @@ def build_scene_goals(frames: FrameStore, recon: Recon, out_path: Path, attrs: d
     pose0 = start_pose(frames)
     regions = GoalRegions(recon, objset, task.success_m)
     building = None
+    start_nav = recon.navigable
     if len(recon.floors) > 1:
         building, regions = scene_building(recon, objset, gt, settings, task.success_m, frames)
+        start_nav = building.planner.planners[building.start_floor].navigable
+    pose0, moved = walkable_start(pose0, start_nav, grid)
+    if moved:
+        log(f"the recording's start lies on a cell not seen as floor; procedural feedback starts {moved:.2f} m away, "
+            "on the nearest navigable cell")
     res = build_goals(objset, grid, walls, planner=planner, start_pose=pose0, settings=p, edits=edits,
                       edits_path=edits_path, goal_region=regions, building=building)
     keys = [o.key for o in objset.objects]

@@ -49,6 +49,34 @@ def floor_object_index(objset: ObjectSet, floor: int, grid: GridSpec) -> np.ndar
     return lookup[local]
 
 
+def walkable_start(pose: tuple[float, float, float] | None, navigable: np.ndarray, grid: GridSpec,
+                   max_m: float = 1.0) -> tuple[tuple[float, float, float] | None, float]:
+    """The recording's start pose moved onto the navigable grid: ``(pose, metres moved)``. A camera that looks ahead
+    never sees the floor it stands on until it has moved away, so the first pose's cell can be unknown; the robot
+    stood there, so the nearest navigable cell within ``max_m`` is where a route from it starts (yaw kept). The pose
+    as it was when its cell is navigable or none is that near (0 moved)."""
+    from scipy import ndimage
+
+    if pose is None:
+        return None, 0.0
+    rc = grid.world_to_cell(np.asarray(pose[:2], np.float64))
+    nav = np.asarray(navigable, bool)
+    if not grid.inside(rc) or nav[rc[0], rc[1]] or not nav.any():
+        return pose, 0.0
+    pad = int(np.ceil(max_m / grid.cell_size_m)) + 1
+    r0, c0 = max(int(rc[0]) - pad, 0), max(int(rc[1]) - pad, 0)
+    window = nav[r0:int(rc[0]) + pad + 1, c0:int(rc[1]) + pad + 1]
+    if not window.any():
+        return pose, 0.0
+    dist, (ri, ci) = ndimage.distance_transform_edt(~window, return_indices=True)
+    lr, lc = int(rc[0]) - r0, int(rc[1]) - c0
+    if dist[lr, lc] * grid.cell_size_m > max_m:
+        return pose, 0.0
+    x, y = grid.cell_to_world(np.array([ri[lr, lc] + r0, ci[lr, lc] + c0]))
+    moved = float(np.hypot(x - pose[0], y - pose[1]))
+    return (float(x), float(y), float(pose[2])), moved
+
+
 def floors_of_objects(objset: ObjectSet, floors: int, where: str) -> None:
     """Refuse objects (or rooms) on a floor the reconstruction does not have, naming them."""
     from pipeline.errors import InputDataError

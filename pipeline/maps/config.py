@@ -65,10 +65,8 @@ class MapConfig(StageConfig):
         keys = ["encoders.simulated"] if simulated else []
         if not (simulated and enc.simulated is not None):
             keys.append(f"encoders.{cls.kind.value}")
-        if name in EncodersParams.model_fields:
-            keys.append(f"encoders.{name}")
-        elif name in enc.plugins:
-            keys.append(f"encoders.plugins.{name}")
+        if (key := enc.settings_key(name)) is not None:  # a built-in's section or a plug-in's entry alike
+            keys.append(key)
         return name, keys
 
     @classmethod
@@ -80,10 +78,7 @@ class MapConfig(StageConfig):
         name, _ = cls._encoder(params, scene)
         defaults = MapsParams()
         maps = params.maps.model_copy(update={f: getattr(defaults, f) for f in cls._other_fields()})
-        enc = params.encoders
-        own = ({name: getattr(enc, name)} if name in EncodersParams.model_fields
-               else {"plugins": {name: enc.plugins[name]}} if name in enc.plugins else {})
-        return cls(maps=maps, encoder=name, encoders=EncodersParams(**own))
+        return cls(maps=maps, encoder=name, encoders=params.encoders.only(name))
 
     @classmethod
     def extra_inputs(cls, params: Params, scene: str) -> dict[str, str]:

@@ -21,12 +21,10 @@ from scipy import ndimage
 
 from pipeline.config import TaskParams
 from pipeline.geometry import GridSpec
+from pipeline.nav.codes import ACTION_NAMES, FORWARD, LEFT, RIGHT, STOP  # noqa: F401 (re-exported)
 from pipeline.nav.fmm import (GeodesicPath, geodesic_field, planning_mask, segment_free, shortest_path,
                               target_region)
 
-# the discrete action space (Habitat's codes): routes.zarr stores these, the evaluator's agents act with them
-STOP, FORWARD, LEFT, RIGHT = 0, 1, 2, 3
-ACTION_NAMES = {STOP: "stop", FORWARD: "forward", LEFT: "left", RIGHT: "right"}
 DEEP_CELLS = 2  # a walk finishes this many cells inside its aim when a few more steps get it there
 _LETTER = {FORWARD: "f", LEFT: "l", RIGHT: "r"}
 

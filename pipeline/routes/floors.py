@@ -116,9 +116,11 @@ def _cross_episode(building: BuildingPlanner, eid: str, goal: GoalTarget, aims: 
             break
         climb = route.climbs[i]
         near = climb.link.end_on(floor)
-        if math.dist(res.final_xyyaw[:2], near) > STAIR_END_RADIUS_M + 1e-9:
+        rc = planner.grid.world_to_cell(np.asarray(res.final_xyyaw[:2]))
+        at_stair = building._end_mask(climb.link, floor)
+        if not (planner.grid.inside(rc) and at_stair[rc[0], rc[1]]):
             return None, f"replay failed: the walk on floor {floor} ends {math.dist(res.final_xyyaw[:2], near):.2f} " \
-                         f"m from {climb.link.id}"
+                         f"m from {climb.link.id}, off the cells within {STAIR_END_RADIUS_M} m of its end"
         far = climb.link.end_on(climb.link.other(floor))
         pose = (float(far[0]), float(far[1]), math.atan2(far[1] - near[1], far[0] - near[0]))
     if not res.success:

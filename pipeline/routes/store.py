@@ -33,7 +33,7 @@ import numpy as np
 
 from pipeline.errors import ArtifactError
 from pipeline.geometry import GridSpec
-from pipeline.nav.actions import ACTION_NAMES
+from pipeline.nav.codes import ACTION_NAMES
 from pipeline.store import ArtifactAttrs, AttrsModel, GridAttrs, compressor, new_group, open_group
 
 ARTIFACT = "routes"

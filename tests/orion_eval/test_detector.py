@@ -11,7 +11,7 @@ import pytest
 
 from orion_eval.detector import SimulatedDetector
 from pipeline.encoders.perception_text import load_text_space, resolve_embeddings
-from pipeline.perception_params import DetectorParams
+from pipeline.encoder_params.perception import DetectorParams
 from pipeline.scene_gt import GTScene
 
 H, W = 24, 32

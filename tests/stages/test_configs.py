@@ -12,7 +12,7 @@ from pydantic import BaseModel, ValidationError
 import yaml
 
 from pipeline.config import GridParams, Params
-from pipeline.perception_params import DetectorParams, SimulatedCFParams, SimulatedLSegParams
+from pipeline.encoder_params.perception import DetectorParams, SimulatedCFParams, SimulatedLSegParams
 from pipeline.paramsfile import params_yaml, parse_params
 from pipeline.stageconfig import digest_value, project
 from stages import STAGES
@@ -218,7 +218,7 @@ def test_a_moved_task_key_is_an_error_naming_its_new_home(old, new, tmp_path, ca
 @pytest.mark.parametrize("section", ["simulate", "ingest", "reconstruct", "maps"])
 def test_every_depth_range_is_checked_once_the_same_way(section, tmp_path, capsys):
     from zipon.cli import main
-    from pipeline.config import DepthRange
+    from pipeline.section import DepthRange
 
     base = _params()
     sec = getattr(base, section)

@@ -6,7 +6,7 @@ import open_clip
 import pytest
 import torch
 
-from pipeline.config import MaskClipParams
+from pipeline.encoder_params.maskclip import MaskClipParams
 from pipeline.encoders import build_encoder
 from pipeline.encoders.maskclip import maskclip_patch_features, vit_tokens
 from pipeline.errors import ConfigError

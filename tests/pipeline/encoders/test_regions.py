@@ -7,7 +7,7 @@ import importlib.util
 import numpy as np
 import pytest
 
-from pipeline.config import RegionParams
+from pipeline.encoder_params.conceptfusion import RegionParams
 from pipeline.encoders.regions import REGION_GENERATORS, Regions, build_region_generator
 from pipeline.errors import ConfigError, InputDataError
 from tests.pipeline.encoders.conftest import toy_batch

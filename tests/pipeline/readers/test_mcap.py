@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.config import IngestParams, IngestTopics
+from pipeline.config import IngestParams
+from pipeline.ingest_params import IngestTopics
 from pipeline.errors import InputDataError
 from pipeline.frames import FrameStore
 from pipeline.readers.ingest import ingest_path

@@ -8,7 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.config import CameraOverride, IngestParams
+from pipeline.config import IngestParams
+from pipeline.ingest_params import CameraOverride
 from pipeline.errors import InputDataError
 from pipeline.frames import FrameStore
 from pipeline.geometry import pose_from_tq

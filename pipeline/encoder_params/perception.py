@@ -1,4 +1,4 @@
-"""Typed settings of the simulated perception models (no torch here: :mod:`pipeline.config` imports it).
+"""Typed settings of the simulated perception models (no torch here: the params schema imports it).
 
 - :class:`SimulatedLSegParams` / :class:`SimulatedCFParams`: the ``simulated_lseg`` / ``simulated_cf``
   encoders of :mod:`pipeline.encoders.perception` (sections ``encoders.simulated_lseg`` /
@@ -14,13 +14,11 @@ published figure pins down, its description says so.
 
 from __future__ import annotations
 
-from typing import Annotated, Optional
+from typing import Optional
 
 from pydantic import Field
 
-from pipeline.section import Section
-
-CellSize = tuple[Annotated[int, Field(gt=0)], Annotated[int, Field(gt=0)]]  # (height, width)
+from pipeline.section import CellSize, Section
 
 # Published perception-level figures the defaults are calibrated to (3D open-vocabulary semantic
 # segmentation on Replica, ConceptFusion's protocol; ConceptGraphs, Gu et al., arXiv 2309.16650, Table I).
