@@ -10,11 +10,11 @@ import sys
 
 from rich.markup import escape
 
-from zipon.cli import build, inspect, project
+from zipon.cli import build, inspect, maps, project
 from zipon.cli.common import G, app, console
 from pipeline.errors import ZiponError
 
-__all__ = ["app", "build", "entry", "inspect", "main", "project"]
+__all__ = ["app", "build", "entry", "inspect", "main", "maps", "project"]
 
 
 def main(argv: list[str] | None = None) -> int:

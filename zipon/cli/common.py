@@ -1,6 +1,6 @@
 """What every ``zipon`` command shares: the app, the global options (:data:`G`), the consoles, and the helpers
 that run the stage plan and print its outcomes and evaluation results. The commands live in
-:mod:`zipon.cli.build` and :mod:`zipon.cli.inspect`; :mod:`zipon.cli` imports both and turns errors into
+:mod:`zipon.cli.build`, :mod:`zipon.cli.inspect` and :mod:`zipon.cli.maps`; :mod:`zipon.cli` imports them and turns errors into
 messages and exit codes."""
 
 from __future__ import annotations
@@ -51,6 +51,14 @@ class Globals:
 
 
 G = Globals()
+
+
+def open_scene(name: str):
+    """The :class:`zipon.Scene` of ``name`` (a ConfigError naming the known scenes when there is none)."""
+    from zipon.api import Dataset
+
+    ws, params = G.load()
+    return Dataset(ws, params)[name]
 
 
 def _print_version(value: bool) -> None:
