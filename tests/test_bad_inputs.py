@@ -899,6 +899,45 @@ def _(c):
     return c.argv("query", SCENE, "   ")
 
 
+# --- stored human-answered episodes (zipon eval -f human reads them back as user input)
+
+HUMAN_RECORD = {"scene": SCENE, "method": "cow", "feedback": "human", "seed": 0, "goal": "?", "goal_type": "big",
+                "episode": "e0", "success": True, "spl": 0.5, "sit": 1.0, "talk_turns": 1, "steps": 12,
+                "travelled_m": 3.2, "geodesic_m": 1.6, "collisions": 0, "end": "found", "final_distance_m": 0.4}
+
+
+def human_eval(c: Ctx, *records: dict, strict: bool = False) -> list[str]:
+    path = c.data / "eval" / "human" / f"{SCENE}.episodes.jsonl"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("".join(json.dumps(r) + "\n" for r in records))
+    return c.argv("eval", "-s", SCENE, "-m", "cow", "-f", "human", "--out", str(c.scratch / "ev"),
+                  *(["--strict"] if strict else []))
+
+
+@case("eval-human-string-for-number", 1, "data/eval/human/tiny.episodes.jsonl", "field spl", "line 2",
+      "Input should be a valid number", tampers=True)
+def _(c):
+    good = {**HUMAN_RECORD, "goal": c.goals_doc["goals"][0]["id"]}
+    return human_eval(c, good, {**good, "spl": "0.5"})
+
+
+@case("eval-human-missing-field", 1, "data/eval/human/tiny.episodes.jsonl", "field success", "line 1",
+      "Field required", tampers=True)
+def _(c):
+    return human_eval(c, {k: v for k, v in HUMAN_RECORD.items() if k != "success"})
+
+
+@case("eval-human-nan", 1, "data/eval/human/tiny.episodes.jsonl", "field travelled_m", "finite number", tampers=True)
+def _(c):
+    return human_eval(c, {**HUMAN_RECORD, "goal": c.goals_doc["goals"][0]["id"], "travelled_m": float("nan")})
+
+
+@case("eval-human-removed-goal-strict", 1, "data/eval/human/tiny.episodes.jsonl", "field goal",
+      "goal 'removed_goal' is not in scene tiny's goals store", tampers=True)
+def _(c):
+    return human_eval(c, {**HUMAN_RECORD, "goal": "removed_goal"}, strict=True)
+
+
 @case("usage-eval-negative-seed", 2, "--seed-list", "negative")
 def _(c):
     return c.argv("eval", "--seed-list", "-3", "--out", str(c.scratch / "eval"))
