@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from orion_eval.agents.base import run_agent
 from orion_eval.modules import Modules
 from orion_eval.user import SimulatedUser
 from orion_eval.world import ACTION_WORDS, Body
@@ -130,7 +131,7 @@ def run_episode(ctx, task: Task, agent, goal, *, rng: np.random.Generator, llm_u
         user.llm = llm_user(goal)
     run = EpisodeRun(ctx, task, user, ep.max_steps, ep.max_talk_turns, memory=memory)
     try:
-        agent.run(run.modules, user.instruction(), goal.name)
+        run_agent(agent, run.modules, user.instruction(), goal.name, passes=(EpisodeOver,))
         reason = "gave up"
     except EpisodeOver as over:
         reason = over.reason

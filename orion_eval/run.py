@@ -105,16 +105,22 @@ def _resolve(params: Params, scenes, methods, feedback, seeds, agent_classes=Non
     unknown = [s for s in scenes if s not in params.scenes]
     if unknown:
         raise ConfigError(f"-s/--scene: unknown scene(s) {unknown}; params.yaml has {sorted(params.scenes)}")
-    from orion_eval.agents import AGENTS
+    from orion_eval.agents import AGENTS, agent_class
+    from pipeline import plugins
 
-    # names are checked against their registries here (params spell none of them); None = every one
+    # names are checked against their registries here (params spell none of them); None = every built-in one
     source = "--methods" if methods else "eval.methods"
-    classes = {**AGENTS, **(agent_classes or {})}
-    usable = [m for m, cls in AGENTS.items() if cls.missing(params) is None]
+    usable = [m for m, cls in AGENTS.items() if m in plugins.BUILT_IN_AGENTS and cls.missing(params) is None]
     methods = list(methods or ep.methods or [m for m in usable if AGENTS[m].by_default])
+    classes = {**(agent_classes or {})}
+    for m in methods:  # the caller's classes, then the registry: built in or an installed package's
+        if m not in classes and (cls := agent_class(m)) is not None:
+            classes[m] = cls
     bad = [m for m in methods if m not in classes]
     if bad:
-        raise ConfigError(f"{source}: unknown method(s) {bad}; choose from {usable}")
+        installed = [m for m in plugins.agent_names() if m not in plugins.BUILT_IN_AGENTS]
+        raise ConfigError(f"{source}: unknown method(s) {bad}; choose from {usable}"
+                          + (f" or the installed {installed}" if installed else ""))
     for m in methods:
         if (why := classes[m].missing(params)) is not None:
             raise ConfigError(f"{source}: method {m!r} cannot run: {why}")

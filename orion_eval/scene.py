@@ -22,6 +22,7 @@ import torch
 from orion_eval.nav import NavPlanner
 from orion_eval.world import SuccessRule, World
 from pipeline.encoders.base import cached_text_features
+from pipeline.errors import StageError
 from pipeline.nav.actions import RouteSettings
 from pipeline.scene import Scene
 
@@ -47,10 +48,21 @@ class Detection:
     pixels: int
 
 
+def check_one_floor(name: str, floors) -> None:
+    """Refuse a building: the agents' world, maps and planners are one floor's, and they do not take stairs yet, so
+    episodes on or across its other floors cannot be scored (raises :class:`~pipeline.errors.StageError`)."""
+    if len(floors) > 1:
+        raise StageError(f"scene {name}: a building of {len(floors)} floors "
+                         f"({', '.join(f.name for f in floors)}); the evaluator's agents act on one floor and do not "
+                         "take stairs yet, so its episodes cannot be scored: leave it out of the evaluation "
+                         "(zipon eval --scene NAME for each single-floor scene)")
+
+
 class SceneContext:
     """Per-scene state shared by all episodes (see the module docstring)."""
 
     def __init__(self, scene: Scene):
+        check_one_floor(scene.name, scene.recon.floors)
         self.scene, self.params = scene, scene.params
         ep, task = self.params.eval, self.params.task
         self.grid = scene.grid

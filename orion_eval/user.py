@@ -5,19 +5,16 @@ feedback kind of :data:`pipeline.goals.feedback.FEEDBACK_KINDS`, mixed):
 
 - ``none``: no interaction — the first Talk ends the episode (success is judged there);
 - ``yesno``: "Yes, this is X." / "No.";
-- ``corrective``: "No. This is Bob's computer, not Alice's computer." when the agent looks at an
-  object the goal's corrective FB names (else "No.");
-- ``descriptive``: "No. It is a red chair made of wood. ..." (the goal's descriptive FB);
-- ``landmark``: "No. It is next to Alice's bed." (landmark FB; "No." when the goal has none);
-- ``procedural``: spoken as a person gives directions (:meth:`SimulatedUser.procedural`), from the agent's
-  CURRENT pose with the routes planner: "No. Follow this route: turn left, go forward 5 meters." when
-  navchat's rule allows a route (goal in another room, at most 3 parts), else a destination point
-  "No. It is about 4 meters ahead on your left." (the goal's mass centre in one of 8 directions); distances
-  are misjudged (a seeded factor ``exp(N(0, SPEECH_NOISE))``) and said in whole metres, turns only as
-  left / right / around: approximate, "not precise" as the paper says. Each misjudgement is drawn for
-  what is judged — the episode's key, the place the user is asked from, the distance's place in the reply —
-  never in the order of the episode's calls, so two settings of one (seed, goal) asked at the same place
-  say the same route (common random numbers: settings differ only in which kinds are said);
+- one per feedback kind (``corrective``, ``descriptive``, ``landmark``, ``procedural``): "No. " and what the kind's
+  :meth:`~pipeline.goals.feedback.base.FeedbackKind.say` says at the agent's CURRENT pose, from the goal's stored
+  feedback (each kind's module gives its phrases, and how an agent reads them back); "No." when the kind has nothing
+  to say there (the agent looks at no object the corrective FB names, the goal has no landmark, ...). Procedural
+  directions are planned with the routes planner and spoken as a person gives them: distances misjudged (a seeded
+  factor ``exp(N(0, SPEECH_NOISE))``) and said in whole metres, turns only as left / right / around: approximate,
+  "not precise" as the paper says. Each misjudgement is drawn for what is judged — the episode's key, the place the
+  user is asked from, the distance's place in the reply — never in the order of the episode's calls, so two settings
+  of one (seed, goal) asked at the same place say the same route (common random numbers: settings differ only in
+  which kinds are said);
 - ``mixed``: every kind available at that moment in one reply (corrective, descriptive, landmark,
   procedural, in that order), as the paper's user-LLM received all of them at once.
 
@@ -29,8 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.goals.feedback import FEEDBACK_KINDS
-from pipeline.nav.actions import procedural_allowed
+from pipeline.goals.feedback import FEEDBACK_KINDS, feedback_kind
 
 FEEDBACK_KIND_NAMES = tuple(sorted(FEEDBACK_KINDS))  # the goals' feedback kinds (their registry's names)
 FEEDBACK_SETTINGS = ("none", "yesno", *FEEDBACK_KIND_NAMES, "mixed")
@@ -39,9 +35,6 @@ HUMAN_FEEDBACK = "human"
 LOOK_RANGE_M = 2.5
 #: sigma of the log-normal factor a spoken distance is misjudged by (modelling choice: about a fifth either way)
 SPEECH_NOISE = 0.2
-#: the 8 directions a person points in, counter-clockwise from ahead (the agent's parser reads the same words)
-POINTING = ("ahead", "ahead on your left", "to your left", "behind you on the left", "behind you",
-            "behind you on the right", "to your right", "ahead on your right")
 
 
 class SimulatedUser:
@@ -62,10 +55,10 @@ class SimulatedUser:
     def judge(self, pose) -> dict:
         return self.ctx.success.evaluate(pose, self.geometry)
 
-    def looked_at(self, pose) -> str | None:
-        """Key of the (non-goal) object the agent is looking at, among those the corrective FB names."""
+    def looked_at(self, pose, keys) -> str | None:
+        """The key among ``keys`` (the objects the corrective FB names) of the object the agent is looking at."""
         best, best_d = None, np.inf
-        for key in sorted(self.goal.feedback.get("corrective") or {}):
+        for key in keys:
             r = self.ctx.success.evaluate(pose, goal_geometry(self.ctx, (key,)))
             if r["visible"] and abs(r["bearing_deg"]) <= self.ctx.params.task.hfov_deg / 2 and \
                     r["distance_m"] <= LOOK_RANGE_M and r["distance_m"] < best_d:
@@ -79,39 +72,27 @@ class SimulatedUser:
         v = max(1, int(round(metres * factor)))
         return f"{v} meter" if v == 1 else f"{v} meters"
 
+    def route_from(self, pose):
+        """The route from ``pose`` into the routes stage's goal region (it never ends behind a wall), facing the
+        goal's mass centre; None when the goal cannot be reached from ``pose``."""
+        g = self.goal
+        return self.ctx.route_to_goal(self.ctx.user_planner, pose, g, key="user", face_xy=g.mass_center)
+
+    def room_at(self, pose) -> str | None:
+        return self.ctx.scene.room_at(pose[:2])
+
+    def place_key(self, pose) -> tuple[int, ...]:
+        """The place asked from as non-negative seed words."""
+        return tuple(v % 2**32 for v in self.ctx.pose_key(pose))
+
     def procedural(self, pose) -> str | None:
-        """Directions from ``pose``: "Follow this route: ..." when navchat's rule allows a route, else "It is about N
-        meters <direction>." (see the module docstring); None when the goal cannot be reached from ``pose``."""
-        ctx, g = self.ctx, self.goal
-        # into the routes stage's goal region: the route never ends behind a wall
-        route = ctx.route_to_goal(ctx.user_planner, pose, g, key="user", face_xy=g.mass_center)
-        if route is None or not route.parts:
-            return None
-        # the place asked from (non-negative: seed words); then 0 and the part's index for a route's distances, 1
-        # for a point's
-        here = tuple(v % 2**32 for v in ctx.pose_key(pose))
-        if procedural_allowed(route.parts, ctx.scene.room_at(pose[:2]), g.room_id):
-            said = [p.kind if p.kind != "go forward" else f"go forward {self.say_metres(p.value, (*here, 0, i))}"
-                    for i, p in enumerate(route.parts)]
-            return f"Follow this route: {', '.join(said)}."
-        x, y, yaw = (float(v) for v in pose)
-        dx, dy = np.asarray(g.mass_center, np.float64) - (x, y)
-        bearing = float(np.degrees(np.arctan2(dy, dx) - yaw))
-        sector = int(round(bearing / 45.0)) % 8
-        return f"It is about {self.say_metres(float(np.hypot(dx, dy)), (*here, 1))} {POINTING[sector]}."
+        """Directions from ``pose`` (the procedural kind's :meth:`~pipeline.goals.feedback.base.FeedbackKind.say`)."""
+        return self.feedback("procedural", pose)
 
     def feedback(self, kind: str, pose) -> str | None:
-        fb = self.goal.feedback
-        if kind == "corrective":
-            key = self.looked_at(pose)
-            return (fb.get("corrective") or {}).get(key) if key else None
-        if kind == "descriptive":
-            return fb.get("descriptive") or None
-        if kind == "landmark":
-            return fb.get("landmark") or None
-        if kind == "procedural":
-            return self.procedural(pose)
-        return None
+        """What the user says of feedback ``kind`` at ``pose`` (None: nothing there); a kind the registry lacks is a
+        ConfigError naming the registered kinds."""
+        return feedback_kind(kind).say(self.goal.feedback.get(kind), self, pose)
 
     llm = None  # an orion_eval.llm.LLMUser phrasing the replies (eval.llm.roles 'user' / 'both'); None = templates
 

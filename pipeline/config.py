@@ -796,6 +796,17 @@ class RoutesParams(Section):
     seed: int = Field(0, description="seed of the start poses")
     episodes_per_goal: int = Field(3, gt=0, description="episodes (start poses) per goal")
     min_geodesic_m: float = Field(2.0, ge=0, description="start poses are at least this geodesic distance away")
+    cross_floor_per_goal: int = Field(
+        1, ge=0, le=20, description="a building's episodes per goal from each other floor the stairs join to it (0: "
+        "none); a single-floor scene has none")
+
+    @model_serializer(mode="wrap")
+    def _unset_building_keys(self, handler) -> dict:
+        # a building's key at its default is not written, so a single-floor scene's routes digest is as before it
+        data = handler(self)
+        if data.get("cross_floor_per_goal") == 1:
+            data.pop("cross_floor_per_goal")
+        return data
 
 
 class LLMParams(Section):

@@ -59,6 +59,11 @@ class InputDataError(ZiponError, ValueError):
         super().__init__(text)
 
 
+class PluginError(ZiponError, RuntimeError):
+    """An installed plug-in (reader, encoder, agent) failed while zipon imported or ran it; the message names the
+    entry point and the package registering it."""
+
+
 class MissingInputError(ZiponError, FileNotFoundError):
     """A file, artifact or upstream stage output that is needed does not exist."""
 

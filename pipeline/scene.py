@@ -174,6 +174,17 @@ class Scene:
     def grid(self) -> GridSpec:
         return self.recon.grid
 
+    @property
+    def floors(self) -> tuple:
+        """The scene's :class:`~pipeline.recon.store.Floor` s, lowest first (one for a single-floor scene); each
+        floor's grids: ``scene.recon.floor(i)``."""
+        return self.recon.floors
+
+    @property
+    def stairs(self) -> tuple:
+        """The :class:`~pipeline.recon.store.StairLink` s joining the floors (none for a single floor)."""
+        return self.recon.stairs
+
     @cached_property
     def navigable(self) -> np.ndarray:
         return self.recon.navigable

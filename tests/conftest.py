@@ -48,3 +48,12 @@ def built_scene(tmp_path_factory):
     assert code == 0, "zipon run failed on the tiny scene"
     ws = Workspace.resolve(root / "params.yaml", data_dir=root / "data", manifests_dir=root / "manifests")
     return ws, load_params(ws.params_path)
+
+
+@pytest.fixture(scope="session")
+def two_storey_maps(tmp_path_factory):
+    """The two-storey house of :mod:`tests.fixtures.map_scenes` with its recon and both maps built, in a workspace:
+    ``(Workspace, Params, ground truth, {stage: summary})``; tests must not modify its artifacts."""
+    from tests.fixtures.map_scenes import build_two_storey_maps
+
+    return build_two_storey_maps(tmp_path_factory.mktemp("house_ws"))

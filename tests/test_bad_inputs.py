@@ -437,6 +437,27 @@ def _(c):
     return c.argv("-S", "simulate.frames=many", "params")
 
 
+@case("params-building-not-simulated", 1, "scenes.tiny", "'building' describes a simulated scene",
+      "source: simulate")
+def _(c):
+    return with_params(c, "scenes:\n  tiny: {source: a.mcap, building: {kind: house}}\n")
+
+
+@case("params-building-stories", 1, "scenes.tiny.building.stories", "less than or equal to 3")
+def _(c):
+    return with_params(c, "scenes:\n  tiny: {source: simulate, building: {kind: house, stories: 4}}\n")
+
+
+@case("params-building-kind", 1, "scenes.tiny.building.kind", "'apartment', 'house' or 'office'")
+def _(c):
+    return with_params(c, "scenes:\n  tiny: {source: simulate, building: {kind: castle}}\n")
+
+
+@case("params-building-office-size", 1, "scenes.tiny.building", "size_m must be two extents of 10-200 m")
+def _(c):
+    return with_params(c, "scenes:\n  tiny: {source: simulate, building: {kind: office, size_m: [5, 40]}}\n")
+
+
 @case("params-source-missing", 1, "{scratch}/gone.mcap", "scenes.tiny")
 def _(c):
     return with_params(c, f"scenes:\n  tiny: {{source: {c.scratch}/gone.mcap}}\n", "run", "--stage", "ingest")

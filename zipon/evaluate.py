@@ -5,7 +5,8 @@ An agent is a subclass of :class:`orion_eval.agents.Agent` with a ``name`` and a
 ``run(m, instruction, goal_name)`` method acting through the ORION modules ``m``
 (``retrieve_map``, ``goto_object``, ``talk``, ...); pass the class itself in ``agents`` beside the
 built-in names ('human', 'cow', 'vlmap', 'cf', 'orion'), or install a package that registers it in the
-``zipon.agents`` entry-point group and pass its name::
+``zipon.agents`` entry-point group and pass its name (or name it in ``eval.methods``: the evaluator resolves names
+through :mod:`pipeline.plugins`, whichever entry calls it)::
 
     [project.entry-points."zipon.agents"]
     greedy = "my_package.agents:Greedy"
@@ -47,8 +48,9 @@ def run_eval(dataset, out_dir: str | Path = "eval_out", *, agents: Sequence | No
 
 
 def agent_names(agents: Sequence | None) -> tuple[list[str] | None, dict[str, type]]:
-    """Split ``agents`` into method names and ``{name: class}`` for the user classes; errors name the culprit."""
-    from orion_eval.agents import AGENTS, Agent
+    """Split ``agents`` into method names and ``{name: class}`` for the caller's own classes (names are resolved by
+    the evaluator through the registry: built in or installed); errors name the culprit."""
+    from orion_eval.agents import Agent, agent_class
 
     if agents is None:
         return None, {}
@@ -58,38 +60,18 @@ def agent_names(agents: Sequence | None) -> tuple[list[str] | None, dict[str, ty
     for a in agents:
         if isinstance(a, str):
             names.append(a)
-            if a not in AGENTS:
-                plugin = plugin_agent(a)
-                if plugin is not None:
-                    classes[a] = plugin
             continue
         if not (isinstance(a, type) and issubclass(a, Agent)):
             raise ConfigError(f"agents: {a!r} is neither a method name nor a subclass of orion_eval.agents.Agent")
         name = getattr(a, "name", "") or ""
         if not name:
             raise ConfigError(f"agents: {a.__qualname__} has no `name` (set a class attribute, e.g. name = 'mine')")
-        if name in AGENTS and AGENTS[name] is not a:
-            raise ConfigError(f"agents: {a.__qualname__}.name {name!r} is taken by the built-in "
-                              f"{AGENTS[name].__qualname__}; choose another name")
+        known = agent_class(name)
+        if known is not None and known is not a:
+            raise ConfigError(f"agents: {a.__qualname__}.name {name!r} is taken by the registered "
+                              f"{known.__qualname__}; choose another name")
         if name in classes and classes[name] is not a:
             raise ConfigError(f"agents: two classes are named {name!r}")
         classes[name] = a
         names.append(name)
     return names, classes
-
-
-
-
-def plugin_agent(name: str) -> type | None:
-    """The Agent subclass an installed package registers as ``name`` in the ``zipon.agents`` entry points, or None."""
-    from orion_eval.agents import Agent
-    from pipeline import plugins
-
-    return plugins.load_class(plugins.AGENTS_GROUP, name, Agent, "orion_eval.agents.Agent", "agent")
-
-
-def plugin_agent_names() -> list[str]:
-    """Names registered in the ``zipon.agents`` entry-point group (installed packages)."""
-    from pipeline import plugins
-
-    return plugins.names(plugins.AGENTS_GROUP)

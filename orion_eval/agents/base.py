@@ -4,82 +4,57 @@ An agent gets the episode's :class:`~orion_eval.modules.Modules` (the ORION API)
 instruction and the goal's name, and acts until the episode ends (the modules raise
 :class:`~orion_eval.episode.EpisodeOver`) or it gives up (returns).
 
-:func:`parse_feedback` reads the simulated user's templates (the same a person would type):
-"Yes ...", "No.", "No. This is X, not Y." (corrective), "No. It is a red chair made of wood. ..."
-(descriptive), "No. It is next to X and near Y." (landmark), "No. Follow this route: turn left,
-go forward 5 meters." or "No. It is about 4 meters ahead on your left." (procedural: a route, or a
-destination point); in the mixed setting one reply may hold several of them.
+:func:`parse_feedback` reads the simulated user's templates (the same a person would type): "Yes ...", "No.", or
+"No." and what one or more feedback kinds say, each read by its kind's
+:meth:`~pipeline.goals.feedback.base.FeedbackKind.parse` (the kind's module holds its phrases and their reading):
+"No. This is X, not Y." (corrective), "No. It is a red chair made of wood. ..." (descriptive), "No. It is next to X
+and near Y." (landmark), "No. Follow this route: turn left, go forward 5 meters." or "No. It is about 4 meters ahead
+on your left." (procedural: a route, or a destination point); in the mixed setting one reply may hold several.
 """
 
 from __future__ import annotations
 
 import math
-import re
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
-RELATIONS = ("next to", "near", "on", "under")
-#: how the user points at a destination, and its bearing (degrees, counter-clockwise from ahead)
-DIRECTIONS = {"ahead on your left": 45.0, "ahead on your right": -45.0, "ahead": 0.0, "to your left": 90.0,
-              "to your right": -90.0, "behind you on the left": 135.0, "behind you on the right": -135.0,
-              "behind you": 180.0}
+from pipeline import plugins
+from pipeline.errors import ConfigError
+from pipeline.goals.feedback import FEEDBACK_KINDS
 
 
-@dataclass
 class ParsedFeedback:
-    yes: bool = False
-    corrected_as: str | None = None  # corrective: what the agent found instead
-    description: str | None = None  # descriptive: "red chair made of wood"
-    landmarks: list[str] = field(default_factory=list)  # landmark phrases: ["Alice's bed"]
-    route: list[tuple[str, float]] = field(default_factory=list)  # procedural: [("turn", deg), ("forward", m)]
-    destination: tuple[float, float] | None = None  # procedural point: (bearing deg, left positive; distance m)
+    """What a reply says: ``yes``, and the attributes each feedback kind's
+    :meth:`~pipeline.goals.feedback.base.FeedbackKind.parse` fills (declared in its ``parsed``): ``corrected_as``
+    (corrective: what the agent found instead), ``description`` (descriptive: "red chair made of wood"),
+    ``landmarks`` (landmark phrases: ["Alice's bed"]), ``route`` (procedural: [("turn", deg), ("forward", m)]) and
+    ``destination`` (procedural point: (bearing deg, left positive; distance m)). An attribute the reply says nothing
+    of holds its kind's empty value (None, [])."""
 
+    def __init__(self, yes: bool = False, **said: Any):
+        self.yes = yes
+        for kind in FEEDBACK_KINDS.values():
+            for attr, empty in kind.parsed.items():
+                setattr(self, attr, said.pop(attr) if attr in said else empty())
+        if said:
+            raise TypeError(f"ParsedFeedback: {sorted(said)} are filled by no feedback kind "
+                            f"(pipeline.goals.feedback: {sorted(FEEDBACK_KINDS)})")
 
-def parse_route(text: str) -> list[tuple[str, float]]:
-    out = []
-    for part in (p.strip().lower() for p in text.split(",")):
-        if part.startswith("turn around"):
-            out.append(("turn", 180.0))
-        elif part.startswith("turn left"):
-            out.append(("turn", 90.0))
-        elif part.startswith("turn right"):
-            out.append(("turn", -90.0))
-        else:
-            m = re.match(r"go forward ([\d.]+) meters?", part)
-            if m:
-                out.append(("forward", float(m.group(1))))
-    return out
+    def __eq__(self, other) -> bool:
+        return isinstance(other, ParsedFeedback) and vars(self) == vars(other)
+
+    def __repr__(self) -> str:
+        return f"ParsedFeedback({', '.join(f'{k}={v!r}' for k, v in vars(self).items())})"
 
 
 def parse_feedback(reply: str) -> ParsedFeedback:
-    """Structured content of a user reply (see the module docstring)."""
-    fb = ParsedFeedback()
+    """Structured content of a user reply (see the module docstring): "Yes ..." or what each kind reads in it."""
     text = (reply or "").strip()
     if text.lower().startswith("yes"):
-        fb.yes = True
-        return fb
-    m = re.search(r"This is (.+?), not (.+?)\.(\s|$)", text)
-    if m:
-        fb.corrected_as = m.group(1)
-    m = re.search(r"Follow this route: (.+?)\.?$", text)
-    if m:
-        fb.route = parse_route(m.group(1))
-    ways = "|".join(re.escape(d) for d in DIRECTIONS)  # longest first: "ahead on your left" before "ahead"
-    m = re.search(rf"It is about ([\d.]+) meters? ({ways})\.", text)
-    if m:
-        fb.destination = (DIRECTIONS[m.group(2)], float(m.group(1)))
-    m = re.search(r"It is (?:a|an) (.+?)\.", text)
-    if m:
-        fb.description = m.group(1)
-    m = re.search(r"It is ((?:next to|near|on|under) .+?)\.(\s|$)", text)
-    if m:
-        rel = "|".join(re.escape(r) for r in RELATIONS)
-        for piece in re.split(r",\s*|\s+and\s+", m.group(1)):
-            piece = re.sub(rf"^({rel})\s+", "", piece.strip())
-            if piece:
-                fb.landmarks.append(piece)
-    return fb
+        return ParsedFeedback(yes=True)
+    return ParsedFeedback(**{attr: value for kind in FEEDBACK_KINDS.values()
+                             for attr, value in kind().parse(text).items()})
 
 
 @dataclass(frozen=True)
@@ -133,20 +108,36 @@ class Agent(ABC):
         return any(math.hypot(c[0] - p[0], c[1] - p[1]) <= radius for p in places)
 
 
+#: the agents loaded so far, by name (filled by :func:`agent_class`; importing :mod:`orion_eval.agents` loads the
+#: built-in ones, in their declared order)
 AGENTS: dict[str, type[Agent]] = {}
 
 
-def register(cls: type[Agent]) -> type[Agent]:
-    AGENTS[cls.name] = cls
-    return cls
+def agent_class(name: str) -> type[Agent] | None:
+    """The agent ``name``, built in (:data:`pipeline.plugins.BUILT_IN_AGENTS`) or registered by an installed package
+    (``zipon.agents`` entry points); None for a name neither declares. Raises ConfigError naming the entry point and
+    its package when a registration does not load or does not fit."""
+    return plugins.load_class(plugins.AGENTS_GROUP, name, Agent, "orion_eval.agents.Agent", "agent", loaded=AGENTS)
+
+
+def all_agents() -> dict[str, type[Agent]]:
+    """Every agent of the registry by name: the built-in ones, then the installed packages' (sorted)."""
+    return {name: agent_class(name) for name in plugins.agent_names()}
 
 
 def build_agent(name: str, params, resources: AgentResources = AgentResources(),
                 classes: dict[str, type[Agent]] | None = None) -> Agent:
-    """The agent ``name`` of the registry (or of ``classes``, the caller's own agents) for one scene."""
-    cls = (classes or {}).get(name) or AGENTS.get(name)
+    """The agent ``name`` of the registry (or of ``classes``, the caller's own agents) for one scene; an installed
+    one failing to build is a PluginError naming its entry point."""
+    cls = (classes or {}).get(name) or agent_class(name)
     if cls is None:
-        from pipeline.errors import ConfigError
+        raise ConfigError(f"eval.methods: unknown agent {name!r} (choose from {plugins.agent_names()})")
+    with plugins.running(cls, "build"):
+        return cls.build(params, resources)
 
-        raise ConfigError(f"eval.methods: unknown agent {name!r} (choose from {sorted(AGENTS)})")
-    return cls.build(params, resources)
+
+def run_agent(agent: Agent, m, instruction: str, goal_name: str, passes: tuple[type[BaseException], ...]) -> None:
+    """``agent.run(...)``; an installed agent's failure (not ``passes``: the episode's end) is a PluginError naming
+    its entry point and package."""
+    with plugins.running(type(agent), "run", passes):
+        agent.run(m, instruction, goal_name)

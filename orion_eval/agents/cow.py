@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-from orion_eval.agents.base import register
 from orion_eval.agents.controller import ModularAgent, ModuleSet
 
 
-@register
 class CowAgent(ModularAgent):
     """The controller with exploration and CoW's own (simulated) CLIP-saliency detector."""
 

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from orion_eval.agents.base import Agent, register
+from orion_eval.agents.base import Agent
 
 
-@register
 class HumanAgent(Agent):
     """Knows the goal (ground truth): FMM route into the goal region the routes stage stored (within the
     success distance, mass centre in line of sight), face the nearest member's mass centre, Talk."""

@@ -3,12 +3,11 @@
 
 from __future__ import annotations
 
-from orion_eval.agents.base import Agent, AgentResources, register
+from orion_eval.agents.base import Agent, AgentResources
 from orion_eval.llm import AGENT_SYSTEM, ChatClient, dispatch, parse_action
 from pipeline.errors import ConfigError, InputDataError
 
 
-@register
 class LLMAgent(Agent):
     """An agent whose every action is chosen by the model (think-act-ask)."""
 

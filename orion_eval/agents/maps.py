@@ -3,17 +3,14 @@ memory. Both run the one controller (:mod:`orion_eval.agents.controller`) and di
 
 from __future__ import annotations
 
-from orion_eval.agents.base import register
 from orion_eval.agents.controller import ModularAgent, ModuleSet
 
 
-@register
 class VLMapAgent(ModularAgent):
     name, label, colour = "vlmap", "VLMap", "#2ca02c"
     modules = ModuleSet(map="vlmap")
 
 
-@register
 class CFAgent(ModularAgent):
     name, label, colour = "cf", "CF", "#9467bd"
     modules = ModuleSet(map="cfmap")

@@ -14,18 +14,15 @@ same controller with that module left out of the set. They run only when named (
 
 from __future__ import annotations
 
-from orion_eval.agents.base import register
 from orion_eval.agents.controller import ModularAgent, ModuleSet
 
 
-@register
 class OrionAgent(ModularAgent):
     name, label, colour = "orion", "ORION", "#d62728"
     modules = ModuleSet(map="orion", detector="grounded", explore=True, memory=True)
     persistent_memory = True  # the memory is carried across the goals of a scene (evaluate_scene)
 
 
-@register
 class OrionWithoutMemory(OrionAgent):
     name, label, colour = "orion_wo_mem", "ORION w/o mem", "#e377c2"
     modules = ModuleSet(map="orion", detector="grounded", explore=True)
@@ -33,21 +30,18 @@ class OrionWithoutMemory(OrionAgent):
     by_default = False
 
 
-@register
 class OrionWithoutExploration(OrionAgent):
     name, label, colour = "orion_wo_exp", "ORION w/o exp", "#8c564b"
     modules = ModuleSet(map="orion", detector="grounded", memory=True)
     by_default = False
 
 
-@register
 class OrionWithoutDetection(OrionAgent):
     name, label, colour = "orion_wo_det", "ORION w/o det", "#7f7f7f"
     modules = ModuleSet(map="orion", detector="saliency", explore=True, memory=True)
     by_default = False
 
 
-@register
 class OrionWithoutMap(OrionAgent):
     name, label, colour = "orion_wo_map", "ORION w/o map", "#bcbd22"
     modules = ModuleSet(detector="grounded", explore=True, memory=True)

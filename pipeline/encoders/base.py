@@ -46,6 +46,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from pipeline import plugins
 from pipeline.encoders.text import file_digest
 from pipeline.errors import ConfigError, InputDataError, MissingInputError
 from pipeline.section import Section
@@ -245,7 +246,7 @@ class Encoder(ABC):
         with torch.inference_mode():
             for start in range(0, rgb.shape[0], self.batch_size):
                 sl = slice(start, start + self.batch_size)
-                with self._autocast():
+                with self._autocast(), plugins.running(type(self), "encode_images"):
                     part = self._encode_batch(
                         rgb[sl],
                         None if depth_m is None else depth_m[sl],

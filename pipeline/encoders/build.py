@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
+from pipeline import plugins
 from pipeline.encoders.base import ENCODERS, Encoder, resolve_device
 from pipeline.encoders.choice import encoder_choice, load
 
@@ -34,7 +35,8 @@ def build_encoder(params: "EncodersParams", which: str | None = None, *, simulat
         torch.set_num_threads(runtime.torch_threads)
     device = resolve_device(runtime.device)
     cls = ENCODERS[name]
-    encoder = cls.from_params(params, device=device, batch_size=runtime.encoder_batch_size)  # type: ignore[attr-defined]
+    with plugins.running(cls, "from_params"):
+        encoder = cls.from_params(params, device=device, batch_size=runtime.encoder_batch_size)  # type: ignore
     encoder.precision = runtime.precision
     return encoder
 

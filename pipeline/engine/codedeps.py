@@ -11,7 +11,8 @@ Dynamic imports (``importlib.import_module(name)`` with a computed name) are not
 loaded by name, the built-in readers and encoders (:data:`pipeline.plugins.BUILT_IN_READERS`,
 :data:`~pipeline.plugins.BUILT_IN_ENCODERS`), are added from their declarations: code that imports
 :mod:`pipeline.readers.base` (or :mod:`pipeline.encoders.choice`, which load them) runs every built-in reader (or
-encoder).
+encoder). A package that imports every module of its folder (:data:`EVERY_MODULE`: the feedback kinds) runs them
+all.
 
 Parsing every file of the project costs most of a ``zipon status`` (~0.8 s for ~100 files), so the
 imports read from a file are kept in a small cache keyed by the file's bytes and module name
@@ -183,6 +184,8 @@ _CLOSURES: dict[tuple[str, Path], tuple[tuple | None, list[Path]]] = {}
 LOADED_BY_NAME = {loader: sorted({v.split(":")[0] for v in declared.values()}) for loader, declared in
                   (("pipeline.readers.base", plugins.BUILT_IN_READERS),
                    ("pipeline.encoders.choice", plugins.BUILT_IN_ENCODERS))}
+#: packages whose ``__init__`` imports every module of their folder (one module per registered implementation)
+EVERY_MODULE = ("pipeline.goals.feedback",)
 
 
 def _stamps(paths: list[Path]) -> tuple | None:
@@ -213,6 +216,9 @@ def _closure(entry: str, root: Path) -> list[Path]:
         todo += [pkg for pkg in (".".join(parts[:i]) for i in range(1, len(parts))) if pkg not in seen and file_of(pkg)]
         todo += [m for m in _imports_of(file_of(mod), mod, root) if m not in seen]
         todo += [m for m in LOADED_BY_NAME.get(mod, ()) if m not in seen and file_of(m)]
+        if mod in EVERY_MODULE:
+            todo += [f"{mod}.{p.stem}" for p in sorted(file_of(mod).parent.glob("*.py"))
+                     if p.stem != "__init__" and f"{mod}.{p.stem}" not in seen]
     return sorted({file_of(m) for m in seen})
 
 

@@ -32,6 +32,7 @@ from pipeline.frames import FrameStore
 from pipeline.geometry import GridSpec, camera_yaw
 from pipeline.goals.feedback import FEEDBACK_KINDS, FeedbackContext, GoalDraft
 from pipeline.goals.feedback.landmark import find_landmarks
+from pipeline.goals.floors import Building, FloorParts, floor_object_index, floors_of_objects
 from pipeline.goals.naming import assign_rooms, ensure_unique, personalize, same_goal_groups
 from pipeline.goals.navchat import check_navchat_coverage, import_navchat, navchat_frame
 from pipeline.goals.objects import ObjectSet, objects_from_file, objects_from_gt, rasterize_polygons
@@ -52,8 +53,8 @@ AMBIGUOUS_MIN_GROUPS = 3  # ambiguous goals come first from classes with this ma
 class GoalsResult:
     document: GoalsDocument
     landmarks: dict[str, list[dict]]  # goal id -> [{object, relation, distance_m}]
-    object_index: np.ndarray  # (rows, cols) int32, 1 + index into objects.objects, 0 none
-    edited: bool = False
+    object_index: np.ndarray | list[np.ndarray]  # (rows, cols) int32, 1 + index into objects.objects, 0 none;
+    edited: bool = False                         # a building: one per floor
 
 
 def group_type(cls_groups: int, size: str) -> str:
@@ -108,11 +109,14 @@ def select_groups(objset: ObjectSet, groups: list[tuple[str, ...]], s: GoalsPara
 
 def build_goals(objset: ObjectSet, grid: GridSpec, walls: np.ndarray, *, planner=None,
                 start_pose: tuple[float, float, float] | None = None, settings: GoalsParams = GoalsParams(),
-                edits: GoalsDocument | None = None, edits_path=None, goal_region=None) -> GoalsResult:
+                edits: GoalsDocument | None = None, edits_path=None, goal_region=None,
+                building: Building | None = None) -> GoalsResult:
     """Personalized goals of one scene; with ``edits`` the user's document replaces the generated one
     after it is checked against the scene's objects. ``goal_region(members, object_index, keys)`` ->
     ``(rows, cols)`` bool goal region of a same_goal group (the routes stage's definition; used by the
-    procedural feedback), or None."""
+    procedural feedback), or None. A ``building`` gives each floor's grid, walls, planner and regions (``grid``,
+    ``walls``, ``planner`` and ``goal_region`` are then unused): a goal's feedback is made on its own floor, and
+    its procedural feedback walks from the start's floor over the stairs."""
     if not objset.objects:
         raise StageError(f"scene {objset.scene}: no objects to make goals from")
     rng = np.random.default_rng(settings.seed)
@@ -123,7 +127,10 @@ def build_goals(objset: ObjectSet, grid: GridSpec, walls: np.ndarray, *, planner
     identities_by_group = personalize(objects, rooms, groups, rng)
     identities = {k: ident for ident in identities_by_group.values() for k in ident.members}
     keys = [o.key for o in objset.objects]
-    object_index = rasterize_polygons([np.asarray(o.footprint) for o in objset.objects], grid)
+    if building is None:
+        object_index = rasterize_polygons([np.asarray(o.footprint) for o in objset.objects], grid)
+    else:
+        indexes = {f: part.object_index for f, part in building.floors.items()}
 
     drafts = []
     for g, t in select_groups(objset, groups, settings, rng):
@@ -132,15 +139,27 @@ def build_goals(objset: ObjectSet, grid: GridSpec, walls: np.ndarray, *, planner
         drafts.append(GoalDraft(id=g[0], name=identities[g[0]].name, type=t, cls=o.cls, room_id=o.room,
                                 room_name=info.name if info else None, members=g))
     ensure_unique([d.name for d in drafts], "goal name")
-    ctx = FeedbackContext(objects=by_key, identities=identities, rooms=rooms, goals=drafts, grid=grid,
-                          walls=np.asarray(walls, dtype=bool), object_index=object_index, object_keys=keys,
-                          planner=planner, start_pose=start_pose,
-                          goal_region=None if goal_region is None else
-                          (lambda members: goal_region(members, object_index, keys)),
-                          settings=settings)
+    if building is None:
+        ctx = FeedbackContext(objects=by_key, identities=identities, rooms=rooms, goals=drafts, grid=grid,
+                              walls=np.asarray(walls, dtype=bool), object_index=object_index, object_keys=keys,
+                              planner=planner, start_pose=start_pose,
+                              goal_region=None if goal_region is None else
+                              (lambda members: goal_region(members, object_index, keys)),
+                              settings=settings)
+        contexts = {0: ctx}
+    else:  # a floor's goals see that floor's objects, walls and regions
+        contexts = {f: FeedbackContext(
+            objects={k: o for k, o in by_key.items() if o.floor == f}, identities=identities, rooms=rooms,
+            goals=drafts, grid=part.grid, walls=np.asarray(part.walls, bool), object_index=part.object_index,
+            object_keys=keys, planner=part.planner, start_pose=start_pose,
+            goal_region=(lambda members, part=part: part.goal_region(members, part.object_index, keys)),
+            settings=settings, building=building.planner, start_floor=building.start_floor, floor=f)
+            for f, part in building.floors.items()}
+        object_index = [indexes[f] for f in sorted(indexes)]
     goals = []
     landmarks = {}
     for d in drafts:
+        ctx = contexts[by_key[d.members[0]].floor if building is not None else 0]
         fb = {name: kind().generate(d, ctx) for name, kind in sorted(FEEDBACK_KINDS.items())}
         goals.append(GoalEntry(id=d.id, name=d.name, type=d.type, room=d.room_name, room_id=d.room_id,
                                objects=list(d.members), feedback=Feedback(**fb)))
@@ -162,7 +181,8 @@ def build_goals(objset: ObjectSet, grid: GridSpec, walls: np.ndarray, *, planner
     # geometry is the scene's; the edit may only rename/re-describe
     edited = edits.model_copy(update={"objects": {k: e.model_copy(update={"position_xy": doc.objects[k].position_xy})
                                                   for k, e in edits.objects.items()}})
-    kept = {g.id: landmarks.get(g.id) or _landmarks_for(g, ctx) for g in edited.goals}
+    kept = {g.id: landmarks.get(g.id) or _landmarks_for(
+        g, contexts[by_key[g.objects[0]].floor if building is not None else 0]) for g in edited.goals}
     return GoalsResult(edited, kept, object_index, edited=True)
 
 
@@ -231,6 +251,32 @@ def wall_grid(objset: ObjectSet, recon: Recon, gt: GTScene | None, object_index:
     return (recon.occupancy == OCCUPIED) & ~near_obj
 
 
+def scene_building(recon: Recon, objset: ObjectSet, gt: GTScene | None, settings: RouteSettings, success_m: float,
+                   frames: FrameStore) -> tuple[Building, GoalRegions]:
+    """The goals stage's view of a building (:mod:`pipeline.goals.floors`): each floor's grid, walls, footprints,
+    planner and regions, the planner over every floor, the floor the recording starts on; and floor 0's regions."""
+    from pipeline.nav.building import building_planner
+
+    floors_of_objects(objset, len(recon.floors), "objects")
+    planner = building_planner(recon, settings)
+    parts = {}
+    for f in range(len(recon.floors)):
+        fg = recon.floor(f)
+        index = floor_object_index(objset, f, fg.grid)
+        if gt is not None and gt.floors:
+            view = gt.floor_view(f)
+            walls = view.occupancy(fg.grid, WALL_MIN_HEIGHT_M, view.wall_height_m, objects=False)
+        else:
+            near_obj = ndimage.binary_dilation(index > 0, iterations=max(1, int(round(OBJECT_MARGIN_M /
+                                                                                      fg.grid.cell_size_m))))
+            walls = (fg.occupancy == OCCUPIED) & ~near_obj
+        parts[f] = FloorParts(fg.grid, walls, index, planner.planners[f], GoalRegions(recon, objset, success_m, f))
+    poses = frames.poses()
+    ok = np.flatnonzero(np.isfinite(poses).all(axis=(1, 2)))
+    start_floor = int(recon.floor_of_z(poses[ok[0], 2, 3])) if ok.size else 0
+    return Building(parts, planner, start_floor), parts[0].goal_region
+
+
 class GoalRegions:
     """The goal regions of one scene, each computed once: ``regions(members, object_index, keys)`` -> ``(rows, cols)``
     bool region of a same_goal group (:func:`pipeline.nav.region.group_region`: navigable cells within
@@ -240,8 +286,8 @@ class GoalRegions:
     The goals stage plans procedural feedback into these regions and stores them in ``goals.zarr``; the routes
     stage and the evaluator read them from there, so a region is never computed twice."""
 
-    def __init__(self, recon: Recon, objset: ObjectSet, success_m: float):
-        self.recon, self.success_m = recon, success_m
+    def __init__(self, recon: Recon, objset: ObjectSet, success_m: float, floor: int = 0):
+        self.recon, self.success_m, self.floor = recon, success_m, floor
         self.objects = {o.key: o for o in objset.objects}
         self._regions: dict[tuple[str, ...], np.ndarray] = {}
         self._sight: MeshSight | None = None
@@ -251,16 +297,22 @@ class GoalRegions:
     def sight(self) -> MeshSight:
         if self._sight is None:
             r = self.recon
-            self._camera_height_m = recorded_camera_height(r.poses, r.floor_z)
-            self._sight = MeshSight.from_mesh(r.mesh_path, floor_z=r.floor_z, camera_height_m=self._camera_height_m,
-                                              grid=r.grid)
+            fg = r.floor(self.floor)
+            poses = r.poses
+            if len(r.floors) > 1:  # the camera's height above this floor, from the frames taken on it
+                on = r.floor_of_z(poses[:, 2, 3]) == self.floor
+                poses = poses[on] if on.any() else poses
+            self._camera_height_m = recorded_camera_height(poses, fg.floor_z)
+            self._sight = MeshSight.from_mesh(r.mesh_path, floor_z=fg.floor_z, camera_height_m=self._camera_height_m,
+                                              grid=fg.grid)
         return self._sight
 
     def __call__(self, members, object_index: np.ndarray, keys) -> np.ndarray:
         members = tuple(members)
         if members not in self._regions:
-            self._regions[members] = group_region(self.recon.navigable, object_index, list(keys), members,
-                                                  self.objects, self.recon.grid, self.sight, success_m=self.success_m)
+            fg = self.recon.floor(self.floor) if self.floor else self.recon
+            self._regions[members] = group_region(fg.navigable, object_index, list(keys), members,
+                                                  self.objects, fg.grid, self.sight, success_m=self.success_m)
         return self._regions[members]
 
     def attrs(self) -> tuple[dict, dict]:
@@ -312,19 +364,31 @@ def build_scene_goals(frames: FrameStore, recon: Recon, out_path: Path, attrs: d
         edits, dropped = prune_document(edits, {o.key for o in objset.objects})
         for d in dropped:
             log(f"edited goal {d} dropped: its objects no longer exist")
-    planner = RoutePlanner(recon.navigable, grid, RouteSettings.from_config(task))
+    settings = RouteSettings.from_config(task)
+    planner = RoutePlanner(recon.navigable, grid, settings)
     object_index = rasterize_polygons([np.asarray(o.footprint) for o in objset.objects], grid)
     walls = wall_grid(objset, recon, gt, object_index)
     pose0 = start_pose(frames)
     regions = GoalRegions(recon, objset, task.success_m)
+    building = None
+    if len(recon.floors) > 1:
+        building, regions = scene_building(recon, objset, gt, settings, task.success_m, frames)
     res = build_goals(objset, grid, walls, planner=planner, start_pose=pose0, settings=p, edits=edits,
-                      edits_path=edits_path, goal_region=regions)
+                      edits_path=edits_path, goal_region=regions, building=building)
     keys = [o.key for o in objset.objects]
-    region_attrs, sight_attrs = regions.attrs()
+    floor_of = {o.key: o.floor for o in objset.objects}
+    indexes = res.object_index if isinstance(res.object_index, list) else [res.object_index]
+    region_of = (lambda g: regions(g.objects, res.object_index, keys)) if building is None else (
+        lambda g: building.floors[floor_of[g.objects[0]]].goal_region(
+            g.objects, indexes[floor_of[g.objects[0]]], keys))
+    region_attrs, sight_attrs = (regions if building is None else building.floors[0].goal_region).attrs()
     write_goals(out_path, document=res.document, objset=objset, landmarks=res.landmarks,
                 object_index=res.object_index, grid=grid, attrs=attrs, start_pose=pose0, edits=edits_info,
-                regions={g.id: regions(g.objects, res.object_index, keys) for g in res.document.goals},
-                region_attrs=region_attrs, sight=sight_attrs)
+                regions={g.id: region_of(g) for g in res.document.goals}, region_attrs=region_attrs,
+                sight=sight_attrs,
+                floors=None if building is None else [{"id": f.id, "name": f.name, "floor_z_m": f.floor_z_m}
+                                                      for f in recon.floors],
+                region_floors=None if building is None else [floor_of[g.objects[0]] for g in res.document.goals])
     built = res.document.goals
     types = {t: sum(g.type == t for g in built) for t in GOAL_TYPES}
     log(f"{len(built)} goals ({types['big']} big, {types['small']} small, {types['ambiguous']} ambiguous) "

@@ -87,7 +87,7 @@ def same_goal_groups(objects: list[ObjectRecord], radius_m: float) -> list[tuple
         return i
 
     centers = np.array([o.mass_center for o in objects]) if objects else np.zeros((0, 2))
-    sig = [(o.cls, o.room, o.color_name, o.material) for o in objects]
+    sig = [(o.cls, o.room, o.color_name, o.material, o.floor) for o in objects]  # never across floors
     d = np.linalg.norm(centers[:, None] - centers[None], axis=-1)
     for i, j in zip(*np.nonzero(np.triu(d <= radius_m, 1))):
         if sig[i] == sig[j] and objects[i].room is not None and objects[i].color_name:

@@ -16,7 +16,7 @@ from typing import Annotated, Literal
 import cv2
 import numpy as np
 import skimage.draw
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_serializer
 
 from pipeline.errors import InputDataError, shown
 from pipeline.geometry import GridSpec
@@ -43,20 +43,34 @@ class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
-class RoomRecord(_Model):
+class _OnAFloor(_Model):
+    """A record that lies on one floor of a building (``floor``, 0 = the lowest). Floor 0 is not written out, so
+    a single-floor scene's records (and the digests of what stores them) are as before floors existed."""
+
+    floor: Count = Field(0, ge=0, description="id of the floor it lies on (a building's floors count up from 0)")
+
+    @model_serializer(mode="wrap")
+    def _floor_0_unwritten(self, handler) -> dict:
+        data = handler(self)
+        if data.get("floor") == 0:
+            data.pop("floor")
+        return data
+
+
+class RoomRecord(_OnAFloor):
     id: str = Field(description="unique room id, e.g. 'bedroom_1'")
     type: str = Field(description="bedroom, living room, kitchen, bathroom, office, ...")
     polygon: list[XY] = Field(default_factory=list, description="floor outline, world x/y metres")
 
 
-class ObjectRecord(_Model):
+class ObjectRecord(_OnAFloor):
     key: str = Field(description="unique object key in the scene, e.g. 'chair_0'")
     cls: str = Field(description="object class, e.g. 'chair'")
     instance_id: Count = Field(ge=0, description="instance id in the instance images (0 = unknown)")
     room: str | None = Field(None, description="id of the room it stands in")
     footprint: list[XY] = Field(min_length=3, description="floor polygon, world x/y metres, CCW")
     mass_center: XY = Field(description="centroid of the footprint, world x/y metres")
-    z_range: XY = Field((0.0, 1.0), description="bottom and top above the floor, metres")
+    z_range: XY = Field((0.0, 1.0), description="bottom and top above its floor, metres")
     size: Literal["big", "small"] = Field("big", description="big (furniture) or small (on or beside furniture)")
     color_name: str = ""
     material: str = ""
@@ -165,16 +179,17 @@ def objects_from_gt(gt: GTScene | dict, scene: str | None = None) -> ObjectSet:
         counts[obj.cls] = k + 1
         boxes = np.array([[p.min[0], p.min[1], p.max[0], p.max[1]] for p in obj.parts])
         outline = _ccw(np.round(_union_outline(boxes), 4))
-        zmin = min(p.min[2] for p in obj.parts) - gt.floor_z
-        zmax = max(p.max[2] for p in obj.parts) - gt.floor_z
+        floor_z = gt.all_floors[obj.floor].floor_z  # heights above the object's own floor
+        zmin = min(p.min[2] for p in obj.parts) - floor_z
+        zmax = max(p.max[2] for p in obj.parts) - floor_z
         records.append(ObjectRecord(
             key=f"{obj.cls}_{k}", cls=obj.cls, instance_id=obj.id, room=obj.room,
             footprint=[tuple(map(float, p)) for p in outline],
             mass_center=tuple(np.round(polygon_centroid(outline), 4).tolist()),
             z_range=(round(float(zmin), 4), round(float(zmax), 4)), size=obj.size,
-            color_name=obj.color_name, material=obj.material,
+            color_name=obj.color_name, material=obj.material, floor=obj.floor,
         ))
-    rooms = [RoomRecord(id=r.id, type=r.type, polygon=list(r.polygon)) for r in gt.rooms]
+    rooms = [RoomRecord(id=r.id, type=r.type, polygon=list(r.polygon), floor=r.floor) for r in gt.rooms]
     return ObjectSet(scene=scene or gt.name, source="gt", rooms=rooms, objects=records)
 
 

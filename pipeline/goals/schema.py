@@ -35,9 +35,10 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import yaml
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, create_model, model_validator
 
 from pipeline.errors import InputDataError
+from pipeline.goals.feedback import FEEDBACK_KINDS
 from pipeline.goals.objects import XY, read_structured, strict_number, validation_error
 
 DOC_FORMAT = "zipon-goals"
@@ -48,11 +49,10 @@ class _M(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True, allow_inf_nan=False)
 
 
-class Feedback(_M):
-    corrective: dict[str, str] = Field(default_factory=dict, description="object key -> what the user says there")
-    descriptive: str = Field("", description="appearance, state, function")
-    landmark: str = Field("", description="salient nearby objects with relation words")
-    procedural: str | None = Field(None, description="route in words from the recording's start; null = none")
+#: a goal's feedback: one field per kind of the registry (each kind declares its field in its own module), in the
+#: order of their names
+Feedback = create_model("Feedback", __base__=_M, __module__=__name__,
+                        **{name: kind.field for name, kind in sorted(FEEDBACK_KINDS.items())})
 
 
 class GoalEntry(_M):

@@ -56,11 +56,12 @@ class MapJob:
 
 @dataclass
 class ChunkResult:
-    """One chunk of frames: the digest of what it read and, unless it was only digested, its partial state."""
+    """One chunk of frames: the digest of what it read and, unless it was only digested, its partial states (one
+    per floor, lowest first)."""
 
     index: int
     digest: str
-    state: "FusionState | None" = None
+    states: "list[FusionState] | None" = None
     frames_fused: int = 0
     pixels: int = 0
 
@@ -70,9 +71,25 @@ def chunk_ranges(n_frames: int, chunk_frames: int) -> list[tuple[int, int, int]]
     return [(i, s, min(s + chunk_frames, n_frames)) for i, s in enumerate(range(0, n_frames, chunk_frames))]
 
 
-def _open_inputs(frames_path: Path, recon_path: Path, p: MapsParams):
-    """(frame store, recon, poses ``(N,4,4)``, usable ``(N,)`` bool, lattice) of one build."""
+def floor_lattices(recon, p: MapsParams) -> tuple[list, list[tuple[float, float] | None]]:
+    """One :class:`~pipeline.maps.store.Lattice` per floor of ``recon`` (its grid, above its ``floor_z``) and each
+    floor's height band (world z ``(lo, hi)``, :func:`~pipeline.recon.store.floor_bands`; None for a single floor,
+    which takes every height as before floors existed)."""
     from pipeline.maps.store import Lattice
+    from pipeline.recon.store import floor_bands
+
+    if len(recon.floors) == 1:
+        return [Lattice(recon.grid, recon.floor_z, p.min_height_m, p.max_height_m, p.level_height_m)], [None]
+    lattices = []
+    for k in range(len(recon.floors)):
+        view = recon.floor(k)
+        lattices.append(Lattice(view.grid, view.floor_z, p.min_height_m, p.max_height_m, p.level_height_m))
+    return lattices, [tuple(float(v) for v in band) for band in floor_bands(recon.floors)]
+
+
+def _open_inputs(frames_path: Path, recon_path: Path, p: MapsParams):
+    """(frame store, recon, poses ``(N,4,4)``, usable ``(N,)`` bool, lattices and height bands per floor) of one
+    build."""
     from pipeline.recon import Recon
 
     fs = FrameStore(frames_path)
@@ -84,15 +101,16 @@ def _open_inputs(frames_path: Path, recon_path: Path, p: MapsParams):
     usable = np.isfinite(poses).all(axis=(1, 2))  # a pose: fused by reconstruct, or a frame it passed over
     if p.keyframes_only:
         usable &= recon.fused
-    lattice = Lattice(recon.grid, recon.floor_z, p.min_height_m, p.max_height_m, p.level_height_m)
-    return fs, recon, poses, usable, lattice
+    lattices, bands = floor_lattices(recon, p)
+    return fs, recon, poses, usable, lattices, bands
 
 
 def fuse_chunk(job: MapJob, chunk: tuple[int, int, int], *, fuse: bool = True) -> ChunkResult:
     """The unit of work of a map stage: frames ``[start, stop)`` of ``chunk = (index, start, stop)`` streamed in
-    blocks of ``maps.block_frames``, encoded and fused into a fresh accumulator; returns its state and the digest
-    of what the chunk read (colour if the encoder reads it, depth, instance masks, recon's poses and fused flags).
-    ``fuse=False`` only reads and digests (checking a stored fold, :mod:`pipeline.maps.incremental`)."""
+    blocks of ``maps.block_frames``, encoded once and fused into a fresh accumulator per floor (each floor takes
+    the points of its height band); returns their states and the digest of what the chunk read (colour if the
+    encoder reads it, depth, instance masks, recon's poses and fused flags). ``fuse=False`` only reads and digests
+    (checking a stored fold, :mod:`pipeline.maps.incremental`)."""
     import torch
 
     from pipeline.encoders import build_encoder
@@ -101,16 +119,17 @@ def fuse_chunk(job: MapJob, chunk: tuple[int, int, int], *, fuse: bool = True) -
 
     index, start, stop = chunk
     kind, p = job.config.kind, job.config.maps
-    fs, _, poses, usable, lattice = _open_inputs(job.frames_path, job.recon_path, p)
+    fs, _, poses, usable, lattices, bands = _open_inputs(job.frames_path, job.recon_path, p)
     digest = new_digest()
     update_array(digest, poses[start:stop])
     update_array(digest, usable[start:stop])
-    encoder = acc = None
+    encoder = accs = None
     if fuse and usable[start:stop].any():
         encoder = build_encoder(job.config.encoders, job.config.encoder, runtime=job.runtime)
         encoder.bind_scene(fs.ground_truth)
         device = resolve_device(job.runtime.fusion_device, "run.fusion_device")
-        acc = (VoxelAccumulator if kind.fuses_voxels else TopDownAccumulator)(lattice, encoder.dim, device=device)
+        accs = [(VoxelAccumulator if kind.fuses_voxels else TopDownAccumulator)(lattice, encoder.dim, device=device)
+                for lattice in lattices]
     sigma = kind.weight_sigma_m(p)
     fused_frames = pixels = 0
     with torch.inference_mode():
@@ -126,14 +145,17 @@ def fuse_chunk(job: MapJob, chunk: tuple[int, int, int], *, fuse: bool = True) -
             depth = block.depth_m()[sel]
             dense = encoder.encode_images(block.rgb[sel], depth_m=depth,
                                           instance=None if block.instance is None else block.instance[sel])
-            pts = locate_block(lattice, dense.resample_depth(depth), dense.valid.numpy(),
-                               poses[block.start : block.start + len(block)][ok], dense.intrinsics(fs.intrinsics),
-                               depth_min_m=p.depth_min_m, depth_max_m=p.depth_max_m, max_depth_jump=p.max_depth_jump)
-            acc.add(pts, dense, point_weights(pts.dist_m, sigma))
+            feature_depth, valid = dense.resample_depth(depth), dense.valid.numpy()
+            intrinsics = dense.intrinsics(fs.intrinsics)
+            for acc, lattice, band in zip(accs, lattices, bands):
+                pts = locate_block(lattice, feature_depth, valid, poses[block.start : block.start + len(block)][ok],
+                                   intrinsics, depth_min_m=p.depth_min_m, depth_max_m=p.depth_max_m,
+                                   max_depth_jump=p.max_depth_jump, z_band=band)
+                acc.add(pts, dense, point_weights(pts.dist_m, sigma))
+                pixels += pts.n_fused
             fused_frames += int(ok.sum())
-            pixels += pts.n_fused
-    state = None if not fuse else acc.state() if acc is not None else None
-    return ChunkResult(index, f"{DIGEST_ALGO}:{digest.hexdigest()}", state, fused_frames, pixels)
+    states = None if not fuse or accs is None else [acc.state() for acc in accs]
+    return ChunkResult(index, f"{DIGEST_ALGO}:{digest.hexdigest()}", states, fused_frames, pixels)
 
 
 def build_map(
@@ -168,14 +190,12 @@ def build_map(
 
     from pipeline.encoders import build_encoder
     from pipeline.encoders.base import resolve_device
-    from pipeline.maps.fill import fill_unseen
-    from pipeline.maps.fusion import FusedCells, FusedVoxels, TopDownAccumulator, VoxelAccumulator
+    from pipeline.maps.fusion import TopDownAccumulator, VoxelAccumulator
     from pipeline.maps.incremental import Fold, load_fold, save_fold
     from pipeline.maps.store import write_map
-    from pipeline.recon import FREE
 
     kind, p, runtime = config.kind, config.maps, runtime or RunParams()
-    fs, recon, _, _, lattice = _open_inputs(frames_path, recon_path, p)
+    fs, recon, _, _, lattices, _ = _open_inputs(frames_path, recon_path, p)
     encoder = build_encoder(config.encoders, config.encoder, runtime=runtime)
     identity, reads_rgb, encoder_device = encoder.identity(), encoder.reads_rgb, str(encoder.device)
     del encoder  # each chunk task builds its own
@@ -184,23 +204,27 @@ def build_map(
     chunks = chunk_ranges(fs.n_frames, p.chunk_frames)
     complete = fs.n_frames // p.chunk_frames
     device = resolve_device(runtime.fusion_device, "run.fusion_device")
-    fold = (VoxelAccumulator if kind.fuses_voxels else TopDownAccumulator)(lattice, identity["dim"], device=device)
-    key = digest_value({"format": FOLD_FORMAT, **(fold_key or {}), "encoder": identity, "lattice": lattice.to_attrs(),
+    folds = [(VoxelAccumulator if kind.fuses_voxels else TopDownAccumulator)(lattice, identity["dim"], device=device)
+             for lattice in lattices]
+    key = digest_value({"format": FOLD_FORMAT, **(fold_key or {}), "encoder": identity, "lattice": lattices[0].to_attrs(),
                         "grid": [recon.grid.rows, recon.grid.cols, recon.grid.cell_size_m, list(recon.grid.origin_xy)],
                         "intrinsics": fs.meta.intrinsics.to_dict(), "ground_truth": digest_value(fs.meta.ground_truth),
                         "devices": [encoder_device, device], "encoder_batch": runtime.encoder_batch_size,
-                        "torch": torch.__version__})
+                        "torch": torch.__version__,
+                        **({"floors": [[lat.to_attrs(), lat.grid.to_attrs()] for lat in lattices[1:]]}
+                           if len(lattices) > 1 else {})})
     digests: list[str] = []
     fused_frames = pixels = reused = 0
     stored = load_fold(fold_path, key, p.chunk_frames) if fold_path is not None else None
-    if stored is not None and 0 < len(stored.chunks) <= complete:
+    if stored is not None and 0 < len(stored.chunks) <= complete and len(stored.states) == len(folds):
         checks = run(functools.partial(fuse_chunk, job, fuse=False), chunks[: len(stored.chunks)])
         try:
             changed = next((c for c, d in zip(checks, stored.chunks) if c.digest != d), None)  # the first mismatch
         finally:
             getattr(checks, "close", lambda: None)()
         if changed is None:
-            fold.merge(stored.state)
+            for fold, state in zip(folds, stored.states):
+                fold.merge(state)
             digests, fused_frames, pixels, reused = list(stored.chunks), stored.frames_fused, stored.pixels, len(stored.chunks)
             log(f"reusing the fold of frames 0-{stored.frames - 1} ({fold_path.name}); fusing {fs.n_frames - stored.frames}")
         else:
@@ -211,15 +235,60 @@ def build_map(
     if progress is not None:
         results = progress(results, len(chunks) - reused, "fusing")
     for chunk in results:
-        if chunk.state is not None:
-            fold.merge(chunk.state)
+        for fold, state in zip(folds, chunk.states or ()):
+            fold.merge(state)
         fused_frames, pixels = fused_frames + chunk.frames_fused, pixels + chunk.pixels
         digests.append(chunk.digest)
         if fold_path is not None and chunk.index == complete - 1:  # the last complete chunk: keep the fold
-            save_fold(fold_path, Fold(key, p.chunk_frames, digests, fold.state(), fused_frames, pixels))
+            save_fold(fold_path, Fold(key, p.chunk_frames, digests, [fold.state() for fold in folds], fused_frames,
+                                      pixels))
         del chunk
-    state = fold.state()
-    del fold
+    states = [fold.state() for fold in folds]
+    del folds
+    maps = [_floor_map(kind, p, recon, k, lattice, state) for k, (lattice, state) in enumerate(zip(lattices, states))]
+    if sum(len(m.cells.cell) for m in maps) == 0:
+        raise StageError(f"{frames_path}: no pixel fell inside the grid and height band; nothing to map "
+                         f"(check maps.depth_* / maps.*_height_m and the recon grid)")
+    building = len(maps) > 1
+    warnings = [f"floor {m.floor.id} ({m.floor.name}, {m.floor.floor_z_m:.2f} m): no pixel fell in its height "
+                "band; its map is empty" for m in maps if building and not len(m.cells.cell)]
+    for line in warnings:
+        log(f"warning: {line}")
+    first = maps[0]
+    sigma = kind.weight_sigma_m(p)
+    write_map(out_path, {**attrs, "encoder": identity, "weighting": {"sigma_m": sigma},
+                         "frames": {"n_frames": fs.n_frames, "fused": fused_frames, "keyframes_only": p.keyframes_only},
+                         "points_fused": first.figures["points_fused"], "pixels_in_band": int(pixels),
+                         "cells_observed": first.figures["cells_observed"],
+                         "cells_filled": first.figures["cells_filled"], "fill_radius_m": p.fill_radius_m},
+              first.grid, first.lattice, first.cells, tile_cells=p.tile_cells, voxels=first.voxels,
+              floors=list(recon.floors), upper=maps[1:])
+    frames_reused = min(reused * p.chunk_frames, fs.n_frames)
+    n_cells = sum(len(m.cells.cell) for m in maps)
+    return {"frames_fused": fused_frames, "frames_skipped": fs.n_frames - fused_frames, "keyframes_only": p.keyframes_only,
+            "cells": n_cells,
+            "cells_filled": sum(m.figures["cells_filled"] for m in maps),
+            "voxels": sum(0 if m.voxels is None else len(m.voxels) for m in maps),
+            "points_fused": sum(state.points for state in states), "chunks": len(chunks), "chunks_reused": reused,
+            "frames_reused": frames_reused, "frames_processed": fs.n_frames - frames_reused,
+            "encoder": identity["name"], "diagnostic_encoder": bool(identity.get("diagnostic", False)),
+            "observed_area_m2": round(sum(len(m.cells.cell) * m.grid.cell_size_m**2 for m in maps), 3),
+            **({"floors": [{"id": m.floor.id, "name": m.floor.name, "cells": int(len(m.cells.cell)),
+                            "voxels": 0 if m.voxels is None else len(m.voxels), **m.figures,
+                            "observed_area_m2": round(len(m.cells.cell) * m.grid.cell_size_m**2, 3)} for m in maps]}
+               if building else {}),
+            **({"warnings": warnings} if warnings else {})}
+
+
+def _floor_map(kind, p: MapsParams, recon, k: int, lattice, state: "FusionState"):
+    """Floor ``k``'s map from its fold ``state``: the top-down cells (unseen tops filled within
+    ``maps.fill_radius_m`` where that floor's recon grid is not free) and, for a cfmap that stores them, the
+    voxels; a :class:`~pipeline.maps.store.FloorLayer` (``figures``: points_fused, cells_observed, cells_filled)."""
+    from pipeline.maps.fill import fill_unseen
+    from pipeline.maps.fusion import FusedCells, FusedVoxels
+    from pipeline.maps.store import FloorLayer
+    from pipeline.recon import FREE
+
     voxels = None
     if kind.fuses_voxels:
         voxels = FusedVoxels.from_state(state, lattice)
@@ -229,22 +298,8 @@ def build_map(
     else:
         cells = FusedCells.from_state(state)
     n_seen = len(cells.cell)
-    cells, n_filled = fill_unseen(cells, recon.grid, recon.occupancy != FREE, p.fill_radius_m)
-    if len(cells.cell) == 0:
-        raise StageError(f"{frames_path}: no pixel fell inside the grid and height band; nothing to map "
-                         f"(check maps.depth_* / maps.*_height_m and the recon grid)")
-    sigma = kind.weight_sigma_m(p)
-    write_map(out_path, {**attrs, "encoder": identity, "weighting": {"sigma_m": sigma},
-                         "frames": {"n_frames": fs.n_frames, "fused": fused_frames, "keyframes_only": p.keyframes_only},
-                         "points_fused": state.points, "pixels_in_band": int(pixels),
-                         "cells_observed": n_seen, "cells_filled": n_filled, "fill_radius_m": p.fill_radius_m},
-              recon.grid, lattice, cells.to_store(), tile_cells=p.tile_cells,
-              voxels=None if voxels is None else voxels.to_store(recon.grid))
-    frames_reused = min(reused * p.chunk_frames, fs.n_frames)
-    return {"frames_fused": fused_frames, "frames_skipped": fs.n_frames - fused_frames, "keyframes_only": p.keyframes_only,
-            "cells": int(len(cells.cell)),
-            "cells_filled": n_filled, "voxels": 0 if voxels is None else int(len(voxels.cell)),
-            "points_fused": state.points, "chunks": len(chunks), "chunks_reused": reused,
-            "frames_reused": frames_reused, "frames_processed": fs.n_frames - frames_reused,
-            "encoder": identity["name"], "diagnostic_encoder": bool(identity.get("diagnostic", False)),
-            "observed_area_m2": round(len(cells.cell) * recon.grid.cell_size_m**2, 3)}
+    occupancy = recon.occupancy if k == 0 else recon.floor(k).occupancy
+    cells, n_filled = fill_unseen(cells, lattice.grid, occupancy != FREE, p.fill_radius_m)
+    return FloorLayer(recon.floors[k], lattice.grid, lattice, cells.to_store(),
+                      None if voxels is None else voxels.to_store(lattice.grid),
+                      {"points_fused": state.points, "cells_observed": n_seen, "cells_filled": n_filled})

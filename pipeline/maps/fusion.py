@@ -97,12 +97,14 @@ def locate_block(
     depth_min_m: float,
     depth_max_m: float,
     max_depth_jump: float = 0.0,
+    z_band: tuple[float, float] | None = None,
 ) -> BlockPoints:
     """Back-project a block of feature-resolution depth and assign cells and levels.
 
     ``depth_m`` ``(B,h,w)`` float32 metres at the feature resolution (0 = invalid), ``valid``
     ``(B,h,w)`` bool feature validity, ``T_world_camera`` ``(B,4,4)``, ``intr`` the feature grid's
-    intrinsics (``DenseFeatures.intrinsics``).
+    intrinsics (``DenseFeatures.intrinsics``). ``z_band`` ``(lo, hi)`` world z, metres: only points with
+    ``lo <= z < hi`` are fused (one floor's band of a building, :func:`~pipeline.recon.store.floor_bands`).
     """
     depth_m = np.asarray(depth_m, dtype=np.float32)
     B, h, w = depth_m.shape
@@ -115,6 +117,8 @@ def locate_block(
     rc = lattice.grid.world_to_cell(pts[:, :2])
     level = np.floor((pts[:, 2] - (lattice.floor_z + lattice.min_height_m)) / lattice.level_height_m).astype(np.int64)
     keep = keep.reshape(-1) & lattice.grid.inside(rc) & (level >= 0) & (level < lattice.levels)
+    if z_band is not None:
+        keep &= (pts[:, 2] >= z_band[0]) & (pts[:, 2] < z_band[1])
     cell = np.where(keep, rc[:, 0] * lattice.grid.cols + rc[:, 1], -1)
     dist = np.linalg.norm(pts_cam.reshape(-1, 3), axis=1).astype(np.float32)
     return BlockPoints(cell=cell, level=level, dist_m=dist)

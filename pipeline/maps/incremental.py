@@ -17,7 +17,8 @@ turns it off. Layout::
     data/artifacts/<scene>/.<stage>.fold/
       meta.json        {"format", "key", "chunk_frames", "chunks": [digest of chunk 0, ...],
                         "frames_fused", "pixels"}
-      keys.npy sum.npy weight.npy count.npy [top.npy]    the FusionState (vlmap: top levels too)
+      keys.npy sum.npy weight.npy count.npy [top.npy]    the FusionState (vlmap: top levels too) of floor 0
+      floor<k>.keys.npy ...                              of floor k >= 1 of a building (meta "floors": their count)
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ class Fold:
     key: str  # digest of everything but the frames (params, code, lattice, encoder, devices)
     chunk_frames: int
     chunks: list[str]  # digest of each chunk's frames and poses, in order
-    state: FusionState
+    states: list[FusionState]  # one per floor, lowest first
     frames_fused: int  # frames of those chunks that recon fused (the rest are skipped)
     pixels: int  # feature pixels that fell in the grid and height band
 
@@ -61,19 +62,32 @@ def load_fold(path: Path, key: str, chunk_frames: int) -> Fold | None:
         meta = json.loads((path / "meta.json").read_text())
         if meta.get("format") != FORMAT or meta.get("key") != key or meta.get("chunk_frames") != chunk_frames:
             return None
-        # mapped copy-on-write, not read: a stage standing in line for its turn to fuse (pipeline.engine.runner's
-        # ordered_tasks) holds none of it; pages are read when the fold is merged
-        arrays = {name: np.load(path / f"{name}.npy", mmap_mode="c") for name in _ARRAYS
-                  if (path / f"{name}.npy").exists()}
-        n = len(arrays["keys"])
-        if any(len(a) != n for a in arrays.values()) or n != meta["entries"]:
+        entries = meta["entries"] if isinstance(meta["entries"], list) else [meta["entries"]]
+        states = [_load_state(path, _prefix(k), n) for k, n in enumerate(entries)]
+        if any(state is None for state in states) or len(states) != meta.get("floors", 1):
             return None
-        state = FusionState(keys=arrays["keys"], sum=torch.from_numpy(arrays["sum"]),
-                            weight=torch.from_numpy(arrays["weight"]), count=torch.from_numpy(arrays["count"]),
-                            top=torch.from_numpy(arrays["top"]) if "top" in arrays else None)
-        return Fold(key, chunk_frames, list(meta["chunks"]), state, int(meta["frames_fused"]), int(meta["pixels"]))
+        return Fold(key, chunk_frames, list(meta["chunks"]), states, int(meta["frames_fused"]), int(meta["pixels"]))
     except (OSError, ValueError, KeyError, TypeError):
         return None
+
+
+def _prefix(floor: int) -> str:
+    """File name prefix of floor ``floor``'s arrays (none for floor 0: a single floor's fold as before floors)."""
+    return "" if floor == 0 else f"floor{floor}."
+
+
+def _load_state(path: Path, prefix: str, entries: int) -> FusionState | None:
+    """One floor's stored state, None when its arrays disagree with the meta."""
+    # mapped copy-on-write, not read: a stage standing in line for its turn to fuse (pipeline.engine.runner's
+    # ordered_tasks) holds none of it; pages are read when the fold is merged
+    arrays = {name: np.load(path / f"{prefix}{name}.npy", mmap_mode="c") for name in _ARRAYS
+              if (path / f"{prefix}{name}.npy").exists()}
+    n = len(arrays["keys"])
+    if any(len(a) != n for a in arrays.values()) or n != entries:
+        return None
+    return FusionState(keys=arrays["keys"], sum=torch.from_numpy(arrays["sum"]),
+                       weight=torch.from_numpy(arrays["weight"]), count=torch.from_numpy(arrays["count"]),
+                       top=torch.from_numpy(arrays["top"]) if "top" in arrays else None)
 
 
 def save_fold(path: Path, fold: Fold) -> None:
@@ -84,13 +98,15 @@ def save_fold(path: Path, fold: Fold) -> None:
         shutil.rmtree(stale, ignore_errors=True)
     tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
     tmp.mkdir(parents=True)
-    s = fold.state
-    arrays = {"keys": s.keys, "sum": s.sum, "weight": s.weight, "count": s.count, "top": s.top}
-    for name, a in arrays.items():
-        if a is not None:
-            np.save(tmp / f"{name}.npy", a.numpy() if isinstance(a, torch.Tensor) else a)
+    for k, s in enumerate(fold.states):
+        arrays = {"keys": s.keys, "sum": s.sum, "weight": s.weight, "count": s.count, "top": s.top}
+        for name, a in arrays.items():
+            if a is not None:
+                np.save(tmp / f"{_prefix(k)}{name}.npy", a.numpy() if isinstance(a, torch.Tensor) else a)
+    entries = [int(len(s.keys)) for s in fold.states]
     meta = {"format": FORMAT, "key": fold.key, "chunk_frames": fold.chunk_frames, "chunks": fold.chunks,
-            "entries": int(len(s.keys)), "frames_fused": fold.frames_fused, "pixels": fold.pixels}
+            "entries": entries[0] if len(entries) == 1 else entries, "frames_fused": fold.frames_fused,
+            "pixels": fold.pixels, **({"floors": len(entries)} if len(entries) > 1 else {})}
     (tmp / "meta.json").write_text(json.dumps(meta, indent=1))
     shutil.rmtree(path, ignore_errors=True)
     os.replace(tmp, path)

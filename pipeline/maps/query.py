@@ -73,6 +73,7 @@ class Candidate:
     label: int = 0  # component label in ``QueryResult.labels``
     gt_instance: int | None = None  # ground-truth instance under the centre (0 = none), when GT is given
     gt_class: str | None = None
+    floor: int = 0  # index of the floor (lowest first) whose map holds it
 
 
 @dataclass
@@ -92,13 +93,17 @@ class QueryResult:
     levels: str = "top"  # how cells were scored: top-down features, or each cell's best height level
     labels: np.ndarray | None = field(default=None, repr=False)  # (rows, cols) int32 component labels
     color: np.ndarray | None = field(default=None, repr=False)  # (rows, cols, 3) uint8 recon colour, if known
+    floor: int = 0  # index of the floor queried (lowest first; 0 for a single-floor scene)
+    floor_name: str = "floor 0"
 
     def to_json(self) -> dict:
-        """JSON-able summary (no arrays): the query, the pose and every candidate."""
+        """JSON-able summary (no arrays): the query, the floor, the pose and every candidate."""
         observed = np.isfinite(self.heatmap)
         return {
             "text": self.text,
             "map": self.artifact,
+            "floor": self.floor,
+            "floor_name": self.floor_name,
             "pose": None if self.pose is None else list(self.pose),
             "background": self.background,
             "temperature": self.temperature,
@@ -270,7 +275,8 @@ class MapQuery:
         return QueryResult(text=text, artifact=self.map.artifact, grid=g, heatmap=heat, wins=wins.astype(bool),
                            candidates=cands, pose=None if pose is None else tuple(float(v) for v in pose),
                            background=[self.background[i] for i in keep], temperature=self.temperature,
-                           seconds=time.perf_counter() - t0, levels=self.levels, labels=labels, color=self.color)
+                           seconds=time.perf_counter() - t0, levels=self.levels, labels=labels, color=self.color,
+                           floor=self.map.floor_index, floor_name=self.map.floor.name)
 
     def _level_scorer(self):
         """The map's :class:`~pipeline.maps.levels.LevelScorer` (voxel features read on first use)."""
@@ -356,7 +362,8 @@ class MapQuery:
             out.append(Candidate(obj_id=0, center_xy=cxy, centroid_xy=(float(gxy[0]), float(gxy[1])), nearest_xy=nxy,
                                  approach_xy=approach, distance_m=dist, angle_rad=ang,
                                  area_m2=float(area[k] * g.cell_size_m**2), score=float(score[k]), center_rc=crc,
-                                 bbox_rc=(y, x, y + h, x + w), label=int(k), gt_instance=gt_id, gt_class=gt_cls))
+                                 bbox_rc=(y, x, y + h, x + w), label=int(k), gt_instance=gt_id, gt_class=gt_cls,
+                                 floor=self.map.floor_index))
         for i, c in enumerate(out, 1):
             c.obj_id = i
         return out, labels
@@ -381,30 +388,37 @@ _CACHE: dict[tuple, MapQuery] = {}
 
 
 def open_query(map_path: str | Path, params, *, recon_path: str | Path | None = None,
-               frames_path: str | Path | None = None) -> MapQuery:
-    """A cached :class:`MapQuery` for a map store (``params`` = the whole :class:`~pipeline.config.Params`).
+               frames_path: str | Path | None = None, floor: int = 0) -> MapQuery:
+    """A cached :class:`MapQuery` for floor ``floor`` of a map store (``params`` = the whole
+    :class:`~pipeline.config.Params`; ``floor`` an index, lowest first, 0 for a single-floor scene).
 
     The text encoder is built from ``params.encoders`` by the NAME recorded in the map (so it always
     matches the map's feature space; a different version or weights file is an ArtifactError): its
     torch-free text side when it has one (:func:`pipeline.encoders.text.text_encoder`), else the whole
     encoder. ``frames_path`` gives the scene's ground truth (needed by the oracle encoder, and labels
-    candidates with GT instances); ``recon_path`` gives navigable approach points and checks lineage.
+    candidates with GT instances of that floor); ``recon_path`` gives the floor's navigable approach points and
+    colour and checks lineage.
     """
     from pipeline.encoders.text import text_encoder
     from pipeline.frames import FrameStore
 
-    key = (str(map_path), str(recon_path), str(frames_path), id(params))
+    key = (str(map_path), str(recon_path), str(frames_path), id(params), floor)
     if key in _CACHE:
         return _CACHE[key]
-    smap = SemanticMap(map_path)
+    smap = SemanticMap(map_path, floor)
     navigable = color = None
     if recon_path is not None:
         from pipeline.recon import Recon
 
         recon = Recon(recon_path)
-        if recon.grid != smap.grid:
-            raise LineageError(f"{map_path}: grid {smap.grid} differs from {recon_path}'s {recon.grid}; rebuild the map")
-        navigable, color = recon.navigable, recon.color
+        if len(recon.floors) != len(smap.floors):
+            raise LineageError(f"{map_path}: {len(smap.floors)} floors but {recon_path} has {len(recon.floors)}; "
+                               "rebuild the map")
+        grids = recon.floor(floor)
+        if grids.grid != smap.grid:
+            raise LineageError(f"{map_path}: grid {smap.grid} differs from {recon_path}'s {grids.grid}"
+                               f"{f' (floor {floor})' if floor else ''}; rebuild the map")
+        navigable, color = grids.navigable, grids.color
     gt = None
     if frames_path is not None and Path(frames_path).exists():
         gt = FrameStore(frames_path).ground_truth
@@ -414,16 +428,29 @@ def open_query(map_path: str | Path, params, *, recon_path: str | Path | None = 
 
         encoder = build_encoder(params.encoders, smap.encoder["name"], runtime=params.run)
     encoder.bind_scene(gt)
-    mq = MapQuery(smap, encoder, params.query, navigable=navigable, gt=gt, color=color)
+    mq = MapQuery(smap, encoder, params.query, navigable=navigable, gt=None if gt is None else gt_floor(gt, smap.floor),
+                  color=color)
     _CACHE[key] = mq
     return mq
 
 
+def gt_floor(gt, floor):
+    """The ground truth of the floor ``floor`` (a :class:`~pipeline.recon.store.Floor` found by reconstruct) as a
+    single-floor :class:`~pipeline.scene_gt.GTScene`: the true floor nearest its height (the scene itself when it
+    has one floor)."""
+    floors = gt.all_floors
+    if len(floors) == 1:
+        return gt
+    nearest = min(range(len(floors)), key=lambda k: abs(floors[k].floor_z - floor.floor_z_m))
+    return gt.floor_view(nearest)
+
+
 def query_map(map_path: str | Path, recon_path: str | Path | None, text: str,
-              pose: tuple[float, float, float] | None = None, *, params, frames_path: str | Path | None = None
-              ) -> QueryResult:
-    """One query (the ``zipon query`` entry point): heatmap + candidates; see :class:`MapQuery`."""
-    return open_query(map_path, params, recon_path=recon_path, frames_path=frames_path).query(text, pose)
+              pose: tuple[float, float, float] | None = None, *, params, frames_path: str | Path | None = None,
+              floor: int = 0) -> QueryResult:
+    """One query of one floor: heatmap + candidates; see :class:`MapQuery` (every floor:
+    :func:`pipeline.maps.floors.query_floors`)."""
+    return open_query(map_path, params, recon_path=recon_path, frames_path=frames_path, floor=floor).query(text, pose)
 
 
 def parse_pose(text: str, *, degrees: bool = False) -> tuple[float, float, float]:

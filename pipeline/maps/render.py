@@ -3,8 +3,10 @@
 - :func:`render_query`: recon's colour map, the query's heatmap blended over the cells where the query's
   probability reaches 0.3 (turbo: blue = 0, red = 1; strongest where the query wins, so the rest of the map
   keeps its colours), white outlines around candidates, numbered markers at their centres (1 = first in the
-  result's order), the pose as an arrow; a colour bar and a legend below.
-- :func:`render_map_pca`: the map's features projected on their first three principal axes as
+  result's order), the pose as an arrow; a colour bar and a legend below. A query of every floor of a building
+  (:class:`~pipeline.maps.floors.FloorsResult`) draws each floor so, side by side, lowest first, titled with its
+  floor (candidate numbers are those of the combined list).
+- :func:`render_map_pca`: one floor's map features projected on their first three principal axes as
   RGB, a quick look at what the map separates.
 """
 
@@ -15,6 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from pipeline.maps.floors import FloorsResult
 from pipeline.maps.query import QueryResult
 from pipeline.maps.store import SemanticMap
 from pipeline.pictures import add_colorbar, add_legend, add_scale_bar, colorize, write_png
@@ -36,8 +39,20 @@ def _upscale(img: np.ndarray, min_side: int = 640) -> tuple[np.ndarray, int]:
     return cv2.resize(img, None, fx=k, fy=k, interpolation=cv2.INTER_NEAREST), k
 
 
-def render_query(result: QueryResult, out_png: str | Path, *, crop: bool = True) -> Path:
-    """Write the query picture; returns its path."""
+def render_query(result: QueryResult | FloorsResult, out_png: str | Path, *, crop: bool = True) -> Path:
+    """Write the query picture (a building's floors side by side); returns its path."""
+    if isinstance(result, FloorsResult):
+        images = [_query_image(r, crop, title_floor=True) for r in result.floors]
+        height = max(img.shape[0] for img in images)
+        gap = np.full((height, 12, 3), 255, np.uint8)
+        padded = [np.concatenate([img, np.full((height - img.shape[0], img.shape[1], 3), 255, np.uint8)])
+                  for img in images]
+        return write_png(Path(out_png), np.concatenate([x for img in padded for x in (img, gap)][:-1], axis=1))
+    return write_png(Path(out_png), _query_image(result, crop))
+
+
+def _query_image(result: QueryResult, crop: bool, *, title_floor: bool = False) -> np.ndarray:
+    """The picture of one floor's query, ``(H, W, 3)`` uint8."""
     g = result.grid
     heat = result.heatmap
     observed = np.isfinite(heat)
@@ -75,15 +90,17 @@ def render_query(result: QueryResult, out_png: str | Path, *, crop: bool = True)
     if result.pose is not None:
         legend.append(((255, 0, 255), "pose and heading"))
     img = add_legend(img, legend + [((235, 235, 235), "unobserved")])
-    title = f"{result.artifact}: '{result.text}'  ({len(result.candidates)} candidates)"
+    where = f"{result.floor_name}, " if title_floor else ""
+    title = f"{result.artifact}: '{result.text}'  ({where}{len(result.candidates)} candidates)"
     band = np.full((26, img.shape[1], 3), 255, np.uint8)
     cv2.putText(band, title, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
-    return write_png(Path(out_png), np.concatenate([band, img], axis=0))
+    return np.concatenate([band, img], axis=0)
 
 
-def render_map_pca(map_path: str | Path, out_png: str | Path, *, crop: bool = True) -> Path:
-    """Features of a map as RGB (first three principal components); unobserved cells white."""
-    smap = SemanticMap(map_path)
+def render_map_pca(map_path: str | Path, out_png: str | Path, *, crop: bool = True, floor: int = 0) -> Path:
+    """Features of floor ``floor`` (an index, lowest first) of a map as RGB (first three principal components);
+    unobserved cells white."""
+    smap = SemanticMap(map_path, floor)
     g = smap.grid
     img = np.full((g.rows * g.cols, 3), 255, np.uint8)
     if smap.n_cells >= 3:

@@ -1,6 +1,6 @@
 """The semantic map stores ``vlmap.zarr`` / ``cfmap.zarr`` and their reader :class:`SemanticMap`.
 
-Format (version 1)::
+Format (version 1: one floor; version 2: a building of several floors, see below)::
 
     vlmap.zarr/ (or cfmap.zarr/)   attrs: artifact ('vlmap' | 'cfmap'), format_version, stage, params_digest,
     │                                     code_version, grid {rows, cols, cell_size_m, origin_xy, orientation},
@@ -25,6 +25,22 @@ Format (version 1)::
         ├── weight     (M,)   float32
         └── count      (M,)   int32
 
+A building (``recon.zarr`` of more than one floor, :class:`~pipeline.recon.store.Recon`) gives a version 2
+store: the root keeps floor 0's map exactly as above (``grid``, ``lattice``, the figures, ``top/`` and
+``voxels/`` are floor 0's, so a reader of floor 0 needs nothing new), and adds::
+
+    vlmap.zarr/ (or cfmap.zarr/)   attrs (added): floors [{id, name, floor_z_m, ceiling_z_m, source, frames}]
+    │                                             (recon's floor records, lowest first)
+    └── floors/                    a building only
+        └── <id>/                  attrs: grid, lattice, n_cells, n_voxels, points_fused, cells_observed,
+            │                             cells_filled (floor <id> >= 1, as the root's for floor 0)
+            ├── top/               as the root's top/, on that floor's grid and lattice (a building only)
+            └── voxels/            as the root's voxels/ (a building's cfmap only)
+
+Floor k's map holds the points in floor k's height band (:func:`~pipeline.recon.store.floor_bands`) and,
+within it, the lattice above that floor's ``floor_z``. A single-floor store is written as version 1,
+byte for byte as before floors existed; :class:`SemanticMap` reads it as one floor.
+
 Tile-major rows make each spatial tile one contiguous slice with the whole feature axis, so a
 reader of one region reads only the chunks of its tiles; a query reads ``top/features`` once
 (``(N,D)``, a few hundred MB at most) and keeps it in memory.
@@ -32,22 +48,26 @@ reader of one region reads only the chunks of its tiles; a query reads ``top/fea
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from pydantic import ValidationError
 
 from pipeline.errors import ArtifactError, MissingInputError
 from pipeline.geometry import GridSpec
 from pipeline.maps.scoring import chunked_scores
+from pipeline.recon.store import Floor
 from pipeline.store import ArtifactAttrs, AttrsModel, GridAttrs, compressor, new_group
 
 if TYPE_CHECKING:  # zarr is imported where a map is read or written: building a stage config needs none
     import zarr
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 1  # one floor (every store before floors existed)
+BUILDING_FORMAT_VERSION = 2  # several floors: attrs.floors and a floors/ group
+FLOOR_GROUP = "floors"  # floors/<id>/ holds floor <id>'s map (id >= 1; floor 0's is the root's)
 ARTIFACTS = ("vlmap", "cfmap")
 HEIGHT_RULE = "top-down feature = weighted mean of the points in the highest observed level of the cell"
 
@@ -166,6 +186,7 @@ class MapAttrs(ArtifactAttrs):
     cells_filled: int | None = None
     fill_radius_m: float | None = None
     units: dict[str, str] = {}
+    floors: list[Floor] | None = None  # version 2 (a building) only
 
 
 # group -> array -> (zarr dimension_names, attrs giving units and meaning), so `xarray.open_zarr(path, group="top")`
@@ -202,6 +223,31 @@ def tile_order(cell: np.ndarray, grid: GridSpec, tile_cells: int) -> tuple[np.nd
     return order, start
 
 
+@dataclass
+class FloorLayer:
+    """One upper floor's map in a building's store (``floors/<id>/``): as the root's arguments of :func:`write_map`
+    for floor 0, plus the floor's figures (``points_fused``, ``cells_observed``, ``cells_filled``)."""
+
+    floor: Floor
+    grid: GridSpec
+    lattice: Lattice
+    cells: MapCells
+    voxels: MapVoxels | None = None
+    figures: dict[str, Any] = field(default_factory=dict)
+
+
+class FloorMapAttrs(AttrsModel):
+    """The attrs of ``floors/<id>/`` in a building's map store."""
+
+    grid: GridAttrs
+    lattice: LatticeAttrs
+    n_cells: int
+    n_voxels: int = 0
+    points_fused: int | None = None
+    cells_observed: int | None = None
+    cells_filled: int | None = None
+
+
 def write_map(
     path: Path,
     attrs: dict,
@@ -211,17 +257,43 @@ def write_map(
     *,
     tile_cells: int,
     voxels: MapVoxels | None = None,
+    floors: list[Floor] | None = None,
+    upper: list[FloorLayer] = (),
 ) -> zarr.Group:
     """Write a map store at ``path`` (must not exist). ``attrs`` = ``artifact_attrs(...)`` + extras, checked
-    against :class:`MapAttrs` before anything is written."""
+    against :class:`MapAttrs` before anything is written. ``grid``, ``lattice``, ``cells``, ``voxels``: floor 0's
+    map (a single floor's). ``floors`` (recon's records) of more than one floor with ``upper`` (one
+    :class:`FloorLayer` per floor above the first) write a building (version 2, the module doc); otherwise the
+    store is version 1 exactly as before floors existed."""
+    building = floors is not None and len(floors) > 1
+    if building and [f.id for f in floors[1:]] != [layer.floor.id for layer in upper]:
+        raise ValueError(f"{path}: floors {[f.id for f in floors]} need one upper layer per floor above the first, "
+                         f"got {[layer.floor.id for layer in upper]}")
+    extra = {}
+    if building:
+        extra = {"format_version": BUILDING_FORMAT_VERSION, "floors": [f.model_dump(mode="json") for f in floors]}
+    n_voxels = 0 if voxels is None else len(voxels)
+    g = new_group(path, MapAttrs.checked(
+        {**attrs, "grid": grid.to_attrs(), "lattice": lattice.to_attrs(), "tile_cells": tile_cells,
+         "n_cells": len(cells.cell), "n_voxels": n_voxels,
+         "units": {"features": "unit L2 norm", "weight": "sum of point weights", "distance": "metres"}, **extra}, path))
+    _write_layer(g, grid, cells, voxels, tile_cells)
+    for layer in upper if building else ():
+        sub = g.require_group(FLOOR_GROUP).create_group(str(layer.floor.id))
+        floor_attrs = FloorMapAttrs.model_validate(
+            {"grid": layer.grid.to_attrs(), "lattice": layer.lattice.to_attrs(), "n_cells": len(layer.cells.cell),
+             "n_voxels": 0 if layer.voxels is None else len(layer.voxels), **layer.figures})
+        sub.attrs.update(floor_attrs.model_dump(mode="json", exclude_none=True))
+        _write_layer(sub, layer.grid, layer.cells, layer.voxels, tile_cells)
+    return g
+
+
+def _write_layer(g: zarr.Group, grid: GridSpec, cells: MapCells, voxels: MapVoxels | None, tile_cells: int) -> None:
+    """One floor's ``top/`` (and ``voxels/``) in group ``g``."""
     features = np.asarray(cells.features)
     dim = int(features.shape[1]) if features.ndim == 2 else 0
     order, start = tile_order(cells.cell, grid, tile_cells)
     n = len(order)
-    g = new_group(path, MapAttrs.checked(
-        {**attrs, "grid": grid.to_attrs(), "lattice": lattice.to_attrs(), "tile_cells": tile_cells, "n_cells": n,
-         "n_voxels": 0 if voxels is None else len(voxels),
-         "units": {"features": "unit L2 norm", "weight": "sum of point weights", "distance": "metres"}}, path))
     chunk = max(tile_cells * tile_cells, 1)
     c_f = compressor(3, shuffle="shuffle")
     top = g.create_group("top")
@@ -252,34 +324,60 @@ def write_map(
         arr(vx, "features", np.asarray(voxels.features)[o].astype(np.float16), (chunk, max(dim, 1)))
         arr(vx, "weight", np.asarray(voxels.weight)[o].astype(np.float32), (chunk,))
         arr(vx, "count", np.asarray(voxels.count)[o].astype(np.int32), (chunk,))
-    return g
 
 
 class SemanticMap:
-    """Read-only view of a ``vlmap.zarr`` / ``cfmap.zarr``; features are loaded once and cached (numpy: reading
-    or scoring a map imports no torch).
+    """Read-only view of one floor of a ``vlmap.zarr`` / ``cfmap.zarr``; features are loaded once and cached (numpy:
+    reading or scoring a map imports no torch).
 
-    ``cell`` ``(N,)`` int64 flat cell ids, ``index`` ``(rows, cols)`` int32, :meth:`features16`
-    ``(N,D)`` float16 (cached, as stored), :meth:`features` its float32 upcast, :meth:`dot` chunked
-    float32 scores, ``grid`` :class:`GridSpec`, ``lattice`` :class:`Lattice`, ``meta`` the typed
-    :class:`MapAttrs` (``attrs`` the same as a plain dict), ``encoder`` its identity dict.
+    ``SemanticMap(path, floor=k)`` reads floor ``k`` (an index into ``floors``, lowest first; default 0, the only
+    floor of a single-floor store). ``cell`` ``(N,)`` int64 flat cell ids, ``index`` ``(rows, cols)`` int32,
+    :meth:`features16` ``(N,D)`` float16 (cached, as stored), :meth:`features` its float32 upcast, :meth:`dot`
+    chunked float32 scores, ``grid`` :class:`GridSpec` and ``lattice`` :class:`Lattice` of that floor, ``meta`` the
+    typed :class:`MapAttrs` (an upper floor's: the root's with the floor's own attrs; ``attrs`` the same as a plain
+    dict), ``encoder`` its identity dict, ``floors`` every floor's record (:class:`~pipeline.recon.store.Floor`).
     """
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, floor: int = 0):
         import zarr
 
         self.path = Path(path)
         if not (self.path / "zarr.json").is_file():
             raise MissingInputError(f"{self.path}: semantic map not found (build it with: zipon run --stage vlmap)")
-        self.group = zarr.open_group(zarr.storage.LocalStore(str(self.path), read_only=True), mode="r")
-        self.attrs = dict(self.group.attrs)
+        root = zarr.open_group(zarr.storage.LocalStore(str(self.path), read_only=True), mode="r")
+        self.attrs = dict(root.attrs)
         artifact, version = self.attrs.get("artifact"), self.attrs.get("format_version")
         if artifact not in ARTIFACTS:
             raise ArtifactError(f"{self.path}: attrs.artifact is {artifact!r}, expected one of {ARTIFACTS}")
-        if version != FORMAT_VERSION:
-            raise ArtifactError(f"{self.path}: format_version {version!r}, this zipon reads "
-                                f"{FORMAT_VERSION}; rebuild it with: zipon run --force --stage {artifact}")
-        self.meta = MapAttrs.read(self.attrs, self.path)
+        if version not in (FORMAT_VERSION, BUILDING_FORMAT_VERSION):
+            raise ArtifactError(f"{self.path}: format_version {version!r}, this zipon reads {FORMAT_VERSION} and "
+                                f"{BUILDING_FORMAT_VERSION}; rebuild it with: zipon run --force --stage {artifact}")
+        meta = MapAttrs.read(self.attrs, self.path)
+        if version == BUILDING_FORMAT_VERSION and not meta.floors:
+            raise ArtifactError(f"{self.path}: attrs.floors missing in a format_version {version} store; "
+                                f"rebuild it with: zipon run --force --stage {artifact}")
+        self.floors: tuple[Floor, ...] = tuple(meta.floors or (
+            Floor(id=0, name="floor 0", floor_z_m=meta.lattice.floor_z),))
+        if not 0 <= floor < len(self.floors):
+            raise ArtifactError(f"{self.path}: no floor {floor}; this map has {len(self.floors)} "
+                                f"floor{'s' if len(self.floors) != 1 else ''} (0..{len(self.floors) - 1})")
+        self.floor_index, self.floor = floor, self.floors[floor]
+        self.group = root
+        if floor > 0:
+            where = f"{FLOOR_GROUP}/{self.floor.id}"
+            try:
+                self.group = root[where]
+            except KeyError:
+                raise ArtifactError(f"{self.path}: {where} missing (floor {floor} listed in attrs.floors); "
+                                    f"rebuild it with: zipon run --force --stage {artifact}") from None
+            try:
+                own = FloorMapAttrs.model_validate(dict(self.group.attrs))
+            except ValidationError as err:
+                raise ArtifactError(f"{self.path}/{where}: attrs do not fit ({err.errors()[0]['msg']}); "
+                                    f"rebuild it with: zipon run --force --stage {artifact}") from None
+            self.attrs = {**self.attrs, **own.model_dump(mode="json", exclude_none=True)}
+            meta = MapAttrs.read(self.attrs, self.path)
+        self.meta = meta
         self.artifact = self.meta.artifact
         self.grid = self.meta.grid.spec
         self.lattice = self.meta.lattice.lattice(self.grid)
@@ -288,6 +386,10 @@ class SemanticMap:
         self.cell = self.group["top"]["cell"][...].astype(np.int64)
         self._features: np.ndarray | None = None
         self._index: np.ndarray | None = None
+
+    def floor_map(self, floor: int) -> "SemanticMap":
+        """The same store's floor ``floor`` (this reader when it is that floor)."""
+        return self if floor == self.floor_index else SemanticMap(self.path, floor)
 
     @property
     def n_cells(self) -> int:

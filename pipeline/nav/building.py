@@ -102,6 +102,17 @@ class FloorRoute:
         return np.concatenate(out).astype(np.uint8)
 
     @property
+    def segments(self) -> list[int]:
+        """Actions per piece of :attr:`actions`, in order: leg, climb, leg, ..., the last leg with the stop."""
+        out = []
+        for i, (_, route) in enumerate(self.legs):
+            out.append(0 if route is None else int(np.count_nonzero(route.actions)))
+            if i < len(self.climbs):
+                out.append(len(self.climbs[i].actions))
+        out[-1] += 1
+        return out
+
+    @property
     def length_m(self) -> float:
         legs = sum(float(r.path.length_m) for _, r in self.legs if r is not None)
         return legs + sum(c.link.length_m for c in self.climbs)
@@ -275,3 +286,19 @@ def _climb_actions(xy: np.ndarray, yaw: float, near, far, settings) -> np.ndarra
     turns = [LEFT] * k if k > 0 else [RIGHT] * (-k)
     steps = int(math.ceil(math.dist(near, far) / settings.step_m - 1e-9))
     return np.array(turns + [FORWARD] * steps, np.uint8)
+
+
+def building_planner(recon, settings) -> BuildingPlanner:
+    """The :class:`BuildingPlanner` of a reconstruction (a :class:`pipeline.recon.store.Recon`): one planner per floor
+    on that floor's navigable grid, joined at the stairs found in it (each stair's landing endpoints)."""
+    planners = {}
+    for f in range(len(recon.floors)):
+        fg = recon.floor(f)
+        planners[f] = RoutePlanner(fg.navigable, fg.grid, settings)
+    links = []
+    for s in recon.stairs:
+        foot = planners[s.bottom.floor].grid.cell_to_world(np.asarray(s.bottom.endpoint))
+        head = planners[s.top.floor].grid.cell_to_world(np.asarray(s.top.endpoint))
+        links.append(StairLink(f"stairs_{s.id}", s.bottom.floor, s.top.floor, (float(foot[0]), float(foot[1])),
+                               (float(head[0]), float(head[1])), float(s.rise_m)))
+    return BuildingPlanner(planners, links)

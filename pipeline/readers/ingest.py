@@ -21,6 +21,7 @@ from pipeline.config import IngestParams
 from pipeline.stageconfig import digest_value
 from pipeline.errors import InputDataError
 from pipeline.frames import ARTIFACT, FORMAT_VERSION, FrameBlock, FrameStoreWriter
+from pipeline import plugins
 from pipeline.readers import FrameMatcher, open_reader
 from pipeline.readers.matcher import index_ranges
 from pipeline.readers.world_up import WorldUp
@@ -95,14 +96,16 @@ class _Log:
     def __init__(self, path: Path, label: str, params: IngestParams, fmt: str, log: Callable[[str], None]):
         self.label = label
         self.reader = open_reader(path, params, fmt)
-        self.opened = self.reader.open()
+        with plugins.running(type(self.reader), "open"):
+            self.opened = self.reader.open()
         self.info = self.opened.info
         log(f"reading {label} as {self.reader.name}: {self.info.intrinsics.width}x{self.info.intrinsics.height}, "
             f"pose from {' -> '.join(lk.name for lk in self.info.pose_chain)}")
         self.matcher = FrameMatcher(self.info, params, label)
 
     def blocks(self) -> Iterator[FrameBlock]:
-        return self.matcher.blocks(self.reader.samples(self.opened))
+        return self.matcher.blocks(plugins.iterate(type(self.reader), "samples",
+                                                   self.reader.samples(self.opened)))
 
     def provenance(self, params: IngestParams) -> dict:
         return {"source": self.label, "format": self.reader.name, "reader": type(self.reader).__name__,

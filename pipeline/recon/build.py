@@ -21,7 +21,7 @@ from pipeline.errors import StageError
 from pipeline.frames import FrameStore
 from pipeline.recon import grids as grids_mod
 from pipeline.recon.floors import find_floors
-from pipeline.recon.stairs import find_stairs, unlinked_warnings
+from pipeline.recon.stairs import find_flights, stair_links, unlinked_warnings
 from pipeline.recon.store import ARTIFACT, FORMAT_VERSION, floor_bands, write_mesh, write_points, write_recon
 from pipeline.store import artifact_attrs
 
@@ -74,7 +74,10 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
         per_floor.append(grids_mod.floor_grids(
             spec, floor.floor_z_m, xyz[band], normals[band], colors[band], voxels, p, floor_points=n_points,
             source=str(frames_path), floor_name=f"{floor.name} ({floor.floor_z_m:.2f} m)" if building else None))
-    stairs = find_stairs(xyz, normals, found.floors, spec, [g.navigable for g in per_floor], p) if building else []
+    flights = find_flights(xyz, normals, found.floors, spec, p) if building else []
+    for flight in flights:  # the flight is solid on the floor it rises from
+        per_floor[flight.lower] = grids_mod.with_solid(per_floor[flight.lower], flight.mask((spec.rows, spec.cols)), p)
+    stairs = stair_links(flights, found.floors, spec, [g.navigable for g in per_floor])
     warnings = found.warnings + (unlinked_warnings(found.floors, stairs) if building else [])
     t_grids = time.perf_counter() - t2
     grids = per_floor[0]
@@ -140,7 +143,8 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
         conventions={"world": "right-handed, z up, metres (as frames.zarr)", "grid": grids.grid.ORIENTATION},
         source_frames_attrs=store.meta.model_dump(include={"conventions", "provenance"}, exclude_unset=True),
     )
-    write_recon(recon_path, per_floor, poses, fused, attrs, floors=found.floors, stairs=stairs)
+    write_recon(recon_path, per_floor, poses, fused, attrs, stairs=stairs,
+                floors=found.floors if building or p.floors is not None else None)
     return figures
 
 

@@ -59,7 +59,8 @@ def grid_accuracy(recon, gt, p: ReconstructParams) -> dict:
 
 
 def evaluate_grids(frames_path: str | Path, recon_path: str | Path, params: ReconstructParams | None = None) -> dict:
-    """:func:`grid_accuracy` of ``recon_path`` against the ground truth ``frames_path`` carries (simulated scenes).
+    """:func:`grid_accuracy` of ``recon_path`` against the ground truth ``frames_path`` carries (simulated scenes);
+    for a building, also each floor's against that floor's truth (``floors``) and the floors found and true.
 
     Raises :class:`InputDataError` when the frames carry none (real logs: use the held-out depth error).
     """
@@ -70,8 +71,13 @@ def evaluate_grids(frames_path: str | Path, recon_path: str | Path, params: Reco
         raise InputDataError("these frames carry no ground truth to score grids against (a real log?)",
                              path=frames_path, field="attrs.ground_truth",
                              expected="frames ingested from a simulated log; for real logs use the held-out depth error")
-    return {"recon": str(recon_path), **grid_accuracy(Recon(Path(recon_path)), gt,
-                                                      params or ReconstructParams())}
+    recon, p = Recon(Path(recon_path)), params or ReconstructParams()
+    figures = {"recon": str(recon_path), **grid_accuracy(recon, gt, p)}
+    if len(recon.floors) > 1 or len(gt.all_floors) > 1:  # a building: each floor against the same floor's truth
+        figures["floors"] = [{"floor": i, "name": f.name, **grid_accuracy(recon.floor(i), gt.floor_view(i), p)}
+                             for i, f in enumerate(recon.floors) if i < len(gt.all_floors)]
+        figures["floors_found"], figures["floors_true"] = len(recon.floors), len(gt.all_floors)
+    return figures
 
 
 def holdout_indices(n_frames: int, holdout_every: int) -> np.ndarray:

@@ -524,3 +524,18 @@ def floor_grids(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.nda
         "points_outside_fraction": round(float(outside_fraction), 6),
     }
     return Grids(grid, floor_z, occupancy, navigable, color, height, stats)
+
+
+def with_solid(grids: Grids, solid: np.ndarray, p: ReconstructParams) -> Grids:
+    """``grids`` with the unknown cells of ``solid`` ``(rows, cols)`` bool occupied and navigable recomputed: a stair
+    flight on the floor it rises from (its inside is never seen; where the floor under it was seen, it stays free)."""
+    add = solid & (grids.occupancy == UNKNOWN)
+    if not add.any():
+        return grids
+    occupancy = grids.occupancy.copy()
+    occupancy[add] = OCCUPIED
+    navigable = navigable_mask(occupancy == FREE, occupancy == OCCUPIED, grids.grid.cell_size_m, p.robot_radius_m)
+    stats = {**grids.stats, "cells_occupied": int((occupancy == OCCUPIED).sum()),
+             "cells_unknown": int((occupancy == UNKNOWN).sum()), "cells_navigable": int(navigable.sum()),
+             "cells_occupied_by_stairs": int(grids.stats.get("cells_occupied_by_stairs", 0)) + int(add.sum())}
+    return Grids(grids.grid, grids.floor_z, occupancy, navigable, grids.color, grids.height, stats)

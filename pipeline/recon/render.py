@@ -9,15 +9,14 @@ from typing import Literal
 import numpy as np
 
 from pipeline.errors import ConfigError
-from pipeline.recon.store import FREE, OCCUPIED
-from pipeline.recon.store import Recon
+from pipeline.recon.store import FREE, OCCUPIED, FloorGrids, Recon
 
 What = Literal["obstacles", "navigable", "color", "height"]
 WHATS: tuple[str, ...] = ("obstacles", "navigable", "color", "height")
 
 
-def grid_image(recon: Recon, what: str) -> tuple[np.ndarray, str]:
-    """An ``(rows, cols, 3)`` float image in [0, 1] and its title."""
+def grid_image(recon: Recon | FloorGrids, what: str, robot_radius_m: float | None = None) -> tuple[np.ndarray, str]:
+    """An ``(rows, cols, 3)`` float image in [0, 1] and its title, of a store's floor 0 or of one floor's grids."""
     occ = recon.occupancy
     if what == "obstacles":
         img = np.full(occ.shape + (3,), 0.55)  # unknown: grey
@@ -29,7 +28,8 @@ def grid_image(recon: Recon, what: str) -> tuple[np.ndarray, str]:
         img[occ == FREE] = (0.85, 0.85, 0.85)
         img[recon.navigable] = (0.2, 0.7, 0.3)
         img[occ == OCCUPIED] = 0.0
-        return img, f"navigable (green) for robot radius {recon.robot_radius_m} m"
+        radius = recon.robot_radius_m if robot_radius_m is None else robot_radius_m
+        return img, f"navigable (green) for robot radius {radius} m"
     if what == "color":
         return recon.color.astype(np.float64) / 255.0, "top-surface colour"
     if what == "height":
@@ -50,7 +50,7 @@ LEGENDS = {
 }
 
 
-def _key(fig, ax, recon: Recon, what: str) -> None:
+def _key(fig, ax, recon: Recon | FloorGrids, what: str) -> None:
     """The colour bar of the height map (metres above the floor) or the legend of a categorical grid."""
     if what == "height":
         import matplotlib
@@ -69,6 +69,16 @@ def _key(fig, ax, recon: Recon, what: str) -> None:
         ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
 
 
+def _stair_ends(ax, recon: Recon, floor: int) -> None:
+    """Triangles at the ends of the stairs on ``floor``: pointing up at a foot, down at a head."""
+    for link in recon.stairs:
+        for end, marker, word in ((link.bottom, "^", "up"), (link.top, "v", "down")):
+            if end.floor == floor:
+                ax.plot(*end.xy, marker=marker, color="orange", markersize=11, markeredgecolor="black")
+                ax.annotate(f"{link.kind} {word}", end.xy, xytext=(6, 6), textcoords="offset points", fontsize=8,
+                            color="orange")
+
+
 def _nice_length(span_m: float) -> float:
     """A round scale-bar length near a fifth of the span (0.1, 0.2, 0.5, 1, 2, 5 ... m)."""
     target = span_m / 5.0
@@ -76,8 +86,9 @@ def _nice_length(span_m: float) -> float:
     return float(max(m * base for m in (1, 2, 5) if m * base <= target) if target >= base else base)
 
 
-def render_recon(recon_path: str | Path, what: str, out_png: str | Path, *, crop: bool = True) -> Path:
-    """Draw one grid of ``recon_path`` north-up (x east to the right, y north up) with a scale bar.
+def render_recon(recon_path: str | Path, what: str, out_png: str | Path, *, crop: bool = True, floor: int = 0) -> Path:
+    """Draw one grid of ``recon_path`` (of floor ``floor``) north-up (x east to the right, y north up) with a scale
+    bar; on a building, the stairs' ends on that floor are marked.
 
     ``crop`` trims the view to the observed cells plus a margin. Returns the PNG path.
     """
@@ -87,12 +98,19 @@ def render_recon(recon_path: str | Path, what: str, out_png: str | Path, *, crop
     import matplotlib.pyplot as plt
 
     recon = Recon(recon_path)
-    img, title = grid_image(recon, what)
-    g = recon.grid
+    n = len(recon.floors)
+    if not 0 <= floor < n:
+        raise ConfigError(f"--floor {floor}: {Path(recon_path).parent.name} has {n} floor{'s' if n != 1 else ''} "
+                          f"(0..{n - 1})")
+    view = recon.floor(floor)
+    img, title = grid_image(view, what, recon.robot_radius_m)
+    if n > 1:
+        title = f"{view.floor.name} ({view.floor_z:.2f} m): {title}"
+    g = view.grid
     x0, x1, y0, y1 = g.extent_xy
     fig, ax = plt.subplots(figsize=(7, 7), dpi=120)
     ax.imshow(img, extent=(x0, x1, y0, y1), origin="upper", interpolation="nearest")
-    seen = np.argwhere(recon.occupancy != 0)
+    seen = np.argwhere(view.occupancy != 0)
     if crop and len(seen):
         (r0, c0), (r1, c1) = seen.min(axis=0) - 10, seen.max(axis=0) + 10
         (xa, yb), (xb, ya) = g.cell_to_world(np.array([[r1, c0], [r0, c1]]))
@@ -107,7 +125,8 @@ def render_recon(recon_path: str | Path, what: str, out_png: str | Path, *, crop
     ax.annotate("N", xy=(xb - 0.05 * (xb - xa), yb - 0.04 * (yb - ya)),
                 xytext=(xb - 0.05 * (xb - xa), yb - 0.14 * (yb - ya)), color="red", ha="center",
                 arrowprops={"arrowstyle": "->", "color": "red"})
-    _key(fig, ax, recon, what)
+    _stair_ends(ax, recon, floor)
+    _key(fig, ax, view, what)
     ax.set_xlabel("x (m, east)")
     ax.set_ylabel("y (m, north)")
     ax.set_title(f"{Path(recon_path).parent.name}: {title}", fontsize=10)

@@ -1,28 +1,34 @@
 """Stairs and ramps between floors: connected climbs of walkable surface, found in the reconstruction.
 
 A flight is walkable surface (upward-facing points, binned per grid cell and 5 cm of height) strictly
-between two consecutive floors, connected cell to neighbouring cell (8-neighbours, or the same cell) by
-steps of at most :data:`MAX_STEP_M` (a riser, or a ramp's rise over a cell), whose low end steps off the
-lower floor's surface and whose high end steps onto the upper floor's. Table tops, seats and beds are
+between two consecutive floors, connected from cell to cell at most :data:`MAX_GAP_M` away (a tread seen only
+in patches, at grazing angles, still joins the next) by steps of at most :data:`MAX_STEP_M` (a riser, or a
+ramp's rise), whose low end steps off the lower floor's surface and whose high end steps onto the upper
+floor's (within :data:`MAX_GAP_M` of them). Table tops, seats and beds are
 walkable-looking surface too, but no chain of small steps leads from the floor onto them, let alone on
 to the next floor. Each flight becomes a :class:`~pipeline.recon.store.StairLink`: the landing cells on
 either floor's grid (where the flight meets the floor), an endpoint per landing (the navigable cell nearest
-the landing's centre, where routes join the floors' grids), its rise, run and walked length, and whether
-it is stairs (treads at a few heights) or a ramp (every height).
+the landing's centre, where routes join the floors' grids), its rise, its walked length (the shortest
+climb over the flight's surface from its foot to its head, any shape of flight) and that length's
+horizontal run, and whether it is stairs (treads at a few heights) or a ramp (every height).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
-from scipy.ndimage import binary_dilation, distance_transform_edt
+from scipy.ndimage import distance_transform_edt
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
+from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.spatial import cKDTree
 
 from pipeline.config import ReconstructParams
 from pipeline.geometry import GridSpec
 from pipeline.recon.store import Floor, Landing, StairLink
 
 MAX_STEP_M = 0.25  # the highest riser a flight may have (building codes: about 0.2 m)
+MAX_GAP_M = 0.3  # walkable surface this close (along x and y) joins: a tread seen only in patches, 0.28 m deep
 _UP_COS = 0.9  # walkable surface faces up within ~25 deg (ramps are far flatter)
 _LEVEL_M = 0.05  # height bins of walkable surface within a cell
 _MIN_FLIGHT_CELLS = 12  # a flight covers at least this many cells (0.03 m^2 at 5 cm): not a stray speck
@@ -30,22 +36,51 @@ _RAMP_FILL = 0.5  # a flight whose heights fill more than this fraction of 2 cm 
 _ENDPOINT_SEARCH_M = 1.0  # a landing's endpoint is the navigable cell nearest its centre within this
 
 
-def find_stairs(xyz: np.ndarray, normals: np.ndarray, floors: list[Floor], grid: GridSpec,
-                navigable: list[np.ndarray], p: ReconstructParams) -> list[StairLink]:
-    """The flights joining each pair of consecutive ``floors`` (lowest first), on the floors' shared ``grid``.
+@dataclass
+class Flight:
+    """One climb found between floors ``lower`` and ``upper`` (indices into the floor list): its nodes' cells
+    ``(M,2)`` and heights above the lower floor ``(M,)``, the landing masks on either floor's grid, the rise and
+    the shortest walk over it (``length`` 3-D, ``run`` horizontal), metres."""
 
-    ``xyz``/``normals`` ``(N,3)`` surface points; ``navigable``: each floor's ``(rows, cols)`` bool grid (for
-    the landings' endpoints). Returns the links lowest first, numbered from 0.
-    """
+    lower: int
+    upper: int
+    cells: np.ndarray
+    heights: np.ndarray
+    bottom: np.ndarray
+    top: np.ndarray
+    rise: float
+    length: float
+    run: float
+
+    def mask(self, shape: tuple[int, int]) -> np.ndarray:
+        """``(rows, cols)`` bool: the cells the flight covers."""
+        return _mask(self.cells, shape)
+
+
+def find_flights(xyz: np.ndarray, normals: np.ndarray, floors: list[Floor], grid: GridSpec, p: ReconstructParams
+                 ) -> list[Flight]:
+    """The flights joining each pair of consecutive ``floors`` (lowest first), on the floors' shared ``grid``;
+    ``xyz``/``normals`` ``(N,3)`` surface points."""
     up = normals[:, 2] > _UP_COS
     rc = grid.world_to_cell(xyz[up, :2].astype(np.float64))
     inside = grid.inside(rc)
     rc, z = rc[inside], xyz[up, 2][inside].astype(np.float64)
-    links: list[StairLink] = []
-    for a in range(len(floors) - 1):
-        for flight in _flights(rc, z, floors[a].floor_z_m, floors[a + 1].floor_z_m, grid, p.floor_tolerance_m):
-            links.append(_link(len(links), flight, floors[a], floors[a + 1], grid, navigable[a], navigable[a + 1]))
-    return links
+    return [Flight(a, a + 1, **f) for a in range(len(floors) - 1)
+            for f in _flights(rc, z, floors[a].floor_z_m, floors[a + 1].floor_z_m, grid, p.floor_tolerance_m)]
+
+
+def stair_links(flights: list[Flight], floors: list[Floor], grid: GridSpec, navigable: list[np.ndarray]
+                ) -> list[StairLink]:
+    """Each flight as a :class:`StairLink` numbered from 0; ``navigable``: each floor's ``(rows, cols)`` bool grid
+    (the landings' endpoints are navigable cells)."""
+    return [_link(i, f, floors[f.lower], floors[f.upper], grid, navigable[f.lower], navigable[f.upper])
+            for i, f in enumerate(flights)]
+
+
+def find_stairs(xyz: np.ndarray, normals: np.ndarray, floors: list[Floor], grid: GridSpec,
+                navigable: list[np.ndarray], p: ReconstructParams) -> list[StairLink]:
+    """:func:`find_flights` as :func:`stair_links`."""
+    return stair_links(find_flights(xyz, normals, floors, grid, p), floors, grid, navigable)
 
 
 def unlinked_warnings(floors: list[Floor], links: list[StairLink]) -> list[str]:
@@ -68,13 +103,16 @@ def _flights(rc: np.ndarray, z: np.ndarray, z_lo: float, z_hi: float, grid: Grid
         return []
     cells, heights = _nodes(rc[mid], z[mid] - z_lo)
     n = len(cells)
-    comp = _components(cells, heights)
+    graph = _step_graph(cells, heights, grid.cell_size_m)
+    comp = connected_components(graph, directed=False)[1]
     rise = z_hi - z_lo
     low_end = heights <= MAX_STEP_M
     high_end = heights >= rise - MAX_STEP_M
     flat = cells[:, 0] * grid.cols + cells[:, 1]
-    near_lower = binary_dilation(lower, np.ones((3, 3), bool)).ravel()[flat]
-    near_upper = binary_dilation(upper, np.ones((3, 3), bool)).ravel()[flat]
+    reach = MAX_GAP_M / grid.cell_size_m
+    to_lower = distance_transform_edt(~lower).ravel()[flat] * grid.cell_size_m  # metres to the floor, in x, y
+    to_upper = distance_transform_edt(~upper).ravel()[flat] * grid.cell_size_m
+    near_lower, near_upper = to_lower <= MAX_GAP_M, to_upper <= MAX_GAP_M
     starts = np.zeros(comp.max() + 1 if n else 0, bool)
     ends = np.zeros_like(starts)
     np.logical_or.at(starts, comp[low_end & near_lower], True)
@@ -84,10 +122,14 @@ def _flights(rc: np.ndarray, z: np.ndarray, z_lo: float, z_hi: float, grid: Grid
         member = comp == c
         if len(np.unique(flat[member])) < _MIN_FLIGHT_CELLS:
             continue
-        bottom = lower & binary_dilation(_mask(cells[member & low_end], shape), np.ones((3, 3), bool))
-        top = upper & binary_dilation(_mask(cells[member & high_end], shape), np.ones((3, 3), bool))
+        bottom = lower & (distance_transform_edt(~_mask(cells[member & low_end & near_lower], shape)) <= reach)
+        top = upper & (distance_transform_edt(~_mask(cells[member & high_end & near_upper], shape)) <= reach)
+        foot = np.flatnonzero(member & low_end & near_lower)
+        head = np.flatnonzero(member & high_end & near_upper)
+        length, run = _climb(graph, (foot, to_lower[foot], heights[foot]), (head, to_upper[head], rise - heights[head]),
+                             cells, grid.cell_size_m)
         out.append({"cells": cells[member], "heights": heights[member], "bottom": bottom, "top": top,
-                    "rise": rise})
+                    "rise": float(rise), "length": length, "run": run})
     return out
 
 
@@ -110,50 +152,60 @@ def _nodes(rc: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return uniq[:, :2], heights
 
 
-def _components(cells: np.ndarray, heights: np.ndarray) -> np.ndarray:
-    """Connected components of the nodes: neighbouring (or the same) cells whose heights differ by at most
-    :data:`MAX_STEP_M`."""
+def _step_graph(cells: np.ndarray, heights: np.ndarray, cell_size_m: float):
+    """The nodes' graph (sparse, symmetric): an edge joins nodes at most :data:`MAX_GAP_M` apart along x and along y
+    whose heights differ by at most :data:`MAX_STEP_M` (a tread seen only in patches still joins the next), weighted
+    by the 3-D distance between them (metres; at least 1 mm)."""
     n = len(cells)
-    level = np.floor(heights / _LEVEL_M).astype(np.int64)
-    reach = int(np.ceil(MAX_STEP_M / _LEVEL_M)) + 1
-    span = level.max() - level.min() + 2 * reach + 1
-    # one integer key per (row, col, level): neighbours are looked up by key
-    base = np.array([(cells[:, 1].max() + 3) * span, span, 1], dtype=np.int64)
-    key = (cells[:, 0] + 1) * base[0] + (cells[:, 1] + 1) * base[1] + (level - level.min() + reach)
-    order = np.argsort(key)
-    sorted_key = key[order]
-    src, dst = [], []
-    for dr in (-1, 0, 1):
-        for dc in (-1, 0, 1):
-            for dl in range(-reach, reach + 1):
-                if (dr, dc, dl) <= (0, 0, 0):  # each pair once
-                    continue
-                want = key + dr * base[0] + dc * base[1] + dl
-                j = np.minimum(np.searchsorted(sorted_key, want), n - 1)
-                hit = sorted_key[j] == want
-                other = order[j[hit]]
-                mine = np.flatnonzero(hit)
-                close = np.abs(heights[mine] - heights[other]) <= MAX_STEP_M
-                src.append(mine[close])
-                dst.append(other[close])
-    src, dst = np.concatenate(src), np.concatenate(dst)
-    graph = coo_matrix((np.ones(len(src), np.int8), (src, dst)), shape=(n, n))
-    return connected_components(graph, directed=False)[1]
+    scale = MAX_GAP_M / MAX_STEP_M  # heights scaled so one Chebyshev radius bounds both
+    pts = np.c_[cells.astype(np.float64) * cell_size_m, heights * scale]
+    pairs = cKDTree(pts).query_pairs(MAX_GAP_M + 1e-9, p=np.inf, output_type="ndarray")
+    src, dst = pairs[:, 0], pairs[:, 1]
+    flat = np.linalg.norm((cells[src] - cells[dst]).astype(np.float64), axis=1) * cell_size_m
+    weight = np.maximum(np.hypot(flat, heights[src] - heights[dst]), 1e-3)
+    graph = coo_matrix((np.r_[weight, weight], (np.r_[src, dst], np.r_[dst, src])), shape=(n, n))
+    return graph.tocsr()
 
 
-def _link(index: int, flight: dict, lower: Floor, upper: Floor, grid: GridSpec, nav_lower: np.ndarray,
+def _climb(graph, foot: tuple, head: tuple, cells: np.ndarray, cell_size_m: float) -> tuple[float, float]:
+    """The shortest walk from the lower floor over the flight onto the upper floor: its 3-D length and its
+    horizontal run (metres). ``foot``/``head``: (nodes, metres to the floor along x-y, height to it) of the nodes
+    that step off the lower floor / onto the upper one; a start and an end node joined to them carry those steps."""
+    n = graph.shape[0]
+    start, end = n, n + 1
+    ends = [(start, *foot), (end, *head)]
+    src = np.concatenate([np.full(len(nodes), v) for v, nodes, _, _ in ends])
+    dst = np.concatenate([nodes for _, nodes, _, _ in ends])
+    flat_m = np.concatenate([d for _, _, d, _ in ends])
+    weight = np.maximum(np.hypot(flat_m, np.concatenate([h for _, _, _, h in ends])), 1e-3)
+    g = graph.tocoo()
+    full = coo_matrix((np.r_[g.data, weight, weight], (np.r_[g.row, src, dst], np.r_[g.col, dst, src])),
+                      shape=(n + 2, n + 2)).tocsr()
+    dist, pred = dijkstra(full, indices=start, return_predecessors=True)
+    step_flat = dict(zip(zip(src.tolist(), dst.tolist()), flat_m.tolist()))
+    run, node = 0.0, end
+    while pred[node] >= 0:
+        prev = int(pred[node])
+        if node >= n or prev >= n:
+            run += step_flat[(max(node, prev), min(node, prev))]
+        else:
+            run += float(np.linalg.norm((cells[node] - cells[prev]).astype(np.float64))) * cell_size_m
+        node = prev
+    return float(dist[end]), run
+
+
+def _link(index: int, flight: Flight, lower: Floor, upper: Floor, grid: GridSpec, nav_lower: np.ndarray,
           nav_upper: np.ndarray) -> StairLink:
-    bottom = _landing(flight["bottom"], lower, nav_lower, grid)
-    top = _landing(flight["top"], upper, nav_upper, grid)
-    centre = [np.argwhere(flight[k]).mean(axis=0) for k in ("bottom", "top")]
-    run = float(np.linalg.norm(centre[1] - centre[0]) * grid.cell_size_m)
-    rise = float(flight["rise"])
-    bins = np.unique(np.floor(flight["heights"] / 0.02))
+    bottom = _landing(flight.bottom, lower, nav_lower, grid)
+    top = _landing(flight.top, upper, nav_upper, grid)
+    rise, run = flight.rise, flight.run
+    bins = np.unique(np.floor(flight.heights / 0.02))
     kind = "ramp" if len(bins) > _RAMP_FILL * rise / 0.02 else "stairs"
-    cells = flight["cells"]
+    cells = flight.cells
     flat = np.unique(cells[:, 0] * grid.cols + cells[:, 1])
     return StairLink(id=index, kind=kind, bottom=bottom, top=top, rise_m=round(rise, 4), run_m=round(run, 3),
-                     length_m=round(float(np.hypot(rise, run)), 3), flight_cells=int(len(flat)),
+                     length_m=round(max(flight.length, float(np.hypot(rise, run))), 3),
+                     flight_cells=int(len(flat)),
                      flight_bbox=(int(cells[:, 0].min()), int(cells[:, 1].min()), int(cells[:, 0].max()),
                                   int(cells[:, 1].max())))
 
@@ -169,5 +221,7 @@ def _landing(mask: np.ndarray, floor: Floor, navigable: np.ndarray, grid: GridSp
         r, c = endpoint
         if dist[r, c] * grid.cell_size_m <= _ENDPOINT_SEARCH_M:
             endpoint = np.array([ri[r, c], ci[r, c]])
+    x, y = grid.cell_to_world(endpoint[None, :].astype(np.int64))[0]
     return Landing(floor=floor.id, cells=[(int(r), int(c)) for r, c in cells],
-                   endpoint=(int(endpoint[0]), int(endpoint[1])), z_m=round(float(floor.floor_z_m), 4))
+                   endpoint=(int(endpoint[0]), int(endpoint[1])), xy=(round(float(x), 4), round(float(y), 4)),
+                   z_m=round(float(floor.floor_z_m), 4))

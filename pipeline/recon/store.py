@@ -30,15 +30,16 @@ floor 0's grids exactly as above (``grid``, ``floor_z``, ``stats`` and the four 
 reader of floor 0 needs nothing new), and adds::
 
     recon.zarr/                  attrs (added): floors [{id, name, floor_z_m, ceiling_z_m, source, frames}],
-    │                                           stairs [{id, kind, bottom {floor, cells, endpoint, z_m},
+    │                                           stairs [{id, kind, bottom {floor, cells, endpoint, xy, z_m},
     │                                                    top {...}, rise_m, run_m, length_m, flight_cells,
     │                                                    flight_bbox}] (:class:`StairLink`)
     └── floors/
         └── <id>/                attrs: grid, floor_z, stats (as the root's, for floor <id> >= 1)
             ├── occupancy, navigable, color, height    (as the root's, on that floor's grid)
 
-A single-floor store is written as version 1, byte for byte as before floors existed: no ``floors`` attrs,
-no ``floors/`` group; :class:`Recon` reads it as one floor (id 0, ``floor_z``, ceiling unknown). Which floor
+A single-floor store is written as version 1, byte for byte as before floors existed: no ``floors`` attrs
+(unless the floor was pinned with ``reconstruct.floors``, whose record it keeps), no ``floors/`` group;
+:class:`Recon` reads it as one floor (id 0, ``floor_z``, ceiling unknown). Which floor
 a world height belongs to is :func:`floor_bands` of the floor list, nowhere else.
 
 Grids are chunked in 128x128-cell spatial tiles (the whole colour axis in a chunk). Meshes are
@@ -109,6 +110,7 @@ class Landing(AttrsModel):
     floor: int
     cells: list[tuple[int, int]]
     endpoint: tuple[int, int]
+    xy: tuple[float, float]  # world x, y of the endpoint's centre, metres
     z_m: float
 
 
@@ -120,8 +122,8 @@ class StairLink(AttrsModel):
     bottom: Landing
     top: Landing
     rise_m: float  # top.z_m - bottom.z_m
-    run_m: float  # horizontal distance between the landings' centres
-    length_m: float  # walked length of the flight, hypot(rise, run)
+    run_m: float  # horizontal length of the shortest walk over the flight, foot to head
+    length_m: float  # its length in 3-D (at least hypot(rise, run)): what routes add for the climb
     flight_cells: int  # cells of the flight (treads) in the bottom floor's grid
     flight_bbox: tuple[int, int, int, int]  # row0, col0, row1, col1 (inclusive) of the flight in that grid
 
@@ -203,17 +205,19 @@ def write_recon(path: Path, grids: Grids | list[Grids], poses: np.ndarray, fused
     """Write a new ``recon.zarr`` at ``path`` (``attrs`` from :func:`pipeline.store.artifact_attrs` + figures).
 
     ``grids``: one floor's, or one per floor of ``floors`` (in order); more than one floor writes version 2
-    (the module doc), one floor writes version 1 exactly as before floors existed (``floors``/``stairs`` unused).
+    (the module doc), one floor writes version 1 exactly as before floors existed (with ``floors`` given, a
+    ``floors`` attr is added: a floor pinned with ``reconstruct.floors``).
     """
     per_floor = [grids] if isinstance(grids, Grids) else list(grids)
     building = len(per_floor) > 1
-    if building and (floors is None or len(floors) != len(per_floor)):
+    if (building or floors is not None) and (floors is None or len(floors) != len(per_floor)):
         raise ValueError(f"{path}: {len(per_floor)} floors' grids need as many floors records")
     first = per_floor[0]
     extra = {}
+    if floors is not None:  # one floor: only when pinned by name (reconstruct.floors); else the store stays as it was
+        extra["floors"] = [f.model_dump(mode="json") for f in floors]
     if building:
-        extra = {"format_version": BUILDING_FORMAT_VERSION, "floors": [f.model_dump(mode="json") for f in floors],
-                 "stairs": [s.model_dump(mode="json") for s in stairs or []]}
+        extra.update(format_version=BUILDING_FORMAT_VERSION, stairs=[s.model_dump(mode="json") for s in stairs or []])
     group = new_group(Path(path), ReconAttrs.checked({
         **attrs,
         "grid": first.grid.to_attrs(),
@@ -337,12 +341,11 @@ def write_points(path: Path, xyz: np.ndarray, normals: np.ndarray, colors: np.nd
     return {"file": Path(path).name, "count": int(len(xyz))}
 
 
-class FloorGrids:
-    """Read-only view of one floor's grids in a ``recon.zarr`` (arrays read on access): ``grid`` (its
-    :class:`GridSpec`), ``floor_z`` (world z, m), ``floor`` (its :class:`Floor` record), ``stats``."""
+class TopDown:
+    """The four top-down grids of one floor, read on access from ``self.group`` (the store's root for floor 0,
+    ``floors/<id>`` for the others)."""
 
-    def __init__(self, group, floor: Floor, grid: GridSpec, floor_z: float, stats: dict):
-        self.group, self.floor, self.grid, self.floor_z, self.stats = group, floor, grid, floor_z, stats
+    group: Any
 
     @property
     def occupancy(self) -> np.ndarray:
@@ -365,13 +368,23 @@ class FloorGrids:
         return self.group["height"][...]
 
 
+class FloorGrids(TopDown):
+    """Read-only view of one floor's grids in a ``recon.zarr``: ``occupancy``, ``navigable``, ``color``, ``height``
+    (read on access), ``grid`` (its :class:`GridSpec`), ``floor_z`` (world z, m), ``floor`` (its :class:`Floor`
+    record), ``stats``."""
+
+    def __init__(self, group, floor: Floor, grid: GridSpec, floor_z: float, stats: dict):
+        self.group, self.floor, self.grid, self.floor_z, self.stats = group, floor, grid, floor_z, stats
+
+
 @dataclass
-class Recon:
+class Recon(TopDown):
     """Read-only view of a ``recon.zarr`` for the maps, routes and evaluator stages.
 
     ``Recon(path)`` checks the artifact, format version and attrs (``meta``: :class:`ReconAttrs`; ``attrs`` the
     same as a plain dict); arrays are read on access. Reading the grids imports no open3d (only :meth:`mesh`).
-    ``grid``, ``floor_z`` and the grid properties are floor 0's (the only floor of a single-floor scene);
+    ``grid``, ``floor_z`` and the grids (``occupancy``, ``navigable``, ``color``, ``height``) are floor 0's (the
+    only floor of a single-floor scene);
     ``floors``, :meth:`floor` and ``stairs`` give every floor of a building.
     """
 
@@ -422,26 +435,6 @@ class Recon:
     def floor_of_z(self, z: np.ndarray) -> np.ndarray:
         """Index of the floor each world height ``z`` (metres, any shape) belongs to (:func:`floor_bands`)."""
         return floor_of_z(self.floors, z)
-
-    @property
-    def occupancy(self) -> np.ndarray:
-        """``(rows, cols)`` uint8: 0 unknown, 1 free, 2 occupied (floor 0)."""
-        return self.group["occupancy"][...]
-
-    @property
-    def navigable(self) -> np.ndarray:
-        """``(rows, cols)`` bool (floor 0)."""
-        return self.group["navigable"][...]
-
-    @property
-    def color(self) -> np.ndarray:
-        """``(rows, cols, 3)`` uint8 RGB of the top surface (floor 0)."""
-        return self.group["color"][...]
-
-    @property
-    def height(self) -> np.ndarray:
-        """``(rows, cols)`` float32 metres above the floor, NaN unknown (floor 0)."""
-        return self.group["height"][...]
 
     @property
     def poses(self) -> np.ndarray:

@@ -51,6 +51,12 @@ class Episode:
     final_distance_m: float
     verified: bool
     collisions: int
+    # a building's episode: the floor it starts on, the floors it walks (in order) and the points of each floor's leg
+    # in ``path_xy`` (a stair lies between consecutive legs); () in a single-floor scene
+    start_floor: int = 0
+    floors: tuple[int, ...] = ()
+    leg_points: tuple[int, ...] = ()
+    segments: tuple[int, ...] = ()  # actions per piece: leg, climb, leg, ... (the last leg with the stop)
 
 
 @dataclass

@@ -16,6 +16,11 @@ where the goals stage computes them once)::
     ├── path_offset    (E+1,) int64   episode e's polyline = path_xy[path_offset[e]:path_offset[e+1]]
     ├── actions        (A,) uint8     every episode's actions, concatenated (ending with 0 = stop)
     └── action_offset  (E+1,) int64   episode e's actions = actions[action_offset[e]:action_offset[e+1]]
+
+A building's episodes (:mod:`pipeline.routes.floors`) also carry ``start_floor``, ``floors`` (the floors walked,
+in order, a stair between each two), ``leg_points`` (each floor's leg's points in ``path_xy``) and ``segments``
+(its actions per piece: leg, climb, leg, ...; the last leg ends with the stop); ``start`` and the
+path are on those floors' grids. A single-floor store has none of these keys and is as before floors existed.
 """
 
 from __future__ import annotations
@@ -83,6 +88,11 @@ class EpisodeRecord(AttrsModel):
     instruction: str
     n_parts: int
     final_distance_m: float
+    # a building only: the floor it starts on, the floors it walks and each floor's leg's points in path_xy
+    start_floor: int | None = None
+    floors: list[int] | None = None
+    leg_points: list[int] | None = None
+    segments: list[int] | None = None  # actions per piece: leg, climb, leg, ... (the last leg with the stop)
 
 
 class Verification(AttrsModel):
@@ -121,6 +131,9 @@ def write_routes(path: Path, eps: EpisodeSetSource, *, grid: GridSpec, attrs: di
         "id": e.id, "goal_id": e.goal_id, "start": [round(v, 6) for v in e.start], "geodesic_m": round(e.geodesic_m, 4),
         "path_length_m": round(e.path_length_m, 4), "n_actions": int(len(e.actions)), "instruction": e.instruction,
         "n_parts": e.n_parts, "final_distance_m": round(e.final_distance_m, 4),
+        **({"start_floor": e.start_floor, "floors": list(e.floors),
+            "leg_points": list(e.leg_points or [len(e.path_xy)]), "segments": list(e.segments or [len(e.actions)])}
+           if getattr(e, "floors", ()) else {}),
     } for e in eps.episodes]
     n = eps.generated
     group = new_group(Path(path), RoutesAttrs.checked({
@@ -158,6 +171,8 @@ class EpisodeView:
     path_xy: np.ndarray  # (K,2)
     actions: np.ndarray  # (A,) uint8
     instruction: str
+    start_floor: int = 0  # a building: the floor it starts on
+    floors: tuple[int, ...] = (0,)  # the floors it walks, in order (a stair between each two)
 
 
 class Routes:
@@ -180,7 +195,8 @@ class Routes:
         r = self.records[i]
         return EpisodeView(r.id, r.goal_id, r.start, r.geodesic_m,
                            self._path_xy[self._path_off[i]: self._path_off[i + 1]],
-                           self._actions[self._act_off[i]: self._act_off[i + 1]], r.instruction)
+                           self._actions[self._act_off[i]: self._act_off[i + 1]], r.instruction,
+                           r.start_floor or 0, tuple(r.floors or (r.start_floor or 0,)))
 
     @property
     def step_m(self) -> float:

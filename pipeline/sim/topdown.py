@@ -18,7 +18,7 @@ ROOM_TINTS = {
     "bedroom": (244, 226, 232), "office": (236, 232, 246), "hallway": (236, 236, 236),
     "open office": (232, 236, 240), "meeting room": (240, 236, 226),
 }
-STAIR_COLOUR, OPENING_COLOUR = (150, 108, 72), (90, 90, 90)
+STAIR_COLOUR, OPENING_COLOUR = (150, 108, 72), (96, 96, 120)  # not a grey text or outline can take
 
 
 @dataclass

@@ -31,6 +31,8 @@ from pipeline.sim.topdown import scene_grid
 STEP_M = 0.25
 TURN_RAD = np.deg2rad(15.0)
 CELL_M = 0.05
+LARGE_CELL_M = 0.1  # planning cell of a floor above LARGE_FLOOR_M2 (an office): 4x fewer cells to search
+LARGE_FLOOR_M2 = 600.0
 BODY_Z = (0.05, 1.5)  # heights that block the robot's body, metres above the floor
 
 
@@ -50,12 +52,20 @@ class FreeSpace:
         return ok & self.navigable[rc[..., 0], rc[..., 1]]
 
 
+def planning_cell_m(gt: GTScene) -> float:
+    """The cell of the planning grid: :data:`CELL_M`, or :data:`LARGE_CELL_M` on a floor of over
+    :data:`LARGE_FLOOR_M2` (an apartment or a house floor is far smaller)."""
+    x0, x1, y0, y1 = gt.bounds_xy()
+    return LARGE_CELL_M if (x1 - x0) * (y1 - y0) > LARGE_FLOOR_M2 else CELL_M
+
+
 def free_space(gt: GTScene, radius_m: float) -> FreeSpace:
     """Floor minus walls and object parts in the body height band, eroded by ``radius_m`` (a single floor: pass
-    :meth:`GTScene.floor_view` of a building's floor)."""
-    grid = scene_grid(gt, CELL_M)
+    :meth:`GTScene.floor_view` of a building's floor), on a grid of :func:`planning_cell_m`."""
+    cell = planning_cell_m(gt)
+    grid = scene_grid(gt, cell)
     free = gt.floor_mask(grid) & ~gt.occupancy(grid, *BODY_Z)
-    clearance = ndimage.distance_transform_edt(free) * CELL_M
+    clearance = ndimage.distance_transform_edt(free) * cell
     room = np.full((grid.rows, grid.cols), -1, np.int16)
     centres = grid.cell_to_world(np.stack(np.mgrid[0:grid.rows, 0:grid.cols], axis=-1))
     for k, r in enumerate(gt.rooms):
@@ -78,7 +88,7 @@ def _graph(fs: FreeSpace) -> tuple[csr_matrix, np.ndarray]:
         b = node[dr:R, max(0, dc):C - max(0, -dc)]
         ok = (a >= 0) & (b >= 0)
         rows.append(a[ok]), cols.append(b[ok])
-        weights.append(np.full(int(ok.sum()), CELL_M * np.hypot(dr, dc)))
+        weights.append(np.full(int(ok.sum()), fs.grid.cell_size_m * np.hypot(dr, dc)))
     r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
     n = int(nav.sum())
     g = csr_matrix((np.concatenate([w, w]), (np.concatenate([r, c]), np.concatenate([c, r]))), shape=(n, n))
@@ -94,7 +104,7 @@ def room_viewpoints(fs: FreeSpace, room: int, count: int) -> list[np.ndarray]:
     picks = [int(np.argmax(clear))]
     dist = np.full(len(cells), np.inf)
     for _ in range(count - 1):
-        dist = np.minimum(dist, np.hypot(*(cells - cells[picks[-1]]).T) * CELL_M)
+        dist = np.minimum(dist, np.hypot(*(cells - cells[picks[-1]]).T) * fs.grid.cell_size_m)
         score = np.where(clear > 0.35, dist, -1.0)
         if score.max() < 1.0:
             break

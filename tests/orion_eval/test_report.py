@@ -1,5 +1,6 @@
 """The evaluation report: intervals, the bold rule, stable colours, autoescaping, and the scene page in Chromium."""
 
+import re
 import shutil
 import subprocess
 
@@ -7,6 +8,7 @@ import numpy as np
 import pytest
 
 from orion_eval.agents.human import HumanAgent
+from tests.fixtures.fresh_process import in_fresh_process
 from orion_eval.agents.orion import OrionAgent
 from orion_eval.metrics import summarize
 from orion_eval.report import (cell_intervals, confidence_interval, is_upper_bound, method_color, method_name,
@@ -75,8 +77,13 @@ def test_method_colours_are_stable_and_names_escaped(tmp_path):
     # registered agents bring their own label, colour and upper-bound flag (one home: the agent class)
     assert method_color("orion") == OrionAgent.colour and method_name("human") == HumanAgent.label
     assert is_upper_bound("human") and not is_upper_bound("orion") and not is_upper_bound("my<agent>")
-    assert method_color("my<agent>") == method_color("my<agent>") and method_color("my<agent>").startswith("#")
-    assert method_color("a") != method_color("b")
+    # a method without its own colour gets one derived from its name: the same in another process (another string
+    # hash seed: a colour from hash() would differ), different for other names
+    names = ["my<agent>", "a", "b", "nearest_plugin"]
+    mine = [method_color(n) for n in names]
+    assert in_fresh_process("from orion_eval.report import method_color",
+                            f"[method_color(n) for n in {names!r}]", hash_seed=7) == mine
+    assert all(re.fullmatch(r"#[0-9a-f]{6}", c) for c in mine) and len(set(mine)) == len(names)
     html = write_report(_results({"my<agent>": 0.5, "orion": 0.2}), tmp_path).read_text()
     assert "my&lt;agent&gt;" in html and "my<agent>" not in html
 

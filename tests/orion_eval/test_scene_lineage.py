@@ -99,3 +99,16 @@ def test_zipon_eval_refuses_another_step_size(tiny_scene, tmp_path, capsys):
     err = " ".join((capsys.readouterr().err).split())
     assert "task.step_m 0.3 in" in err and "routes.zarr of tiny was built with 0.25: rebuild with zipon run -s tiny" in err
     assert not (out / "results.json").exists()
+
+
+def test_a_building_is_refused_by_name_with_its_floors():
+    """The agents act on one floor; a scene of several floors is a clear error, never episodes scored on floor 0."""
+    from orion_eval.scene import check_one_floor
+    from pipeline.errors import StageError
+    from pipeline.recon.store import Floor
+
+    floors = (Floor(id=0, name="ground floor", floor_z_m=0.0), Floor(id=1, name="first floor", floor_z_m=3.0))
+    with pytest.raises(StageError, match=r"scene house: a building of 2 floors \(ground floor, first floor\); the "
+                                         r"evaluator's agents act on one floor and do not take stairs yet"):
+        check_one_floor("house", floors)
+    check_one_floor("flat", floors[:1])  # one floor: evaluated as ever

@@ -7,8 +7,6 @@ import pytest
 
 from zipon.cli import main
 
-pytest.importorskip("rerun")
-
 
 def cli(ws, *args) -> int:
     return main(["-q", "-p", str(ws.params_path), "--data-dir", str(ws.data_dir),

@@ -51,6 +51,9 @@ def _other(value: Any, annotation: Any) -> Any:
             return {float: 0.123, int: 2, str: "x"}[inner]
         if value is None:
             inner = next(a for a in args if a is not type(None))
+            if get_origin(inner) is list and issubclass(get_args(inner)[0], BaseModel):  # a list of records
+                item = get_args(inner)[0]
+                return [item.model_validate({k: 0.123 for k, f in item.model_fields.items() if f.is_required()})]
             return {float: 0.123, int: 7, str: "x.pt", bool: True}.get(inner, ("a", "b"))
         return None
     if get_origin(annotation) is Literal:
@@ -134,6 +137,21 @@ def test_goal_edits_count_only_for_their_scene():
         assert (before != after) is stale, scene
     assert spec.config_class().extra_inputs(edited, "s0") == {"goal_edits": "goals/s0-0123456789ab.yaml"}
     assert spec.config_class().extra_inputs(edited, "r0") == {}
+
+
+def test_a_building_counts_only_for_its_scene_and_an_apartment_keeps_its_digest():
+    spec = STAGES["simulate"]
+    base = parse_params({"scenes": {"a": {"source": "simulate"}}})
+    house = parse_params({"scenes": {"a": {"source": "simulate"},
+                                     "h": {"source": "simulate", "building": {"kind": "house", "stories": 3}}}})
+    keys = spec.config_class().param_keys
+    assert keys(base, "a") == keys(house, "a") == ["simulate"]
+    assert project(base, keys(base, "a")) == project(house, keys(house, "a"))  # the apartment is not stale
+    assert keys(house, "h") == ["simulate", "scenes.h.building"]
+    config = spec.config_class().from_params(house, "h")
+    assert config.building.kind == "house" and config.building.stories == 3
+    assert spec.config_class().from_params(house, "a").building is None
+    assert "building" not in base.scenes["a"].model_dump(mode="json")  # an apartment's entry reads as before
 
 
 def test_a_minimal_params_file_maps_simulated_scenes_with_simulated_perception():

@@ -91,11 +91,20 @@ def test_a_grid_too_small_for_the_cameras_names_the_frame(built, tmp_path):
     *_, frames = built
     with pytest.raises(InputDataError, match=r"field pose; frame \d+: camera at .* lies outside the top-down grid"):
         reconstruct(frames, tmp_path / "r.zarr", tmp_path / "m.ply", tmp_path / "p.ply", ReconstructParams(),
-                    GridParams(rows=20, cols=20))
+                    GridParams(rows=20, cols=20, extent="fixed"))
 
 
 def test_surface_outside_the_grid_is_counted_not_clipped_silently(built, tmp_path):
     *_, frames = built
     with pytest.raises(StageError, match=r"surface points \(.*\) fall outside the 60x120 grid"):
         reconstruct(frames, tmp_path / "r.zarr", tmp_path / "m.ply", tmp_path / "p.ply", ReconstructParams(),
-                    GridParams(rows=60, cols=120))
+                    GridParams(rows=60, cols=120, extent="fixed"))
+
+
+def test_a_grid_too_small_for_the_surface_grows_by_whole_tiles(built, tmp_path):
+    *_, frames = built
+    reconstruct(frames, tmp_path / "r.zarr", tmp_path / "m.ply", tmp_path / "p.ply", ReconstructParams(),
+                GridParams(rows=60, cols=120))
+    recon = Recon(tmp_path / "r.zarr")
+    assert (recon.grid.rows, recon.grid.cols) == (128, 256)  # the 3 x 6 m rooms plus 1 m each side, in 128-cell tiles
+    assert recon.meta.stats["points_outside_grid"] == 0

@@ -1,14 +1,12 @@
 """simulate -> ingest -> reconstruct (the project's own simulator and MCAP reader), scored against the GT plan."""
 
 import numpy as np
-import pytest
 
+import pipeline.readers.ingest as ingest_mod
+import pipeline.sim as sim
 from pipeline.config import GridParams, IngestParams, ReconstructParams, SimulateParams
 from pipeline.recon import FREE, Recon
 from pipeline.recon.evaluate import grid_accuracy
-
-sim = pytest.importorskip("pipeline.sim")
-ingest_mod = pytest.importorskip("pipeline.readers.ingest")
 
 
 def test_simulated_apartment_grids_match_the_ground_truth_floor_plan(tmp_path):

@@ -97,7 +97,8 @@ def test_to_xarray_is_the_dense_grid_in_metres(ds):
 
 
 def test_stores_open_in_xarray_with_named_dims_and_units(ds):
-    xr = pytest.importorskip("xarray")
+    import xarray as xr
+
     scene = ds["tiny"]
     recon = xr.open_zarr(scene.path("recon"), consolidated=False)
     assert recon.height.dims == ("row", "col") and recon.height.attrs["units"] == "m"

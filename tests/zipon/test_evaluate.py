@@ -8,7 +8,8 @@ import zipon
 from zipon.cli import main
 from pipeline.errors import ConfigError
 from tests.fixtures.user_agents import plugin_distribution
-from zipon.evaluate import plugin_agent, plugin_agent_names
+from orion_eval.agents import agent_class
+from pipeline import plugins as registry
 
 
 @pytest.fixture
@@ -20,21 +21,25 @@ def plugins(tmp_path, monkeypatch):
         "misnamed": "tests.fixtures.user_agents:NearestOnly",
     })
     monkeypatch.syspath_prepend(str(tmp_path / "site"))
-    return tmp_path
+    yield tmp_path
+    from orion_eval.agents import AGENTS
+
+    AGENTS.pop("nearest_plugin", None)  # the registry keeps what it loaded: not beyond this package's life
 
 
 def test_entry_points_resolve_and_bad_ones_are_named(plugins):
     from tests.fixtures.user_agents import PluginNearest
 
-    assert {"nearest_plugin", "broken"} <= set(plugin_agent_names())
-    assert plugin_agent("nearest_plugin") is PluginNearest
-    assert plugin_agent("nobody") is None
-    with pytest.raises(ConfigError, match="entry point 'tests.fixtures.no_such_module:Agent' .* failed to load"):
-        plugin_agent("broken")
+    assert {"nearest_plugin", "broken"} <= set(registry.agent_names()) - set(registry.BUILT_IN_AGENTS)
+    assert agent_class("nearest_plugin") is PluginNearest
+    assert agent_class("nobody") is None
+    with pytest.raises(ConfigError, match=r"agent 'broken': zipon.agents entry point 'broken' \(tests.fixtures."
+                                          r"no_such_module:Agent\) of package 'zipon-example-agents': import failed"):
+        agent_class("broken")
     with pytest.raises(ConfigError, match="is not a subclass of orion_eval.agents.Agent"):
-        plugin_agent("not_an_agent")
+        agent_class("not_an_agent")
     with pytest.raises(ConfigError, match="whose `name` is 'nearest_only'; they must agree"):
-        plugin_agent("misnamed")
+        agent_class("misnamed")
 
 
 def test_plugin_agent_evaluates_by_name_from_python_and_the_cli(built_scene, plugins, tmp_path):

@@ -41,8 +41,11 @@ def package(tmp_path, monkeypatch):
     from pipeline.encoders.base import ENCODERS
     from pipeline.readers import READERS
 
+    from orion_eval.agents import AGENTS
+
     ENCODERS.pop("colour_words", None)
     READERS.pop("user_log", None)
+    AGENTS.pop("nearest_plugin", None)
 
 
 def test_a_reader_name_no_package_registers_is_refused_at_load():

@@ -81,10 +81,11 @@ class PlaySession:
     # ------------------------------------------------------------------------- the agent's side (its thread)
 
     def _play(self) -> None:
+        from orion_eval.agents import run_agent
         from orion_eval.episode import EpisodeOver
 
         try:
-            self.agent.run(self.run.modules, self.run.user.instruction(), self.goal.name)
+            run_agent(self.agent, self.run.modules, self.run.user.instruction(), self.goal.name, (EpisodeOver,))
             reason = "gave up"
         except EpisodeOver as over:
             reason = over.reason

@@ -408,6 +408,19 @@ def objects_save(request, wb, body):
             "next": f"in params.yaml: goals: {{objects: file, objects_files: {{{view.name}: {rel}}}}}"}
 
 
+@endpoint()
+def feedback_kinds(request, wb, body):
+    """The feedback kinds of the registry (:data:`pipeline.goals.feedback.FEEDBACK_KINDS`), in the goals document's
+    order: the page makes one field of each, edited as the kind's ``form`` says."""
+    from pipeline.goals.feedback import FEEDBACK_KINDS
+    from pipeline.goals.schema import Feedback
+
+    empty = Feedback().model_dump(mode="json")
+    return {"kinds": [{"name": name, "form": FEEDBACK_KINDS[name].form, "description": info.description or "",
+                       "default": empty[name], "new_goal": FEEDBACK_KINDS[name].new_goal}
+                      for name, info in Feedback.model_fields.items()]}
+
+
 # ----------------------------------------------------------------------------- play as the user
 
 MAX_PLAYS = 8  # episodes kept per server (the oldest finished one is dropped first)
@@ -415,21 +428,22 @@ MAX_PLAYS = 8  # episodes kept per server (the oldest finished one is dropped fi
 
 @endpoint()
 def agents(request, wb, body):
-    from orion_eval.agents import AGENTS
+    from orion_eval.agents import all_agents
 
-    return {"agents": [{"name": name, "label": getattr(cls, "label", name)} for name, cls in AGENTS.items()]}
+    return {"agents": [{"name": name, "label": getattr(cls, "label", "") or name} for name, cls in all_agents().items()]}
 
 
 @endpoint(write=True)
 def play_start(request, wb, body):
-    from orion_eval.agents import AGENTS
+    from orion_eval.agents import agent_class
+    from pipeline import plugins
     from zipon.annotate.play import PlaySession
 
     scene = request.path_params["scene"]
     view = wb.scene(scene)
     method, goal, seed = body.get("method"), body.get("goal"), body.get("seed", 0)
-    if method not in AGENTS:
-        raise HTTPError(400, f"unknown agent {method!r}; choose from {list(AGENTS)}", "method")
+    if not isinstance(method, str) or agent_class(method) is None:
+        raise HTTPError(400, f"unknown agent {method!r}; choose from {plugins.agent_names()}", "method")
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
         raise HTTPError(400, f"seed {seed!r} is not a non-negative integer", "seed")
     if not isinstance(goal, str):
@@ -502,6 +516,7 @@ def create_app(params=None, data_dir=None, manifests_dir=None, *, scene=None, ov
         Route(s + "/objects", objects_save, methods=["PUT"]),
         Route(s + "/objects/validate", objects_validate, methods=["POST"]),
         Route("/api/agents", agents),
+        Route("/api/feedback-kinds", feedback_kinds),
         Route(s + "/play", play_start, methods=["POST"]),
         Route(s + "/play/{play}", play_state),
         Route(s + "/play/{play}/reply", play_reply, methods=["POST"]),

@@ -28,17 +28,23 @@ def render(
     scene: str = typer.Argument(..., help="scene name"),
     what: str = typer.Option("color", "--what", "-w", help=" | ".join(RENDERS)),
     out_png: Optional[Path] = typer.Option(None, "--out", "-o", help="PNG path (default DATA/artifacts/SCENE/renders/WHAT.png)"),
+    floor: int = typer.Option(0, "--floor", "-f", help="the floor of a building to draw (obstacles, navigable, color, "
+                              "height); 0 = the lowest"),
 ):
     """Draw an artifact as a north-up PNG with a scale bar.
 
-    Examples: `zipon render sim_00 --what navigable` · `zipon render sim_00 --what routes -o routes.png`
+    Examples: `zipon render sim_00 --what navigable` · `zipon render house --what color --floor 1`
     """
     from pipeline.errors import ConfigError
 
     if what not in RENDERS:
         raise ConfigError(f"--what {what!r}: choose one of {', '.join(RENDERS)}")
+    if floor and what not in ("obstacles", "navigable", "color", "height"):
+        raise ConfigError(f"--floor {floor}: --what {what} draws no floor; --floor goes with obstacles, navigable, "
+                          "color or height")
     sc = _scene(scene)
-    target = Path(out_png) if out_png else sc.workspace.renders(scene) / f"{what}.png"
+    name = f"{what}.png" if floor == 0 else f"{what}_floor{floor}.png"
+    target = Path(out_png) if out_png else sc.workspace.renders(scene) / name
     art = sc.path  # on an object store: the artifact's published version, mirrored on first use
     if what == "frames":
         from pipeline.pictures import frames_contact_sheet
@@ -59,7 +65,7 @@ def render(
     else:
         from pipeline.recon.render import render_recon
 
-        render_recon(art("recon"), what, target)
+        render_recon(art("recon"), what, target, floor=floor)
     out.print(str(target))
 
 
@@ -400,8 +406,9 @@ def _agent_class(spec: str):
         obj = importlib.import_module(module)
         for part in name.split("."):
             obj = getattr(obj, part)
-    except (ImportError, AttributeError) as err:
-        raise ConfigError(f"--method {spec!r}: cannot import it ({err}); expected module:Class of an Agent "
+    except (Exception, SystemExit) as err:  # noqa: BLE001 - the user's module: whatever its import raises, one line
+        what = f"SystemExit({err.code!r})" if isinstance(err, SystemExit) else f"{type(err).__name__}: {err}"
+        raise ConfigError(f"--method {spec!r}: cannot import it ({what}); expected module:Class of an Agent "
                           f"subclass importable from here") from None
     return obj
 

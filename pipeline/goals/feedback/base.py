@@ -1,7 +1,16 @@
 """The feedback family: one interface, one registry, one file per kind.
 
-A :class:`FeedbackKind` turns a goal and its scene (:class:`FeedbackContext`) into the plain value
-stored in the goal's ``feedback`` mapping under the kind's ``name`` (the paper's FB dictionary):
+A :class:`FeedbackKind` is everything zipon knows of one kind of feedback, in its one file:
+
+- :meth:`~FeedbackKind.generate`: a goal and its scene (:class:`FeedbackContext`) -> the plain value stored in the
+  goal's ``feedback`` mapping under the kind's ``name`` (the paper's FB dictionary), typed by the kind's
+  :attr:`~FeedbackKind.field` (the goals document's :class:`~pipeline.goals.schema.Feedback` is made of them);
+- :meth:`~FeedbackKind.say`: what the evaluator's simulated user says of it to an agent at a pose;
+- :meth:`~FeedbackKind.parse`: what an agent reads back from a reply (the attributes of
+  ``orion_eval.agents.ParsedFeedback`` the kind declares in :attr:`~FeedbackKind.parsed`);
+- :attr:`~FeedbackKind.form`: how the annotation page edits the value.
+
+The kinds:
 
 - ``corrective``  dict object key -> what the user says when the agent reaches that (wrong) object
 - ``descriptive`` str, appearance, state and function of the goal
@@ -13,15 +22,16 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar
+from typing import Any, Callable, ClassVar, Literal, Protocol
 
 import numpy as np
+from pydantic.fields import FieldInfo
 
 from pipeline.config import GoalsParams
+from pipeline.errors import ConfigError
 from pipeline.geometry import GridSpec
 from pipeline.goals.naming import Identity, RoomInfo
 from pipeline.goals.objects import ObjectRecord
-from pipeline.goals.schema import Feedback
 
 
 @dataclass
@@ -55,34 +65,96 @@ class FeedbackContext:
     # read by the routes stage); None = no reconstruction mesh: routes end within the planner's stop radius
     goal_region: Callable[[tuple[str, ...]], np.ndarray] | None = None
     settings: GoalsParams = field(default_factory=GoalsParams)  # the goals params (landmark radius, ...)
+    # a building: its planner over every floor (pipeline.nav.building.BuildingPlanner), the floor the recording
+    # starts on and the floor this context's goals lie on; None: one floor (``planner`` plans everything)
+    building: Any = None
+    start_floor: int = 0
+    floor: int = 0
 
     def footprint_mask(self, keys: tuple[str, ...]) -> np.ndarray:
         idx = [self.object_keys.index(k) + 1 for k in keys]
         return np.isin(self.object_index, idx)
 
 
+class Speaker(Protocol):
+    """What the evaluator's simulated user (``orion_eval.user.SimulatedUser``) lends a kind's :meth:`FeedbackKind.say`:
+    its goal (a ``GoalView``: ``name``, ``feedback``, ``mass_center``, ``room_id``) and what a person asked at
+    ``pose`` perceives and how they say it."""
+
+    goal: Any
+
+    def looked_at(self, pose, keys) -> str | None:
+        """The key among ``keys`` of the object the agent at ``pose`` is looking at (None: none of them)."""
+
+    def route_from(self, pose) -> Any:
+        """The route into the goal's region from ``pose`` (a ``Route``; None: the goal cannot be reached)."""
+
+    def room_at(self, pose) -> str | None:
+        """The room id at ``pose`` (None: outside every room)."""
+
+    def place_key(self, pose) -> tuple[int, ...]:
+        """The place asked from, as non-negative integers (the misjudgements' seed words)."""
+
+    def say_metres(self, metres: float, where: tuple[int, ...]) -> str:
+        """A distance as a person says it ("4 meters"), misjudged the same for the same ``where``."""
+
+
+#: how the annotation page edits a kind's value: free text, free text where empty means none (null), or one line
+#: per ``key: text`` entry of a mapping
+Form = Literal["text", "optional_text", "key_lines"]
+
+
 class FeedbackKind(ABC):
-    """One kind of user feedback."""
+    """One kind of user feedback (see the module docstring)."""
 
     name: ClassVar[str]
+    #: the value's type and its field in the goals document (default, description): ``(type, Field(...))``
+    field: ClassVar[tuple[Any, FieldInfo]]
+    #: how the annotation page edits the value (served with the kinds by ``zipon annotate``)
+    form: ClassVar[Form] = "text"
+    #: what a new goal made on the annotation page starts with: a template of the goal's ``{class}`` ("" = the
+    #: field's default)
+    new_goal: ClassVar[str] = ""
+    #: the attributes of ``ParsedFeedback`` :meth:`parse` fills, each with the factory of its value when the reply
+    #: says nothing of the kind
+    parsed: ClassVar[dict[str, Callable[[], Any]]]
 
     @abstractmethod
     def generate(self, goal: GoalDraft, ctx: FeedbackContext) -> Any:
         """The value stored under ``feedback[name]`` (JSON-able)."""
 
+    def say(self, value: Any, user: Speaker, pose) -> str | None:
+        """What the simulated user says of this kind to an agent at ``pose`` (``x, y, yaw``), from the goal's stored
+        ``value``; None when the kind has nothing to say there. By default the stored text itself."""
+        return value or None
 
-#: kind name -> implementation: the one list of feedback kinds (the evaluator's feedback settings derive from it)
+    @abstractmethod
+    def parse(self, reply: str) -> dict[str, Any]:
+        """The :attr:`parsed` attributes ``reply`` gives (only those it says something of)."""
+
+
+#: kind name -> implementation: the one list of feedback kinds (the goals document's fields, the evaluator's feedback
+#: settings, what its user says and its agents read, the annotation page's form all derive from it)
 FEEDBACK_KINDS: dict[str, type[FeedbackKind]] = {}
 
 
 def register(cls: type[FeedbackKind]) -> type[FeedbackKind]:
-    """Add ``cls`` under its ``name``, which must be a field of the goals document's
-    :class:`~pipeline.goals.schema.Feedback` (where its values are stored and edited)."""
-    if cls.name not in Feedback.model_fields:
-        raise TypeError(f"feedback kind {cls.name!r} ({cls.__qualname__}) has no field in "
-                        f"pipeline.goals.schema.Feedback {sorted(Feedback.model_fields)}")
+    """Add ``cls`` under its ``name``; its :attr:`~FeedbackKind.parsed` attributes must be its own."""
+    taken = {attr: other.name for other in FEEDBACK_KINDS.values() for attr in other.parsed if other is not cls}
+    clash = sorted(set(cls.parsed) & (set(taken) | {"yes"}))
+    if clash:
+        raise TypeError(f"feedback kind {cls.name!r} ({cls.__qualname__}): parsed attribute(s) {clash} already "
+                        f"filled by {sorted({taken.get(a, 'the yes/no reply') for a in clash})}")
     FEEDBACK_KINDS[cls.name] = cls
     return cls
+
+
+def feedback_kind(name: str) -> FeedbackKind:
+    """The kind registered as ``name``; a name the registry lacks is a ConfigError naming the registered kinds."""
+    if name not in FEEDBACK_KINDS:
+        raise ConfigError(f"feedback kind {name!r}: unknown; the registered kinds are {sorted(FEEDBACK_KINDS)} "
+                          "(pipeline.goals.feedback: one module each)")
+    return FEEDBACK_KINDS[name]()
 
 
 def class_is_unique(key: str, ctx: FeedbackContext) -> bool:

@@ -1,12 +1,22 @@
-"""Descriptive feedback: the goal's appearance, state and function (or human text when given)."""
+"""Descriptive feedback: the goal's appearance, state and function (or human text when given).
+
+Said as stored: "It is a red chair made of wood. It stands on the floor and is about 0.9 meters tall. ..."; read back
+as ``description`` ("red chair made of wood": what the first "It is a/an ..." sentence says the goal looks like).
+"""
 
 from __future__ import annotations
 
+import re
+from typing import Any
+
 import numpy as np
+from pydantic import Field
 
 from pipeline.goals.feedback.base import (FeedbackContext, FeedbackKind, GoalDraft, appearance, object_phrase,
                                           register)
 from pipeline.goals.feedback.landmark import polygon_distance, relation
+
+SAID = re.compile(r"It is (?:a|an) (.+?)\.")
 
 FUNCTIONS = {
     "bed": "people sleep in it", "chair": "it is for sitting at", "couch": "people sit and relax on it",
@@ -22,6 +32,9 @@ FUNCTIONS = {
 @register
 class Descriptive(FeedbackKind):
     name = "descriptive"
+    field = (str, Field("", description="appearance, state, function"))
+    new_goal = "It is a {class}."
+    parsed = {"description": lambda: None}
 
     def generate(self, goal: GoalDraft, ctx: FeedbackContext) -> str:
         obj = ctx.objects[goal.members[0]]
@@ -45,3 +58,7 @@ class Descriptive(FeedbackKind):
         if len(goal.members) > 1:
             out.append(f"There are {len(goal.members)} of them side by side; any one of them will do.")
         return " ".join(out)
+
+    def parse(self, reply: str) -> dict[str, Any]:
+        m = SAID.search(reply)
+        return {"description": m.group(1)} if m else {}

@@ -5,16 +5,27 @@ The paper's landmarks are "common and salient objects near the current goal obje
 identifiable in the room", so the user points each one out by what a robot can find it by (:func:`landmark_phrase`):
 its class when the scene has one of it ("the fridge"), else its colour and material when they tell it from the
 others of its class ("the white nightstand made of wood"), else its identity ("Alice's shelf": a robot that finds
-shelves still has to tell which). The landmarks come in that order, each group nearest first."""
+shelves still has to tell which). The landmarks come in that order, each group nearest first.
+
+Said as stored: "It is on the desk, next to Kate's chair and near Kate's shelf."; read back as ``landmarks`` (the
+phrases without their relation words: ["the desk", "Kate's chair", "Kate's shelf"])."""
 
 from __future__ import annotations
 
+import re
+from typing import Any
+
 import numpy as np
+from pydantic import Field
 
 from pipeline.goals.feedback.base import (FeedbackContext, FeedbackKind, GoalDraft, appearance, class_is_unique,
                                           object_phrase, register)
 from pipeline.goals.objects import ObjectRecord
 from pipeline.nav.fmm import segment_free
+
+#: the spatial relation words, as :func:`relation` says them and :meth:`Landmark.parse` strips them
+RELATIONS = ("next to", "near", "on", "under")
+SAID = re.compile(r"It is ((?:next to|near|on|under) .+?)\.(\s|$)")
 
 
 def polygon_distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -104,6 +115,8 @@ def _join(items: list[str]) -> str:
 @register
 class Landmark(FeedbackKind):
     name = "landmark"
+    field = (str, Field("", description="salient nearby objects with relation words"))
+    parsed = {"landmarks": list}
 
     def generate(self, goal: GoalDraft, ctx: FeedbackContext) -> str:
         marks = find_landmarks(goal, ctx)
@@ -112,3 +125,11 @@ class Landmark(FeedbackKind):
         # the members of a pair share one name: said once
         phrases = list(dict.fromkeys(f"{m['relation']} {landmark_phrase(m['object'], ctx)}" for m in marks))
         return f"It is {_join(phrases)}."
+
+    def parse(self, reply: str) -> dict[str, Any]:
+        m = SAID.search(reply)
+        if not m:
+            return {}
+        rel = "|".join(re.escape(r) for r in RELATIONS)
+        pieces = (re.sub(rf"^({rel})\s+", "", p.strip()) for p in re.split(r",\s*|\s+and\s+", m.group(1)))
+        return {"landmarks": [p for p in pieces if p]}

@@ -44,7 +44,8 @@ def test_registrations_resolve_and_bad_ones_are_named(plugins):
     assert {"colour_words", "broken", "misnamed"} <= set(plugin_names())
     load("colour_words")
     assert ENCODERS["colour_words"] is ColourWords
-    with pytest.raises(ConfigError, match=r"entry point 'tests.fixtures.no_such_module:Encoder' .* failed to load"):
+    with pytest.raises(ConfigError, match=r"zipon.encoders entry point 'broken' \(tests.fixtures.no_such_module:Encoder\) of package "
+                                          r"'zipon-example-encoders': import failed: ModuleNotFoundError"):
         load("broken")
     with pytest.raises(ConfigError, match="is not a subclass of pipeline.encoders.base.Encoder"):
         load("not_an_encoder")
@@ -91,5 +92,6 @@ def test_plugin_settings_are_read_through_the_class_the_plugin_declares(plugins)
         _params(plugins={"colour_words": {"sharpness": "sharp"}})
     with pytest.raises(ConfigError, match=r"encoders.plugins: colour_wordz: settings for an encoder no installed "):
         _params(plugins={"colour_wordz": {"sharpness": 1.0}})
-    with pytest.raises(ConfigError, match=r"entry point 'tests.fixtures.no_such_module:Encoder' .* failed to load"):
+    with pytest.raises(ConfigError, match=r"zipon.encoders entry point 'broken' \(tests.fixtures.no_such_module:Encoder\) of package "
+                                          r"'zipon-example-encoders': import failed: ModuleNotFoundError"):
         _params(plugins={"broken": {}})

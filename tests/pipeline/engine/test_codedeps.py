@@ -173,3 +173,16 @@ def test_the_ingest_stage_runs_every_built_in_reader_loaded_by_name():
     modules = {v.split(":")[0] for v in plugins.BUILT_IN_READERS.values()}
     assert {m.replace(".", "/") + ".py" for m in modules} <= files
     assert "pipeline/readers/roslog.py" in files  # and what they import
+
+
+def test_a_new_feedback_kind_module_is_code_of_the_goals_stage(checkout):
+    """The feedback package imports every module of its folder (one per kind): a kind added as its one new file is
+    code of the goals stage (and of what reads feedback), though no module names it."""
+    kind = checkout / "pipeline" / "goals" / "feedback" / "gesture.py"
+    kind.write_text('"""A new kind."""\n')
+    files = {p.relative_to(checkout).as_posix() for p in codedeps.import_closure("stages.goals", checkout)}
+    assert {"pipeline/goals/feedback/gesture.py", "pipeline/goals/feedback/procedural.py"} <= files
+    before = _digests(checkout)
+    _edit(kind)
+    after = _digests(checkout)
+    assert {"goals", "routes"} <= {s for s in STAGES if before[s] != after[s]}

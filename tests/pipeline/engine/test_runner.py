@@ -130,7 +130,6 @@ def test_staleness_reasons(workspace):
 def test_a_dask_scheduler_and_workers_started_as_on_a_cluster_run_the_scenes(workspace, tmp_path):
     """`dask scheduler` and `dask worker` processes (as a cluster or a SLURM job starts them, sharing the data
     root's filesystem) run the scenes; a serial rerun then finds everything up to date."""
-    pytest.importorskip("distributed")
     dask_cli = [sys.executable, "-m", "dask"]
     info = tmp_path / "scheduler.json"
     repo = str(__import__("tests").__path__[0] + "/..")

@@ -57,28 +57,95 @@ def test_each_kind_says_what_the_paper_s_feedback_says(house_goals):
         assert all(re.fullmatch(r"turn (left|right|around)|go forward \d+(\.5)? meters", s) for s in steps), steps
 
 
-def test_all_four_kinds():
-    from pipeline.goals.schema import Feedback
-    from orion_eval.user import FEEDBACK_SETTINGS
+GESTURE = '''"""A made-up kind, as a contributor adds one: its one module."""
 
-    assert sorted(FEEDBACK_KINDS) == ["corrective", "descriptive", "landmark", "procedural"] == sorted(Feedback.model_fields)
-    # the evaluator's settings are derived from the registry: no interaction, yes/no, each kind, mixed
-    assert FEEDBACK_SETTINGS == ("none", "yesno", *sorted(FEEDBACK_KINDS), "mixed")
+import re
+
+from pydantic import Field
+
+from pipeline.goals.feedback.base import FeedbackKind, register
 
 
-def test_a_kind_without_a_document_field_is_refused():
+@register
+class Gesture(FeedbackKind):
+    name = "gesture"
+    field = (str, Field("", description="where the user points"))
+    parsed = {"pointed_at": lambda: None}
+
+    def generate(self, goal, ctx):
+        return f"Look over there, at {goal.name}!"
+
+    def parse(self, reply):
+        m = re.search(r"Look over there, at (.+?)!", reply)
+        return {"pointed_at": m.group(1)} if m else {}
+'''
+
+ADDED = """
+import json
+from pipeline.config import GoalsParams
+from pipeline.goals.build import build_goals
+from pipeline.goals.feedback import feedback_kind
+from pipeline.goals.objects import objects_from_gt
+from pipeline.goals.schema import Feedback
+from pipeline.nav.actions import RoutePlanner
+from orion_eval.agents import parse_feedback
+from orion_eval.user import FEEDBACK_SETTINGS
+from tests.fixtures.goal_scenes import gt_navigable, house_grid, house_scene
+
+gt, grid = house_scene(), house_grid()
+res = build_goals(objects_from_gt(gt), grid, gt.occupancy(grid, 0.05, 2.5, objects=False),
+                  planner=RoutePlanner(gt_navigable(gt, grid), grid), start_pose=(2.5, 1.8, 0.0),
+                  settings=GoalsParams(max_goals=3))
+goal = res.document.goals[0]
+said = feedback_kind("gesture").say(goal.feedback.gesture, None, None)
+read = parse_feedback("No. " + said + " " + goal.feedback.descriptive)
+print(json.dumps({"fields": list(Feedback.model_fields), "settings": FEEDBACK_SETTINGS, "name": goal.name,
+                  "stored": goal.feedback.gesture, "pointed_at": read.pointed_at, "description": read.description}))
+"""
+
+
+def test_a_kind_added_as_its_one_module_is_generated_stored_said_and_read(tmp_path):
+    """Adding a kind touches its module and nothing else: in a copy of the library with one new file, the goals
+    stage generates and stores it (the goals document has its field), the evaluator offers it as a setting, the user
+    says it and the agents' parser reads it back (beside the other kinds of the same reply)."""
+    import json
+    import shutil
+    import subprocess
+    import sys
+
+    from pipeline.engine.codedeps import ROOT
+
+    for name in ("pipeline", "orion_eval"):
+        shutil.copytree(ROOT / name, tmp_path / name, ignore=shutil.ignore_patterns("__pycache__"))
+    (tmp_path / "pipeline" / "goals" / "feedback" / "gesture.py").write_text(GESTURE)
+    run = subprocess.run([sys.executable, "-c", ADDED], capture_output=True, text=True, cwd=tmp_path,
+                         env={"PYTHONPATH": f"{tmp_path}:{ROOT}", "PATH": "/usr/bin:/bin"}, timeout=300)
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    assert out["fields"] == ["corrective", "descriptive", "gesture", "landmark", "procedural"]
+    assert out["settings"] == ["none", "yesno", *out["fields"], "mixed"]
+    assert out["stored"] == f"Look over there, at {out['name']}!" and out["pointed_at"] == out["name"]
+    assert out["description"]  # the other kinds still read their part of the reply
+
+
+def test_a_kind_reading_another_kind_s_attribute_is_refused():
     from pipeline.goals.feedback.base import register
 
-    class Gesture(FeedbackKind):
-        name = "gesture"
+    class Pointing(FeedbackKind):
+        name = "pointing"
+        field = (str, None)
+        parsed = {"route": list}
 
         def generate(self, goal, ctx):
-            return None
+            return ""
 
-    with pytest.raises(TypeError, match=r"feedback kind 'gesture' \(.*Gesture\) has no field in pipeline\.goals\."
-                                        r"schema\.Feedback"):
-        register(Gesture)
-    assert "gesture" not in FEEDBACK_KINDS
+        def parse(self, reply):
+            return {}
+
+    with pytest.raises(TypeError, match=r"feedback kind 'pointing' \(.*Pointing\): parsed attribute\(s\) \['route'\] "
+                                        r"already filled by \['procedural'\]"):
+        register(Pointing)
+    assert "pointing" not in FEEDBACK_KINDS
 
 
 def _goal(res, gid):

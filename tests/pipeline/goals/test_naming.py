@@ -2,6 +2,7 @@ import numpy as np
 
 from pipeline.goals.naming import assign_rooms, personalize, same_goal_groups
 from pipeline.goals.objects import objects_from_gt
+from tests.fixtures.fresh_process import in_fresh_process
 from tests.fixtures.goal_scenes import house_scene
 
 
@@ -36,5 +37,8 @@ def test_names_unique_personal_and_deterministic():
         assert ids["chair_2"].name == f"{owner}'s chair" and ids["bed_0"].name == f"{owner}'s bed"
         # shared-room objects carry a persona attribute
         assert any(w in ids["couch_0"].name for w in ("bought from", "bought in", "fabric"))
-    assert {k: v.name for k, v in _names(3)[2].items()} == {k: v.name for k, v in _names(3)[2].items()}
+    # the same names in another process (another string-hash seed)
+    assert in_fresh_process("from tests.pipeline.goals.test_naming import _names",
+                            "{k: v.name for k, v in _names(3)[2].items()}", hash_seed=99) == \
+        {k: v.name for k, v in _names(3)[2].items()}
     assert {k: v.name for k, v in _names(3)[2].items()} != {k: v.name for k, v in _names(4)[2].items()}

@@ -87,7 +87,7 @@ def test_reader_errors(tmp_path):
     doc = json.loads(meta.read_text())
     doc["attributes"]["format_version"] = 99
     meta.write_text(json.dumps(doc))
-    with pytest.raises(ArtifactError, match="format_version 99, this zipon reads 1; rebuild it with: zipon run --force"):
+    with pytest.raises(ArtifactError, match="format_version 99, this zipon reads 1 and 2; rebuild it with: zipon run --force"):
         SemanticMap(tmp_path / "m.zarr")
     doc["attributes"]["artifact"] = "recon"
     meta.write_text(json.dumps(doc))

@@ -13,7 +13,7 @@ from pipeline.recon import Recon
 from pipeline.recon.build import reconstruct
 from pipeline.recon.floors import camera_levels, find_floors, surface_peaks
 from pipeline.recon.store import floor_bands
-from tests.fixtures.real_data import TUM_RPY
+from tests.fixtures.real_data import TUM_RPY, raised_copy
 
 FLAT = 0.5  # heights of the synthetic floors below: 0.5 and 3.5 m
 
@@ -119,21 +119,6 @@ def test_a_pinned_floor_list_that_is_not_a_building_is_refused_at_load():
 
 
 # ----------------------------------------------------------------------------- the issue's real-data case
-
-def raised_copy(folder, dest, dz):
-    """A copy of a TUM folder whose ground-truth poses are raised by ``dz`` metres (tz + dz)."""
-    shutil.copytree(folder, dest)
-    lines = []
-    for line in (dest / "groundtruth.txt").read_text().splitlines():
-        if line.startswith("#") or not line.strip():
-            lines.append(line)
-            continue
-        v = line.split()
-        v[3] = f"{float(v[3]) + dz:.4f}"
-        lines.append(" ".join(v))
-    (dest / "groundtruth.txt").write_text("\n".join(lines) + "\n")
-    return dest
-
 
 def occupied_iou(a: np.ndarray, b: np.ndarray) -> float:
     a, b = a == 2, b == 2

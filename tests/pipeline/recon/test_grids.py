@@ -262,3 +262,20 @@ def test_every_face_point_in_reach_votes_so_the_order_of_the_points_does_not_mat
         perm = rng.permutation(n)
         cleared = in_front_of_faces(grid, 0.0, xyz[perm], normals[perm], candidates, solid_z, ReconstructParams())
         assert np.argwhere(cleared).tolist() == [[1, 1]]
+
+
+def test_a_large_floor_grows_the_grid_in_whole_tiles_and_one_that_fits_keeps_it():
+    rng = np.random.default_rng(7)
+    p = ReconstructParams()
+    office = np.c_[rng.uniform(-50, 50, 20000), rng.uniform(-30, 30, 20000), np.zeros(20000)]
+    grid = place_grid(office, GridParams(), p)  # 100 x 60 m (+1 m each side) in 128-cell tiles of 6.4 m
+    assert (grid.rows, grid.cols) == (1280, 2048) and grid.rows * 0.05 >= 62 and grid.cols * 0.05 >= 102
+    x0, x1, y0, y1 = grid.extent_xy
+    assert x0 < -50.5 and x1 > 50.5 and y0 < -30.5 and y1 > 30.5
+    flat = office / np.array([5.0, 5.0, 1.0])  # 20 x 12 m fits the default 30 x 30 m grid: kept as it is
+    assert place_grid(flat, GridParams(), p) == place_grid(flat, GridParams(extent="fixed"), p)
+    assert (place_grid(office, GridParams(extent="fixed"), p).rows, grid.cols) == (600, 2048)
+    pinned = place_grid(office, GridParams(centre_xy=(0.0, 0.0)), p)  # a pinned fold never moves
+    assert (pinned.rows, pinned.cols) == (600, 600)
+    with pytest.raises(ConfigError, match="grid.extent: the surface spans 19.. x 59 m, a grid of 1280 x 39680 cells.*grid.extent: fixed"):
+        place_grid(office * np.array([20.0, 1.0, 1.0]), GridParams(), p)

@@ -25,3 +25,17 @@ def test_every_view_renders_a_png(tmp_path):
     assert (obstacles.max(axis=2) < 20).sum() > 1000  # black occupied walls are drawn
     with pytest.raises(ConfigError, match="expected one of obstacles, navigable, color, height"):
         render_recon(recon, "semantic", tmp_path / "x.png")
+
+
+def test_each_floor_of_a_building_renders_with_its_stairs_and_a_missing_floor_is_refused(house, tmp_path):
+    import cv2
+
+    _, recon, _ = house
+    pngs = [render_recon(recon.path, "obstacles", tmp_path / f"floor{i}.png", floor=i) for i in (0, 1)]
+    lower, upper = (cv2.imread(str(p)) for p in pngs)
+    assert lower.shape == upper.shape and not (lower == upper).all()
+    orange = [((img[..., 2] > 200) & (img[..., 1] > 100) & (img[..., 1] < 200) & (img[..., 0] < 80)).sum()
+              for img in (lower, upper)]
+    assert min(orange) > 20  # the stairs' foot on floor 0, its head on floor 1
+    with pytest.raises(ConfigError, match="--floor 2: .* has 2 floors \\(0..1\\)"):
+        render_recon(recon.path, "obstacles", tmp_path / "x.png", floor=2)

@@ -88,3 +88,27 @@ def test_simulate_scene_writes_deterministic_mcap(tmp_path):
     assert counts["/camera/instance/image_raw"] == 12 and counts["/camera/pose"] == a["poses"]
     gt = json.loads(attachments[0].data)
     assert attachments[0].name == "ground_truth.json" and len(gt["objects"]) == a["objects"]
+
+
+def test_a_house_log_carries_its_floors_stairs_and_building(tmp_path):
+    from mcap.reader import make_reader
+
+    from pipeline.config import BuildingParams
+    from pipeline.scene_gt import GTScene
+    from pipeline.sim import draw_scene_topdown
+
+    house = BuildingParams(kind="house", stories=2)
+    s = simulate_scene("house_t", SimulateParams(frames=24, width=32, height=24), tmp_path / "h.mcap", building=house)
+    assert s["floors"] == 2 and s["stairs"] == 1 and sum(s["frames_per_floor"]) == 24 and min(s["frames_per_floor"]) > 0
+    assert s["building"] == "house" and s["rooms_visited"] == s["rooms"]
+    with open(tmp_path / "h.mcap", "rb") as f:
+        reader = make_reader(f)
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+        gt = GTScene.read(json.loads(next(reader.iter_attachments()).data), "h.mcap")
+    assert json.loads(next(iter(meta.values()))["building"])["kind"] == "house"
+    assert [f.id for f in gt.floors] == [0, 1] and gt.stairs[0].upper == 1
+    # the plan of each floor: the flight drawn in brown on the lower floor, the opening in grey on the upper one
+    lower, upper = (draw_scene_topdown(gt, floor=k, px_per_m=20) for k in (0, 1))
+    brown, grey = np.array([150, 108, 72]), np.array([96, 96, 120])
+    assert (lower == brown).all(-1).sum() > 100 and not (upper == brown).all(-1).any()
+    assert (upper == grey).all(-1).sum() > 100 and not (lower == grey).all(-1).any()

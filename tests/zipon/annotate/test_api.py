@@ -50,6 +50,20 @@ def refused(r, status: int, *words: str) -> dict:
 
 # ----------------------------------------------------------------------------- reading the scene
 
+def test_feedback_kinds_are_the_registry_with_their_forms_and_defaults(client):
+    """The page makes its feedback fields from this answer: a kind added to the registry appears on the page."""
+    from pipeline.goals.feedback import FEEDBACK_KINDS
+
+    kinds = client.get("/api/feedback-kinds").json()["kinds"]
+    assert [k["name"] for k in kinds] == sorted(FEEDBACK_KINDS) == list(goals_doc(client)[0]["goals"][0]["feedback"])
+    by_name = {k["name"]: k for k in kinds}
+    assert {n: (k["form"], k["default"]) for n, k in by_name.items()} == {
+        "corrective": ("key_lines", {}), "descriptive": ("text", ""), "landmark": ("text", ""),
+        "procedural": ("optional_text", None)}
+    assert by_name["descriptive"]["new_goal"] == "It is a {class}." and by_name["landmark"]["new_goal"] == ""
+    assert by_name["procedural"]["description"].startswith("route in words")
+
+
 def test_page_and_scene_list(client):
     page = client.get("/")
     assert page.status_code == 200 and "<canvas id=\"map\">" in page.text and "/static/app.js" in page.text

@@ -5,7 +5,7 @@ const $ = (id) => document.getElementById(id);
 const S = {
   scene: null, data: null, layers: {}, layer: "color",
   view: { s: 40, ox: 0, oy: 0 },
-  doc: null, etag: null, goal: -1, selectedObject: null,
+  doc: null, etag: null, goal: -1, selectedObject: null, kinds: [],
   objects: null, objectsDirty: false, object: -1, proposals: [], heatmap: null,
   drawing: null, mode: null, play: null, route: null, routeFor: -1, clicked: null,
 };
@@ -264,6 +264,38 @@ function renderGoals() {
   $("goal-list").replaceChildren(...(S.doc ? S.doc.goals.map(goalRow) : []));
 }
 
+// ------------------------------------------------------------------ the feedback kinds (the server's registry)
+
+// how each form of a kind's value is shown in its field and read back from it
+const FORMS = {
+  text: { rows: 3, title: "", show: (v) => v || "", read: (t) => t },
+  optional_text: { rows: 2, title: "empty = none", show: (v) => v || "", read: (t) => (t.trim() ? t : null) },
+  key_lines: {
+    rows: 3, title: "one line per object: key: what the user says",
+    show: (v) => Object.entries(v || {}).map(([k, t]) => `${k}: ${t}`).join("\n"),
+    read: (t) => {
+      const out = {};
+      t.split("\n").map((l) => l.trim()).filter(Boolean).forEach((l) => {
+        const at = l.indexOf(":"); if (at > 0) out[l.slice(0, at).trim()] = l.slice(at + 1).trim(); else out[l] = "";
+      });
+      return out;
+    },
+  },
+};
+
+async function loadFeedbackKinds() {
+  const r = await api("/api/feedback-kinds");
+  if (!r.ok) { status(r.body.error); return false; }
+  S.kinds = r.body.kinds;
+  $("feedback-fields").replaceChildren(...S.kinds.map((k) => {
+    const label = el("label", `${k.name} `), t = el("textarea");
+    t.name = k.name; t.rows = FORMS[k.form].rows; t.title = [k.description, FORMS[k.form].title].filter(Boolean).join("; ");
+    label.append(t);
+    return label;
+  }));
+  return true;
+}
+
 function selectGoal(i) {
   S.goal = i; S.route = null; $("route-text").textContent = ""; $("route-use").hidden = true;
   const f = $("goal-form"), gl = S.doc.goals[i];
@@ -273,24 +305,17 @@ function selectGoal(i) {
   f.room_id.options[0].value = "";
   f.room_id.value = gl.room_id || "";
   f.objects.value = gl.objects.join(", ");
-  f.corrective.value = Object.entries(gl.feedback.corrective || {}).map(([k, t]) => `${k}: ${t}`).join("\n");
-  f.descriptive.value = gl.feedback.descriptive || "";
-  f.landmark.value = gl.feedback.landmark || "";
-  f.procedural.value = gl.feedback.procedural || "";
+  S.kinds.forEach((k) => { f[k.name].value = FORMS[k.form].show(gl.feedback[k.name]); });
   renderGoals(); draw();
 }
 
 function readGoalForm() {
   const f = $("goal-form"), gl = S.doc.goals[S.goal];
-  const corrective = {};
-  f.corrective.value.split("\n").map((l) => l.trim()).filter(Boolean).forEach((l) => {
-    const at = l.indexOf(":"); if (at > 0) corrective[l.slice(0, at).trim()] = l.slice(at + 1).trim(); else corrective[l] = "";
-  });
   gl.name = f.name.value; gl.type = f.type.value;
   gl.room_id = f.room_id.value || null;
   gl.room = gl.room_id && S.doc.rooms[gl.room_id] ? S.doc.rooms[gl.room_id].name : null;
   gl.objects = f.objects.value.split(",").map((k) => k.trim()).filter(Boolean);
-  gl.feedback = { corrective, descriptive: f.descriptive.value, landmark: f.landmark.value, procedural: f.procedural.value.trim() ? f.procedural.value : null };
+  gl.feedback = Object.fromEntries(S.kinds.map((k) => [k.name, FORMS[k.form].read(f[k.name].value)]));
 }
 
 let validateTimer = null;
@@ -318,7 +343,7 @@ $("goal-new").addEventListener("click", () => {
   while (S.doc.goals.some((gl) => gl.id === id)) id = `${key}#${n++}`;
   const room = o.room && S.doc.rooms[o.room] ? o.room : null;
   S.doc.goals.push({ id, name, type: "big", room: room ? S.doc.rooms[room].name : null, room_id: room, objects: [key],
-    feedback: { corrective: {}, descriptive: `It is a ${o.class}.`, landmark: "", procedural: null } });
+    feedback: Object.fromEntries(S.kinds.map((k) => [k.name, k.new_goal ? k.new_goal.replaceAll("{class}", o.class) : k.default])) });
   selectGoal(S.doc.goals.length - 1); validateGoals();
 });
 
@@ -616,6 +641,7 @@ async function loadScene(name, keepView) {
 }
 
 (async function start() {
+  if (!(await loadFeedbackKinds())) return;
   const r = await api("/api/scenes");
   if (!r.ok) { status(r.body.error); return; }
   $("scene").replaceChildren(...r.body.scenes.map((s) => { const o = el("option", s.name + (s.locked ? " (being rebuilt)" : "")); o.value = s.name; return o; }));
