@@ -626,6 +626,19 @@ def _(c):
     return c.argv("verify")
 
 
+@case("verify-manifest-not-utf8", 1, "{root}/manifests/tiny/vlmap.json", "manifest unreadable", tampers=True)
+def _(c):
+    (c.root / "manifests" / SCENE / "vlmap.json").write_bytes(b"\xff\xfe{")
+    return c.argv("verify")
+
+
+@case("status-manifest-nested-deep", 1, "{root}/manifests/tiny/goals.json", "not a valid zipon manifest",
+      "recursion limit", tampers=True)
+def _(c):
+    (c.root / "manifests" / SCENE / "goals.json").write_text("[" * 100_000)
+    return c.argv("status")
+
+
 @case("verify-scene-not-in-params", 1, "ghost", "not in params.yaml", "no manifest", tampers=True)
 def _(c):
     shutil.copytree(c.art / "goals.zarr", c.data / "artifacts" / "ghost" / "goals.zarr")
