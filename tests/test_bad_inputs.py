@@ -1114,6 +1114,39 @@ def test_goals_import_whose_routes_fail_changes_nothing(pristine, tmp_path, monk
                                                                       before.outputs), stage
 
 
+def test_goals_import_whose_dvc_lock_record_fails_changes_nothing(pristine, tmp_path, monkeypatch, capsys):
+    """Goals and routes rebuild with the edit and params.yaml records it, then dvc.lock cannot be written: the whole
+    save is undone (params.yaml, dvc.lock, the stored edit, the built goals and routes), exit 1 saying so."""
+    import pipeline.engine.dvcfile
+    from pipeline.engine.manifest import Manifest
+    from pipeline.errors import ZiponError
+
+    root = copy_workspace(pristine[0], tmp_path / "ws")
+    (tmp_path / "scratch").mkdir()
+    c = Ctx(root, tmp_path / "scratch", json.loads(json.dumps(pristine[1])))
+    (root / "dvc.lock").write_text("schema: '2.0'\nstages: {}\n")
+    kept = {name: (root / name).read_bytes() for name in ("params.yaml", "dvc.lock")}
+    manifests = {s: Manifest.read(root / "manifests" / SCENE / f"{s}.json") for s in ("goals", "routes")}
+
+    def dvc_fails(*args, **kwargs):
+        (root / "dvc.lock").write_text("half written\n")
+        raise ZiponError("recording them in dvc.lock failed (OSError: No space left on device)")
+
+    monkeypatch.setattr(pipeline.engine.dvcfile, "sync_dvc_lock", dvc_fails)
+    c.goals_doc["goals"][0]["feedback"]["landmark"] = "It is next to the window."
+    code = main(goals_import(c, c.goals_doc))
+    out, err = capsys.readouterr()
+    text = " ".join(err.split())
+    assert code == 1 and "Traceback" not in out + err
+    assert "dvc.lock could not be recorded, so the whole save was undone" in text and "params.yaml unchanged" in text
+    assert {name: (root / name).read_bytes() for name in kept} == kept
+    assert not (root / "goals_edits").exists()
+    for stage, before in manifests.items():
+        after = Manifest.read(root / "manifests" / SCENE / f"{stage}.json")
+        assert (after.params_digest, after.inputs, after.outputs) == (before.params_digest, before.inputs,
+                                                                      before.outputs), stage
+
+
 def test_goals_import_records_the_edit_once_rebuilt(pristine, tmp_path, capsys):
     """The good path beside the failures above: the edit is rebuilt into goals.zarr, then params.yaml names it."""
     from pipeline.goals.store import Goals
