@@ -12,7 +12,7 @@ as Replica's wall / floor / ceiling are), per class accuracy = recall and IoU, t
 Modes (one JSON object per line, then a table):
 
 - ``--workspace PARAMS``: every simulated scene built in that zipon workspace: its vlmap / cfmap as
-  built, their segmentation figures, top-candidate hit rate and heatmap IoU
+  built (a building's: one row per floor, scored against that floor's ground truth), their segmentation figures, top-candidate hit rate and heatmap IoU
   (:func:`pipeline.maps.evaluate.evaluate_map`);
   with ``--rebuild ENCODER ...`` the maps are rebuilt in a temporary folder with each named encoder
   setting ('perception', 'oracle', ...) and ``--set`` overrides (a calibration sweep that leaves the
@@ -41,7 +41,7 @@ from pipeline.frames import FrameStore  # noqa: E402
 from pipeline.maps.build import build_map  # noqa: E402
 from pipeline.maps.config import MAP_CONFIGS  # noqa: E402
 from pipeline.maps.evaluate import class_masks, evaluate_map, sample_poses  # noqa: E402
-from pipeline.maps.query import MapQuery, open_query  # noqa: E402
+from pipeline.maps.query import MapQuery, gt_floor, open_query  # noqa: E402
 from pipeline.encoder_params.perception import PUBLISHED  # noqa: E402
 from pipeline.recon import Recon  # noqa: E402
 from pipeline.scene_gt import GTScene  # noqa: E402
@@ -89,10 +89,11 @@ def segmentation_metrics(mq: MapQuery, gt: GTScene) -> dict:
             "cells": n_eval, "per_class": per_class}
 
 
-def evaluate(frames, recon, map_path, params, n_poses) -> dict:
-    gt = FrameStore(frames).ground_truth
-    mq = open_query(map_path, params, recon_path=recon, frames_path=frames)
-    poses = sample_poses(Recon(recon).navigable, mq.grid, n_poses, seed=1)
+def evaluate(frames, recon, map_path, params, n_poses, floor: int = 0) -> dict:
+    """Figures of floor ``floor``'s map against that floor's ground truth (:func:`pipeline.maps.query.gt_floor`)."""
+    mq = open_query(map_path, params, recon_path=recon, frames_path=frames, floor=floor)
+    gt = gt_floor(FrameStore(frames).ground_truth, mq.map.floor)
+    poses = sample_poses(Recon(recon).floor(floor).navigable, mq.grid, n_poses, seed=1)
     out = segmentation_metrics(mq, gt)
     retrieval = evaluate_map(mq, gt, poses)
     return {"encoder": mq.map.encoder["name"], "kind": mq.map.encoder.get("kind", ""), "mAcc": out["mAcc"],
@@ -125,16 +126,18 @@ def workspace_scenes(path: Path, n_poses: int, rebuild: list[str], overrides: li
                                   artifact_attrs(kind, 1, kind, "quality"), runtime=params.run)
                     elif not m.exists():
                         continue
-                    fig = evaluate(frames, recon, m, params, n_poses)
-                    row = {"bench": "quality", "scene": scene, "map": kind, "setting": setting or "as built",
-                           "overrides": list(overrides), **fig}
-                    print(json.dumps(row), flush=True)
-                    rows.append(row)
+                    for floor in range(len(Recon(recon).floors)):  # a building: each floor against its own truth
+                        fig = evaluate(frames, recon, m, params, n_poses, floor)
+                        row = {"bench": "quality", "scene": scene, "map": kind, "floor": floor,
+                               "setting": setting or "as built", "overrides": list(overrides), **fig}
+                        print(json.dumps(row), flush=True)
+                        rows.append(row)
     return rows
 
 
 def print_table(rows: list[dict]) -> None:
-    """Mean mAcc / F-mIoU per (map, encoder) over scenes, next to the published rows they are set against."""
+    """Mean mAcc / F-mIoU per (map, encoder) over scenes (a building's floors each count), next to the published
+    rows they are set against."""
     if not rows:
         return
     groups: dict[tuple[str, str, str], list[dict]] = {}
@@ -145,7 +148,7 @@ def print_table(rows: list[dict]) -> None:
         target = TARGET.get(enc)
         pub = PUBLISHED.get(target) if target else None
         ref = f"{target}: {pub['mAcc']:.1f} / {pub['F-mIoU']:.1f}" if pub else "(ground-truth diagnostic: no model)"
-        print(f"{kind:6} {enc:28} {len(rs):6d} {np.mean([r['mAcc'] for r in rs]):6.1f} "
+        print(f"{kind:6} {enc:28} {len({r['scene'] for r in rs}):6d} {np.mean([r['mAcc'] for r in rs]):6.1f} "
               f"{np.mean([r['F-mIoU'] for r in rs]):7.1f}   {ref}")
     print("published rows: " + "; ".join(f"{k} {v['mAcc']}/{v['F-mIoU']}" for k, v in PUBLISHED.items())
           + f" ({PUBLISHED['ConceptFusion']['source']})")

@@ -308,6 +308,20 @@ class ReconstructParams(DepthRange):
             return v
         raise ValueError(f"expected 'auto' or a whole number from 1 to 8, got {v!r}")
 
+    @field_validator("floors")
+    @classmethod
+    def _storeys(cls, floors: list[PinnedFloor] | None) -> list[PinnedFloor] | None:
+        if floors is None:
+            return floors
+        if not floors:
+            raise ValueError("empty: list at least one floor, or leave it out (null) to find them")
+        z = [f.floor_z_m for f in floors]
+        for i in range(1, len(z)):
+            if z[i] - z[i - 1] < MIN_STOREY_M:
+                raise ValueError(f"floor {i} (floor_z_m {z[i]}) must lie at least {MIN_STOREY_M} m above floor "
+                                 f"{i - 1} (floor_z_m {z[i - 1]}); list the floors lowest first")
+        return floors
+
     @model_serializer(mode="wrap")
     def _without_unpinned_floors(self, handler) -> dict:
         """Floors not pinned are left out of the section's value: digests of scenes without them stay as they were."""
@@ -320,13 +334,7 @@ class ReconstructParams(DepthRange):
         if self.floors is not None:
             if self.floor_z_m is not None:
                 raise ValueError("give either floor_z_m (one floor) or floors (a building), not both")
-            if not self.floors:
-                raise ValueError("floors is empty: list at least one floor, or leave it out (null) to find them")
-            z = [f.floor_z_m for f in self.floors]
-            for i in range(1, len(z)):
-                if z[i] - z[i - 1] < MIN_STOREY_M:
-                    raise ValueError(f"floors[{i}].floor_z_m {z[i]} must lie at least {MIN_STOREY_M} m above "
-                                     f"floors[{i - 1}].floor_z_m {z[i - 1]} (lowest floor first)")
+
         if self.sdf_trunc_m < self.voxel_size_m:
             raise ValueError("sdf_trunc_m must be at least voxel_size_m")
         return self

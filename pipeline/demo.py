@@ -1,4 +1,5 @@
-"""Pictures for ``zipon demo``: one picture per artifact that exists, under DATA/artifacts/<scene>/renders/."""
+"""Pictures for ``zipon demo``: one picture per artifact that exists, under DATA/artifacts/<scene>/renders/ (a
+building's grids: one per floor, ``WHAT_floor<k>.png``; its map queries: every floor side by side)."""
 
 from __future__ import annotations
 
@@ -23,8 +24,11 @@ def render_all(scenes: list[Scene]) -> list[Path]:
         if art["recon"].exists():
             from pipeline.recon.render import render_recon
 
+            n_floors = len(scene.floors)
             for what in ("navigable", "color"):
-                written.append(render_recon(art["recon"], what, out / f"{what}.png"))
+                for k in range(n_floors):
+                    name = f"{what}.png" if n_floors == 1 else f"{what}_floor{k}.png"
+                    written.append(render_recon(art["recon"], what, out / name, floor=k))
         if art["goals"].exists() and art["recon"].exists():
             from pipeline.goals.render import render_goals
 
@@ -38,7 +42,8 @@ def render_all(scenes: list[Scene]) -> list[Path]:
 
 
 def _query_picture(scene: Scene, which: str, out: Path) -> Path:
-    """Query the map for the class of the scene's first goal, from the recording's start pose."""
+    """Query the map for the class of the scene's first goal, from the recording's start pose (on a building: every
+    floor, the pose on the floor of the recording's first camera)."""
     from pipeline.maps.query import query_map
     from pipeline.maps.render import render_query
 
@@ -46,6 +51,14 @@ def _query_picture(scene: Scene, which: str, out: Path) -> Path:
     first = goals.document.goals[0]
     cls = goals.objects[first.objects[0]].cls
     start = goals.meta.start_pose
-    result = query_map(scene.path(which), scene.path("recon"), cls, tuple(start) if start else None,
-                       params=scene.params, frames_path=scene.path("frames"))
+    pose = tuple(start) if start else None
+    if len(scene.floors) > 1:
+        import numpy as np
+
+        cameras = scene.recon.poses[:, 2, 3]
+        start_floor = int(scene.recon.floor_of_z(cameras[np.isfinite(cameras)][0]))
+        result = scene.map(which).query(cls, pose, pose_floor=start_floor)
+    else:
+        result = query_map(scene.path(which), scene.path("recon"), cls, pose, params=scene.params,
+                           frames_path=scene.path("frames"))
     return render_query(result, out / f"query_{which}_{cls}.png")

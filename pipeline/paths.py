@@ -16,6 +16,12 @@ Layout under the data root (``--data-dir`` / ``ZIPON_DATA``, default ``<workspac
         .<stage>.fold/                 vlmap/cfmap: fold of the complete frame chunks (a cache; pipeline.maps.incremental)
     manifests/<scene>/<stage>.json     committed provenance (``--manifests-dir``)
 
+Beside the params file, committed with it (a dataset project, :mod:`pipeline.project`)::
+
+    .zipon/code/<stage>.json           the stage's code identity: zipon's version and the stage's code digest
+                                       (what ``dvc.yaml`` lists as the stage's code, :mod:`pipeline.engine.dvcfile`)
+    DATASET.md, dataset.json           the dataset card of this version and its machine-readable twin
+
 The same templates are saved into every manifest so a dataset documents its own layout. A data root given as a
 URL (``s3://bucket/prefix``) is an object store: the layout above is then a local cache of it (:func:`cache_dir`)
 and the store holds published versions (``<path>@<digest>``) and the manifests (:mod:`pipeline.engine.fsroot`).
@@ -47,6 +53,10 @@ LOCK = "artifacts/{scene}/.{stage}.lock"
 JOURNAL = "artifacts/{scene}/.{stage}.publish.json"
 FOLD = "artifacts/{scene}/.{stage}.fold"
 MANIFEST = "{scene}/{stage}.json"
+# relative to the workspace root (the params file's folder)
+CODE_ID = ".zipon/code/{stage}.json"
+CARD_MD = "DATASET.md"
+CARD_JSON = "dataset.json"
 
 ENV_DATA = "ZIPON_DATA"
 ENV_MANIFESTS = "ZIPON_MANIFESTS"
@@ -139,6 +149,10 @@ class Workspace:
 
     def manifest(self, scene: str, stage: str) -> Path:
         return self.manifests_dir / MANIFEST.format(scene=scene, stage=stage)
+
+    def code_id(self, stage: str) -> Path:
+        """The stage's code identity file (:mod:`pipeline.engine.dvcfile`), beside the params file."""
+        return self.root / CODE_ID.format(stage=stage)
 
     def renders(self, scene: str) -> Path:
         return self.data_dir / RENDERS.format(scene=scene)

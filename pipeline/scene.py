@@ -225,12 +225,12 @@ class Scene:
             raise ConfigError(f"map {which!r}: choose one of {list(MAP_NAMES)}")
         return getattr(self, which)
 
-    def map_query(self, which: str):
-        """The cached :class:`~pipeline.maps.query.MapQuery` of ``'vlmap'`` or ``'cfmap'``."""
+    def map_query(self, which: str, floor: int = 0):
+        """The cached :class:`~pipeline.maps.query.MapQuery` of ``'vlmap'`` or ``'cfmap'`` on floor ``floor``."""
         from pipeline.maps.query import open_query
 
         return open_query(self.existing(which), self.params, recon_path=self.existing("recon"),
-                          frames_path=self.workspace.artifact("frames", self.name))
+                          frames_path=self.workspace.artifact("frames", self.name), floor=floor)
 
     @cached_property
     def camera_height_m(self) -> float:
@@ -268,22 +268,45 @@ class Scene:
 
 
 class MapView:
-    """A semantic map of a scene: text queries, the dense xarray grid, features at world points."""
+    """A semantic map of a scene: text queries, the dense xarray grid, features at world points.
 
-    def __init__(self, scene: Scene, which: str):
-        self.scene, self.which = scene, which
+    ``floor``: the floor (an index, lowest first) this view shows; None (``scene.vlmap``) is the whole scene:
+    its queries answer from every floor, and its grid, features and xarray are floor 0's (the only floor of a
+    single-floor scene). ``view.floors`` (one view per floor) and ``view.floor(k)`` give each floor.
+    """
+
+    def __init__(self, scene: Scene, which: str, floor: int | None = None):
+        self.scene, self.which, self.floor_index = scene, which, floor
         self.path = scene.existing(which)
+        if floor is not None:
+            from pipeline.maps.store import SemanticMap
+
+            n_floors = len(SemanticMap(self.path).floors)
+            if not 0 <= floor < n_floors:
+                raise InputDataError(f"got {floor}", field="floor",
+                                     expected=f"a floor of scene {scene.name!r}: 0..{n_floors - 1}")
 
     def __repr__(self) -> str:
         s = self.store
-        return f"MapView({self.scene.name!r}, {self.which!r}, encoder={s.encoder.get('name')!r}, cells={s.n_cells})"
+        where = "" if self.floor_index is None else f", floor={self.floor_index}"
+        return (f"MapView({self.scene.name!r}, {self.which!r}{where}, encoder={s.encoder.get('name')!r}, "
+                f"cells={s.n_cells})")
 
     @cached_property
     def store(self):
-        """The :class:`~pipeline.maps.store.SemanticMap` reader."""
+        """The :class:`~pipeline.maps.store.SemanticMap` reader (of this view's floor; floor 0 for the whole scene)."""
         from pipeline.maps.store import SemanticMap
 
-        return SemanticMap(self.path)
+        return SemanticMap(self.path, self.floor_index or 0)
+
+    @property
+    def floors(self) -> list["MapView"]:
+        """One view per floor of the map, lowest first."""
+        return [self.floor(k) for k in range(len(self.store.floors))]
+
+    def floor(self, index: int) -> "MapView":
+        """The view of floor ``index`` (lowest first)."""
+        return MapView(self.scene, self.which, index)
 
     @property
     def grid(self):
@@ -293,24 +316,36 @@ class MapView:
     def encoder(self) -> dict:
         return dict(self.store.encoder)
 
-    def _query(self):
+    def _query(self, floor: int):
         from pipeline.maps.query import open_query
 
         sc = self.scene
         recon = sc.path("recon")
         return open_query(self.path, sc.params, recon_path=recon if recon.exists() else None,
-                          frames_path=sc.path("frames"))
+                          frames_path=sc.path("frames"), floor=floor)
 
-    def query(self, text: str, pose: Sequence[float] | None = None):
-        """Heatmap and object candidates for ``text`` (:class:`~pipeline.maps.query.QueryResult`).
+    def query(self, text: str, pose: Sequence[float] | None = None, *, pose_floor: int = 0):
+        """Heatmap and object candidates for ``text``.
 
         ``pose`` = (x, y, yaw): world metres and radians (counter-clockwise from +x); candidates are then
         sorted by distance and carry ``distance_m`` / ``angle_rad`` from it. A pose off the map's grid is
-        an :class:`~pipeline.errors.InputDataError`.
+        an :class:`~pipeline.errors.InputDataError`. On one floor (a view of one floor, or a single-floor scene):
+        a :class:`~pipeline.maps.query.QueryResult`. On a building's whole-scene view: a
+        :class:`~pipeline.maps.floors.FloorsResult`, every floor's candidates with their ``floor``; the pose then
+        stands on floor ``pose_floor``.
         """
+        n_floors = len(self.store.floors)
+        if self.floor_index is not None or n_floors == 1:
+            if pose is not None:
+                pose = check_pose(self.grid, pose, field="pose")
+            return self._query(self.floor_index or 0).query(text, pose)
+        from pipeline.maps.floors import query_floors
+
         if pose is not None:
-            pose = check_pose(self.grid, pose, field="pose")
-        return self._query().query(text, pose)
+            if not 0 <= pose_floor < n_floors:
+                raise InputDataError(f"got {pose_floor}", field="pose_floor", expected=f"a floor 0..{n_floors - 1}")
+            pose = check_pose(self.store.floor_map(pose_floor).grid, pose, field="pose")
+        return query_floors([self._query(k) for k in range(n_floors)], text, pose, pose_floor=pose_floor)
 
     def features_at(self, xy) -> tuple[np.ndarray, np.ndarray]:
         """Features ``(K,D)`` float32 at world points ``xy`` ``(K,2)`` metres and a ``(K,)`` bool observed mask

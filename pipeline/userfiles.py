@@ -141,6 +141,8 @@ def parse_yaml(text: str, *, origin: str | Path, limits: Limits = DEFAULT_LIMITS
             loader.dispose()
     except yaml.YAMLError as err:
         raise InputDataError(f"not valid YAML: {' '.join(str(err).split())}", path=origin) from None
+    except InputDataError:  # a limit of the event check (a ValueError too)
+        raise
     except ValueError as err:  # an integer of more digits than int() converts (4,300)
         digits = re.search(r"value has (\d+) digits", str(err))
         raise InputDataError(f"holds an integer of {digits.group(1) if digits else 'too many'} digits", path=origin,

@@ -11,7 +11,9 @@ Entities (world frame right-handed, z up, metres; see :mod:`pipeline.geometry`):
     world/mesh                    Mesh3D: the TSDF surface with vertex colours (static)
     world/grids/{color,navigable,height,query}
                                   Mesh3D: top-down grids (and one map query's heatmap) as textured
-                                  planes stacked below the floor, cropped to the observed area (static)
+                                  planes stacked below the floor, cropped to the observed area (static);
+                                  a building: world/grids/floor<id>/{...} below each floor, its query
+                                  heatmap from that floor's map
     world/goals                   Boxes3D: one box per goal object, labelled with the goal's name (static)
     world/routes                  LineStrips3D: every verified episode's geodesic path (static)
     world/routes/starts           Arrows3D: start poses (static)
@@ -81,9 +83,12 @@ def write_recording(ws, params, scene: str, out: str | Path, *, episode: str | N
 
             recon = Recon(art["recon"])
             summary["mesh_vertices"] = _log_mesh(rec, rr, recon, mesh_voxel_m, mesh_top_m)
-            result = _query(ws, params, scene, art, query)
-            summary["query"] = None if result is None else result.text
-            summary["grids"] = _log_grids(rec, rr, recon, result)
+            summary["grids"] = []
+            for k, floor in enumerate(recon.floors):
+                result = _query(ws, params, scene, art, query, k)
+                summary["query"] = None if result is None else result.text
+                where = "" if len(recon.floors) == 1 else f"floor{floor.id}/"
+                summary["grids"] += [where + what for what in _log_grids(rec, rr, recon, result, k, where)]
         floor_z = recon.floor_z if recon is not None else 0.0
         goals = None
         if art["goals"].exists():
@@ -171,7 +176,8 @@ def _log_mesh(rec, rr, recon, voxel_m: float, top_m: float | None) -> int:
     mesh = recon.mesh()
     if top_m is not None and len(mesh.triangles):
         z = np.asarray(mesh.vertices)[:, 2]
-        above = (z[np.asarray(mesh.triangles)] > recon.floor_z + top_m).all(axis=1)
+        floor_z = np.array([f.floor_z_m for f in recon.floors])[recon.floor_of_z(z)]  # each vertex's floor
+        above = (z - floor_z > top_m)[np.asarray(mesh.triangles)].all(axis=1)
         mesh.remove_triangles_by_mask(above)
         mesh.remove_unreferenced_vertices()
     if voxel_m > 0:
@@ -203,13 +209,15 @@ def _plane(rr, grid, box, z: float, texture: np.ndarray):
                      vertex_texcoords=uv, albedo_texture=texture)
 
 
-def _log_grids(rec, rr, recon, result) -> list[str]:
-    """The colour, navigable and height grids and the query heatmap as textured planes below the floor."""
+def _log_grids(rec, rr, recon, result, floor: int = 0, where: str = "") -> list[str]:
+    """The colour, navigable and height grids and the query heatmap of floor ``floor`` (an index) as textured
+    planes below that floor, logged under ``world/grids/<where>``."""
     from pipeline.pictures import colorize
     from pipeline.recon.render import grid_image
 
-    g = recon.grid
-    seen = np.argwhere(recon.occupancy != 0)
+    grids = recon.floor(floor)
+    g = grids.grid
+    seen = np.argwhere(grids.occupancy != 0)
     if not len(seen):
         return []
     (r0, c0), (r1, c1) = seen.min(axis=0), seen.max(axis=0) + 1
@@ -224,16 +232,17 @@ def _log_grids(rec, rr, recon, result) -> list[str]:
             tex = np.concatenate([colorize(np.nan_to_num(heat), 0.0, 1.0),
                                   np.where(np.isfinite(heat), 255, 0).astype(np.uint8)[..., None]], axis=-1)
         else:
-            img, _ = grid_image(recon, what)
+            img, _ = grid_image(grids, what, recon.robot_radius_m)
             tex = (np.asarray(img)[crop] * 255).round().astype(np.uint8)
-        z = recon.floor_z - LAYER_GAP_M * (k + 1)
-        rec.log(f"world/grids/{what}", _plane(rr, g, box, z, np.ascontiguousarray(tex)), static=True)
+        z = grids.floor_z - LAYER_GAP_M * (k + 1)
+        rec.log(f"world/grids/{where}{what}", _plane(rr, g, box, z, np.ascontiguousarray(tex)), static=True)
         written.append(what)
     return written
 
 
-def _query(ws, params, scene: str, art: dict, text: str | None):
-    """The vlmap query drawn as a heatmap: ``text``, else the class of the first goal; None without a map."""
+def _query(ws, params, scene: str, art: dict, text: str | None, floor: int = 0):
+    """The vlmap query of floor ``floor`` drawn as a heatmap: ``text``, else the class of the first goal; None
+    without a map."""
     if not art["vlmap"].exists():
         return None
     if text is None:
@@ -247,7 +256,8 @@ def _query(ws, params, scene: str, art: dict, text: str | None):
         text = goals.objects[goals.goals[0].object_keys[0]].cls
     from pipeline.maps.query import open_query
 
-    return open_query(art["vlmap"], params, recon_path=art["recon"], frames_path=art["frames"]).query(text)
+    return open_query(art["vlmap"], params, recon_path=art["recon"], frames_path=art["frames"],
+                      floor=floor).query(text)
 
 
 # ----------------------------------------------------------------------------- goals, routes, episodes

@@ -344,6 +344,19 @@ def _(c):
     return with_params(c, BASE + "reconstruct: {voxel_size_m: .nan}\n")
 
 
+@case("params-floors-too-close", 1, "reconstruct.floors", "floor 1 (floor_z_m 1.0) must lie at least 1.8 m above")
+def _(c):
+    return with_params(c, BASE + "reconstruct: {floors: [{floor_z_m: 0.0}, {floor_z_m: 1.0}]}\n")
+
+
+@case("floors-pinned-without-surface", 1, "reconstruct.floors[1].floor_z_m: no floor at 3.00 m",
+      "upward-facing surface points")
+def _(c):
+    params = yaml.safe_load((c.root / "params.yaml").read_text())
+    params.setdefault("reconstruct", {})["floors"] = [{"floor_z_m": 0.0}, {"floor_z_m": 3.0}]
+    return with_params(c, yaml.safe_dump(params), "run", "--stage", "reconstruct", "--force", "--scheduler", "sync")
+
+
 @case("params-unknown-scheduler", 1, "run.scheduler", "fastest")
 def _(c):
     return with_params(c, BASE + "run: {scheduler: fastest}\n")
@@ -624,6 +637,19 @@ def _(c):
 def _(c):
     (c.root / "manifests" / SCENE / "vlmap.json").write_text("{not json")
     return c.argv("verify")
+
+
+@case("verify-manifest-not-utf8", 1, "{root}/manifests/tiny/vlmap.json", "manifest unreadable", tampers=True)
+def _(c):
+    (c.root / "manifests" / SCENE / "vlmap.json").write_bytes(b"\xff\xfe{")
+    return c.argv("verify")
+
+
+@case("status-manifest-nested-deep", 1, "{root}/manifests/tiny/goals.json", "not a valid zipon manifest",
+      "recursion limit", tampers=True)
+def _(c):
+    (c.root / "manifests" / SCENE / "goals.json").write_text("[" * 100_000)
+    return c.argv("status")
 
 
 @case("verify-scene-not-in-params", 1, "ghost", "not in params.yaml", "no manifest", tampers=True)
@@ -920,6 +946,45 @@ def _(c):
     return c.argv("query", SCENE, "   ")
 
 
+# --- stored human-answered episodes (zipon eval -f human reads them back as user input)
+
+HUMAN_RECORD = {"scene": SCENE, "method": "cow", "feedback": "human", "seed": 0, "goal": "?", "goal_type": "big",
+                "episode": "e0", "success": True, "spl": 0.5, "sit": 1.0, "talk_turns": 1, "steps": 12,
+                "travelled_m": 3.2, "geodesic_m": 1.6, "collisions": 0, "end": "found", "final_distance_m": 0.4}
+
+
+def human_eval(c: Ctx, *records: dict, strict: bool = False) -> list[str]:
+    path = c.data / "eval" / "human" / f"{SCENE}.episodes.jsonl"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("".join(json.dumps(r) + "\n" for r in records))
+    return c.argv("eval", "-s", SCENE, "-m", "cow", "-f", "human", "--out", str(c.scratch / "ev"),
+                  *(["--strict"] if strict else []))
+
+
+@case("eval-human-string-for-number", 1, "data/eval/human/tiny.episodes.jsonl", "field spl", "line 2",
+      "Input should be a valid number", tampers=True)
+def _(c):
+    good = {**HUMAN_RECORD, "goal": c.goals_doc["goals"][0]["id"]}
+    return human_eval(c, good, {**good, "spl": "0.5"})
+
+
+@case("eval-human-missing-field", 1, "data/eval/human/tiny.episodes.jsonl", "field success", "line 1",
+      "Field required", tampers=True)
+def _(c):
+    return human_eval(c, {k: v for k, v in HUMAN_RECORD.items() if k != "success"})
+
+
+@case("eval-human-nan", 1, "data/eval/human/tiny.episodes.jsonl", "field travelled_m", "finite number", tampers=True)
+def _(c):
+    return human_eval(c, {**HUMAN_RECORD, "goal": c.goals_doc["goals"][0]["id"], "travelled_m": float("nan")})
+
+
+@case("eval-human-removed-goal-strict", 1, "data/eval/human/tiny.episodes.jsonl", "field goal",
+      "goal 'removed_goal' is not in scene tiny's goals store", tampers=True)
+def _(c):
+    return human_eval(c, {**HUMAN_RECORD, "goal": "removed_goal"}, strict=True)
+
+
 @case("usage-eval-negative-seed", 2, "--seed-list", "negative")
 def _(c):
     return c.argv("eval", "--seed-list", "-3", "--out", str(c.scratch / "eval"))
@@ -1055,6 +1120,39 @@ def test_goals_import_whose_routes_fail_changes_nothing(pristine, tmp_path, monk
     assert code == 1 and "Traceback" not in out + err
     assert "no route reaches the edited goal" in err and "params.yaml unchanged" in " ".join(err.split())
     assert (root / "params.yaml").read_bytes() == params_text
+    assert not (root / "goals_edits").exists()
+    for stage, before in manifests.items():
+        after = Manifest.read(root / "manifests" / SCENE / f"{stage}.json")
+        assert (after.params_digest, after.inputs, after.outputs) == (before.params_digest, before.inputs,
+                                                                      before.outputs), stage
+
+
+def test_goals_import_whose_dvc_lock_record_fails_changes_nothing(pristine, tmp_path, monkeypatch, capsys):
+    """Goals and routes rebuild with the edit and params.yaml records it, then dvc.lock cannot be written: the whole
+    save is undone (params.yaml, dvc.lock, the stored edit, the built goals and routes), exit 1 saying so."""
+    import pipeline.engine.dvcfile
+    from pipeline.engine.manifest import Manifest
+    from pipeline.errors import ZiponError
+
+    root = copy_workspace(pristine[0], tmp_path / "ws")
+    (tmp_path / "scratch").mkdir()
+    c = Ctx(root, tmp_path / "scratch", json.loads(json.dumps(pristine[1])))
+    (root / "dvc.lock").write_text("schema: '2.0'\nstages: {}\n")
+    kept = {name: (root / name).read_bytes() for name in ("params.yaml", "dvc.lock")}
+    manifests = {s: Manifest.read(root / "manifests" / SCENE / f"{s}.json") for s in ("goals", "routes")}
+
+    def dvc_fails(*args, **kwargs):
+        (root / "dvc.lock").write_text("half written\n")
+        raise ZiponError("recording them in dvc.lock failed (OSError: No space left on device)")
+
+    monkeypatch.setattr(pipeline.engine.dvcfile, "sync_dvc_lock", dvc_fails)
+    c.goals_doc["goals"][0]["feedback"]["landmark"] = "It is next to the window."
+    code = main(goals_import(c, c.goals_doc))
+    out, err = capsys.readouterr()
+    text = " ".join(err.split())
+    assert code == 1 and "Traceback" not in out + err
+    assert "dvc.lock could not be recorded, so the whole save was undone" in text and "params.yaml unchanged" in text
+    assert {name: (root / name).read_bytes() for name in kept} == kept
     assert not (root / "goals_edits").exists()
     for stage, before in manifests.items():
         after = Manifest.read(root / "manifests" / SCENE / f"{stage}.json")

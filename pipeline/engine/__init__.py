@@ -4,6 +4,6 @@ Modules: :mod:`~pipeline.engine.runner` (runs stages, serially or over dask), :m
 (the stages' DAG and staleness), :mod:`~pipeline.engine.codedeps` (a stage's code closure and digest),
 :mod:`~pipeline.engine.publication` (publishing a stage's outputs with their manifest as one set),
 :mod:`~pipeline.engine.manifest` (manifests), :mod:`~pipeline.engine.locks` (per-scene locks),
-:mod:`~pipeline.engine.fsroot` (local and object-store data roots), :mod:`~pipeline.engine.dvcfile` (``dvc.yaml``
-and ``dvc.lock``), :mod:`~pipeline.engine.verify` (``zipon verify``), :mod:`~pipeline.engine.process` (worker tuning).
+:mod:`~pipeline.engine.fsroot` (local and object-store data roots), :mod:`~pipeline.engine.dvcfile` (``dvc.yaml``, the
+stages' code identities and ``dvc.lock``), :mod:`~pipeline.engine.verify` (``zipon verify``), :mod:`~pipeline.engine.process` (worker tuning).
 """

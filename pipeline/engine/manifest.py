@@ -11,6 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from pipeline.errors import ArtifactError
 
 MANIFEST_FORMAT_VERSION = 1
+MAX_MANIFEST_BYTES = 16 << 20  # a manifest lists a stage's code files and figures: tens of kB
 
 
 class OutputRecord(BaseModel):
@@ -56,11 +57,20 @@ class Manifest(BaseModel):
 
     @classmethod
     def read(cls, path: Path) -> "Manifest | None":
-        """The manifest at ``path``, or ``None`` when there is none."""
+        """The manifest at ``path``, or ``None`` when there is none. Read back as user input: a file that is not
+        UTF-8 JSON, is over :data:`MAX_MANIFEST_BYTES`, or does not validate is an :class:`ArtifactError` naming it
+        (where the first problem is)."""
         path = Path(path)
         if not path.is_file():
             return None
+        with open(path, "rb") as f:
+            data = f.read(MAX_MANIFEST_BYTES + 1)
+        if len(data) > MAX_MANIFEST_BYTES:
+            raise ArtifactError(f"{path}: not a valid zipon manifest: over {MAX_MANIFEST_BYTES:,} bytes")
         try:
-            return cls.model_validate_json(path.read_text())
+            return cls.model_validate_json(data)
         except ValidationError as err:
-            raise ArtifactError(f"{path}: not a valid zipon manifest: {err.errors()[0]['msg']}") from None
+            first = err.errors()[0]
+            where = ".".join(str(p) for p in first["loc"])
+            raise ArtifactError(f"{path}: not a valid zipon manifest: {where + ': ' if where else ''}"
+                                f"{first['msg']}") from None

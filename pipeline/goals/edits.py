@@ -168,7 +168,9 @@ def save_goals_edit(ws, scene: str, doc: GoalsDocument, stages: dict, *, overrid
     except Exception as err:  # noqa: BLE001 - re-raised below, after undoing what this transaction wrote
         restored = _undo(created, kept, manifests, published, rebuild)
         if isinstance(err, EditNotSaved) or step != "rebuild":
-            raise EditNotSaved(f"{err}; {ws.params_path.name} unchanged", tuple(outcomes), restored, step) from None
+            what = "" if step == "rebuild" else f"{step} could not be recorded, so the whole save was undone: "
+            raise EditNotSaved(f"{what}{err}; {ws.params_path.name} unchanged", tuple(outcomes), restored,
+                               step) from None
         raise
     return SavedEdit(scene, rel, document_digest(doc), tuple(outcomes), note)
 

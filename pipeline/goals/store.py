@@ -28,8 +28,10 @@ of it and is written byte for byte as before floors existed::
 
     goals.zarr/            attrs (added): floors [{id, name, floor_z_m}], region_floors [floor of region g]
     │                             (objects' and rooms' records carry ``floor``, written when it is not 0)
-    ├── object_index              floor 0's footprints (as above)
-    └── floors/<id>/object_index  (rows, cols) int32  floor <id>'s footprints, on that floor's grid (id >= 1)
+    └── floors/            only in a building (``object_index`` at the root is floor 0's footprints)
+        └── <id>/          only in a building, floor <id> >= 1
+            └── object_index   (rows, cols) int32  only in a building: floor <id>'s footprints, 1 + index into
+                                                   attrs.objects
 
 A goal lies on the floor of its objects; its region (``region_cells``) is cells of that floor's grid.
 

@@ -168,22 +168,28 @@ class Weighting(AttrsModel):
     sigma_m: float | None = None
 
 
-class MapAttrs(ArtifactAttrs):
-    """The attrs of ``vlmap.zarr`` / ``cfmap.zarr`` (the tree above). Figures of the build are optional, so a
-    map written by a test or a benchmark without a stage reads the same way."""
+class FloorMapAttrs(AttrsModel):
+    """The attrs of ``floors/<id>/`` in a building's map store."""
 
     grid: GridAttrs
     lattice: LatticeAttrs
-    encoder: EncoderAttrs
-    tile_cells: int
     n_cells: int
     n_voxels: int = 0
-    weighting: Weighting | None = None
-    frames: FrameCounts | None = None
     points_fused: int | None = None
-    pixels_in_band: int | None = None
     cells_observed: int | None = None
     cells_filled: int | None = None
+
+
+class MapAttrs(ArtifactAttrs, FloorMapAttrs):
+    """The attrs of ``vlmap.zarr`` / ``cfmap.zarr`` (the tree above): floor 0's map (:class:`FloorMapAttrs`) and
+    what the whole store shares. Figures of the build are optional, so a map written by a test or a benchmark
+    without a stage reads the same way."""
+
+    encoder: EncoderAttrs
+    tile_cells: int
+    weighting: Weighting | None = None
+    frames: FrameCounts | None = None
+    pixels_in_band: int | None = None
     fill_radius_m: float | None = None
     units: dict[str, str] = {}
     floors: list[Floor] | None = None  # version 2 (a building) only
@@ -234,18 +240,6 @@ class FloorLayer:
     cells: MapCells
     voxels: MapVoxels | None = None
     figures: dict[str, Any] = field(default_factory=dict)
-
-
-class FloorMapAttrs(AttrsModel):
-    """The attrs of ``floors/<id>/`` in a building's map store."""
-
-    grid: GridAttrs
-    lattice: LatticeAttrs
-    n_cells: int
-    n_voxels: int = 0
-    points_fused: int | None = None
-    cells_observed: int | None = None
-    cells_filled: int | None = None
 
 
 def write_map(

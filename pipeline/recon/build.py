@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -61,24 +61,10 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
     t_extract = time.perf_counter() - t1
 
     t2 = time.perf_counter()
-    if xyz.shape[0] == 0:
-        grids_mod.placed_grid(xyz, fusion.T_world_camera, grid, p, source=str(frames_path))  # the empty-scene error
-    camera_z = np.array([fusion.T_world_camera[i][2, 3] for i in sorted(fusion.T_world_camera)])
-    found = find_floors(xyz, normals, camera_z, p)
-    spec = grids_mod.placed_grid(xyz, fusion.T_world_camera, grid, p, source=str(frames_path))
+    found, spec, per_floor, stairs, warnings = floors_grids_stairs(
+        xyz, normals, colors, lambda: tsdf.iter_voxels(fusion.volume, p, min_weight=p.occupancy_min_weight),
+        fusion.T_world_camera, grid, p, source=str(frames_path))
     building = len(found.floors) > 1
-    per_floor = []
-    for floor, (lo, hi), n_points in zip(found.floors, floor_bands(found.floors), found.floor_points):
-        band = slice(None) if not building else (xyz[:, 2] >= lo) & (xyz[:, 2] < hi)
-        voxels = tsdf.iter_voxels(fusion.volume, p, min_weight=p.occupancy_min_weight)
-        per_floor.append(grids_mod.floor_grids(
-            spec, floor.floor_z_m, xyz[band], normals[band], colors[band], voxels, p, floor_points=n_points,
-            source=str(frames_path), floor_name=f"{floor.name} ({floor.floor_z_m:.2f} m)" if building else None))
-    flights = find_flights(xyz, normals, found.floors, spec, p) if building else []
-    for flight in flights:  # the flight is solid on the floor it rises from
-        per_floor[flight.lower] = grids_mod.with_solid(per_floor[flight.lower], flight.mask((spec.rows, spec.cols)), p)
-    stairs = stair_links(flights, found.floors, spec, [g.navigable for g in per_floor])
-    warnings = found.warnings + (unlinked_warnings(found.floors, stairs) if building else [])
     t_grids = time.perf_counter() - t2
     grids = per_floor[0]
     outside = sum(g.stats["points_outside_grid"] for g in per_floor)
@@ -146,6 +132,32 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
     write_recon(recon_path, per_floor, poses, fused, attrs, stairs=stairs,
                 floors=found.floors if building or p.floors is not None else None)
     return figures
+
+
+def floors_grids_stairs(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray, voxels: Callable[[], Iterable],
+                        T_world_camera: dict[int, np.ndarray], grid: GridParams, p: ReconstructParams, *, source: str):
+    """The floors (:func:`find_floors`), the grid they share, each floor's grids from the surface of its band, the
+    stairs joining them (each flight solid on the floor it rises from) and what disagreed.
+
+    ``voxels()`` iterates the volume's observed voxels afresh (once per floor). Returns
+    ``(FoundFloors, GridSpec, [Grids per floor], [StairLink], [warning lines])``.
+    """
+    camera_z = np.array([T_world_camera[i][2, 3] for i in sorted(T_world_camera)])
+    found = find_floors(xyz, normals, camera_z, p)
+    spec = grids_mod.placed_grid(xyz, T_world_camera, grid, p, source=source)
+    building = len(found.floors) > 1
+    per_floor = []
+    for floor, (lo, hi), n_points in zip(found.floors, floor_bands(found.floors), found.floor_points):
+        band = slice(None) if not building else (xyz[:, 2] >= lo) & (xyz[:, 2] < hi)
+        per_floor.append(grids_mod.floor_grids(
+            spec, floor.floor_z_m, xyz[band], normals[band], colors[band], voxels(), p, floor_points=n_points,
+            source=source, floor_name=f"{floor.name} ({floor.floor_z_m:.2f} m)" if building else None))
+    flights = find_flights(xyz, normals, found.floors, spec, p) if building else []
+    for flight in flights:  # the flight is solid on the floor it rises from
+        per_floor[flight.lower] = grids_mod.with_solid(per_floor[flight.lower], flight.mask((spec.rows, spec.cols)), p)
+    stairs = stair_links(flights, found.floors, spec, [g.navigable for g in per_floor])
+    warnings = found.warnings + (unlinked_warnings(found.floors, stairs) if building else [])
+    return found, spec, per_floor, stairs, warnings
 
 
 def keyframe_summary(p: ReconstructParams, fusion) -> dict:

@@ -33,9 +33,9 @@ reader of floor 0 needs nothing new), and adds::
     │                                           stairs [{id, kind, bottom {floor, cells, endpoint, xy, z_m},
     │                                                    top {...}, rise_m, run_m, length_m, flight_cells,
     │                                                    flight_bbox}] (:class:`StairLink`)
-    └── floors/
+    └── floors/                  only in a building
         └── <id>/                attrs: grid, floor_z, stats (as the root's, for floor <id> >= 1)
-            ├── occupancy, navigable, color, height    (as the root's, on that floor's grid)
+            └── occupancy, navigable, color, height    only in a building (as the root's, on that floor's grid)
 
 A single-floor store is written as version 1, byte for byte as before floors existed: no ``floors`` attrs
 (unless the floor was pinned with ``reconstruct.floors``, whose record it keeps), no ``floors/`` group;

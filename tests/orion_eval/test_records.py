@@ -75,3 +75,28 @@ def test_results_never_hold_nan():
     out = finite_json({"a": [1.0, float("nan"), (float("inf"), 2)], "b": {"c": -math.inf}, "d": "NaN"})
     assert out == {"a": [1.0, None, [None, 2]], "b": {"c": None}, "d": "NaN"}
     json.dumps(out, allow_nan=False)
+
+
+def test_eval_leaves_out_removed_goals_with_a_warning_and_writes_strict_json(built_scene, tmp_path, capsys):
+    from pipeline.goals.store import Goals
+    from tests.zipon.annotate.conftest import copy_built
+    from zipon.cli import main
+
+    root = copy_built(built_scene[0], tmp_path / "ws")
+    scene = next(iter(built_scene[1].scenes))
+    first = Goals(root / "data" / "artifacts" / scene / "goals.zarr").goals[0].id
+    path = root / "data" / "eval" / "human" / f"{scene}.episodes.jsonl"
+    path.parent.mkdir(parents=True)
+    record = {**GOOD, "scene": scene, "goal": first}
+    write(path.parent, record, {**record, "goal": "gone"}, {**record, "goal": "gone"}).rename(path)
+    code = main(["-q", "-p", str(root / "params.yaml"), "eval", "-s", scene, "-m", "cow", "-f", "human",
+                 "--out", str(tmp_path / "ev")])
+    err = " ".join(capsys.readouterr().err.split())
+    assert code == 0, err
+    assert f"left out the episodes of goals no longer in scene {scene}'s goals store: gone (2 episodes)" in err
+
+    def no_constant(name):
+        raise AssertionError(f"results.json holds {name}")
+
+    results = json.loads((tmp_path / "ev" / "results.json").read_text(), parse_constant=no_constant)
+    assert results["run"]["episodes"] == 1 and results["episodes"][0]["goal"] == first

@@ -112,3 +112,33 @@ def test_view_errors_exit_1(built_scene, evaluated, tmp_path, capsys):
     assert cli(ws, "view", "tiny", "-o", str(tmp_path / "a.rrd"), "--episode", "x/0", "--eval", str(eval_dir)) == 1
     assert "no evaluated episode 'x/0'; episodes in the log: [" in capsys.readouterr().err
     assert not list(tmp_path.glob("*.rrd")) and not list(tmp_path.glob(".*.tmp"))
+
+
+def test_a_buildings_recording_has_each_floors_grids_and_query_below_that_floor(two_storey_maps, tmp_path):
+    import numpy as np
+    import rerun as rr
+
+    from pipeline.recon import Recon
+    from pipeline.viewer import recording_contents, write_recording
+
+    ws, params, _, _ = two_storey_maps
+    rrd = tmp_path / "house.rrd"
+    summary = write_recording(ws, params, "house", rrd, query="table", max_frames=6)
+    assert summary["grids"] == [f"floor{k}/{g}" for k in (0, 1) for g in ("color", "navigable", "height", "query")]
+    got = recording_contents(rrd)
+    assert "/world/grids/color" not in got
+    recon = Recon(ws.artifact("recon", "house"))
+    planes, mesh_xyz = {}, None
+    for chunk in rr.chunk.RrdReader(rrd).stream():
+        batch = chunk.to_record_batch()
+        if chunk.entity_path.startswith("/world/grids/floor"):
+            planes[chunk.entity_path] = np.asarray(batch.column("Mesh3D:vertex_positions")[0].as_py())
+        if chunk.entity_path == "/world/mesh":
+            mesh_xyz = np.asarray(batch.column("Mesh3D:vertex_positions")[0].as_py())
+    for k, floor in enumerate(recon.floors):  # each floor's layers stacked below that floor
+        assert np.allclose(planes[f"/world/grids/floor{k}/color"][:, 2], floor.floor_z_m - 0.25)
+        assert np.allclose(planes[f"/world/grids/floor{k}/query"][:, 2], floor.floor_z_m - 1.0)
+    # each floor keeps its rooms and loses its ceiling (--mesh-top counts from the floor each surface is on)
+    full = np.asarray(recon.mesh().vertices)[:, 2]
+    upper = recon.floors[1].floor_z_m
+    assert full.max() > upper + 2.3 and upper + 1.0 < mesh_xyz[:, 2].max() < upper + 2.3

@@ -61,6 +61,9 @@ def test_artifacts_describe_themselves(built):
         assert m.encoder["name"] == "oracle" and m.encoder["diagnostic"] is True and m.dim == 512
         assert m.grid == Recon(tmp / "recon.zarr").grid
         assert m.attrs["frames"] == {"n_frames": 48, "fused": 48, "keyframes_only": False}
+        # one floor: the store as before floors existed (version 1, no floors attrs or group), read as one floor
+        assert m.attrs["format_version"] == 1 and "floors" not in m.attrs and "floors" not in m.group
+        assert len(m.floors) == 1 and "floors" not in summaries[name]
         assert summaries[name]["frames_fused"] == 48 and summaries[name]["cells"] == m.n_cells
     vl, cf = SemanticMap(out / "vlmap.zarr"), SemanticMap(out / "cfmap.zarr")
     assert vl.voxels() is None and len(cf.voxels()) == summaries["cfmap"]["voxels"] > cf.n_cells

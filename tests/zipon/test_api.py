@@ -131,7 +131,7 @@ def test_run_eval_rejects_bad_agents_and_seeds(ds, tmp_path):
 
     with pytest.raises(ConfigError, match="has no `name`"):
         zipon.run_eval(ds, tmp_path, agents=[Nameless])
-    with pytest.raises(ConfigError, match="taken by the built-in"):
+    with pytest.raises(ConfigError, match="is taken by the registered OrionAgent"):
         zipon.run_eval(ds, tmp_path, agents=[Impostor])
     with pytest.raises(ConfigError, match="neither a method name nor a subclass"):
         zipon.run_eval(ds, tmp_path, agents=[object])
@@ -180,3 +180,27 @@ def test_the_demo_renders_through_the_shared_scene_handle(built_scene, tmp_path)
     assert {"frames.png", "plan.png", "navigable.png", "color.png", "goals.png", "routes.png"} <= names
     assert any(n.startswith("query_vlmap_") for n in names) and any(n.startswith("query_cfmap_") for n in names)
     assert all(p.parent == copy.workspace.renders("tiny") and p.stat().st_size > 0 for p in written)
+
+
+def test_a_buildings_scene_has_floors_and_a_map_view_per_floor(two_storey_maps):
+    from pipeline.maps.floors import FloorsResult
+    from pipeline.maps.query import QueryResult
+
+    ws = two_storey_maps[0]
+    scene = zipon.open(ws.params_path, data_dir=ws.data_dir, manifests_dir=ws.manifests_dir)["house"]
+    assert [round(f.floor_z_m, 2) for f in scene.floors] == [0.0, 3.0]
+    views = scene.vlmap.floors
+    assert [v.floor_index for v in views] == [0, 1] and "floor=1" in repr(views[1])
+    assert views[1].store.floor_index == 1 and views[1].grid == scene.recon.floor(1).grid
+    top_z = views[1].to_xarray()["top_z"].values
+    assert np.nanmin(top_z) >= 3.0 - 0.1 and np.nanmax(scene.vlmap.floor(0).to_xarray()["top_z"].values) < 2.1
+    with pytest.raises(InputDataError, match="a floor of scene 'house': 0..1"):
+        scene.cfmap.floor(2)
+    every = scene.vlmap.query("bed")
+    assert isinstance(every, FloorsResult) and {c.floor for c in every.candidates} == {1}
+    one = views[0].query("sofa", (3.0, 2.0, 0.0))
+    assert isinstance(one, QueryResult) and one.floor == 0 and one.candidates[0].distance_m is not None
+    with pytest.raises(InputDataError, match="pose_floor"):
+        scene.vlmap.query("bed", (3.0, 2.0, 0.0), pose_floor=2)
+    with pytest.raises(InputDataError, match="off the map's grid"):
+        scene.vlmap.query("bed", (300.0, 2.0, 0.0), pose_floor=1)

@@ -1,10 +1,12 @@
 """What the annotation page shows of one scene, read from its built artifacts: the top-down layers as PNG, the
 objects, goals (numbered as ``zipon render --what goals`` numbers them), routes and camera trajectory as JSON in
-world metres, the frames that saw a place, map-query proposals and procedural-route previews."""
+world metres, the frames that saw a place, map-query proposals, procedural-route previews, and warnings on
+descriptive feedback that contradicts its object."""
 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 
 import cv2
@@ -348,3 +350,22 @@ def _png(img: np.ndarray) -> bytes:
         bgr = img
     ok, buf = cv2.imencode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, 1])  # speed over size: served locally
     return buf.tobytes()
+
+
+def descriptive_warnings(doc, goals) -> list[dict]:
+    """Descriptive feedback that names a colour or material the goal's object does not have."""
+    colours = {o.color_name.lower() for o in goals.objects.values() if o.color_name}
+    materials = {o.material.lower() for o in goals.objects.values() if o.material}
+    found = []
+    for i, g in enumerate(doc.goals):
+        obj = goals.objects.get(g.objects[0])
+        text = g.feedback.descriptive.lower()
+        if obj is None or not text:
+            continue
+        for kind, words, has in (("colour", colours, obj.color_name.lower()), ("material", materials,
+                                                                                obj.material.lower())):
+            said = sorted(w for w in words if re.search(rf"\b{re.escape(w)}\b", text))
+            if has and said and not re.search(rf"\b{re.escape(has)}\b", text):
+                found.append({"field": f"goals[{i}].feedback.descriptive",
+                              "message": f"says {', '.join(said)} but {obj.key}'s {kind} is {has}"})
+    return found

@@ -239,26 +239,9 @@ def goals_validate(request, wb, body):
 
     view = wb.scene(request.path_params["scene"])
     doc = _validated(view, body)
+    from zipon.annotate.scene import descriptive_warnings
+
     return {"ok": True, "digest": document_digest(doc), "warnings": descriptive_warnings(doc, view.goals)}
-
-
-def descriptive_warnings(doc, goals) -> list[dict]:
-    """Descriptive feedback that names a colour or material the goal's object does not have."""
-    colours = {o.color_name.lower() for o in goals.objects.values() if o.color_name}
-    materials = {o.material.lower() for o in goals.objects.values() if o.material}
-    found = []
-    for i, g in enumerate(doc.goals):
-        obj = goals.objects.get(g.objects[0])
-        text = g.feedback.descriptive.lower()
-        if obj is None or not text:
-            continue
-        for kind, words, has in (("colour", colours, obj.color_name.lower()), ("material", materials,
-                                                                                obj.material.lower())):
-            said = sorted(w for w in words if re.search(rf"\b{re.escape(w)}\b", text))
-            if has and said and not re.search(rf"\b{re.escape(has)}\b", text):
-                found.append({"field": f"goals[{i}].feedback.descriptive",
-                              "message": f"says {', '.join(said)} but {obj.key}'s {kind} is {has}"})
-    return found
 
 
 def _if_match(request: Request, digest: str) -> None:

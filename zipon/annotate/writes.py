@@ -9,6 +9,11 @@ followed), it is
 and in either case none of what the pipeline owns: the params file, ``dvc.yaml``, ``dvc.lock``, anything under
 the data root (artifacts, stores, episodes), the manifests folder, the stored goal edits, or ``.dvc``/``.git``.
 Everything else is refused with a 403 naming the path, the rule and the folder that is allowed.
+
+Those are the workbench's only writes at a path the page names. Its other two writes have fixed places and their
+own owners: a goals save is :func:`pipeline.goals.edits.save_goals_edit`'s transaction (the stored edit, the
+rebuilt goals and routes, ``goals.edits`` in the params file, dvc.lock), and a played episode is appended to
+``DATA/eval/human/<scene>.episodes.jsonl`` (:mod:`zipon.annotate.play`), the one file under the data root it writes.
 """
 
 from __future__ import annotations

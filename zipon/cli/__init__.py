@@ -1,7 +1,7 @@
 """The ``zipon`` command line. Only this package turns errors into messages and exit codes.
 
-:mod:`zipon.cli.common` holds the app and what the commands share; importing :mod:`zipon.cli.build` and
-:mod:`zipon.cli.inspect` here registers their commands on it.
+:mod:`zipon.cli.common` holds the app and what the commands share; importing :mod:`zipon.cli.build`,
+:mod:`zipon.cli.inspect` and :mod:`zipon.cli.project` here registers their commands on it.
 """
 
 from __future__ import annotations
@@ -10,11 +10,11 @@ import sys
 
 from rich.markup import escape
 
-from zipon.cli import build, inspect
+from zipon.cli import build, inspect, maps, project
 from zipon.cli.common import G, app, console
 from pipeline.errors import ZiponError
 
-__all__ = ["app", "build", "entry", "inspect", "main"]
+__all__ = ["app", "build", "entry", "inspect", "main", "maps", "project"]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -49,7 +49,8 @@ def status(
                                 "(as `zipon verify` does); exit 1 when content differs"),
 ):
     """Show which stages are up to date and, for the others, what changed: the code files, the params keys
-    (`params: maps.level_height_m 0.1 -> 0.2`) or the inputs.
+    (`params: maps.level_height_m 0.1 -> 0.2`) or the inputs. In a DVC project (a versioned dataset) also whether
+    the dataset card (DATASET.md, dataset.json) states the current version; `--check` fails while it does not.
 
     Examples: `zipon status` · `zipon status --check && echo dataset current`
     """
@@ -76,6 +77,17 @@ def status(
         table.add_row(scene, stage, f"[yellow]stale: {escape(why)}[/]" if why else "[green]up to date[/]")
     out.print(table)
     out.print(f"{stale} stale stage(s)")
+    from pipeline.engine.dvcfile import dvc_lock_target
+
+    versioned = not dvc_lock_target(ws, G.overrides)  # a DVC project: dvc.lock follows the runs
+    card, dvc_files = _project_staleness(ws, params) if versioned else ("", [])
+    if card:  # a versioned dataset states itself in its card
+        stale += 1
+        console.print(f"[yellow]dataset card stale[/yellow]: {escape(card)} (`zipon card` rewrites it)",
+                      highlight=False, soft_wrap=True)
+    for line in dvc_files:  # DVC sees a code or params change only once these are rewritten
+        console.print(f"[yellow]for DVC[/yellow]: {escape(line)} (`zipon dvc` or `zipon run` rewrites it)",
+                      highlight=False, soft_wrap=True)
     for line in bad_content:  # one unwrapped line each, so paths can be copied
         console.print(f"[red]content differs[/red] {escape(line)}", highlight=False, soft_wrap=True)
     if bad_content:
@@ -83,6 +95,15 @@ def status(
                       "(`zipon verify` lists every artifact; rebuild with `zipon run --force`)")
     if (check and stale) or bad_content:
         raise typer.Exit(1)
+
+
+def _project_staleness(ws, params) -> tuple[str, list[str]]:
+    """Why the dataset card is stale ('' if it is not), and what of dvc.yaml and the code identities is not current."""
+    from pipeline.engine.dvcfile import dvc_files_problems
+    from pipeline.project.card import card_staleness
+    from stages import STAGES
+
+    return card_staleness(ws, params, STAGES), dvc_files_problems(ws, params, STAGES)
 
 
 @app.command()
@@ -202,28 +223,31 @@ def params_cmd(
 
 
 @app.command("dvc")
-def dvc_cmd(check: bool = typer.Option(False, "--check", metavar="", help="only check dvc.yaml is current (exit 1 if not)")):
-    """Write dvc.yaml from the stage registry and params.yaml (so `dvc repro` runs the same DAG).
+def dvc_cmd(check: bool = typer.Option(False, "--check", metavar="",
+                                       help="only check dvc.yaml and the code identity files are current (exit 1 if not)")):
+    """Write dvc.yaml from the stage registry and params.yaml (so `dvc repro` runs the same DAG), and each stage's
+    code identity `.zipon/code/STAGE.json` (zipon's version and the stage's code digest) that dvc.yaml lists as the
+    stage's code. Run it after upgrading zipon: DVC then sees exactly the stages whose code changed.
 
-    Example: `zipon dvc && dvc repro`
+    Examples: `zipon dvc && dvc repro` · `zipon dvc --check` (CI: names a dvc.yaml edited by hand)
     """
-    from pipeline.engine.dvcfile import render_dvc_yaml
+    from pipeline.engine.dvcfile import dvc_files_problems, write_dvc_files
     from stages import STAGES
 
     ws, params = G.load()
-    text = render_dvc_yaml(ws, params, STAGES)
-    path = ws.root / "dvc.yaml"
     if check:
-        if not path.is_file() or path.read_text() != text:
-            console.print(f"[red]{path} is out of date: run zipon dvc[/red]", soft_wrap=True)
+        problems = dvc_files_problems(ws, params, STAGES)
+        for line in problems:
+            console.print(f"[red]out of date[/red] {escape(str(ws.root))}/{escape(line)}", highlight=False,
+                          soft_wrap=True)
+        if problems:
+            console.print("[red]regenerate with `zipon dvc`[/red]")
             raise typer.Exit(1)
-        out.print(f"{path} is current")
+        out.print(f"{ws.root / 'dvc.yaml'} and the code identity files are current")
         return
-    from pipeline.store import write_text_atomic
-
-    write_text_atomic(path, text)
-    out.print(f"wrote {path}")
-
+    written = write_dvc_files(ws, params, STAGES)
+    out.print("\n".join(f"wrote {p}" for p in written) or f"{ws.root / 'dvc.yaml'} and the code identity files are "
+              "current", highlight=False, soft_wrap=True)
 
 
 @app.command()

@@ -1,6 +1,6 @@
 """What every ``zipon`` command shares: the app, the global options (:data:`G`), the consoles, and the helpers
 that run the stage plan and print its outcomes and evaluation results. The commands live in
-:mod:`zipon.cli.build` and :mod:`zipon.cli.inspect`; :mod:`zipon.cli` imports both and turns errors into
+:mod:`zipon.cli.build`, :mod:`zipon.cli.inspect` and :mod:`zipon.cli.maps`; :mod:`zipon.cli` imports them and turns errors into
 messages and exit codes."""
 
 from __future__ import annotations
@@ -51,6 +51,14 @@ class Globals:
 
 
 G = Globals()
+
+
+def open_scene(name: str):
+    """The :class:`zipon.Scene` of ``name`` (a ConfigError naming the known scenes when there is none)."""
+    from zipon.api import Dataset
+
+    ws, params = G.load()
+    return Dataset(ws, params)[name]
 
 
 def _print_version(value: bool) -> None:
@@ -105,7 +113,9 @@ def _globals(
 # goals import also rebuilds goals and routes as stages, which publishes them. The rest read no artifacts.
 REMOTE_COMMANDS = ("run", "stage", "status", "verify", "query", "render", "view", "eval", "goals export",
                    "goals export-navchat", "goals template", "goals import", "goals schema", "params", "encoders list",
-                   "encoders check", "recon-eval")
+                   "encoders check", "recon-eval",
+                   # a dataset project's: they read git (diff) or write a new project folder (init), never the data root
+                   "diff", "init")
 # Commands that would write into the data root outside the stages (nothing would publish it): refused, saying why.
 REMOTE_REFUSED = {
     "simulate": "writes its logs into the data root's raw/ folder outside any stage, so they would not be published; "
@@ -119,6 +129,13 @@ REMOTE_REFUSED = {
             "`zipon eval` or `zipon render`, which read the published artifacts",
     "annotate": "serves a workbench over one local data root; on an object store review goals with "
                 "`zipon goals export` and save edits with `zipon goals import`, which republishes goals and routes",
+    # a dataset project's versions are DVC's: artifacts in the project's local data root, pushed to a DVC remote
+    "card": "describes the version DVC recorded in a dataset project's local data root; on an object store the "
+            "manifests record every published version (`zipon status`, `zipon verify`)",
+    "push": "sends a dataset project's local artifacts to its DVC remote; with an object store as the data root "
+            "`zipon run` has already published them",
+    "pull": "restores a dataset project's version from its DVC remote into its local data root; on an object store "
+            "every command mirrors what it reads",
 }
 
 

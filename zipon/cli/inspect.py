@@ -1,4 +1,5 @@
-"""``zipon`` commands that look at built artifacts: render, query, goals, encoders, recon-eval, eval, view."""
+"""``zipon`` commands that look at built artifacts: goals, annotate, encoders, recon-eval, eval, view (render and
+query: :mod:`zipon.cli.maps`)."""
 
 from __future__ import annotations
 
@@ -6,67 +7,8 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.table import Table
 
-from zipon.cli.common import G, app, console, out, print_eval, print_outcomes, subcommand
-
-
-RENDERS = {
-    "frames": "frame contact sheet (colour / depth / instances)",
-    "plan": "ground-truth floor plan of a simulated scene",
-    "obstacles": "occupancy grid (unknown / free / occupied)",
-    "navigable": "navigable cells for the robot radius",
-    "color": "top-surface colour map",
-    "height": "max height above the floor",
-    "goals": "goals, landmarks and names on the colour map",
-    "routes": "episodes' start poses and geodesic routes on the colour map",
-}
-
-
-@app.command()
-def render(
-    scene: str = typer.Argument(..., help="scene name"),
-    what: str = typer.Option("color", "--what", "-w", help=" | ".join(RENDERS)),
-    out_png: Optional[Path] = typer.Option(None, "--out", "-o", help="PNG path (default DATA/artifacts/SCENE/renders/WHAT.png)"),
-    floor: int = typer.Option(0, "--floor", "-f", help="the floor of a building to draw (obstacles, navigable, color, "
-                              "height); 0 = the lowest"),
-):
-    """Draw an artifact as a north-up PNG with a scale bar.
-
-    Examples: `zipon render sim_00 --what navigable` · `zipon render house --what color --floor 1`
-    """
-    from pipeline.errors import ConfigError
-
-    if what not in RENDERS:
-        raise ConfigError(f"--what {what!r}: choose one of {', '.join(RENDERS)}")
-    if floor and what not in ("obstacles", "navigable", "color", "height"):
-        raise ConfigError(f"--floor {floor}: --what {what} draws no floor; --floor goes with obstacles, navigable, "
-                          "color or height")
-    sc = _scene(scene)
-    name = f"{what}.png" if floor == 0 else f"{what}_floor{floor}.png"
-    target = Path(out_png) if out_png else sc.workspace.renders(scene) / name
-    art = sc.path  # on an object store: the artifact's published version, mirrored on first use
-    if what == "frames":
-        from pipeline.pictures import frames_contact_sheet
-
-        frames_contact_sheet(art("frames"), target)
-    elif what == "plan":
-        from pipeline.frames import FrameStore
-        from pipeline.sim.topdown import render_scene_png
-
-        gt = FrameStore(art("frames")).ground_truth
-        if gt is None:
-            raise ConfigError(f"scene {scene}: --what plan needs ground truth (a simulated scene)")
-        render_scene_png(gt, target)
-    elif what in ("goals", "routes"):
-        from pipeline.goals.render import render_goals
-
-        render_goals(art("recon"), art("goals"), art("routes") if what == "routes" else None, what, target)
-    else:
-        from pipeline.recon.render import render_recon
-
-        render_recon(art("recon"), what, target, floor=floor)
-    out.print(str(target))
+from zipon.cli.common import G, app, console, open_scene, out, print_eval, print_outcomes, subcommand
 
 
 goals_app = typer.Typer(help="Review and edit goals: export for people, import their edits, navchat layout. "
@@ -87,7 +29,7 @@ def goals_export(
     """
     from pipeline.goals.edits import export_goals
 
-    out.print(str(export_goals(_scene(scene).path("goals"), out_file)))
+    out.print(str(export_goals(open_scene(scene).path("goals"), out_file)))
 
 
 @goals_app.command("import")
@@ -103,7 +45,7 @@ def goals_import(
     from pipeline.goals.edits import EditNotSaved, save_goals_edit, validate_edit
     from stages import STAGES
 
-    sc = _scene(scene)
+    sc = open_scene(scene)
     doc = validate_edit(edit_file, sc.path("goals"))  # on an object store: the published goals, mirrored first
     ws = sc.workspace
     try:
@@ -174,120 +116,13 @@ def goals_export_navchat(
     from pipeline.goals.navchat import export_scene, write_navchat
     from pipeline.goals.store import Goals
 
-    sc = _scene(scene)  # on an object store its published goals and frames are mirrored on first use
+    sc = open_scene(scene)  # on an object store its published goals and frames are mirrored on first use
     ws, params = sc.workspace, sc.params
     goals = Goals(sc.path("goals"))
     frames = FrameStore(sc.path("frames")) if sc.path("frames").exists() else None
     objects_json, final_json = export_scene(goals, params.goals, frames, scene, ws.root)
     write_navchat(folder, objects_json, final_json)
     out.print(f"{folder}/objects.json, {folder}/final.json")
-
-
-def _scene(name: str):
-    """The :class:`zipon.Scene` of ``name`` (a ConfigError naming the known scenes when there is none)."""
-    from zipon.api import Dataset
-
-    ws, params = G.load()
-    return Dataset(ws, params)[name]
-
-
-def _object_keys(scene) -> dict[int, str]:
-    """Ground-truth instance id -> object key (``chair_0``) from the scene's goals, when built."""
-    if not scene.path("goals").exists():
-        return {}
-    return {o.instance_id: o.key for o in scene.goals.objects.values() if o.instance_id}
-
-
-def no_candidates_reason(result, qp) -> str:
-    """Why a query found no candidates, with the number that fell short of its threshold (``qp`` = params.query)."""
-    import cv2
-    import numpy as np
-
-    heat = result.heatmap
-    what = f"no candidates for {result.text!r}"
-    if not np.isfinite(heat).any():
-        return f"{what}: the map has no observed cells"
-    if not result.wins.any():
-        best = float(np.nanmax(heat))
-        why = (f"best {best:.4f} < {qp.min_probability:g}" if best < qp.min_probability else
-               f"best {best:.4f}, but in no such cell does the query outscore every background prompt")
-        return (f"{what}: no cell beats the background prompts {list(result.background)} with probability "
-                f">= {qp.min_probability:g} ({why})")
-    n, lab = cv2.connectedComponents(result.wins.astype(np.uint8), connectivity=8)
-    cells = np.bincount(lab.ravel(), minlength=n)[1:]
-    score = np.bincount(lab.ravel(), weights=np.nan_to_num(heat).ravel(), minlength=n)[1:] / np.maximum(cells, 1)
-    area = cells * result.grid.cell_size_m ** 2
-    big = area >= qp.min_candidate_area_m2 - 1e-12
-    if not big.any():
-        return f"{what} (largest winning area {area.max():.3f} m² < min {qp.min_candidate_area_m2:g} m²)"
-    return f"{what} (best score {score[big].max():.2f} < min {qp.min_candidate_score:g})"
-
-
-@app.command()
-def query(
-    scene: str = typer.Argument(..., help="scene name"),
-    text: str = typer.Argument(..., help='what to look for, e.g. "chair" or "the red couch"'),
-    map_name: str = typer.Option("vlmap", "--map", help="vlmap | cfmap"),
-    pose: Optional[str] = typer.Option(None, "--pose", help="x,y,yaw (metres, metres, degrees) to measure "
-                                       "candidates from; yaw counter-clockwise from +x (east)"),
-    as_json: bool = typer.Option(False, "--json", metavar="", help="print the result as JSON"),
-    png: Optional[Path] = typer.Option(None, "--png", help="write the heatmap and candidates over the colour map"),
-    levels: Optional[str] = typer.Option(None, "--levels", help="top: score each cell by its top-down feature; "
-                                         "max: by its best height level (a cfmap's voxels: the chair under a "
-                                         "table); default: params query.levels"),
-):
-    """Query a semantic map with text: a similarity heatmap and object candidates (distance, angle in degrees,
-    score, and the ground-truth object key such as `chair_0` when the scene has one).
-
-    Examples: `zipon query sim_00 chair --pose 2,3,90` · `zipon query sim_00 "green plant" --map cfmap --png plant.png`
-    · `zipon query sim_00 chair --map cfmap --levels max`
-    """
-    import math
-
-    from pipeline.maps.query import parse_pose
-
-    if not text.strip():
-        raise typer.BadParameter("the text to look for is empty; give words such as chair or 'the red couch'",
-                                 param_hint="TEXT")
-    if levels is not None:  # checked like every params key (a ConfigError names query.levels and the choices)
-        G.overrides = (*G.overrides, f"query.levels={levels}")
-    sc = _scene(scene)
-    result = sc.map(map_name).query(text, parse_pose(pose, degrees=True) if pose else None)
-    keys = _object_keys(sc)
-    if png:
-        from pipeline.maps.render import render_query
-
-        render_query(result, png)
-    if as_json:
-        doc = result.to_json()
-        for c in doc["candidates"]:
-            c["angle_deg"] = None if c["angle_rad"] is None else round(math.degrees(c["angle_rad"]), 3)
-            c["gt_object"] = keys.get(c["gt_instance"]) if c.get("gt_instance") else None
-        if doc["pose"] is not None:
-            doc["pose_deg"] = [*doc["pose"][:2], round(math.degrees(doc["pose"][2]), 3)]
-        import json
-
-        out.print_json(json.dumps(doc))
-        return
-    if not result.candidates:
-        out.print(no_candidates_reason(result, sc.params.query))
-        if png:
-            out.print(str(png))
-        return
-    table = Table(title=f"{scene} {map_name}: {text!r}")
-    for col in ("candidate", "distance (m)", "angle (deg)", "score", "area (m²)", "ground truth"):
-        table.add_column(col)
-    for c in result.candidates:
-        angle = None if c.angle_rad is None else math.degrees(c.angle_rad)
-        gt = "" if not c.gt_instance else keys.get(c.gt_instance, f"{c.gt_class} (instance {c.gt_instance})")
-        table.add_row(str(c.obj_id), _fmt(c.distance_m), _fmt(angle), _fmt(c.score), _fmt(c.area_m2), gt)
-    out.print(table)
-    if png:
-        out.print(str(png))
-
-
-def _fmt(v) -> str:
-    return "" if v is None else f"{v:.2f}" if isinstance(v, float) else str(v)
 
 
 @app.command("recon-eval")
@@ -368,8 +203,6 @@ def eval_cmd(
     seeds: Optional[int] = typer.Option(None, "--seeds", min=1, help="number of seeds: 0 .. N-1 (default: params "
                                         "eval.seeds)"),
     seed_list: list[int] = typer.Option([], "--seed-list", help="explicit seeds (repeatable) instead of --seeds"),
-    strict: bool = typer.Option(False, "--strict", help="-f human: refuse stored episodes of goals a later goals "
-                                "edit removed (default: leave them out with a warning naming them)"),
 ):
     """Run ORION-style agents on the built artifacts; write SR / SPL / SIT as JSON and an HTML report.
 
@@ -391,7 +224,7 @@ def eval_cmd(
                                  "episode logs", param_hint="--out")
     agents = [_agent_class(m) if ":" in m else m for m in methods] or None
     results = run_eval(Dataset(*G.load()), out_dir, scenes=scenes or None, agents=agents, feedback=feedback or None,
-                       seeds=seed_list or seeds, progress=not G.quiet, strict=strict)
+                       seeds=seed_list or seeds, progress=not G.quiet)
     print_eval(results, out_dir)
 
 
@@ -406,9 +239,8 @@ def _agent_class(spec: str):
         obj = importlib.import_module(module)
         for part in name.split("."):
             obj = getattr(obj, part)
-    except (Exception, SystemExit) as err:  # noqa: BLE001 - the user's module: whatever its import raises, one line
-        what = f"SystemExit({err.code!r})" if isinstance(err, SystemExit) else f"{type(err).__name__}: {err}"
-        raise ConfigError(f"--method {spec!r}: cannot import it ({what}); expected module:Class of an Agent "
+    except (ImportError, AttributeError) as err:
+        raise ConfigError(f"--method {spec!r}: cannot import it ({err}); expected module:Class of an Agent "
                           f"subclass importable from here") from None
     return obj
 
@@ -441,7 +273,7 @@ def view(
     """
     from pipeline.viewer import write_recording
 
-    sc = _scene(scene)
+    sc = open_scene(scene)
     sc.mirror()  # on an object store: the scene's published artifacts (the recording reads them all)
     ws, params = sc.workspace, sc.params
     target = out_file or ws.renders(scene) / f"{scene}.rrd"
@@ -469,7 +301,7 @@ def goals_template(
     """
     from pipeline.goals.template import objects_template
 
-    sc = _scene(scene)
+    sc = open_scene(scene)
     text = objects_template(scene, goals_path=sc.path("goals"), recon_path=sc.path("recon"))
     if out_file.suffix.lower() not in (".yaml", ".yml"):
         from pipeline.errors import InputDataError

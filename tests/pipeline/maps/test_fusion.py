@@ -50,6 +50,18 @@ def test_locate_block_drops_out_of_range_invalid_and_out_of_band():
     assert pts.n_fused == 0
 
 
+def test_locate_block_keeps_only_the_floors_height_band():
+    # the hand-computed block above: world z 2, 2, 2 and 1; a band [1.5, 3) keeps the first three, [0, 1.5) the last
+    intr = Intrinsics(1.0, 1.0, 0.5, 0.5, 2, 2)
+    depth = np.array([[[1.0, 1.0], [1.0, 2.0]]], np.float32)
+    args = (LAT, depth, np.ones((1, 2, 2), bool), looking_down(3.0)[None], intr)
+    upper = locate_block(*args, depth_min_m=0.1, depth_max_m=10.0, z_band=(1.5, 3.0))
+    lower = locate_block(*args, depth_min_m=0.1, depth_max_m=10.0, z_band=(0.0, 1.5))
+    assert upper.cell.tolist() == [5, 6, 9, -1] and lower.cell.tolist() == [-1, -1, -1, 15]
+    every = locate_block(*args, depth_min_m=0.1, depth_max_m=10.0, z_band=(-np.inf, np.inf))
+    assert every.cell.tolist() == [5, 6, 9, 15]
+
+
 def test_depth_edges_flags_both_sides_of_a_jump():
     d = np.ones((1, 3, 4), np.float32)
     d[:, :, 2:] = 2.0

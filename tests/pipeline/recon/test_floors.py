@@ -109,7 +109,7 @@ def test_pinned_floors_are_checked_against_the_surface():
 
 
 def test_a_pinned_floor_list_that_is_not_a_building_is_refused_at_load():
-    with pytest.raises(ValueError, match="floors\\[1\\].floor_z_m 1.0 must lie at least 1.8 m above"):
+    with pytest.raises(ValueError, match="floors\n.*floor 1 \\(floor_z_m 1.0\\) must lie at least 1.8 m above floor 0"):
         ReconstructParams(floors=[{"floor_z_m": 0.0}, {"floor_z_m": 1.0}])
     with pytest.raises(ValueError, match="either floor_z_m .* or floors"):
         ReconstructParams(floor_z_m=0.0, floors=[{"floor_z_m": 0.0}])

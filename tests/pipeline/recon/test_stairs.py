@@ -31,6 +31,12 @@ def test_a_two_storey_house_is_two_floors_joined_by_its_stairs(house):
     (x0, y0), (x1, y1) = g.cell_to_world(np.array([[r1, c0], [r0, c1]]))
     assert x0 == pytest.approx(1.75, abs=0.15) and x1 == pytest.approx(5.5, abs=0.3) and y0 >= -0.1 and y1 <= 1.1
     assert summary["stairs"][0]["floors"] == [0, 1]
+    # the flight is solid on the floor it rises from (its inside is never seen), a hole on the floor it reaches
+    flight = np.zeros((g.rows, g.cols), bool)
+    flight[r0 : r1 + 1, c0 : c1 + 1] = True
+    assert (recon.floor(0).occupancy[flight] == 2).mean() > 0.9 and summary["cells_occupied_by_stairs"] > 0
+    upper = recon.floor(1).navigable[flight].mean()  # the top tread is at the upper floor's level: walkable there
+    assert upper < 0.15, upper
 
 
 def test_each_floor_sees_its_own_furniture_only(house):

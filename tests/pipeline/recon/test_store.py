@@ -69,3 +69,40 @@ def test_canonical_point_order_is_the_sort_by_every_column():
     assert np.array_equal(got, keys[np.lexsort(keys.T[::-1])], equal_nan=True)
     distinct = xyz[~np.isnan(xyz).any(axis=1)][:50] + np.arange(50, dtype=np.float32)[:, None] * 10
     assert np.array_equal(canonical_point_order(distinct), np.lexsort(distinct.T[::-1]))
+
+
+def _retouched(src, dst, **attrs):
+    """A copy of the store ``src`` at ``dst`` with root attrs replaced (None removes a key)."""
+    import json
+    import shutil
+
+    shutil.copytree(src, dst)
+    meta = json.loads((dst / "zarr.json").read_text())
+    for key, value in attrs.items():
+        if value is None:
+            meta["attributes"].pop(key, None)
+        else:
+            meta["attributes"][key] = value
+    (dst / "zarr.json").write_text(json.dumps(meta))
+    return dst
+
+
+def test_a_buildings_store_reads_per_floor_and_refuses_what_does_not_fit(house, tmp_path):
+    import pytest
+
+    from pipeline.errors import ArtifactError
+    from pipeline.recon import Recon
+
+    _, recon, _ = house
+    assert [f.id for f in recon.floors] == [0, 1] and recon.floor(1).grid == recon.grid
+    assert recon.floor(1).height.shape == recon.height.shape and recon.floor(1).stats["floor_z_m"] > 2.5
+    with pytest.raises(ArtifactError, match="no floor 2; this scene has 2 floors \\(0..1\\)"):
+        recon.floor(2)
+    with pytest.raises(ArtifactError, match="format_version 3, this zipon reads 1 and 2"):
+        Recon(_retouched(recon.path, tmp_path / "v3.zarr", format_version=3))
+    with pytest.raises(ArtifactError, match="attrs.floors missing in a format_version 2 store"):
+        Recon(_retouched(recon.path, tmp_path / "nofloors.zarr", floors=None))
+    moved = Recon(_retouched(recon.path, tmp_path / "moved.zarr",
+                             floors=[{**f.model_dump(mode="json"), "id": f.id * 7} for f in recon.floors]))
+    with pytest.raises(ArtifactError, match="floors/7 missing \\(floor 1 listed in attrs.floors\\)"):
+        moved.floor(1)

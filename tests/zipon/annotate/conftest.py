@@ -4,6 +4,9 @@
 from __future__ import annotations
 
 import shutil
+import socket
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -43,3 +46,27 @@ def shared_root(built_scene, tmp_path_factory) -> Path:
 @pytest.fixture
 def own_root(built_scene, tmp_path) -> Path:
     return copy_built(built_scene[0], tmp_path / "ws")
+
+
+@pytest.fixture
+def served(own_root):
+    """The app over ``own_root`` on a free port of 127.0.0.1, served by uvicorn in a thread for the test's length:
+    (its URL, ending in /, and the root)."""
+    import uvicorn
+
+    from zipon.annotate import app
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(app(own_root / "params.yaml", own_root / "data", own_root / "manifests"),
+                                           host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not server.started:
+        assert time.monotonic() < deadline and thread.is_alive(), "the server did not start"
+        time.sleep(0.05)
+    yield f"http://127.0.0.1:{port}/", own_root
+    server.should_exit = True
+    thread.join(timeout=10)

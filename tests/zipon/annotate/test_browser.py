@@ -13,9 +13,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import socket
-import threading
-import time
 
 import pytest
 import yaml
@@ -23,29 +20,6 @@ import yaml
 from tests.zipon.annotate.conftest import SCENE
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-
-
-@pytest.fixture
-def served(own_root):
-    """The app on a free port of 127.0.0.1, served by uvicorn in a thread for the test's length."""
-    import uvicorn
-
-    from zipon.annotate import app
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(app(own_root / "params.yaml", own_root / "data", own_root / "manifests"),
-                                           host="127.0.0.1", port=port, log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 30
-    while not server.started:
-        assert time.monotonic() < deadline and thread.is_alive(), "the server did not start"
-        time.sleep(0.05)
-    yield f"http://127.0.0.1:{port}/", own_root
-    server.should_exit = True
-    thread.join(timeout=10)
 
 
 @pytest.fixture

@@ -4,41 +4,17 @@ rebuild and the params change, and the answer says which step failed)."""
 
 from __future__ import annotations
 
-import socket
 import threading
-import time
 
 import httpx
-import pytest
-import uvicorn
 import yaml
 
 from tests.zipon.annotate.conftest import SCENE, tree_state
 
 
-@pytest.fixture
-def served(own_root):
-    """``zipon annotate``'s app on a free 127.0.0.1 port, served by uvicorn in a thread: (base URL, root)."""
-    from zipon.annotate import app
-
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(app(own_root / "params.yaml", own_root / "data", own_root / "manifests"),
-                                           host="127.0.0.1", port=port, log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 60
-    while not server.started:
-        assert time.monotonic() < deadline and thread.is_alive(), "uvicorn did not start"
-        time.sleep(0.05)
-    yield f"http://127.0.0.1:{port}", own_root
-    server.should_exit = True
-    thread.join(30)
-
-
 def test_two_saves_with_one_etag_one_is_saved_the_other_412(served):
     base, root = served
+    base = base.rstrip("/")
     first = httpx.get(f"{base}/api/scenes/{SCENE}/goals", timeout=60)
     doc, etag = first.json()["document"], first.headers["etag"]
     edits = []

@@ -93,7 +93,7 @@ def test_query_without_candidates_says_why(built_scene, capsys):
 
 
 def test_no_candidates_reason_names_the_threshold_that_failed():
-    from zipon.cli.inspect import no_candidates_reason
+    from zipon.cli.maps import no_candidates_reason
     from pipeline.config import QueryParams
     from pipeline.geometry import GridSpec
     from pipeline.maps.query import QueryResult

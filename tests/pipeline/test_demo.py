@@ -1,0 +1,12 @@
+"""``zipon demo``'s pictures (pipeline/demo.py) of a building: the grids once per floor."""
+
+import zipon
+from pipeline.demo import render_all
+
+
+def test_a_buildings_pictures_draw_each_floors_grids(two_storey_maps):
+    ws = two_storey_maps[0]
+    scene = zipon.open(ws.params_path, data_dir=ws.data_dir, manifests_dir=ws.manifests_dir)["house"]
+    written = {p.name for p in render_all([scene])}
+    assert {f"{what}_floor{k}.png" for what in ("navigable", "color") for k in (0, 1)} <= written
+    assert "color.png" not in written and "frames.png" in written

@@ -1,0 +1,65 @@
+"""``zipon render`` and ``zipon query`` on a building (zipon/cli/maps.py): a picture per floor, ``--floor``, and
+candidates that say their floor; wrong floors are refused naming the option (the two-storey house fixture)."""
+
+import json
+
+from zipon.cli import main
+
+
+def cli(ws, *args) -> int:
+    return main(["-q", "-p", str(ws.params_path), "--data-dir", str(ws.data_dir),
+                 "--manifests-dir", str(ws.manifests_dir), *args])
+
+
+def test_render_draws_each_floor_of_a_building_or_the_one_asked_for(two_storey_maps, tmp_path, capsys):
+    ws = two_storey_maps[0]
+    capsys.readouterr()
+    assert cli(ws, "render", "house", "--what", "color", "-o", str(tmp_path / "color.png")) == 0
+    assert capsys.readouterr().out.split() == [str(tmp_path / "color_floor0.png"), str(tmp_path / "color_floor1.png")]
+    assert (tmp_path / "color_floor0.png").stat().st_size != (tmp_path / "color_floor1.png").stat().st_size
+    assert cli(ws, "render", "house", "--what", "cfmap", "--floor", "1") == 0
+    assert capsys.readouterr().out.split() == [str(ws.renders("house") / "cfmap_floor1.png")]
+    assert (ws.renders("house") / "cfmap_floor1.png").is_file()
+
+
+def test_render_refuses_a_floor_the_scene_has_not_or_a_whole_scene_picture(two_storey_maps, capsys):
+    ws = two_storey_maps[0]
+    capsys.readouterr()
+    assert cli(ws, "render", "house", "--what", "navigable", "--floor", "2") == 1
+    err = capsys.readouterr().err
+    assert "--floor" in err and "has 2 floors: 0 (floor 0, 0.00 m), 1 (floor 1, 3.00 m)" in err and "0..1" in err
+    assert cli(ws, "render", "house", "--what", "frames", "--floor", "1") == 1
+    assert "--floor applies to obstacles, navigable, color, height, vlmap, cfmap" in capsys.readouterr().err
+
+
+def test_query_answers_from_every_floor_with_the_floor_of_each_candidate(two_storey_maps, tmp_path, capsys):
+    ws = two_storey_maps[0]
+    capsys.readouterr()
+    assert cli(ws, "query", "house", "bed", "--json", "--png", str(tmp_path / "bed.png")) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert [f["floor"] for f in doc["floors"]] == [0, 1] and (tmp_path / "bed.png").is_file()
+    assert doc["candidates"] and {c["floor"] for c in doc["candidates"]} == {1}
+    assert doc["candidates"][0]["gt_class"] == "bed"
+    assert cli(ws, "query", "house", "table", "--map", "cfmap") == 0
+    table = capsys.readouterr().out
+    assert "floor" in table and "floor 0" in table and "floor 1" in table
+    # a pose upstairs: that floor's table first, with its distance
+    assert cli(ws, "query", "house", "table", "--pose", "3,2.6,0", "--pose-floor", "1", "--json") == 0
+    first = json.loads(capsys.readouterr().out)["candidates"][0]
+    assert first["floor"] == 1 and first["distance_m"] is not None and first["angle_deg"] is not None
+
+
+def test_query_limited_to_one_floor(two_storey_maps, capsys):
+    ws = two_storey_maps[0]
+    capsys.readouterr()
+    assert cli(ws, "query", "house", "bed", "--floor", "0") == 0
+    assert capsys.readouterr().out.startswith("floor 0: no candidates for 'bed'")
+    assert cli(ws, "query", "house", "sofa", "--floor", "0", "--json") == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["floor"] == 0 and [c["gt_class"] for c in doc["candidates"]] == ["sofa"]
+    assert cli(ws, "query", "house", "sofa", "--floor", "3") == 1
+    assert "--floor" in capsys.readouterr().err
+    assert cli(ws, "query", "house", "sofa", "--floor", "1", "--pose", "3,2,0", "--pose-floor", "0") == 1
+    assert "with --floor the pose stands on that floor" in capsys.readouterr().err
+    assert cli(ws, "query", "house", "sofa", "--pose", "3,2,0", "--pose-floor", "4") == 1
+    assert "--pose-floor" in capsys.readouterr().err
