@@ -104,8 +104,8 @@ def navigable_areas(ws, params) -> dict[str, float]:
 
 
 def workspace_of(root: Path, scenes: list[str]):
-    """``(workspace, params)`` of the check's workspace at ``root`` when it holds every scene of ``scenes``, else
-    None."""
+    """``(workspace, params)`` of the check's workspace at ``root`` when it holds every scene of ``scenes`` (the params
+    narrowed to them), else None."""
     from pipeline.paths import Workspace
 
     path = root / "params.yaml"
@@ -114,6 +114,7 @@ def workspace_of(root: Path, scenes: list[str]):
     params = load_params(path)
     if not set(scenes) <= set(params.scenes):
         return None
+    params = params.model_copy(update={"scenes": {k: v for k, v in params.scenes.items() if k in scenes}})
     return Workspace.resolve(path, data_dir=root / "data", manifests_dir=root / "manifests"), params
 
 

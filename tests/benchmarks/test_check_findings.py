@@ -160,3 +160,15 @@ def test_a_fresh_scene_set_is_named_by_its_prefix_and_seed(check, tmp_path):
     params = load_params(tmp_path / "params.yaml")
     assert list(params.scenes) == ["fresh_df_00", "fresh_df_01"] and params.simulate.seed == 60217
     assert (check.PREFIX, check.SEED) == ("findings", 2027)  # the check's own set when none is named
+
+
+def test_a_results_report_finds_the_workspace_of_its_scenes(check, tmp_path):
+    """``--results`` with ``--workspace``: the drivers are computed on the workspace's params narrowed to the scenes the
+    results hold; a workspace without them (or without params) gives None, and the report says it computed none."""
+    from benchmarks.bench_eval import build_params
+
+    assert check.workspace_of(tmp_path, ["fresh_df_00"]) is None  # no params.yaml
+    (tmp_path / "params.yaml").write_text(build_params(3, 240, "fresh_df", 60217, None))
+    ws, params = check.workspace_of(tmp_path, ["fresh_df_02", "fresh_df_00"])
+    assert list(params.scenes) == ["fresh_df_00", "fresh_df_02"] and ws.params_path == tmp_path / "params.yaml"
+    assert check.workspace_of(tmp_path, ["fresh_df_00", "other_00"]) is None
