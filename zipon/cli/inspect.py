@@ -241,8 +241,9 @@ def _agent_class(spec: str):
         obj = importlib.import_module(module)
         for part in name.split("."):
             obj = getattr(obj, part)
-    except (ImportError, AttributeError) as err:
-        raise ConfigError(f"--method {spec!r}: cannot import it ({err}); expected module:Class of an Agent "
+    except (Exception, SystemExit) as err:  # noqa: BLE001 - the user's module: whatever its import raises, one line
+        what = f"SystemExit({err.code!r})" if isinstance(err, SystemExit) else f"{type(err).__name__}: {err}"
+        raise ConfigError(f"--method {spec!r}: cannot import it ({what}); expected module:Class of an Agent "
                           f"subclass importable from here") from None
     return obj
 
