@@ -82,7 +82,8 @@ class LLMParams(Section):
     api_key_env: str | None = Field("OPENAI_API_KEY", description="environment variable holding the bearer key "
                                     "(unset variable = no Authorization header)")
     roles: Literal["user", "agent", "both"] = Field("both", description="which side the LLM plays")
-    timeout_s: float = Field(30.0, gt=0, description="per-request timeout, seconds")
+    timeout_s: float = Field(30.0, gt=0, description="total deadline of one call (a streamed reply and every retry "
+                             "included), seconds")
     max_requests: int = Field(200, gt=0, description="requests per evaluation run at most (then a StageError)")
     temperature: float = Field(0.0, ge=0, description="sampling temperature sent with each request")
 

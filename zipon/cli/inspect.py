@@ -203,6 +203,8 @@ def eval_cmd(
     seeds: Optional[int] = typer.Option(None, "--seeds", min=1, help="number of seeds: 0 .. N-1 (default: params "
                                         "eval.seeds)"),
     seed_list: list[int] = typer.Option([], "--seed-list", help="explicit seeds (repeatable) instead of --seeds"),
+    strict: bool = typer.Option(False, "--strict", help="-f human: refuse stored episodes of goals a later goals "
+                                "edit removed (default: leave them out with a warning naming them)"),
 ):
     """Run ORION-style agents on the built artifacts; write SR / SPL / SIT as JSON and an HTML report.
 
@@ -224,7 +226,7 @@ def eval_cmd(
                                  "episode logs", param_hint="--out")
     agents = [_agent_class(m) if ":" in m else m for m in methods] or None
     results = run_eval(Dataset(*G.load()), out_dir, scenes=scenes or None, agents=agents, feedback=feedback or None,
-                       seeds=seed_list or seeds, progress=not G.quiet)
+                       seeds=seed_list or seeds, progress=not G.quiet, strict=strict)
     print_eval(results, out_dir)
 
 
@@ -239,8 +241,9 @@ def _agent_class(spec: str):
         obj = importlib.import_module(module)
         for part in name.split("."):
             obj = getattr(obj, part)
-    except (ImportError, AttributeError) as err:
-        raise ConfigError(f"--method {spec!r}: cannot import it ({err}); expected module:Class of an Agent "
+    except (Exception, SystemExit) as err:  # noqa: BLE001 - the user's module: whatever its import raises, one line
+        what = f"SystemExit({err.code!r})" if isinstance(err, SystemExit) else f"{type(err).__name__}: {err}"
+        raise ConfigError(f"--method {spec!r}: cannot import it ({what}); expected module:Class of an Agent "
                           f"subclass importable from here") from None
     return obj
 
