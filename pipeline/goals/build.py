@@ -252,12 +252,12 @@ def wall_grid(objset: ObjectSet, recon: Recon, gt: GTScene | None, object_index:
 
 
 def scene_building(recon: Recon, objset: ObjectSet, gt: GTScene | None, settings: RouteSettings, success_m: float,
-                   frames: FrameStore) -> tuple[Building, GoalRegions]:
+                   frames: FrameStore, objects_path) -> tuple[Building, GoalRegions]:
     """The goals stage's view of a building (:mod:`pipeline.goals.floors`): each floor's grid, walls, footprints,
     planner and regions, the planner over every floor, the floor the recording starts on; and floor 0's regions."""
     from pipeline.nav.building import building_planner
 
-    floors_of_objects(objset, len(recon.floors), "objects")
+    floors_of_objects(objset, len(recon.floors), objects_path)
     planner = building_planner(recon, settings)
     parts = {}
     for f in range(len(recon.floors)):
@@ -373,7 +373,8 @@ def build_scene_goals(frames: FrameStore, recon: Recon, out_path: Path, attrs: d
     building = None
     start_nav = recon.navigable
     if len(recon.floors) > 1:
-        building, regions = scene_building(recon, objset, gt, settings, task.success_m, frames)
+        objects_path = root / p.objects_files[scene] if objset.source == "file" else frames.path
+        building, regions = scene_building(recon, objset, gt, settings, task.success_m, frames, objects_path)
         start_nav = building.planner.planners[building.start_floor].navigable
     pose0, moved = walkable_start(pose0, start_nav, grid)
     if moved:

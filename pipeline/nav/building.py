@@ -150,10 +150,10 @@ class BuildingPlanner:
         if len(self.planners) < 2:
             return []
         joined = {f for lk in self.links for f in (lk.lower, lk.upper)
-                  if self._end_mask(lk, lk.lower) is not None and self._end_mask(lk, lk.upper) is not None}
+                  if self.stair_end_cells(lk, lk.lower) is not None and self.stair_end_cells(lk, lk.upper) is not None}
         return sorted(set(self.planners) - joined)
 
-    def _end_mask(self, link: StairLink, floor: int) -> np.ndarray | None:
+    def stair_end_cells(self, link: StairLink, floor: int) -> np.ndarray | None:
         """``(rows, cols)`` bool: the navigable cells of ``floor`` within :data:`STAIR_END_RADIUS_M` of the stair's
         end there; None when there is none (the stair does not reach that floor's walkable space)."""
         key = (link.id, floor)
@@ -174,9 +174,9 @@ class BuildingPlanner:
             self._end_masks[key] = mask if mask.any() else None
         return self._end_masks[key]
 
-    def _field(self, link: StairLink, floor: int) -> np.ndarray | None:
+    def stair_end_field(self, link: StairLink, floor: int) -> np.ndarray | None:
         """Geodesic distance (metres, navigable mask) from every cell of ``floor`` to the stair's end there."""
-        mask = self._end_mask(link, floor)
+        mask = self.stair_end_cells(link, floor)
         if mask is None:
             return None
         return self.planners[floor].field(("stair", link.id), mask, "navigable", region=True)
@@ -203,7 +203,7 @@ class BuildingPlanner:
         tick = 0
         for lk in self.links:
             if floor in (lk.lower, lk.upper):
-                d = at(self._field(lk, floor), floor, xy)
+                d = at(self.stair_end_field(lk, floor), floor, xy)
                 if math.isfinite(d):
                     heap.append((d + lk.length_m, tick, lk.id, floor, [(lk, floor == lk.lower)]))
                     tick += 1
@@ -225,7 +225,7 @@ class BuildingPlanner:
             for nxt in self.links:
                 if nxt.id == lid or arrived not in (nxt.lower, nxt.upper) or (nxt.id, arrived) in done:
                     continue
-                d = at(self._field(nxt, arrived), arrived, end)
+                d = at(self.stair_end_field(nxt, arrived), arrived, end)
                 if math.isfinite(d):
                     tick += 1
                     heapq.heappush(heap, (cost + d + nxt.length_m, tick, nxt.id, arrived,
@@ -252,7 +252,7 @@ class BuildingPlanner:
             far = lk.end_on(lk.other(here))
             near = lk.end_on(here)
             planner = self.planners[here]
-            leg = planner.route_into(at_pose, self._end_mask(lk, here), key=("stair", lk.id), face_xy=np.asarray(far))
+            leg = planner.route_into(at_pose, self.stair_end_cells(lk, here), key=("stair", lk.id), face_xy=np.asarray(far))
             if leg is None:
                 return None
             legs.append((here, leg))
@@ -295,10 +295,6 @@ def building_planner(recon, settings) -> BuildingPlanner:
     for f in range(len(recon.floors)):
         fg = recon.floor(f)
         planners[f] = RoutePlanner(fg.navigable, fg.grid, settings)
-    links = []
-    for s in recon.stairs:
-        foot = planners[s.bottom.floor].grid.cell_to_world(np.asarray(s.bottom.endpoint))
-        head = planners[s.top.floor].grid.cell_to_world(np.asarray(s.top.endpoint))
-        links.append(StairLink(f"stairs_{s.id}", s.bottom.floor, s.top.floor, (float(foot[0]), float(foot[1])),
-                               (float(head[0]), float(head[1])), float(s.rise_m)))
+    links = [StairLink(f"stairs_{s.id}", s.bottom.floor, s.top.floor, tuple(s.bottom.xy), tuple(s.top.xy),
+                       float(s.rise_m)) for s in recon.stairs]  # each landing's endpoint, world xy
     return BuildingPlanner(planners, links)

@@ -70,7 +70,7 @@ def _cross_starts(building: BuildingPlanner, s: int, f: int, goal_field: np.ndar
     """Up to ``n`` seeded start poses on floor ``s`` from which stairs lead to floor ``f``'s goal."""
     planner = building.planners[s]
     # the distance to the nearest stair end on floor s that leads on: a cheap filter before the exact sequence
-    fields = [building._field(lk, s) for lk in building.links if s in (lk.lower, lk.upper)]
+    fields = [building.stair_end_field(lk, s) for lk in building.links if s in (lk.lower, lk.upper)]
     fields = [fld for fld in fields if fld is not None]
     if not fields:
         return []
@@ -117,7 +117,7 @@ def _cross_episode(building: BuildingPlanner, eid: str, goal: GoalTarget, aims: 
         climb = route.climbs[i]
         near = climb.link.end_on(floor)
         rc = planner.grid.world_to_cell(np.asarray(res.final_xyyaw[:2]))
-        at_stair = building._end_mask(climb.link, floor)
+        at_stair = building.stair_end_cells(climb.link, floor)
         if not (planner.grid.inside(rc) and at_stair[rc[0], rc[1]]):
             return None, f"replay failed: the walk on floor {floor} ends {math.dist(res.final_xyyaw[:2], near):.2f} " \
                          f"m from {climb.link.id}, off the cells within {STAIR_END_RADIUS_M} m of its end"

@@ -91,7 +91,7 @@ def test_the_geodesic_distance_across_floors_goes_through_the_stair(building):
     start = (8.0, 1.5)
     dist, seq = building.stair_sequence(0, start, 1, goal_field)
     assert [(lk.id, up) for lk, up in seq] == [("stair_0", True)]
-    to_foot = building._field(STAIR, 0)[tuple(GRID.world_to_cell(np.array(start)))]
+    to_foot = building.stair_end_field(STAIR, 0)[tuple(GRID.world_to_cell(np.array(start)))]
     from_head = goal_field[tuple(GRID.world_to_cell(np.array(STAIR.head_xy)))]
     assert dist == pytest.approx(to_foot + math.hypot(3.0, 3.0) + from_head)
     # about 6 m on the ground floor around the stair's wall, 4.2 m of stair, about 3.5 m upstairs

@@ -104,7 +104,7 @@ def test_cross_floor_episodes_replay_leg_by_leg_into_the_goal_region(built):
         end0 = replay(e.actions[:n0], e.start, first.navigable, first.grid, [])
         near, far = stair.end_on(e.start_floor), stair.end_on(goal.floor)
         rc = first.grid.world_to_cell(np.asarray(end0.final_xyyaw[:2]))
-        assert end0.collisions == 0 and building._end_mask(stair, e.start_floor)[rc[0], rc[1]]  # a cell at the stair
+        assert end0.collisions == 0 and building.stair_end_cells(stair, e.start_floor)[rc[0], rc[1]]  # a cell at the stair
         assert math.dist(end0.final_xyyaw[:2], near) <= STAIR_END_RADIUS_M + first.grid.cell_size_m
         assert np.count_nonzero(e.actions[n0:n0 + climb] == 1) == math.ceil(stair.run_m / 0.25 - 1e-9)
         end1 = replay(e.actions[n0 + climb:], (*far, math.atan2(far[1] - near[1], far[0] - near[0])),
