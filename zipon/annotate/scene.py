@@ -259,6 +259,10 @@ class SceneView:
         from pipeline.nav.actions import RoutePlanner, RouteSettings
         from pipeline.nav.region import GoalTargets, route_to_goal
 
+        if len(self.recon.floors) > 1:  # the preview plans on one grid; a building's feedback crosses floors
+            raise InputDataError(f"scene {self.name} has {len(self.recon.floors)} floors; the route preview plans on "
+                                 "one floor and would not say what the goals stage stored", field="objects",
+                                 expected="a single-floor scene")
         goals = self.goals
         if goals is None:
             raise InputDataError(f"scene {self.name} has no goals.zarr", field="goals")

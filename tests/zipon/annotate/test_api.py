@@ -544,3 +544,16 @@ def test_warm_reads_the_first_scene_before_the_page_asks(shared_root):
     wb.warm()
     view = wb._views[SCENE]
     assert {("layer", name) for name in LAYERS} <= set(view._cache) and "recon" in view._cache
+
+
+def test_the_route_preview_refuses_a_building_rather_than_plan_on_one_floor(two_storey_maps):
+    """A building's procedural feedback crosses floors; the one-grid preview would say something else: refused."""
+    import zipon
+    from pipeline.errors import InputDataError
+    from zipon.annotate.scene import SceneView
+
+    ws, *_ = two_storey_maps
+    ds = zipon.open(ws.params_path, data_dir=ws.data_dir, manifests_dir=ws.manifests_dir)
+    view = SceneView(ds[next(iter(ds.params.scenes))])
+    with pytest.raises(InputDataError, match=r"has 2 floors; the route preview plans on one floor"):
+        view.route(None, ["sofa_0"])
