@@ -1,5 +1,6 @@
 """Pictures for ``zipon demo``: one picture per artifact that exists, under DATA/artifacts/<scene>/renders/ (a
-building's grids: one per floor, ``WHAT_floor<k>.png``; its map queries: every floor side by side)."""
+building's grids, goals and routes: one per floor, ``WHAT_floor<k>.png``; its map queries: every floor side by
+side)."""
 
 from __future__ import annotations
 
@@ -32,9 +33,14 @@ def render_all(scenes: list[Scene]) -> list[Path]:
         if art["goals"].exists() and art["recon"].exists():
             from pipeline.goals.render import render_goals
 
-            written.append(render_goals(art["recon"], art["goals"], None, "goals", out / "goals.png"))
-            if art["routes"].exists():
-                written.append(render_goals(art["recon"], art["goals"], art["routes"], "routes", out / "routes.png"))
+            n_floors = len(scene.floors)
+            for k in range(n_floors):
+                name = "" if n_floors == 1 else f"_floor{k}"
+                written.append(render_goals(art["recon"], art["goals"], None, "goals", out / f"goals{name}.png",
+                                            floor=k))
+                if art["routes"].exists():
+                    written.append(render_goals(art["recon"], art["goals"], art["routes"], "routes",
+                                                out / f"routes{name}.png", floor=k))
         for which in ("vlmap", "cfmap"):
             if art[which].exists() and art["goals"].exists():
                 written.append(_query_picture(scene, which, out))

@@ -120,6 +120,20 @@ class Workbench:
                                  f"has finished", "scene")
 
 
+def _floor(request: Request, view) -> int | None:
+    """The ``floor`` query parameter checked against the scene's floors (a 400 naming the floors it has); None when
+    absent."""
+    from zipon.annotate.floors import floors_named
+
+    if "floor" not in request.query_params:
+        return None
+    floor, n = integer(request.query_params["floor"], "floor", -10**6, 10**6), len(view.recon.floors)
+    if not 0 <= floor < n:
+        raise HTTPError(400, f"floor {floor}: scene {view.name} has {n} floor{'s' if n != 1 else ''}: "
+                             f"{floors_named(view.recon)}", "floor")
+    return floor
+
+
 def _png(data: bytes) -> Response:
     return Response(data, media_type="image/png", headers={"Cache-Control": "no-store"})
 
@@ -156,12 +170,14 @@ def scene_summary(request, wb, body):
 
 @endpoint()
 def layer(request, wb, body):
-    return _png(wb.scene(request.path_params["scene"]).layer_png(request.path_params["name"]))
+    view = wb.scene(request.path_params["scene"])
+    return _png(view.layer_png(request.path_params["name"], _floor(request, view) or 0))
 
 
 @endpoint()
 def seen(request, wb, body):
-    return wb.scene(request.path_params["scene"]).seen(number(request, "x"), number(request, "y"))
+    view = wb.scene(request.path_params["scene"])
+    return view.seen(number(request, "x"), number(request, "y"), _floor(request, view) or 0)
 
 
 @endpoint()
@@ -185,17 +201,18 @@ def propose(request, wb, body):
     text = (request.query_params.get("text") or "").strip()
     if not text or len(text) > 200:
         raise HTTPError(400, "give the class or phrase to look for (1 to 200 characters)", "text")
-    return view.propose(which, text)
+    return view.propose(which, text, _floor(request, view) or 0)
 
 
 @endpoint()
 def route(request, wb, body):
     view = wb.scene(request.path_params["scene"])
     keys = [k for k in (request.query_params.get("objects") or "").split(",") if k]
-    # no x and y: from the recording's start pose, where the goals stage's procedural feedback starts
+    # no x and y: from the recording's start pose (and its floor), where the goals stage's procedural feedback
+    # starts; x and y stand on ``floor`` (default 0)
     start = None if "x" not in request.query_params and "y" not in request.query_params else (
         number(request, "x"), number(request, "y"), math.radians(number(request, "yaw_deg", 0.0)))
-    return view.route(start, keys)
+    return view.route(start, keys, _floor(request, view))
 
 
 # ----------------------------------------------------------------------------- goals: read, validate, save, history
@@ -363,15 +380,21 @@ def objects_get(request, wb, body):
     data = {"objects": [], "rooms": []} if objset is None else objset.model_dump(mode="json",
                                                                                    include={"objects", "rooms"})
     if objset is not None and not data["rooms"]:
-        data["rooms"] = [{"id": r["id"], "type": r["type"], "polygon": r["polygon"]} for r in view._rooms()]
+        data["rooms"] = [{"id": r["id"], "type": r["type"], "polygon": r["polygon"],
+                          **({"floor": r["floor"]} if r["floor"] else {})} for r in view._rooms()]
     return {"path": rel or f"{OBJECTS_DIR}/{view.name}.yaml", "objects_dir": f"{OBJECTS_DIR}/", "source": source if objset is not None else "empty", **data}
 
 
 def _objects(view, body: dict):
+    """The body's objects and rooms as an ObjectSet, each on a floor the scene has (when it is reconstructed)."""
     from pipeline.goals.objects import objects_from_data
+    from zipon.annotate.floors import check_record_floors
 
-    return objects_from_data({"rooms": body.get("rooms", []), "objects": body.get("objects")}, view.name,
-                             "the edited objects")
+    objset = objects_from_data({"rooms": body.get("rooms", []), "objects": body.get("objects")}, view.name,
+                               "the edited objects")
+    if view.has("recon"):
+        check_record_floors(view.recon, view.name, objset)
+    return objset
 
 
 @endpoint(write=True)

@@ -27,7 +27,8 @@ RENDERS = {
     "goals": "goals, landmarks and names on the colour map",
     "routes": "episodes' start poses and geodesic routes on the colour map",
 }
-PER_FLOOR = ("obstacles", "navigable", "color", "height", "vlmap", "cfmap")  # one picture per floor of a building
+# one picture per floor of a building
+PER_FLOOR = ("obstacles", "navigable", "color", "height", "vlmap", "cfmap", "goals", "routes")
 
 
 def _floor_option(sc, floor: int | None, option: str = "--floor") -> int | None:
@@ -75,6 +76,11 @@ def render(
                 from pipeline.maps.render import render_map_pca
 
                 render_map_pca(sc.existing(what), target, floor=k)
+            elif what in ("goals", "routes"):
+                from pipeline.goals.render import render_goals
+
+                render_goals(art("recon"), art("goals"), art("routes") if what == "routes" else None, what, target,
+                             floor=k)
             else:
                 from pipeline.recon.render import render_recon
 
@@ -94,10 +100,6 @@ def render(
         if gt is None:
             raise ConfigError(f"scene {scene}: --what plan needs ground truth (a simulated scene)")
         render_scene_png(gt, target)
-    else:
-        from pipeline.goals.render import render_goals
-
-        render_goals(art("recon"), art("goals"), art("routes") if what == "routes" else None, what, target)
     out.print(str(target))
 
 
