@@ -25,7 +25,7 @@ from pipeline.errors import ConfigError
 from pipeline.geometry import GridSpec
 from pipeline.goals.store import Goals
 from pipeline.routes.store import Routes
-from pipeline.pictures import add_legend, add_scale_bar, label_colors, write_png
+from pipeline.pictures import add_legend, add_metre_axes, add_scale_bar, label_colors, write_png
 
 WHATS = ("goals", "routes")
 SCALE = 3  # output pixels per grid cell
@@ -178,43 +178,14 @@ def _finish(img: np.ndarray, box, grid: GridSpec, title: str, crop: bool, *, axe
         box = (0, img.shape[0], 0, img.shape[1])
     img = np.ascontiguousarray(img[box[0]:box[1], box[2]:box[3]])
     if axes:  # the scale bar and north arrow on the map itself, the ticks in margins around it
-        img = _metre_axes(add_scale_bar(img, grid.cell_size_m / SCALE), box, grid)
+        px_per_m = SCALE / grid.cell_size_m
+        img = add_metre_axes(add_scale_bar(img, grid.cell_size_m / SCALE), grid.origin_xy[0] + box[2] / px_per_m,
+                             grid.origin_xy[1] - box[0] / px_per_m, px_per_m)
     img = np.ascontiguousarray(np.pad(img, ((26, 0), (0, 0), (0, 0)), constant_values=255))
     if not axes:
         img = add_scale_bar(img, grid.cell_size_m / SCALE)
     cv2.putText(img, title, (8, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
     return img
-
-
-AXIS_LEFT, AXIS_BOTTOM = 46, 34  # pixels of the margins that hold the metre ticks
-
-
-def _metre_axes(img: np.ndarray, box, grid: GridSpec) -> np.ndarray:
-    """``img`` (the crop ``box`` of the upscaled grid) with margins holding world x (bottom) and y (left) ticks in
-    metres, at a round step at least 60 pixels apart."""
-    h, w = img.shape[:2]
-    out = np.full((h + AXIS_BOTTOM, w + AXIS_LEFT, 3), 255, np.uint8)
-    out[:h, AXIS_LEFT:] = img
-    px_per_m = SCALE / grid.cell_size_m
-    step = next((m for m in (0.5, 1, 2, 5, 10, 20, 50) if m * px_per_m >= 60), 100)
-    x0, y1 = grid.origin_xy
-    xa, xb = x0 + box[2] / px_per_m, x0 + box[3] / px_per_m  # world x at the crop's left and right edges
-    yb, ya = y1 - box[0] / px_per_m, y1 - box[1] / px_per_m  # world y at its top and bottom edges
-    ink, font = (40, 40, 40), cv2.FONT_HERSHEY_SIMPLEX
-    cv2.line(out, (AXIS_LEFT, 0), (AXIS_LEFT, h), ink, 1)
-    cv2.line(out, (AXIS_LEFT, h), (AXIS_LEFT + w, h), ink, 1)
-    for x in np.arange(np.ceil(xa / step) * step, xb, step):
-        u = AXIS_LEFT + int(round((x - xa) * px_per_m))
-        cv2.line(out, (u, h), (u, h + 5), ink, 1)
-        text = f"{x + 0.0:g}"  # + 0.0: no "-0"
-        cv2.putText(out, text, (u - 4 * len(text), h + 18), font, 0.4, ink, 1, cv2.LINE_AA)
-    for y in np.arange(np.ceil(ya / step) * step, yb, step):
-        v = int(round((yb - y) * px_per_m))
-        cv2.line(out, (AXIS_LEFT - 5, v), (AXIS_LEFT, v), ink, 1)
-        cv2.putText(out, f"{y + 0.0:g}", (4, v + 4), font, 0.4, ink, 1, cv2.LINE_AA)
-    cv2.putText(out, "x (m, east)", (AXIS_LEFT + w - 90, h + 31), font, 0.4, ink, 1, cv2.LINE_AA)
-    cv2.putText(out, "y (m)", (2, h + 31), font, 0.4, ink, 1, cv2.LINE_AA)
-    return out
 
 
 def _marker(img: np.ndarray, text: str, at: np.ndarray) -> None:

@@ -57,7 +57,8 @@ def render(
     """Draw an artifact as a north-up PNG with a scale bar.
 
     Examples: `zipon render sim_00 --what navigable` · `zipon render sim_00 --what routes -o routes.png` ·
-    `zipon render house --what color --floor 1` · `zipon render house --what vlmap`
+    `zipon render house --what color --floor 1` · `zipon render house --what vlmap` ·
+    `zipon render house --what routes` (routes_floor0.png, routes_floor1.png: each floor's legs, the stairs marked)
     """
     from pipeline.errors import ConfigError
 

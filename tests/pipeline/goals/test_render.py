@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from pipeline.errors import ConfigError
-from pipeline.goals.render import AXIS_LEFT, STAIR_COLOUR, render_goals
+from pipeline.goals.render import STAIR_COLOUR, render_goals
+from pipeline.pictures import AXIS_LEFT
 from pipeline.goals.store import Goals
 from pipeline.pictures import label_colors
 from pipeline.routes.store import Routes
@@ -63,9 +64,9 @@ def test_a_cross_floor_route_is_drawn_on_every_floor_it_crosses_with_the_stairs_
 def test_the_pictures_have_metre_axes(pictures):
     _, images = pictures
     for img in images.values():
-        margin = img[30:-120, :AXIS_LEFT - 6]  # left of the axis line, under the title band, above the legend
+        margin = img[30:-120, :AXIS_LEFT - 7]  # left of the axis line, under the title band, above the legend
         assert (margin < 100).all(axis=-1).any()  # tick labels
-        assert (img[30:-120, AXIS_LEFT] < 100).all(axis=-1).mean() > 0.5  # the axis line
+        assert (img[30:-120, AXIS_LEFT - 1] < 100).all(axis=-1).mean() > 0.5  # the axis line
 
 
 def test_a_floor_the_scene_lacks_is_refused(pictures, tmp_path):
