@@ -14,8 +14,10 @@ Entities (world frame right-handed, z up, metres; see :mod:`pipeline.geometry`):
                                   planes stacked below the floor, cropped to the observed area (static);
                                   a building: world/grids/floor<id>/{...} below each floor, its query
                                   heatmap from that floor's map
-    world/goals                   Boxes3D: one box per goal object, labelled with the goal's name (static)
-    world/routes                  LineStrips3D: every verified episode's geodesic path (static)
+    world/goals                   Boxes3D: one box per goal object, labelled with the goal's name, standing on
+                                  its floor (static)
+    world/routes                  LineStrips3D: every verified episode's geodesic path, each leg on its floor, a
+                                  building's climb between them (static)
     world/routes/starts           Arrows3D: start poses (static)
     world/episode/robot           Points3D + Arrows3D: the agent's pose per step          timeline: step
     world/episode/path            LineStrips3D: the path walked so far per step
