@@ -1,6 +1,6 @@
 """Pictures for ``zipon demo``: one picture per artifact that exists, under DATA/artifacts/<scene>/renders/ (a
-building's grids, goals and routes: one per floor, ``WHAT_floor<k>.png``; its map queries: every floor side by
-side)."""
+building's floor plans, grids, goals and routes: one per floor, ``WHAT_floor<k>.png``; its map queries: every floor
+side by side)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,9 @@ def render_all(scenes: list[Scene]) -> list[Path]:
             if scene.gt is not None:
                 from pipeline.sim.topdown import render_scene_png
 
-                written.append(render_scene_png(scene.gt, out / "plan.png"))
+                plans = len(scene.gt.all_floors)
+                written += [render_scene_png(scene.gt, out / ("plan.png" if plans == 1 else f"plan_floor{k}.png"),
+                                             floor=k) for k in range(plans)]
         if art["recon"].exists():
             from pipeline.recon.render import render_recon
 

@@ -19,5 +19,6 @@ def test_a_buildings_goals_and_routes_are_drawn_per_floor(built_house):
     ws, _ = built_house
     scene = zipon.open(ws.params_path, data_dir=ws.data_dir, manifests_dir=ws.manifests_dir)["house"]
     written = {p.name for p in render_all([scene])}
-    assert {f"{what}_floor{k}.png" for what in ("goals", "routes", "navigable", "color") for k in (0, 1)} <= written
-    assert not {"goals.png", "routes.png"} & written
+    whats = ("plan", "goals", "routes", "navigable", "color")
+    assert {f"{what}_floor{k}.png" for what in whats for k in (0, 1)} <= written
+    assert not {f"{what}.png" for what in whats} & written

@@ -64,9 +64,9 @@ def render(
 
     if what not in RENDERS:
         raise ConfigError(f"--what {what!r}: choose one of {', '.join(RENDERS)}")
-    if floor is not None and what not in PER_FLOOR:
+    if floor is not None and what not in (*PER_FLOOR, "plan"):
         raise ConfigError(f"--floor {floor}: --what {what} is drawn for the whole scene; --floor applies to "
-                          f"{', '.join(PER_FLOOR)}")
+                          f"{', '.join(PER_FLOOR)}, plan")
     sc = open_scene(scene)
     art = sc.path  # on an object store: the artifact's published version, mirrored on first use
     if what in PER_FLOOR:
@@ -93,14 +93,25 @@ def render(
         from pipeline.pictures import frames_contact_sheet
 
         frames_contact_sheet(art("frames"), target)
-    elif what == "plan":
+    elif what == "plan":  # the ground truth's floors (a building's: one picture each)
+        from pipeline.errors import InputDataError
         from pipeline.frames import FrameStore
         from pipeline.sim.topdown import render_scene_png
 
         gt = FrameStore(art("frames")).ground_truth
         if gt is None:
             raise ConfigError(f"scene {scene}: --what plan needs ground truth (a simulated scene)")
-        render_scene_png(gt, target)
+        floors = gt.all_floors
+        if floor is not None and floor >= len(floors):
+            names = ", ".join(f"{f.id} ({f.name}, {f.floor_z:.2f} m)" for f in floors)
+            raise InputDataError(f"got {floor}: scene {scene!r}'s ground truth has {len(floors)} floor"
+                                 f"{'s' if len(floors) != 1 else ''}: {names}", field="--floor",
+                                 expected=f"a floor 0..{len(floors) - 1}")
+        for k in [floor] if floor is not None else range(len(floors)):
+            path = _floor_target(target, k, len(floors))
+            render_scene_png(gt, path, floor=k)
+            out.print(str(path))
+        return
     out.print(str(target))
 
 

@@ -42,6 +42,14 @@ def test_goals_and_routes_are_drawn_per_floor_of_a_building(built_house, built_s
     assert capsys.readouterr().out.split() == [str(ws.renders("house") / "goals_floor1.png")]
     assert cli(ws, "render", "house", "--what", "goals", "--floor", "2") == 1
     assert "has 2 floors: 0 (floor 0, 0.00 m), 1 (floor 1, 2.86 m)" in capsys.readouterr().err
+    # the ground truth's plan: one per floor too
+    assert cli(ws, "render", "house", "--what", "plan", "-o", str(tmp_path / "plan.png")) == 0
+    assert capsys.readouterr().out.split() == [str(tmp_path / "plan_floor0.png"), str(tmp_path / "plan_floor1.png")]
+    assert cli(ws, "render", "house", "--what", "plan", "--floor", "1", "-o", str(tmp_path / "one.png")) == 0
+    assert capsys.readouterr().out.split() == [str(tmp_path / "one_floor1.png")]
+    assert cli(ws, "render", "house", "--what", "plan", "--floor", "2", "-o", str(tmp_path / "two.png")) == 1
+    assert "--floor" in (err := capsys.readouterr().err) and "ground truth has 2 floors: 0 (" in err
+    assert not list(tmp_path.glob("two*.png"))
     # a single-floor scene: one picture, named as it always was; it has no floor 1
     tiny = built_scene[0]
     assert cli(tiny, "render", "tiny", "--what", "goals", "-o", str(tmp_path / "goals.png")) == 0
