@@ -99,8 +99,9 @@ def render_goals(recon_path, goals_path, routes_path, what: str, out_png, *, cro
         title = f"{goals.scene}: {len(goals.goals)} goals" + (
             f", {len(episodes)} verified routes" if what == "routes" and routes_path else "")
     else:
-        title = (f"{goals.scene}, {level.floor.name} ({level.floor_z:.2f} m): {len(shown)} of {len(goals.goals)} goals"
-                 + (f", {len(episodes)} verified routes on this floor" if what == "routes" and routes_path else ""))
+        # short enough for a small floor's picture: goals shown of all, routes with a leg on this floor
+        title = (f"{goals.scene}, {level.floor.name} ({level.floor_z:.2f} m): {len(shown)}/{len(goals.goals)} goals"
+                 + (f", {len(episodes)} verified routes" if what == "routes" and routes_path else ""))
     img = _finish(img, box, grid, title, crop, axes=building)
     legend = [(tuple(int(v) for v in col), f"{k} {g.name} ({g.type})") for k, g, col in shown]
     extra = [((90, 90, 90), "other objects (outline)"), ((60, 60, 60), "- - landmark link")]
