@@ -146,15 +146,18 @@ def floors_grids_stairs(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray
     found = find_floors(xyz, normals, camera_z, p)
     spec = grids_mod.placed_grid(xyz, T_world_camera, grid, p, source=source)
     building = len(found.floors) > 1
+    flights = find_flights(xyz, normals, found.floors, spec, p) if building else []
+    footprints = [f.footprint((spec.rows, spec.cols), spec.cell_size_m) for f in flights]
     per_floor = []
-    for floor, (lo, hi), n_points in zip(found.floors, floor_bands(found.floors), found.floor_points):
+    for k, (floor, (lo, hi), n_points) in enumerate(zip(found.floors, floor_bands(found.floors), found.floor_points)):
         band = slice(None) if not building else (xyz[:, 2] >= lo) & (xyz[:, 2] < hi)
+        wells = [m for f, m in zip(flights, footprints) if f.upper == k]  # the stairwells over flights arriving here
         per_floor.append(grids_mod.floor_grids(
             spec, floor.floor_z_m, xyz[band], normals[band], colors[band], voxels(), p, floor_points=n_points,
-            source=source, floor_name=f"{floor.name} ({floor.floor_z_m:.2f} m)" if building else None))
-    flights = find_flights(xyz, normals, found.floors, spec, p) if building else []
-    for flight in flights:  # the flight is solid on the floor it rises from
-        per_floor[flight.lower] = grids_mod.with_solid(per_floor[flight.lower], flight.mask((spec.rows, spec.cols)), p)
+            source=source, floor_name=f"{floor.name} ({floor.floor_z_m:.2f} m)" if building else None,
+            void=np.logical_or.reduce(wells) if wells else None))
+    for flight, footprint in zip(flights, footprints):  # the flight is solid on the floor it rises from
+        per_floor[flight.lower] = grids_mod.with_solid(per_floor[flight.lower], footprint, p)
     stairs = stair_links(flights, found.floors, spec, [g.navigable for g in per_floor])
     warnings = found.warnings + (unlinked_warnings(found.floors, stairs) if building else [])
     return found, spec, per_floor, stairs, warnings

@@ -472,7 +472,7 @@ def placed_grid(xyz: np.ndarray, T_world_camera: dict[int, np.ndarray], grid_par
 
 def floor_grids(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray,
                 voxels: Iterable[tuple[np.ndarray, np.ndarray]], p: ReconstructParams, *, floor_points: int = 0,
-                source: str = "frames", floor_name: str | None = None) -> Grids:
+                source: str = "frames", floor_name: str | None = None, void: np.ndarray | None = None) -> Grids:
     """All grids of one floor at world height ``floor_z`` on ``grid``.
 
     ``xyz``/``normals``/``colors``: the surface points of the floor's band (:func:`pipeline.recon.store.floor_bands`;
@@ -480,8 +480,14 @@ def floor_grids(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.nda
     only the heights near this floor). Raises :class:`StageError` when more than ``max_outside_fraction`` of the
     surface falls outside the grid or no free floor cell was seen (``floor_name`` names the floor of a building).
     ``floor_points``: the surface points the floor height rests on (a figure of ``stats``).
+    ``void``: ``(rows, cols)`` bool, cells where the floor has no floor: the stairwell over a flight from the floor
+    below (:meth:`pipeline.recon.stairs.Flight.footprint`). The rules that infer an unseen solid standing on the
+    floor (the gap closing, :func:`enclosed_unknown`, :func:`hidden_solid`) leave it alone: the band there is
+    unobserved because it is the air over the stairs (a TSDF keeps only voxels near a surface), not the inside of
+    furniture. What was observed there (a railing, a wall) counts as everywhere.
     """
     where = f"{source}: {floor_name}" if floor_name else source
+    inferable = np.ones((grid.rows, grid.cols), bool) if void is None else ~void
     columns = column_occupancy(grid, floor_z, voxels, p)
     floor_seen, low_air = columns.floor_seen, columns.low_air
     occupied = columns.occupied | surface_occupancy(grid, floor_z, xyz, normals, p)
@@ -494,10 +500,10 @@ def floor_grids(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.nda
             f"{p.max_outside_fraction:.1%}: enlarge grid.rows/cols or grid.cell_size_m)"
         )
     # Close one-cell gaps in sparsely sampled tops (grazing views), but never over observed floor.
-    occupied |= binary_closing(occupied, structure=np.ones((3, 3), bool)) & ~floor_seen
-    occupied |= enclosed_unknown(occupied, floor_seen & ~occupied, grid.cell_size_m, p.fill_enclosed_max_m2)
+    occupied |= binary_closing(occupied, structure=np.ones((3, 3), bool)) & ~floor_seen & inferable
+    occupied |= enclosed_unknown(occupied, floor_seen & ~occupied, grid.cell_size_m, p.fill_enclosed_max_m2) & inferable
     hidden = hidden_solid(occupied, floor_seen & ~occupied, grid.cell_size_m, p.hidden_solid_max_m,
-                          p.building_closing_m, p.fill_enclosed_max_m2) & ~low_air
+                          p.building_closing_m, p.fill_enclosed_max_m2) & ~low_air & inferable
     occupied |= hidden
     # Last, so that no rule above fills a cell an observed face passes in front of.
     cleared = in_front_of_faces(grid, floor_z, xyz, normals, occupied, columns.solid_z, p)

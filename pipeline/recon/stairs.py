@@ -18,7 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt
+from scipy.ndimage import binary_closing, binary_fill_holes, distance_transform_edt
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
@@ -53,8 +53,17 @@ class Flight:
     run: float
 
     def mask(self, shape: tuple[int, int]) -> np.ndarray:
-        """``(rows, cols)`` bool: the cells the flight covers."""
+        """``(rows, cols)`` bool: the cells the flight's walkable surface was seen in."""
         return _mask(self.cells, shape)
+
+    def footprint(self, shape: tuple[int, int], cell_size_m: float) -> np.ndarray:
+        """``(rows, cols)`` bool: the ground the flight stands on, :meth:`mask` with the gaps between the patches it
+        joins filled (treads seen only in parts join across up to :data:`MAX_GAP_M` along x and y, so the flight
+        covers the cells between them: a closing by a square of side ``MAX_GAP_M``, holes filled). The flight's
+        solid on the floor it rises from, the stairwell's void on the floor it arrives on."""
+        r = int(np.ceil(MAX_GAP_M / 2 / cell_size_m))
+        seen = np.pad(self.mask(shape), r)  # room for the closing at the grid's edge
+        return binary_fill_holes(binary_closing(seen, structure=np.ones((2 * r + 1, 2 * r + 1), bool)))[r:-r, r:-r]
 
 
 def find_flights(xyz: np.ndarray, normals: np.ndarray, floors: list[Floor], grid: GridSpec, p: ReconstructParams

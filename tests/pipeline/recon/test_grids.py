@@ -7,7 +7,7 @@ from pipeline.config import GridParams, ReconstructParams
 from pipeline.errors import ConfigError, StageError
 from pipeline.geometry import GridSpec
 from pipeline.recon.floors import estimate_floor
-from pipeline.recon.grids import (column_occupancy, enclosed_unknown, in_front_of_faces, lattice_ratio,
+from pipeline.recon.grids import (column_occupancy, enclosed_unknown, floor_grids, in_front_of_faces, lattice_ratio,
                                    navigable_mask, place_grid, surface_occupancy)
 
 
@@ -279,3 +279,29 @@ def test_a_large_floor_grows_the_grid_in_whole_tiles_and_one_that_fits_keeps_it(
     assert (pinned.rows, pinned.cols) == (600, 600)
     with pytest.raises(ConfigError, match="grid.extent: the surface spans 19.. x 59 m, a grid of 1280 x 39680 cells.*grid.extent: fixed"):
         place_grid(office * np.array([20.0, 1.0, 1.0]), GridParams(), p)
+
+
+def _ringed_hole(void: bool):
+    """A 20 x 20 cell floor seen everywhere but a 6 x 6 hole ringed by a seen railing (0.3 m high): the grids of
+    :func:`floor_grids`, with the hole given as ``void`` or not."""
+    grid = GridSpec(20, 20, 0.05, (0.0, 1.0))
+    inside = np.zeros((20, 20), bool)
+    inside[7:13, 7:13] = True
+    ring = np.zeros((20, 20), bool)
+    ring[6:14, 6:14] = True
+    ring &= ~inside
+    voxels = [_column(rc, {12: -0.4} if ring[rc] else {0: -0.1}, grid) for rc in zip(*np.nonzero(~inside))]
+    lattice, tsdf = np.concatenate([v[0] for v in voxels]), np.concatenate([v[1] for v in voxels])
+    xyz = np.c_[np.random.default_rng(0).uniform(0.05, 0.95, (200, 2)), np.zeros(200)]
+    normals = np.tile([0.0, 0.0, 1.0], (200, 1))
+    return floor_grids(grid, 0.0, xyz, normals, np.zeros((200, 3)), [(lattice, tsdf)], ReconstructParams(),
+                       void=inside if void else None), ring, inside
+
+
+def test_a_stairwell_void_gets_no_inferred_solid_but_what_was_seen_in_it_counts():
+    # the same unseen hole: the inside of a cabinet (filled) unless it is the stairwell over a flight (left unknown)
+    grids, ring, inside = _ringed_hole(void=False)
+    assert (grids.occupancy[inside] == 2).all() and (grids.occupancy[ring] == 2).all()
+    grids, ring, inside = _ringed_hole(void=True)
+    assert (grids.occupancy[inside] == 0).all() and (grids.occupancy[ring] == 2).all()
+    assert (grids.occupancy[~inside & ~ring] == 1).all() and not grids.navigable[inside].any()

@@ -6,7 +6,7 @@ import pytest
 
 from pipeline.config import ReconstructParams
 from pipeline.geometry import GridSpec
-from pipeline.recon.stairs import find_stairs, unlinked_warnings
+from pipeline.recon.stairs import Flight, find_stairs, unlinked_warnings
 from pipeline.recon.store import Floor
 from tests.fixtures.recon_scenes import STOREY_M
 
@@ -37,6 +37,8 @@ def test_a_two_storey_house_is_two_floors_joined_by_its_stairs(house):
     assert (recon.floor(0).occupancy[flight] == 2).mean() > 0.9 and summary["cells_occupied_by_stairs"] > 0
     upper = recon.floor(1).navigable[flight].mean()  # the top tread is at the upper floor's level: walkable there
     assert upper < 0.15, upper
+    # the stairwell (no railing here) is a void on the upper floor: no solid inferred in its unseen air (was 4 %)
+    assert (recon.floor(1).occupancy[flight] == 2).mean() < 0.01
 
 
 def test_each_floor_sees_its_own_furniture_only(house):
@@ -94,3 +96,15 @@ def test_floors_without_a_climb_between_them_are_reported():
     assert links == []
     (line,) = unlinked_warnings(FLOORS, links)
     assert line.startswith("no stairs or ramp joins floor 0 (0.00 m) and floor 1 (3.00 m)")
+
+
+def test_a_flight_seen_in_patches_covers_the_ground_between_them_and_no_more():
+    # a flight 1 m wide along x: each 0.25 m tread (5 cells) seen in its front 3 cells only; a 0.5 m stretch unseen
+    cells = [(r, c) for r in range(10, 30) for c in range(10, 90) if (c - 10) % 5 < 3 and not 50 <= c < 60]
+    flight = Flight(0, 1, np.array(cells), np.zeros(len(cells)), np.zeros((40, 100), bool),
+                    np.zeros((40, 100), bool), 3.0, 4.0, 4.0)
+    footprint = flight.footprint((40, 100), 0.05)
+    assert footprint[10:30, 10:48].all() and footprint[10:30, 60:88].all()  # gaps of 0.1 m between treads: joined
+    assert not footprint[:, 50:58].any()  # a 0.5 m gap (beyond MAX_GAP_M) stays open
+    assert not footprint[:10].any() and not footprint[30:].any() and not footprint[:, 89:].any()
+    assert flight.mask((40, 100)).sum() == len(cells)  # the seen cells, as before
