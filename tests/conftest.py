@@ -37,17 +37,9 @@ def built_scene(tmp_path_factory):
 
     Returns ``(Workspace, Params)``; tests must not modify its artifacts.
     """
-    from zipon.cli import main
-    from pipeline.paramsfile import load_params
-    from pipeline.paths import Workspace
+    from tests.fixtures.workspaces import zipon_built
 
-    root = tmp_path_factory.mktemp("smoke_ws")
-    (root / "params.yaml").write_text(TINY_PARAMS)
-    code = main(["-q", "-p", str(root / "params.yaml"), "--data-dir", str(root / "data"),
-                 "--manifests-dir", str(root / "manifests"), "run"])
-    assert code == 0, "zipon run failed on the tiny scene"
-    ws = Workspace.resolve(root / "params.yaml", data_dir=root / "data", manifests_dir=root / "manifests")
-    return ws, load_params(ws.params_path)
+    return zipon_built(tmp_path_factory.mktemp("smoke_ws"), TINY_PARAMS, "the tiny scene")
 
 
 @pytest.fixture(scope="session")
