@@ -207,7 +207,7 @@ def test_scenes_are_handed_to_every_worker():
     assert len(set(pids)) == 2 and os.getpid() not in pids
 
 
-def test_a_building_runs_cross_floor_episodes_and_reports_them_apart(tiny_house, tmp_path):
+def test_a_building_runs_cross_floor_episodes_and_reports_them_apart(tiny_house, tmp_path, capsys):
     """On the tiny two-storey house the evaluator runs episodes that start on the goal's floor and on the other
     one (seeds take them in turn), the ground-truth follower reaches the cross-floor goals over the stairs, and the
     results and the report give the cross-floor episodes apart."""
@@ -233,3 +233,8 @@ def test_a_building_runs_cross_floor_episodes_and_reports_them_apart(tiny_house,
     assert any(ev[1] == "stairs" for ev in walked["events"])
     html = (tmp_path / "report.html").read_text()
     assert "(cross floor, " in html and "(same floor, " in html
+    from zipon.cli.common import print_eval
+
+    print_eval(res, tmp_path)  # what zipon eval and zipon demo print
+    printed = capsys.readouterr().out
+    assert "buildings" in printed and "cross floor" in printed and "same floor" in printed
