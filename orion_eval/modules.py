@@ -174,9 +174,24 @@ class Modules:
                     break
         return True
 
+    def leave_stair(self) -> None:
+        """Walk off a stair the agent stands on (a walk that stopped on it: "go forward 2 meters" from its end), on
+        along it to the end it faces (up when facing across it): the planners plan on the floors, not on stairs."""
+        body = self.run.body
+        if body.stair is None:
+            return
+        way = self.ctx.world.stairs[body.stair[0]]
+        down = abs(float(wrap_angle(self.pose[2] - way.up_heading - math.pi))) <= math.radians(self.ctx.turn_deg) / 2
+        if not down:
+            self.rotate(way.up_heading - self.pose[2])
+        for _ in range(way.steps + 1):
+            if body.stair is None or not self.run.act(FORWARD):
+                return
+
     def goto_point(self, xy, watch=None, floor: int | None = None) -> bool:
         """Walk to (near) a world point (on ``floor``: the stairs first when it is not the agent's); False when
         unreachable or blocked (:meth:`_follow`). ``watch``: see :meth:`_follow`."""
+        self.leave_stair()
         if floor is not None and floor != self.floor and not self.take_stairs(floor):
             return False
         planner = self.here.planner
@@ -189,6 +204,7 @@ class Modules:
         """Go to ``floor`` over the stairs, a flight at a time: walk to the end of the nearest stair (geodesic, then
         straight-line distance) that leads a floor nearer, face along it and climb it with forward steps. False when
         no stair leads on from here, or a walk or climb is blocked (the agent stays where that left it)."""
+        self.leave_stair()
         while self.floor != floor:
             here = self.floor
             nxt = here + (1 if floor > here else -1)
@@ -238,6 +254,7 @@ class Modules:
         its cells, centre in line of sight), face its centre; False when unreachable or blocked
         (:meth:`_follow`). An object on another floor is walked to over the stairs (:meth:`take_stairs`)."""
         e = self.objects[obj_id]
+        self.leave_stair()
         if e.floor != self.floor and not self.take_stairs(e.floor):
             return False
         g = self.ctx.grid

@@ -144,7 +144,9 @@ class SceneContext:
         return building_planner(self.scene.recon, self.user_settings)
 
     def stairways(self) -> list:
-        """The building's stairs as the world walks them (:class:`~orion_eval.world.Stairway`); none on one floor."""
+        """The building's stairs as the world walks them (:class:`~orion_eval.world.Stairway`): stepped onto from the
+        cells routes lead to (:meth:`~pipeline.nav.building.BuildingPlanner.stair_end_cells`) and from the end itself,
+        where a climb from the other floor arrives; none on one floor."""
         if self.building is None:
             return []
         from orion_eval.world import Stairway
@@ -152,8 +154,14 @@ class SceneContext:
         out = []
         for lk in self.building.links:
             ends = {f: self.building.stair_end_cells(lk, f) for f in (lk.lower, lk.upper)}
-            if all(e is not None for e in ends.values()):
-                out.append(Stairway(lk, ends, self.grid, self.step_m))
+            if any(e is None for e in ends.values()):
+                continue
+            for f, mask in ends.items():  # and the end itself, where a climb arrives (it may lie off the band)
+                mask = ends[f] = mask.copy()
+                rc = self.grid.world_to_cell(np.asarray(lk.end_on(f), np.float64))
+                if self.grid.inside(rc):
+                    mask[rc[0], rc[1]] = True
+            out.append(Stairway(lk, ends, self.grid, self.step_m))
         return out
 
     def room_at(self, pose) -> str | None:

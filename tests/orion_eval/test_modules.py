@@ -325,3 +325,18 @@ def test_an_exploration_with_no_frontier_left_on_its_floor_goes_on_on_the_next(t
     m.search_objects(["a purple elephant"])
     assert (1 - here) in run.body.floors and any(e[1] == "stairs" for e in run.events)
     assert (1 - here) in m._explored  # looked around on the other floor
+
+
+def test_an_agent_stopped_on_a_stair_walks_off_it_before_it_plans(tiny_house):
+    ctx, goal, run = _house_run(tiny_house, cross=True)
+    m = run.modules
+    way = ctx.world.stairs[0]
+    lower = way.link.lower
+    if m.floor == lower:
+        assert m.take_stairs(way.link.upper)
+    assert m.take_stairs(lower) and tuple(m.pose[:2]) == way.link.foot_xy  # down: arrived at the foot
+    m.rotate(way.up_heading - m.pose[2])  # turned back: the stair is stepped onto from where a climb arrives
+    run.act(FORWARD), run.act(FORWARD)
+    assert run.body.stair is not None and m.floor == lower  # two steps up the stair
+    m.leave_stair()
+    assert run.body.stair is None and m.floor == way.link.upper
