@@ -44,7 +44,7 @@ class Task:
     episode_id: str
     start: tuple[float, float, float]
     geodesic_m: float
-    start_floor: int = 0  # the floor the start is on (a building)
+    start_floor: int | None = None  # the floor the start is on (a building); None: routes.zarr's for ``episode_id``
 
 
 @dataclass
@@ -66,9 +66,12 @@ class EpisodeRun:
 
     def __post_init__(self):
         x, y, yaw = self.task.start
-        self.body = Body(float(x), float(y), float(yaw), floor=self.task.start_floor)
+        self.start_floor = self.task.start_floor
+        if self.start_floor is None:
+            self.start_floor = self.ctx.episode_floor(self.task.episode_id)
+        self.body = Body(float(x), float(y), float(yaw), floor=self.start_floor)
         self.body.poses.append((round(x, 4), round(y, 4), round(yaw, 4)))
-        self.body.floors.append(self.task.start_floor)
+        self.body.floors.append(self.start_floor)
         self.modules = Modules(self, memory=self.memory)
 
     def act(self, action: int) -> bool:
@@ -116,7 +119,7 @@ class EpisodeRun:
         }
         if self.ctx.is_building:
             goal_floor = self.user.goal.floor
-            out.update(start_floor=t.start_floor, goal_floor=goal_floor, cross_floor=t.start_floor != goal_floor,
+            out.update(start_floor=self.start_floor, goal_floor=goal_floor, cross_floor=self.start_floor != goal_floor,
                        final_floor=b.floor)
             out["log"]["floors"] = list(b.floors)
         return out

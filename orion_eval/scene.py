@@ -164,6 +164,15 @@ class SceneContext:
             out.append(Stairway(lk, ends, self.grid, self.step_m))
         return out
 
+    def episode_floor(self, episode_id: str) -> int:
+        """The floor routes.zarr's episode ``episode_id`` starts on (0 on a single floor or for an unknown id)."""
+        if not self.is_building:
+            return 0
+        floors = self.__dict__.setdefault("_episode_floors", {})
+        if not floors:
+            floors.update({e.id: int(e.start_floor) for e in self.scene.routes.episodes})
+        return floors.get(episode_id, 0)
+
     def room_at(self, pose) -> str | None:
         """The room id at ``pose`` on its floor (simulated scenes), else None."""
         from orion_eval.world import floor_of

@@ -25,6 +25,6 @@ eval: {workers: 1, seeds: [0, 1]}
 def tiny_house(tmp_path_factory):
     """``(Workspace, Params)`` of a simulated two-storey house built by ``zipon run`` (every stage, real code, small
     images, the oracle encoder); tests must not modify its artifacts."""
-    from tests.fixtures.workspaces import zipon_built
+    from tests.conftest import run_workspace
 
-    return zipon_built(tmp_path_factory.mktemp("house_eval_ws"), HOUSE_PARAMS, "the tiny house")
+    return run_workspace(tmp_path_factory.mktemp("house_eval_ws"), HOUSE_PARAMS)
