@@ -340,3 +340,13 @@ def test_an_agent_stopped_on_a_stair_walks_off_it_before_it_plans(tiny_house):
     assert run.body.stair is not None and m.floor == lower  # two steps up the stair
     m.leave_stair()
     assert run.body.stair is None and m.floor == way.link.upper
+
+
+def test_a_task_that_does_not_name_its_floor_starts_on_its_episodes(tiny_house):
+    """The workbench's Play builds its task from the episode without a floor: the run starts on the floor
+    routes.zarr records for the episode."""
+    ctx, goal, run = _house_run(tiny_house, cross=True)
+    ep = next(e for e in ctx.scene.routes.episodes if e.id == run.task.episode_id)
+    task = Task("house", "orion", "yesno", 0, goal.id, ep.id, ep.start, ep.geodesic_m)  # no start_floor
+    bare = EpisodeRun(ctx, task, SimulatedUser(ctx, goal, "yesno", np.random.default_rng(0)), 2000, 5)
+    assert bare.body.floor == ep.start_floor != goal.floor and bare.start_floor == ep.start_floor
