@@ -270,16 +270,11 @@ def demo(
     dataset = Dataset(ws, params)
     pictures = render_all([dataset[s] for s in params.scenes])
     report = None
-    # the evaluator plans on one floor: a building's episodes are the pipeline's (its routes), not evaluated here
-    evaluable = [s for s in built if len(dataset[s].floors) == 1]
-    for s in sorted(set(built) - set(evaluable)):
-        out.print(f"{s}: a building of {len(dataset[s].floors)} floors, left out of the evaluation (the evaluator "
-                  "plans on one floor)", highlight=False, soft_wrap=True)
-    if ok and eval_seeds and evaluable:
+    if ok and eval_seeds and built:  # a building too: its cross-floor episodes are reported apart
         from zipon.evaluate import run_eval
 
         eval_dir = ws.data_dir / "eval" / "demo"
-        results = run_eval(dataset, eval_dir, scenes=evaluable, seeds=eval_seeds, progress=not G.quiet)
+        results = run_eval(dataset, eval_dir, scenes=built, seeds=eval_seeds, progress=not G.quiet)
         print_eval(results, eval_dir)
         report = eval_dir / "report.html"
     table = Table(title="zipon demo: where things are")
