@@ -63,7 +63,8 @@ def _reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pa
     t1 = time.perf_counter()
     if tiled is not None:
         mesh, (xyz, normals, colors), voxels = tiled.mesh, (tiled.xyz, tiled.normals, tiled.colors), tiled.voxels
-        log(f"fused in {tiled.layout.n_tiles} tiles of {tiled.layout.tile_blocks * tiled.layout.block_m:g} m")
+        log(f"fused in {tiled.tiles_fused} tiles of {tiled.layout.tile_blocks * tiled.layout.block_m:g} m "
+            f"(at most {tiled.peak_blocks} of {tiled.n_blocks} TSDF blocks held at once)")
     else:
         mesh = tsdf.extract_mesh(fusion.volume, p)
         xyz, normals, colors = tsdf.extract_points(fusion.volume, p)
@@ -134,6 +135,7 @@ def _reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pa
         "frames_per_s": round(len(fusion.frames_fused) / max(t_fuse, 1e-9), 2),
         "refinement": refinement,
         "keyframes": keyframes,
+        **({"tiles": tiled.summary()} if tiled is not None else {}),
     }
     attrs = artifact_attrs(
         ARTIFACT, FORMAT_VERSION, "reconstruct", params_digest or digest_value(p.model_dump(mode="json")),

@@ -128,6 +128,8 @@ class TiledFusion:
     layout: TileLayout
     workdir: Path
     n_blocks: int = 0
+    peak_blocks: int = 0  # the most blocks one tile's volume held (its margin included): what memory is bounded by
+    tiles_fused: int = 0  # tiles some frame reached
     frames_fused: list[int] = field(default_factory=list)
     empty_frames: list[int] = field(default_factory=list)
     T_world_camera: dict[int, np.ndarray] = field(default_factory=dict)
@@ -138,6 +140,11 @@ class TiledFusion:
     colors: np.ndarray | None = None
     mesh: o3d.geometry.TriangleMesh | None = None  # legacy; vertices two tiles used appear twice (merged when written)
     voxel_files: list[Path] = field(default_factory=list)
+
+    def summary(self) -> dict:
+        """The tiling as the stage summary records it."""
+        return {"side_m": round(self.layout.tile_blocks * self.layout.block_m, 4), "layout": list(self.layout.shape),
+                "fused": self.tiles_fused, "peak_blocks": self.peak_blocks}
 
     def voxels(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         """The observed voxels (weight >= ``occupancy_min_weight``) as :func:`pipeline.recon.tsdf.iter_voxels`
@@ -292,6 +299,8 @@ def fuse_tiled(store: FrameStore, p: ReconstructParams, tile_m: float, workdir: 
         volume = _fuse_tile(store, p, intr, layout, tile, np.flatnonzero(reach), footprints, fusion, seen)
         if volume.hashmap().size() == 0:  # the frames that might reach it did not
             continue
+        fusion.peak_blocks = max(fusion.peak_blocks, int(volume.hashmap().size()))
+        fusion.tiles_fused += 1
         tile_points, mesh_part, (lattice, values), n_blocks = _extract(volume, layout, tile, p)
         del volume
         fusion.n_blocks += n_blocks
