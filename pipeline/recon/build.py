@@ -62,25 +62,25 @@ def _reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pa
 
     t1 = time.perf_counter()
     if tiled is not None:
-        mesh, (xyz, normals, colors), voxels = tiled.mesh, (tiled.xyz, tiled.normals, tiled.colors), tiled.voxels
+        (xyz, normals, colors), voxels, n_triangles = (tiled.xyz, tiled.normals, tiled.colors), tiled.voxels, \
+            tiled.n_triangles
         log(f"fused in {tiled.tiles_fused} tiles of {tiled.layout.tile_blocks * tiled.layout.block_m:g} m "
             f"(at most {tiled.peak_blocks} of {tiled.n_blocks} TSDF blocks held at once)")
     else:
         mesh = tsdf.extract_mesh(fusion.volume, p)
         xyz, normals, colors = tsdf.extract_points(fusion.volume, p)
         voxels = lambda: tsdf.iter_voxels(fusion.volume, p, min_weight=p.occupancy_min_weight)  # noqa: E731
-    if len(mesh.triangles) == 0 or len(xyz) == 0:
+        n_triangles = len(mesh.triangles)
+    if n_triangles == 0 or len(xyz) == 0:
         if len(fusion.frames_fused) == 1:
             raise StageError(f"{frames_path}: a single frame was fused (frame {fusion.frames_fused[0]}): a place counts "
                              f"as seen in {p.min_weight:g}+ frames (reconstruct.min_weight), so one frame maps "
                              "nothing; record more frames of the scene")
         raise StageError(f"{frames_path}: the fused volume has no surface ({len(fusion.frames_fused)} frames fused); "
                          f"an empty scene, or no place seen in {p.min_weight:g}+ frames (reconstruct.min_weight)")
-    mesh_info = write_mesh(mesh_path, mesh)
+    mesh_info = tiled.write_mesh(mesh_path) if tiled is not None else write_mesh(mesh_path, mesh)
     points_info = write_points(points_path, xyz, normals, colors)
-    del mesh
-    if tiled is not None:
-        tiled.mesh = None
+    mesh = None
     t_extract = time.perf_counter() - t1
 
     t2 = time.perf_counter()

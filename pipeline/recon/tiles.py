@@ -39,6 +39,7 @@ from pipeline.geometry import Intrinsics, invert_pose
 from pipeline.prefetch import prefetched
 from pipeline.recon import tsdf
 from pipeline.recon.keyframes import KeyframeRule, KeyframeSelector
+from pipeline.recon.tiled_mesh import SpilledPart, spill_part, write_tiled_mesh
 
 o3c = o3d.core
 _VOXELS_PER_READ = 1 << 21  # voxels handed to the grids at once from a tile's spill file
@@ -138,13 +139,18 @@ class TiledFusion:
     xyz: np.ndarray | None = None  # (N,3) float32, canonical order (tsdf.extract_points)
     normals: np.ndarray | None = None
     colors: np.ndarray | None = None
-    mesh: o3d.geometry.TriangleMesh | None = None  # legacy; vertices two tiles used appear twice (merged when written)
+    mesh_parts: list[SpilledPart] = field(default_factory=list)  # each tile's mesh, spilled (written by write_mesh)
+    n_triangles: int = 0
     voxel_files: list[Path] = field(default_factory=list)
 
     def summary(self) -> dict:
         """The tiling as the stage summary records it."""
         return {"side_m": round(self.layout.tile_blocks * self.layout.block_m, 4), "layout": list(self.layout.shape),
                 "fused": self.tiles_fused, "peak_blocks": self.peak_blocks}
+
+    def write_mesh(self, path: Path) -> dict:
+        """The scene's mesh as :func:`pipeline.recon.store.write_mesh` writes it (a slab at a time)."""
+        return write_tiled_mesh(path, self.mesh_parts, self.workdir)
 
     def voxels(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         """The observed voxels (weight >= ``occupancy_min_weight``) as :func:`pipeline.recon.tsdf.iter_voxels`
@@ -230,9 +236,11 @@ def _fuse_tile(store: FrameStore, p: ReconstructParams, intr: Intrinsics, layout
 
 
 def _extract(volume: o3d.t.geometry.VoxelBlockGrid, layout: TileLayout, tile: tuple[int, int],
-             p: ReconstructParams) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...], tuple[np.ndarray, ...], int]:
-    """The tile's own points (xyz, normals, colours), mesh part (vertices, colours, triangles; the vertices it owns
-    and those its triangles use), observed voxels of its own blocks (lattice, tsdf) and its own block count."""
+             p: ReconstructParams, workdir: Path) -> tuple[tuple[np.ndarray, ...], SpilledPart | None,
+                                                         tuple[np.ndarray, ...], int, int]:
+    """The tile's own points (xyz, normals, colours), its mesh part spilled under ``workdir``
+    (:func:`pipeline.recon.tiled_mesh.spill_part`), the observed voxels of its own blocks (lattice, tsdf), its own
+    block and triangle counts."""
     xyz, normals, colors = tsdf.extract_points(volume, p)
     keep = layout.owns(tile, xyz[:, :2])
     points = (xyz[keep], normals[keep], colors[keep])
@@ -243,10 +251,8 @@ def _extract(volume: o3d.t.geometry.VoxelBlockGrid, layout: TileLayout, tile: tu
     tri = np.asarray(mesh.triangles)
     if len(tri):
         tri = tri[layout.owns(tile, v[tri].mean(axis=1)[:, :2])]
-    used = layout.owns(tile, v[:, :2]) if len(v) else np.zeros(0, bool)
-    used[tri.ravel()] = True
-    index = np.cumsum(used) - 1
-    mesh_part = (v[used], c[used], index[tri].astype(np.int32).reshape(-1, 3))
+    owned = layout.owns(tile, v[:, :2]) if len(v) else np.zeros(0, bool)
+    mesh_part = spill_part(v, c, tri, owned, workdir / f"mesh_{tile[0]}_{tile[1]}")
     del mesh
 
     lo, hi = layout.block_range(tile, margin=0)
@@ -260,7 +266,7 @@ def _extract(volume: o3d.t.geometry.VoxelBlockGrid, layout: TileLayout, tile: tu
               np.concatenate(values) if values else np.zeros(0, np.float32))
     keys = volume.hashmap().key_tensor()[volume.hashmap().active_buf_indices().to(o3c.int64)].numpy()
     n_blocks = int(((keys[:, :2] >= lo) & (keys[:, :2] <= hi)).all(axis=1).sum())
-    return points, mesh_part, voxels, n_blocks
+    return points, mesh_part, voxels, n_blocks, len(tri)
 
 
 def fuse_tiled(store: FrameStore, p: ReconstructParams, tile_m: float, workdir: Path, *,
@@ -289,7 +295,7 @@ def fuse_tiled(store: FrameStore, p: ReconstructParams, tile_m: float, workdir: 
     fusion = TiledFusion(layout, Path(workdir))
     to_fuse = _frame_plan(store, p, intr, wanted, fusion)
     seen = np.full(store.n_frames, -1, np.int8)
-    points, mesh_parts = [], []
+    points = []
     tiles = layout.tiles()
     for tile in (progress(iter(tiles), len(tiles)) if progress else tiles):
         lo, hi = layout.block_range(tile, margin=1)
@@ -301,11 +307,14 @@ def fuse_tiled(store: FrameStore, p: ReconstructParams, tile_m: float, workdir: 
             continue
         fusion.peak_blocks = max(fusion.peak_blocks, int(volume.hashmap().size()))
         fusion.tiles_fused += 1
-        tile_points, mesh_part, (lattice, values), n_blocks = _extract(volume, layout, tile, p)
+        tile_points, mesh_part, (lattice, values), n_blocks, n_triangles = _extract(volume, layout, tile, p,
+                                                                                     fusion.workdir)
         del volume
         fusion.n_blocks += n_blocks
+        fusion.n_triangles += n_triangles
         points.append(tile_points)
-        mesh_parts.append(mesh_part)
+        if mesh_part is not None:
+            fusion.mesh_parts.append(mesh_part)
         if len(values):
             path = fusion.workdir / f"voxels_{tile[0]}_{tile[1]}.npz"
             np.savez(path, lattice=lattice, tsdf=values)
@@ -316,7 +325,6 @@ def fuse_tiled(store: FrameStore, p: ReconstructParams, tile_m: float, workdir: 
     fusion.T_world_camera = {int(i): poses[i] for i in fused}
     tsdf.check_empty_frames(store, p, fusion)
     fusion.xyz, fusion.normals, fusion.colors = _canonical_points(points)
-    fusion.mesh = _joined_mesh(mesh_parts)
     return fusion
 
 
@@ -327,17 +335,6 @@ def _canonical_points(parts: list[tuple[np.ndarray, ...]]) -> tuple[np.ndarray, 
                             for k in range(3))
     order = canonical_point_order(xyz, normals, colors)
     return xyz[order], normals[order], colors[order].astype(np.uint8)
-
-
-def _joined_mesh(parts: list[tuple[np.ndarray, ...]]) -> o3d.geometry.TriangleMesh:
-    offsets = np.cumsum([0] + [len(v) for v, _, _ in parts])
-    vertices = np.concatenate([v for v, _, _ in parts]) if parts else np.zeros((0, 3))
-    colors = np.concatenate([c for _, c, _ in parts]) if parts else np.zeros((0, 3))
-    triangles = (np.concatenate([t + off for (_, _, t), off in zip(parts, offsets)]) if parts
-                 else np.zeros((0, 3), np.int32))
-    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
-    mesh.vertex_colors = o3d.utility.Vector3dVector(colors)
-    return mesh
 
 
 def spill_dir(next_to: Path) -> tempfile.TemporaryDirectory:
