@@ -57,6 +57,7 @@ class SpilledPart:
     owned: Path  # (n, 6) float64 rows (x, y, z, r, g, b), canonical order
     rows: Path  # (m, 3, 6) float64: each triangle's vertex rows
     first_x: Path  # (m,) float64: each triangle's smallest vertex x, ascending (rows in that order)
+    owned_x: Path  # (n,) float64: the owned vertices' x (ascending)
     x_range: tuple[float, float]
 
 
@@ -73,18 +74,31 @@ def spill_part(vertices: np.ndarray, colors: np.ndarray, triangles: np.ndarray, 
     first_x = tri_rows[:, :, 0].min(axis=1) if len(triangles) else np.zeros(0)
     order = np.argsort(first_x, kind="stable")
     part = SpilledPart(stem.with_suffix(".owned.npy"), stem.with_suffix(".rows.npy"), stem.with_suffix(".x.npy"),
+                       stem.with_suffix(".owned_x.npy"),
                        (float(min(mine[:, 0].min(initial=np.inf), first_x.min(initial=np.inf))),
                         float(max(mine[:, 0].max(initial=-np.inf), tri_rows[:, :, 0].max(initial=-np.inf)))))
     np.save(part.owned, mine)
+    np.save(part.owned_x, np.ascontiguousarray(mine[:, 0]))
     np.save(part.rows, tri_rows[order])
     np.save(part.first_x, first_x[order])
     return part
 
 
-def _slab(arrays: list[np.ndarray], keys: list[np.ndarray], lo: float, hi: float) -> np.ndarray:
-    """The rows of each sorted ``arrays[i]`` whose key ``keys[i]`` lies in ``[lo, hi)``, concatenated."""
-    parts = [a[np.searchsorted(k, lo): np.searchsorted(k, hi)] for a, k in zip(arrays, keys)]
-    parts = [np.asarray(p) for p in parts if len(p)]
+def _slab(arrays: list[Path], keys: list[Path | np.ndarray], lo: float, hi: float) -> np.ndarray | None:
+    """The rows of each ``arrays[i]`` (a spilled ``.npy``, sorted by ``keys[i]``, a spilled ``.npy`` or an array)
+    whose key lies in ``[lo, hi)``, concatenated; None when there are none.
+
+    Each file is mapped only while its rows are copied out: pages of a long-lived map stay resident (the whole
+    spill, gigabytes on a large floor, would count in the process's memory)."""
+    parts = []
+    for path, key in zip(arrays, keys):
+        k = np.load(key, mmap_mode="r") if isinstance(key, Path) else key
+        start, stop = int(np.searchsorted(k, lo)), int(np.searchsorted(k, hi))
+        del k
+        if stop > start:
+            rows = np.load(path, mmap_mode="r")
+            parts.append(np.array(rows[start:stop]))
+            del rows
     return np.concatenate(parts) if parts else None
 
 
@@ -107,10 +121,10 @@ def _ranks(table: np.ndarray, base: int, rows: np.ndarray, where: str) -> np.nda
 def write_tiled_mesh(path: Path, parts: list[SpilledPart], workdir: Path) -> dict:
     """Write ``parts`` as one canonical binary PLY at ``path`` (as :func:`pipeline.recon.store.write_mesh` writes the
     whole mesh) and return the same description."""
-    owned = [np.load(p.owned, mmap_mode="r") for p in parts]
-    owned_x = [np.ascontiguousarray(o[:, 0]) for o in owned]
-    tri_rows = [np.load(p.rows, mmap_mode="r") for p in parts]
-    tri_x = [np.load(p.first_x, mmap_mode="r") for p in parts]
+    owned = [p.owned for p in parts]
+    owned_x = [p.owned_x for p in parts]
+    tri_rows = [p.rows for p in parts]
+    tri_x = [p.first_x for p in parts]
     x0 = min(p.x_range[0] for p in parts)
     x1 = max(p.x_range[1] for p in parts)
     cuts = x0 + _SLAB_M * np.arange(int(np.floor((x1 - x0) / _SLAB_M)) + 2)
