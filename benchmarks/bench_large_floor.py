@@ -47,17 +47,17 @@ def build(folder: Path) -> dict[str, str]:
     return {}
 
 
-def stage_figures(folder: Path) -> dict[str, dict]:
-    """Per stage: peak RSS (MB), wall seconds and the scene's frame count, from the manifests."""
+def stage_figures(folder: Path, scene: str = "s") -> dict[str, dict]:
+    """Per stage: peak RSS (MB), wall seconds and the scene's frame count, from the manifests of ``scene``."""
     frames = None
     out = {}
     for stage in STAGES:
-        path = folder / "manifests" / "s" / f"{stage}.json"
+        path = folder / "manifests" / scene / f"{stage}.json"
         if not path.exists():
             continue
         manifest = json.loads(path.read_text())
         if stage == "ingest":
-            frames = manifest["summary"].get("frames")
+            frames = manifest["summary"].get("matched_frames")
         out[stage] = {"peak_rss_mb": manifest["timing"]["peak_rss_mb"], "seconds": manifest["timing"]["seconds"],
                       "summary": manifest["summary"]}
     for figures in out.values():
@@ -74,6 +74,9 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=320)
     ap.add_argument("--height", type=int, default=240)
     ap.add_argument("--report-only", action="store_true", help="read the manifests of an earlier build in --workdir")
+    ap.add_argument("--office", default=None, metavar="DIR:SCENE", help="with --report-only: the office's project "
+                    "folder and scene name, when not --workdir/office and s")
+    ap.add_argument("--apartment", default=None, metavar="DIR:SCENE", help="the same for the apartment")
     args = ap.parse_args()
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix="bench_large_floor_"))
     scenes = {"office": ({"source": "simulate", "building": {"kind": "office", "size_m": list(args.size)}},
@@ -84,7 +87,14 @@ def main() -> None:
         for name, (scene, frames) in scenes.items():
             write_params(workdir / name, scene, frames, args.width, args.height)
             failed[name] = build(workdir / name)
-    office, apartment = stage_figures(workdir / "office"), stage_figures(workdir / "apartment")
+    def where(name: str, given: str | None) -> tuple[Path, str]:
+        if given is None:
+            return workdir / name, "s"
+        folder, scene = given.rsplit(":", 1)
+        return Path(folder), scene
+
+    office = stage_figures(*where("office", args.office))
+    apartment = stage_figures(*where("apartment", args.apartment))
     for stage in STAGES:
         o, a = office.get(stage), apartment.get(stage)
         row = {"run": "large_floor", "stage": stage, "size_m": list(args.size), "width": args.width,
