@@ -57,8 +57,7 @@ def one_scene(frames: Path, workdir: Path) -> None:
     from pipeline.recon.build import reconstruct
     from pipeline.recon.evaluate import evaluate_grids
 
-    out = workdir / frames.stem
-    out.mkdir(parents=True, exist_ok=True)
+    out = Path(tempfile.mkdtemp(prefix=f"{frames.parent.name}_{frames.stem}_", dir=workdir))  # stores named alike
     t0 = time.perf_counter()
     summary = reconstruct(frames, out / "recon.zarr", out / "m.ply", out / "p.ply", ReconstructParams(), GridParams())
     seconds = time.perf_counter() - t0

@@ -65,6 +65,15 @@ class EgoRenderer:
                               np.array([i for i, _ in parts], np.uint16),
                               np.array([np.prod(np.subtract(p.max, p.min)) for _, p in parts], np.float32))
 
+    def on_floor(self, floor_z: float, camera_height_m: float) -> "EgoRenderer":
+        """This renderer (the same mesh, ray-casting scene and boxes) with the camera ``camera_height_m`` above the
+        floor at ``floor_z``: a building's other floors."""
+        import copy
+
+        other = copy.copy(self)
+        other.floor_z, other.cam_z = float(floor_z), float(floor_z) + float(camera_height_m)
+        return other
+
     def sight(self, grid):
         """The shared line-of-sight test (:class:`pipeline.nav.region.MeshSight`) on this mesh and camera."""
         from pipeline.nav.region import MeshSight

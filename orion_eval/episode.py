@@ -4,6 +4,11 @@ The episode ends on success (the user confirms at a Talk), after ``eval.max_talk
 at the first Talk when the setting is ``none``, after ``eval.max_steps`` movement actions, or when the
 agent gives up. Metrics per episode (ANCHORS.md): S in {0, 1}; SPL = S * l / max(a, l) with l the
 geodesic reference length and a the travelled length; SIT = S / I with I >= 1 the number of Talk turns.
+
+In a building an episode starts on its start floor (routes.zarr's ``start_floor``), ``l`` is the routes stage's
+geodesic distance through the stairs, and its result says ``start_floor``, ``goal_floor`` and ``cross_floor`` (the
+goal on another floor than the start), with the floor of every logged pose (``log.floors``); a single-floor scene's
+results have none of these keys, as before buildings.
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ class Task:
     episode_id: str
     start: tuple[float, float, float]
     geodesic_m: float
+    start_floor: int | None = None  # the floor the start is on (a building); None: routes.zarr's for ``episode_id``
 
 
 @dataclass
@@ -60,8 +66,12 @@ class EpisodeRun:
 
     def __post_init__(self):
         x, y, yaw = self.task.start
-        self.body = Body(float(x), float(y), float(yaw))
+        self.start_floor = self.task.start_floor
+        if self.start_floor is None:
+            self.start_floor = self.ctx.episode_floor(self.task.episode_id)
+        self.body = Body(float(x), float(y), float(yaw), floor=self.start_floor)
         self.body.poses.append((round(x, 4), round(y, 4), round(yaw, 4)))
+        self.body.floors.append(self.start_floor)
         self.modules = Modules(self, memory=self.memory)
 
     def act(self, action: int) -> bool:
@@ -95,7 +105,7 @@ class EpisodeRun:
         s = 1.0 if self.success else 0.0
         l, a = float(t.geodesic_m), float(b.travelled_m)
         final = self.user.judge(b.pose)
-        return {
+        out = {
             "scene": t.scene, "method": t.method, "feedback": t.feedback, "seed": t.seed, "goal": t.goal_id,
             "goal_type": self.user.goal.type, "episode": t.episode_id, "success": bool(self.success),
             "spl": spl(s, l, a), "sit": sit(s, self.talk_turns), "talk_turns": self.talk_turns,
@@ -107,6 +117,12 @@ class EpisodeRun:
                     "poses": [list(p) for p in b.poses], "dialogue": self.dialogue,
                     "events": [list(e) for e in self.events]},
         }
+        if self.ctx.is_building:
+            goal_floor = self.user.goal.floor
+            out.update(start_floor=self.start_floor, goal_floor=goal_floor, cross_floor=self.start_floor != goal_floor,
+                       final_floor=b.floor)
+            out["log"]["floors"] = list(b.floors)
+        return out
 
 
 def spl(success: float, l: float, a: float) -> float:

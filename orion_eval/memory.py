@@ -12,9 +12,10 @@ lexical half keeps personal names apart ("Alice's chair" vs "Bob's chair"), whic
 encoders (and the oracle) map to the same point. Maps are sparse: only painted cells are stored.
 
 Regions are keyed by place, not by an episode's object ids: :meth:`MemoryMaps.region_key` gives the
-region whose centre is within ``merge_m`` of an object's centre (or a new one), so one memory is
+region whose centre is within ``merge_m`` of an object's centre on the same floor (or a new one), so one memory is
 carried across the goals of a scene (as in the paper) and each episode maps remembered regions
-back into its own object registry.
+back into its own object registry. In a building the caller gives each floor's cells apart (shifted by the floor
+times the grid's cell count), so the floors' paint never mixes.
 """
 
 from __future__ import annotations
@@ -47,16 +48,20 @@ class MemoryMaps:
         self.maps: dict[str, dict[int, list]] = {"pos": {}, "neg": {}}
         self.regions: dict[int, np.ndarray] = {}  # region key -> flat cells
         self.centers: dict[int, np.ndarray] = {}  # region key -> (2,) world centre
+        self.floors: dict[int, int] = {}  # region key -> its floor (a building; 0 otherwise)
         self.merge_m = float(merge_m)
 
-    def region_key(self, center_xy) -> int:
-        """The key of the remembered region centred within ``merge_m`` of ``center_xy`` (else a new key)."""
+    def region_key(self, center_xy, floor: int = 0) -> int:
+        """The key of the remembered region on ``floor`` centred within ``merge_m`` of ``center_xy`` (else a new
+        key)."""
         c = np.asarray(center_xy, np.float64)
         for k in sorted(self.centers):
-            if np.linalg.norm(self.centers[k] - c) <= self.merge_m:
+            if self.floors.get(k, 0) == floor and np.linalg.norm(self.centers[k] - c) <= self.merge_m:
                 return k
         k = len(self.centers) + 1
         self.centers[k] = c.copy()
+        if floor:
+            self.floors[k] = int(floor)
         return k
 
     def feature(self, text: str) -> np.ndarray:

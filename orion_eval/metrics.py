@@ -6,6 +6,10 @@ then the mean over seeds (``std`` across seeds is reported beside it). Values ar
 (0-100) as in the paper's tables. The success-by-turn curve is the share of episodes that succeed
 within i Talk turns, i = 1..I_max (Fig. 4). Wilcoxon tests pair episodes between methods, over all
 settings and within each setting (the paper's per-column test).
+
+Episodes of a building (they carry ``cross_floor``) are also reported apart: ``by_floors`` is method -> 'same floor'
+| 'cross floor' -> feedback -> cell (a goal on the start's floor, or on another one, reached over the stairs).
+Results with no building episode have no ``by_floors``, as before buildings.
 """
 
 from __future__ import annotations
@@ -106,10 +110,24 @@ def significantly_best(tests: list[dict], method: str, alpha: float = 0.05) -> s
     return {fb for fb, w in wins.items() if w and all(w)}
 
 
+#: how ``by_floors`` names an episode whose goal is on its start's floor, and one on another floor
+FLOOR_GROUPS = {False: "same floor", True: "cross floor"}
+
+
+def by_floors(episodes: list[dict]) -> dict | None:
+    """method -> 'same floor' | 'cross floor' -> feedback -> cell, over the episodes of buildings (those with
+    ``cross_floor``); None when there are none."""
+    floored = [{**e, "floors": FLOOR_GROUPS[bool(e["cross_floor"])]} for e in episodes if "cross_floor" in e]
+    return group(floored, "method", "floors", "feedback") if floored else None
+
+
 def summarize(episodes: list[dict], *, methods, feedback, seeds, scenes, max_turns: int = 5) -> dict:
-    """The results document: overall and per-scene / per-goal-type / per-goal tables, curves, tests."""
+    """The results document: overall and per-scene / per-goal-type / per-goal tables, curves, tests; a building's
+    episodes also by whether they cross floors (:func:`by_floors`)."""
     slim = [{k: v for k, v in e.items() if k != "log"} for e in episodes]
+    floors = by_floors(slim)
     return {
+        **({"by_floors": floors} if floors is not None else {}),
         "metrics": list(METRICS),
         "overall": group(slim, "method", "feedback"),
         "by_scene": group(slim, "scene", "method", "feedback"),

@@ -20,6 +20,14 @@ object's centre relative to the agent's heading (counter-clockwise positive). Ob
 the episode's registry; a new sighting within ``MERGE_M`` of a known object is that object.
 Every action goes through :class:`~orion_eval.episode.EpisodeRun`, which counts steps and Talk turns
 and ends the episode by raising :class:`~orion_eval.episode.EpisodeOver`.
+
+In a building every module works per floor. Each found object has its floor (:attr:`FoundObject.floor`; sightings
+merge on one floor only); ``retrieve_map`` answers from every floor's map; detection and line of sight use the
+agent's floor's ego view; exploration keeps an explored mask per floor, and a search that has no frontier left on
+its floor takes the stairs to the nearest floor it has not explored to the end (:meth:`Modules.floor_to_explore`);
+memory paints each floor's cells apart. ``goto_object`` on another floor and ``take_stairs`` walk to the nearest
+stair leading there, face along it and climb it with forward steps (the world's stairs: :mod:`orion_eval.world`).
+On a single floor all of this is floor 0 and nothing changes.
 """
 
 from __future__ import annotations
@@ -40,6 +48,8 @@ MERGE_M = 0.6
 #: while exploring, the detector looks at the view ahead every this many forward steps (ORION's exploration
 #: "perceives on-the-fly" on the way to each frontier, as CoW's detector runs on its observations)
 WATCH_STEPS = 4
+#: a walk to a stair blocked on the way is planned again from where it stopped at most this many times
+CLIMB_REPLANS = 3
 
 
 def new_memory(ctx) -> MemoryMaps:
@@ -58,6 +68,7 @@ class FoundObject:
     source: str  # 'vlmap' | 'cfmap' | 'detect' | ...
     score: float = 0.0
     texts: set = field(default_factory=set)
+    floor: int = 0  # the floor it lies on (its cells are on that floor's grid)
 
     @property
     def from_map(self) -> bool:
@@ -74,7 +85,7 @@ class Modules:
         self.objects: dict[int, FoundObject] = {}
         # a memory carried across the goals of a scene (evaluate_scene), else a fresh one
         self.memory = memory if memory is not None else new_memory(self.ctx)
-        self._explored = None
+        self._explored: dict[int, np.ndarray] = {}  # floor -> explored cells of its planner's cropped grid
         self._spins: dict[tuple[int, int], dict[str, list[int]]] = {}  # place -> what its spin saw, per query
         # which ego-view detector detect_object runs: 'grounded' (ORION's) or 'saliency' (CoW's CLIP Grad-CAM);
         # the agent sets it from its module set
@@ -85,15 +96,30 @@ class Modules:
     def pose(self):
         return self.run.body.pose
 
-    def register(self, center_xy, cells, source: str, score: float = 0.0, text: str | None = None) -> int:
+    @property
+    def floor(self) -> int:
+        """The floor the agent stands on."""
+        return self.run.body.floor
+
+    @property
+    def here(self):
+        """The :class:`~orion_eval.scene.Level` of the agent's floor (its planners, grids and success rule)."""
+        return self.ctx.level(self.floor)
+
+    def register(self, center_xy, cells, source: str, score: float = 0.0, text: str | None = None,
+                 floor: int | None = None) -> int:
+        """The id of the object at ``center_xy`` on ``floor`` (default: the agent's): a known one within
+        :data:`MERGE_M` on that floor, else a new one."""
         c = np.asarray(center_xy, np.float64)
+        floor = self.floor if floor is None else int(floor)
         for e in self.objects.values():
-            if np.linalg.norm(e.center_xy - c) <= MERGE_M:
+            if e.floor == floor and np.linalg.norm(e.center_xy - c) <= MERGE_M:
                 if text:
                     e.texts.add(text)
                 return e.obj_id
         oid = len(self.objects) + 1
-        self.objects[oid] = FoundObject(oid, c, np.asarray(cells, np.int64), source, score, {text} if text else set())
+        self.objects[oid] = FoundObject(oid, c, np.asarray(cells, np.int64), source, score, {text} if text else set(),
+                                        floor)
         return oid
 
     def footprint_points(self, obj_id: int) -> np.ndarray:
@@ -148,42 +174,115 @@ class Modules:
                     break
         return True
 
-    def goto_point(self, xy, watch=None) -> bool:
-        """Walk to (near) a world point; False when unreachable or blocked (:meth:`_follow`). ``watch``: see
-        :meth:`_follow`."""
-        mask = self.ctx.planner.point_mask(xy)
+    def leave_stair(self) -> None:
+        """Walk off a stair the agent stands on (a walk that stopped on it: "go forward 2 meters" from its end), on
+        along it to the end it faces (up when facing across it): the planners plan on the floors, not on stairs."""
+        body = self.run.body
+        if body.stair is None:
+            return
+        way = self.ctx.world.stairs[body.stair[0]]
+        down = abs(float(wrap_angle(self.pose[2] - way.up_heading - math.pi))) <= math.radians(self.ctx.turn_deg) / 2
+        if not down:
+            self.rotate(way.up_heading - self.pose[2])
+        for _ in range(way.steps + 1):
+            if body.stair is None or not self.run.act(FORWARD):
+                return
+
+    def goto_point(self, xy, watch=None, floor: int | None = None) -> bool:
+        """Walk to (near) a world point (on ``floor``: the stairs first when it is not the agent's); False when
+        unreachable or blocked (:meth:`_follow`). ``watch``: see :meth:`_follow`."""
+        self.leave_stair()
+        if floor is not None and floor != self.floor and not self.take_stairs(floor):
+            return False
+        planner = self.here.planner
+        mask = planner.point_mask(xy)
         rc = self.ctx.grid.world_to_cell(np.asarray(xy, np.float64))
-        route = self.ctx.planner.route(self.pose, mask, key=("pt", int(rc[0]), int(rc[1])), face_xy=None)
+        route = planner.route(self.pose, mask, key=("pt", int(rc[0]), int(rc[1])), face_xy=None)
         return self._follow(route, watch, stop_blocked=True)
+
+    def take_stairs(self, floor: int) -> bool:
+        """Go to ``floor`` over the stairs, a flight at a time: walk to the end of the nearest stair (geodesic, then
+        straight-line distance) that leads a floor nearer, face along it and climb it with forward steps. False when
+        no stair leads on from here, or a walk or climb is blocked (the agent stays where that left it)."""
+        self.leave_stair()
+        while self.floor != floor:
+            here = self.floor
+            nxt = here + (1 if floor > here else -1)
+            if not any(self._climb(way, here, nxt) for way in self._stairs_between(here, nxt)):
+                return False
+        return True
+
+    def _stairs_between(self, here: int, nxt: int) -> list:
+        """The stairs joining floors ``here`` and ``nxt``, nearest the agent first (geodesic on the clearance band,
+        then straight-line: an agent beside a wall is off the band, where the geodesic is unknown)."""
+        planner = self.here.view_planner
+        ways = [w for w in self.ctx.world.stairs if {w.link.lower, w.link.upper} == {here, nxt}]
+        xy = np.asarray(self.pose[:2], np.float64)
+        return sorted(ways, key=lambda w: (planner.geodesic(self.pose, w.ends[here], key=("stair", w.link.id)),
+                                           float(np.hypot(*(np.asarray(w.link.end_on(here)) - xy)))))
+
+    def _climb(self, way, here: int, nxt: int) -> bool:
+        """Walk to ``way``'s end on ``here``, face along it and climb to ``nxt``; False when that fails."""
+        lk, planner = way.link, self.here.view_planner
+        near, far = np.asarray(lk.end_on(here), np.float64), np.asarray(lk.end_on(nxt), np.float64)
+        self.run.log_event("stairs", f"{'up' if nxt > here else 'down'} {lk.id} to floor {nxt}")
+        if not way.at_end(here, *self.pose[:2]):
+            # a walk blocked on the way (a planner's step judged free a hair from a wall) is planned again from where
+            # it stopped, up to CLIMB_REPLANS times: the stairs are the only way on
+            for _ in range(CLIMB_REPLANS):
+                route = planner.route(self.pose, way.ends[here], key=("stair", lk.id), face_xy=far)
+                if route is None:
+                    return False
+                if self._follow(route, stop_blocked=True):
+                    break
+            else:
+                return False
+            # a walk on the heading lattice can end a step beside the few cells around the stair's end
+            last = planner.approach(self.pose, way.ends[here])
+            if last is None:
+                return False
+            for a in last:
+                self.run.act(a)
+        self.rotate(math.atan2(far[1] - near[1], far[0] - near[0]) - self.pose[2])
+        for _ in range(way.steps + 1):
+            if self.floor == nxt or not self.run.act(FORWARD):
+                break
+        return self.floor == nxt
 
     def goto_object(self, obj_id: int) -> bool:
         """Walk into the object's goal region (the routes module's definition: within the success distance of
         its cells, centre in line of sight), face its centre; False when unreachable or blocked
-        (:meth:`_follow`)."""
+        (:meth:`_follow`). An object on another floor is walked to over the stairs (:meth:`take_stairs`)."""
         e = self.objects[obj_id]
+        self.leave_stair()
+        if e.floor != self.floor and not self.take_stairs(e.floor):
+            return False
         g = self.ctx.grid
         mask = np.zeros(g.rows * g.cols, bool)
         mask[e.cells] = True
         # sight the object's centre column at half and full height of its reconstructed top surface
-        h = self.ctx.scene.height.reshape(-1)[e.cells] if len(e.cells) else np.array([np.nan])
+        h = self.here.height.reshape(-1)[e.cells] if len(e.cells) else np.array([np.nan])
         top = float(np.clip(np.nanmedian(h), 0.1, 2.0)) if np.isfinite(h).any() else 0.6
         # the scene caches the region and the planner its field by this key: it names all the target depends on
         # (two sightings of one object can share their cells' count and first cell, not their cells and centre)
         key = ("obj", hashlib.blake2b(np.ascontiguousarray(e.cells, np.int64).tobytes()
                                       + np.asarray(e.center_xy, np.float64).tobytes(), digest_size=16).hexdigest())
-        region, view = self.ctx.goal_target(key, mask.reshape(g.rows, g.cols), e.center_xy, (0.5 * top, top))
-        route = self.ctx.view_planner.route(self.pose, view, key=key, face_xy=e.center_xy, end_mask=region)
+        region, view = self.ctx.goal_target(key, mask.reshape(g.rows, g.cols), e.center_xy, (0.5 * top, top),
+                                            self.floor)
+        route = self.here.view_planner.route(self.pose, view, key=key, face_xy=e.center_xy, end_mask=region)
         return self._follow(route, stop_blocked=True)
 
     # ------------------------------------------------------------------ semantic map
     def retrieve_map(self, obj_str: str, which: str = "vlmap") -> list[tuple[int, float, float]]:
-        ids = [self.register(m.center_xy, m.cells, which, m.score, obj_str) for m in self.ctx.map_objects(which, obj_str)]
+        """The map's candidates of ``obj_str`` on every floor (each floor's map), as ``(obj_id, d, a)``."""
+        ids = [self.register(m.center_xy, m.cells, which, m.score, obj_str, floor=f)
+               for f in self.ctx.floor_ids for m in self.ctx.map_objects(which, obj_str, f)]
         return self._triples(ids)
 
     def map_scores(self, obj_str: str, which: str) -> dict[int, float]:
-        """obj_id -> map score of ``obj_str`` (registering the candidates)."""
-        return {self.register(m.center_xy, m.cells, which, m.score, obj_str): m.score
-                for m in self.ctx.map_objects(which, obj_str)}
+        """obj_id -> map score of ``obj_str`` (registering the candidates of every floor)."""
+        return {self.register(m.center_xy, m.cells, which, m.score, obj_str, floor=f): m.score
+                for f in self.ctx.floor_ids for m in self.ctx.map_objects(which, obj_str, f)}
 
     # ------------------------------------------------------------------ detection
     def detect_object(self, obj_str: str) -> list[tuple[int, float, float]]:
@@ -201,8 +300,10 @@ class Modules:
         on one of its cells. ``own``: and no other object of the episode is nearer that detection (a detection is
         the nearest known object's: a chair beside the goal seen as "chair" is that chair's sighting)."""
         e = self.objects[obj_id]
-        others = (np.array([o.center_xy for o in self.objects.values() if o.obj_id != obj_id]).reshape(-1, 2)
-                  if own else np.empty((0, 2)))
+        if e.floor != self.floor:
+            return False  # not on the floor the agent looks at
+        others = (np.array([o.center_xy for o in self.objects.values() if o.obj_id != obj_id and o.floor == e.floor]
+                           ).reshape(-1, 2) if own else np.empty((0, 2)))
         for det in self.ctx.detect(self.pose, text, self.detector):
             d = float(np.linalg.norm(det.center_xy - e.center_xy))
             if (d <= 1.0 or np.isin(det.cells, e.cells).any()) and not (
@@ -222,13 +323,16 @@ class Modules:
         return False if self._detects_at(obj_id, name, own=True) else None
 
     # ------------------------------------------------------------------ exploration
-    def _explored_mask(self) -> np.ndarray:
-        if self._explored is None:
-            self._explored = np.zeros((self.ctx.planner.crop_grid.rows, self.ctx.planner.crop_grid.cols), bool)
-        return self._explored
+    def _explored_mask(self, floor: int | None = None) -> np.ndarray:
+        """The explored cells of ``floor`` (default: the agent's), on its planner's cropped grid."""
+        floor = self.floor if floor is None else floor
+        if floor not in self._explored:
+            cg = self.ctx.level(floor).planner.crop_grid
+            self._explored[floor] = np.zeros((cg.rows, cg.cols), bool)
+        return self._explored[floor]
 
     def _mark_explored(self) -> None:
-        cg = self.ctx.planner.crop_grid
+        cg = self.here.planner.crop_grid
         r = self.ctx.params.eval.explore_radius_m
         rc = cg.world_to_cell(np.asarray(self.pose[:2]))
         n = int(math.ceil(r / cg.cell_size_m))
@@ -266,12 +370,12 @@ class Modules:
         """World xy of the nearest frontier cell (navigable, unexplored, next to explored) at least 1 m away; with
         ``near`` ((K,2) points the goal is said to be near: a landmark found, a route's end), the frontier nearest
         them in whole metres first (the goal is searched around what points to it), then the nearest the agent."""
-        nav = self.ctx.planner.planner.plan_mask
+        nav = self.here.planner.planner.plan_mask
         ex = self._explored_mask()
         front = nav & ~ex & ndimage.binary_dilation(ex)
         if not front.any():
             return None
-        cg = self.ctx.planner.crop_grid
+        cg = self.here.planner.crop_grid
         rr, cc = np.nonzero(front)
         xy = cg.cell_to_world(np.stack([rr, cc], axis=1))
         d = np.hypot(xy[:, 0] - self.pose[0], xy[:, 1] - self.pose[1])
@@ -321,24 +425,53 @@ class Modules:
                     return s, hits[0][0]
             target = self.frontier(near)
             if target is None:
-                return None
+                other = self.floor_to_explore()
+                if other is None or not self.take_stairs(other):
+                    return None
+                continue  # a spin where the stairs arrive, then that floor's frontiers
             if not self.goto_point(target, watch):
-                self._explored_mask()[tuple(self.ctx.planner.crop_grid.world_to_cell(target))] = True
+                self._explored_mask()[tuple(self.here.planner.crop_grid.world_to_cell(target))] = True
             if found:
                 return found[0]
         return None
 
+    def floor_to_explore(self) -> int | None:
+        """The floor nearest the agent's (fewest flights; the lower first) that stairs join to it and that it has
+        not explored to the end (never looked around on, or frontiers left); None on a single floor or when every
+        floor is explored."""
+        if not self.ctx.is_building:
+            return None
+        joined = {f for w in self.ctx.world.stairs for f in (w.link.lower, w.link.upper)}
+        for f in sorted((f for f in self.ctx.floor_ids if f != self.floor and f in joined),
+                        key=lambda f: (abs(f - self.floor), f)):
+            ex = self._explored.get(f)
+            if ex is None or (self.ctx.level(f).planner.planner.plan_mask & ~ex & ndimage.binary_dilation(ex)).any():
+                return f
+        return None
+
+    def can_explore(self, near: np.ndarray | None = None) -> bool:
+        """Whether a search can go on: a frontier on the agent's floor, or another floor to explore."""
+        return self.frontier(near) is not None or self.floor_to_explore() is not None
+
     # ------------------------------------------------------------------ memory
+    def _cells_offset(self, floor: int) -> int:
+        """Memory paints floor ``floor``'s flat cells shifted by this much (each floor's cells apart; 0 on floor 0)."""
+        return floor * self.ctx.grid.rows * self.ctx.grid.cols
+
     def update_memory(self, obj_id: int, pos_str: str | None, neg_str: str | None) -> None:
         e = self.objects[obj_id]
-        self.memory.update(self.memory.region_key(e.center_xy), e.cells, pos_str, neg_str)
+        self.memory.update(self.memory.region_key(e.center_xy, e.floor), e.cells + self._cells_offset(e.floor),
+                           pos_str, neg_str)
 
     def retrieve_memory(self, obj_str: str) -> tuple[list[tuple[int, float, float]], list[int]]:
         """(positive hits as (obj_id, distance, angle), negative obj_ids) of ``obj_str``; remembered regions
         (possibly from earlier goals of the scene) are registered as this episode's objects."""
         pos, neg = self.memory.retrieve(obj_str)
         mem = self.memory
-        as_ids = lambda keys: [self.register(mem.centers[k], mem.regions[k], "memory", text=obj_str) for k in keys]  # noqa: E731
+
+        def as_ids(keys):
+            return [self.register(mem.centers[k], mem.regions[k] - self._cells_offset(mem.floors.get(k, 0)), "memory",
+                                  text=obj_str, floor=mem.floors.get(k, 0)) for k in keys]
         return self._triples(as_ids(pos)), as_ids(neg)
 
     # ------------------------------------------------------------------ interaction

@@ -121,10 +121,12 @@ class NavPlanner:
             return Route(path, all_actions, route_parts(all_actions, step_m=s.step_m, turn_deg=s.turn_deg))
         return None
 
-    def _band_poses(self, pose) -> list[tuple[list[int], list[tuple[float, float]]]]:
-        """Poses in the clearance band reachable from ``pose`` in at most :data:`RECOVER_ACTIONS` turns and
-        collision-free steps, fewest actions first: ``(actions, positions walked through, start first)``; the
-        positions are simulated exactly as the agent moves (headings ``yaw + k * turn_deg``)."""
+    def _band_poses(self, pose, inside=None) -> list[tuple[list[int], list[tuple[float, float]]]]:
+        """Poses in the clearance band (or where ``inside(xy)`` holds) reachable from ``pose`` in at most
+        :data:`RECOVER_ACTIONS` turns and collision-free steps, fewest actions first: ``(actions, positions walked
+        through, start first)``; the positions are simulated exactly as the agent moves (headings
+        ``yaw + k * turn_deg``)."""
+        inside = inside or self._in_band
         turn = np.deg2rad(self.settings.turn_deg)
         n_headings = int(round(360.0 / self.settings.turn_deg))
         start = (float(pose[0]), float(pose[1]))
@@ -149,12 +151,22 @@ class NavPlanner:
                     if state in seen:
                         continue
                     seen.add(state)
-                    if a == FORWARD and self._in_band(pts[-1]):
+                    if a == FORWARD and inside(pts[-1]):
                         found.append((actions + [a], pts))
                     else:
                         nxt.append((kk, actions + [a], pts))
             frontier = nxt
         return found
+
+    def approach(self, pose, mask: np.ndarray) -> list[int] | None:
+        """The fewest turns and collision-free forward steps (:data:`RECOVER_ACTIONS` at most) from ``pose`` to a
+        position whose cell is in ``mask`` (full grid): a short last approach to a few cells a route's walk ended
+        next to (a stair's end); [] when ``pose`` is in it already, None when none is that near."""
+        crop = self.crop(mask)
+        if self.planner._in(crop, np.asarray(pose[:2], np.float64)):
+            return []
+        found = self._band_poses(pose, inside=lambda xy: self.planner._in(crop, np.asarray(xy, np.float64)))
+        return found[0][0] if found else None
 
     def _in_band(self, xy) -> bool:
         return self.planner._in(self.planner.plan_mask, xy)  # the routes planner's own cell test, on its band

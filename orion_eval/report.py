@@ -5,6 +5,9 @@
   among the methods that are not an upper bound (the GT route follower 'human' is shown, never bold).
 - Table II: the same per goal type (big / small / ambiguous) for the setting with all feedback
   ("mixed" when evaluated, else the last setting).
+- Buildings: when a building was evaluated, the episodes whose goal is on the start's floor ("same floor") and
+  those whose goal is on another floor, reached over the stairs ("cross floor"), each as Table I
+  (``results['by_floors']``).
 - Fig. 4: success rate within i Talk turns, one line per method, one panel per feedback setting
   (``success_by_turn.png``); SR per setting as bars (``sr_by_feedback.png``). One colour per method,
   the same in every run (:func:`method_color`); legends sit beside the axes, never over data.
@@ -30,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from orion_eval.agents import AGENTS
-from orion_eval.metrics import METRICS
+from orion_eval.metrics import FLOOR_GROUPS, METRICS
 
 FB_NAMES = {"none": "No interaction", "yesno": "Yes/No", "corrective": "Corrective", "descriptive": "Descriptive",
             "landmark": "Landmark", "procedural": "Procedural", "mixed": "Mixed"}
@@ -298,7 +301,7 @@ def write_report(results: dict, out_dir: Path, *, ws=None, params=None) -> Path:
                                                     setting=FB_NAMES.get(setting, setting), **common)
         (out_dir / "scenes" / f"{s}.html").write_text(page)
     page = env.get_template("report.html").render(
-        notes=run_notes(run),
+        notes=run_notes(run), floor_tables=floor_tables(results, episodes, methods, fbs),
         table1=_table(results["overall"], cell_intervals(episodes, "method", "feedback"), methods, fbs, FB_NAMES,
                       stars),
         setting_tests=per_setting,
@@ -310,6 +313,23 @@ def write_report(results: dict, out_dir: Path, *, ws=None, params=None) -> Path:
     path = out_dir / "report.html"
     path.write_text(page)
     return path
+
+
+def floor_tables(results: dict, episodes: list[dict], methods: list[str], fbs: list[str]) -> list[dict]:
+    """The buildings' episodes apart (``results['by_floors']``): one table per 'same floor' / 'cross floor', methods x
+    feedback settings; none when no building was evaluated."""
+    cells = results.get("by_floors")
+    if not cells:
+        return []
+    floored = [{**e, "floors": FLOOR_GROUPS[bool(e["cross_floor"])]} for e in episodes if "cross_floor" in e]
+    cis = cell_intervals(floored, "floors", "method", "feedback")
+    out = []
+    for kind in FLOOR_GROUPS.values():
+        per_method = {m: cells.get(m, {}).get(kind, {}) for m in methods}
+        if any(per_method.values()):
+            out.append({"kind": kind, "episodes": sum(1 for e in floored if e["floors"] == kind),
+                        "table": _table(per_method, cis.get(kind, {}), methods, fbs, FB_NAMES)})
+    return out
 
 
 def scene_pictures(ws, params, scene: str, folder: Path) -> list[dict]:

@@ -7,7 +7,9 @@ scene's goals in the fixed goals.zarr order, and an agent with ``persistent_memo
 its memory from one goal to the next, as in the paper (corrective feedback helps only when a wrong
 object found for one goal is the right object of a later goal); the other methods have no memory.
 Per goal and seed the episode is ``routes.for_goal(goal)[seed % n]`` with its start heading turned
-by 90 deg per pass over the goal's episodes (:func:`orion_eval.episode.start_pose`); the user's
+by 90 deg per pass over the goal's episodes (:func:`orion_eval.episode.start_pose`; in a building the goal's
+episodes alternate between its floor and other floors, every second goal starting with the other floors:
+:func:`goal_episodes`); the user's
 draws are seeded by ``(seed, goal index)``, the same in every feedback setting (paired settings: a (seed, goal)
 is asked the same at the same place whatever the setting, so settings differ only in what is said). Results
 are identical for identical inputs.
@@ -44,15 +46,30 @@ def scene_tasks(scene: Scene, methods, feedback, seeds) -> list[tuple[Task, obje
     for seed in seeds:
         for fb in feedback:
             for method in methods:
-                for goal in goals.goals:
-                    eps = routes.for_goal(goal.id)
+                for k, goal in enumerate(goals.goals):
+                    eps = goal_episodes(routes, goal, k)
                     if not eps:
                         continue  # unreachable goal: reported by the routes stage, not an episode
                     e = eps[seed % len(eps)]
                     p0 = start_pose(e.start, seed, len(eps))
-                    out.append((Task(scene.name, method, fb, int(seed), goal.id, e.id, p0, float(e.geodesic_m)),
-                                goal))
+                    out.append((Task(scene.name, method, fb, int(seed), goal.id, e.id, p0, float(e.geodesic_m),
+                                     int(e.start_floor)), goal))
     return out
+
+
+def goal_episodes(routes, goal, index: int = 0) -> list:
+    """A goal's episodes in the order seeds take them (``seed % n``): routes.zarr's order; in a building, taken in
+    turn from the goal's floor and from other floors, the goal's floor first for even goal ``index`` (goals.zarr
+    order) and the other floors first for odd ones, so that one seed already runs cross-floor episodes (of every
+    second goal) and two seeds run both kinds of every goal that has them."""
+    eps = routes.for_goal(goal.id)
+    same = [e for e in eps if e.start_floor == goal.floor]
+    cross = [e for e in eps if e.start_floor != goal.floor]
+    if not cross:
+        return eps
+    first, then = (same, cross) if index % 2 == 0 else (cross, same)
+    n = max(len(same), len(cross))
+    return [e for i in range(n) for e in (first[i:i + 1] + then[i:i + 1])]
 
 
 def evaluate_scene(ws: Workspace, params: Params, stages: Mapping, scene: str, methods, feedback, seeds,

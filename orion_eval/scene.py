@@ -4,9 +4,16 @@
 renderer and the detection encoder (both built on first use), route targets (the routes module's goal
 region: stored in goals.zarr for ground-truth goals, computed with the same function for found objects), and
 pose-independent caches: map
-query results per (map, text), ego views per pose, detections per (pose, text). Agents are
+query results per (map, text, floor), ego views per pose, detections per (pose, text). Agents are
 deterministic, so episodes that share a prefix (the same start in several feedback settings)
 reuse the work.
+
+A building is evaluated floor by floor: one :class:`Level` per floor (its navigable and height grids, its camera
+height, its planners and success rule), the world's floors joined at the stairs the reconstruction found
+(:class:`~orion_eval.world.Stairway`, their ends the building planner's), each floor's ego views rendered from its
+own camera height, and the building planner (:attr:`SceneContext.building`) for the user's directions across floors.
+A single-floor scene has one level, built exactly as before buildings (its attributes ``planner``, ``world``,
+``success``... are floor 0's).
 """
 
 from __future__ import annotations
@@ -22,7 +29,6 @@ import torch
 from orion_eval.nav import NavPlanner
 from orion_eval.world import SuccessRule, World
 from pipeline.encoders.base import cached_text_features
-from pipeline.errors import StageError
 from pipeline.nav.actions import RouteSettings
 from pipeline.scene import Scene
 
@@ -48,62 +54,163 @@ class Detection:
     pixels: int
 
 
-def check_one_floor(name: str, floors) -> None:
-    """Refuse a building: the agents' world, maps and planners are one floor's, and they do not take stairs yet, so
-    episodes on or across its other floors cannot be scored (raises :class:`~pipeline.errors.StageError`)."""
-    if len(floors) > 1:
-        raise StageError(f"scene {name}: a building of {len(floors)} floors "
-                         f"({', '.join(f.name for f in floors)}); the evaluator's agents act on one floor and do not "
-                         "take stairs yet, so its episodes cannot be scored: leave it out of the evaluation "
-                         "(zipon eval --scene NAME for each single-floor scene)")
+@dataclass
+class Level:
+    """One floor as the agents and the user see it: its full-grid ``navigable`` and ``height`` grids, the camera
+    height above it, its planners (the agents', the goal-region one, the user's), its success rule and its line of
+    sight. A single-floor scene has one, floor 0, built exactly as before buildings."""
+
+    floor: int
+    navigable: np.ndarray
+    height: np.ndarray
+    camera_height_m: float
+    planner: NavPlanner
+    view_planner: NavPlanner
+    user_planner: NavPlanner
+    success: SuccessRule | None = None
 
 
 class SceneContext:
     """Per-scene state shared by all episodes (see the module docstring)."""
 
     def __init__(self, scene: Scene):
-        check_one_floor(scene.name, scene.recon.floors)
         self.scene, self.params = scene, scene.params
         ep, task = self.params.eval, self.params.task
         self.grid = scene.grid
-        self.navigable = scene.navigable
+        self.floor_ids = list(range(len(scene.recon.floors)))
+        self.is_building = len(self.floor_ids) > 1
         # the action space and success radius routes.zarr was built with (Scene checks the params agree)
         self.step_m, self.turn_deg, self.success_m = scene.action_space()
         space = {"step_m": self.step_m, "turn_deg": self.turn_deg}
         # the agents' goto_object stops within their own radius of a found object; the agents' planners get an agent
         # stranded off the clearance band back into it (orion_eval.nav)
-        self.planner = NavPlanner(self.navigable, self.grid, RouteSettings.from_config(
-            task, **space, stop_radius_m=ep.goto_stop_radius_m), recover=True)
+        agent_settings = RouteSettings.from_config(task, **space, stop_radius_m=ep.goto_stop_radius_m)
+        # the user's procedural feedback is planned as the routes stage plans, into the stored goal region; route
+        # targets (pipeline.nav.region) are explicit cells: a zero stop radius keeps them as they are
+        self.user_settings = RouteSettings.from_config(task, **space, stop_radius_m=0.0)
+        self.levels: list[Level] = []
+        for f in self.floor_ids:
+            nav = scene.navigable if not self.is_building else scene.recon.floor(f).navigable
+            height = scene.height if not self.is_building else scene.recon.floor(f).height
+            self.levels.append(Level(
+                f, nav, height, self.camera_height(f),
+                planner=NavPlanner(nav, self.grid, agent_settings, recover=True),
+                view_planner=NavPlanner(nav, self.grid, self.user_settings, recover=True),
+                user_planner=NavPlanner(nav, self.grid, self.user_settings)))
+            self.levels[f].success = SuccessRule(self.grid, height, self.levels[f].camera_height_m,
+                                                 rule=ep.success_rule, distance_m=self.success_m,
+                                                 hfov_deg=task.hfov_deg, sight=self.sight_on(f))
+        ground = self.levels[0]
+        self.navigable, self.planner, self.view_planner = ground.navigable, ground.planner, ground.view_planner
+        self.user_planner, self.success = ground.user_planner, ground.success
         # the world tests a step in the planners' frame (their cropped grid; all three crop alike), so a step a
         # planner judged free is free: a segment is sampled by its length in cells, and the same step measured
         # in full-grid coordinates (5.0000000001 cells) can get one sample more, which can land in a wall cell
         self.world = World(self.planner.crop(self.navigable), self.planner.crop_grid, step_m=self.step_m,
-                           turn_deg=self.turn_deg)
-        # the user's procedural feedback is planned as the routes stage plans, into the stored goal region
-        self.user_planner = NavPlanner(self.navigable, self.grid,
-                                       RouteSettings.from_config(task, **space, stop_radius_m=0.0))
-        self.success = SuccessRule(self.grid, scene.height, scene.camera_height_m, rule=ep.success_rule,
-                                   distance_m=self.success_m, hfov_deg=task.hfov_deg, sight=self.sight)
-        # route targets (pipeline.nav.region) are explicit cells: a zero stop radius keeps them as they are
-        self.view_planner = NavPlanner(self.navigable, self.grid, RouteSettings.from_config(
-            task, **space, stop_radius_m=0.0), recover=True)
-        self._map_cache: dict[tuple[str, str], list[MapObject]] = {}
+                           turn_deg=self.turn_deg,
+                           floors={lv.floor: (lv.planner.crop(lv.navigable), lv.planner.crop_grid)
+                                   for lv in self.levels[1:]},
+                           stairs=self.stairways())
+        self._map_cache: dict[tuple[str, str, int], list[MapObject]] = {}
         self._view_cache: dict[tuple, object] = {}
         self._det_cache: dict[tuple, list[Detection]] = {}
         self._text_cache: dict[str, torch.Tensor] = {}
+
+    # ------------------------------------------------------------------ floors
+    def level(self, floor: int) -> Level:
+        return self.levels[floor]
+
+    def camera_height(self, floor: int) -> float:
+        """The ego camera's height above ``floor``: the scene's (``eval.camera_height_m`` or the recording's median)
+        on a single floor; in a building, the median over the frames taken on that floor (as the goals stage sights
+        each floor's goal regions: :class:`pipeline.goals.build.GoalRegions`)."""
+        if not self.is_building or self.params.eval.camera_height_m is not None:
+            return self.scene.camera_height_m
+        from pipeline.nav.region import recorded_camera_height
+
+        recon = self.scene.recon
+        poses = recon.poses
+        on = recon.floor_of_z(poses[:, 2, 3]) == floor
+        return recorded_camera_height(poses[on] if on.any() else poses, recon.floor(floor).floor_z)
+
+    @cached_property
+    def building(self):
+        """The :class:`~pipeline.nav.building.BuildingPlanner` over the floors (the user's settings), None on a
+        single floor: the user's directions across floors and the stairs' ends."""
+        if not self.is_building:
+            return None
+        from pipeline.nav.building import building_planner
+
+        return building_planner(self.scene.recon, self.user_settings)
+
+    def stairways(self) -> list:
+        """The building's stairs as the world walks them (:class:`~orion_eval.world.Stairway`): stepped onto from the
+        cells routes lead to (:meth:`~pipeline.nav.building.BuildingPlanner.stair_end_cells`) and from the end itself,
+        where a climb from the other floor arrives; none on one floor."""
+        if self.building is None:
+            return []
+        from orion_eval.world import Stairway
+
+        out = []
+        for lk in self.building.links:
+            ends = {f: self.building.stair_end_cells(lk, f) for f in (lk.lower, lk.upper)}
+            if any(e is None for e in ends.values()):
+                continue
+            for f, mask in ends.items():  # and the end itself, where a climb arrives (it may lie off the band)
+                mask = ends[f] = mask.copy()
+                rc = self.grid.world_to_cell(np.asarray(lk.end_on(f), np.float64))
+                if self.grid.inside(rc):
+                    mask[rc[0], rc[1]] = True
+            out.append(Stairway(lk, ends, self.grid, self.step_m))
+        return out
+
+    def episode_floor(self, episode_id: str) -> int:
+        """The floor routes.zarr's episode ``episode_id`` starts on (0 on a single floor or for an unknown id)."""
+        if not self.is_building:
+            return 0
+        floors = self.__dict__.setdefault("_episode_floors", {})
+        if not floors:
+            floors.update({e.id: int(e.start_floor) for e in self.scene.routes.episodes})
+        return floors.get(episode_id, 0)
+
+    def room_at(self, pose) -> str | None:
+        """The room id at ``pose`` on its floor (simulated scenes), else None."""
+        from orion_eval.world import floor_of
+
+        if not self.is_building:
+            return self.scene.room_at(pose[:2])
+        floor = floor_of(pose)
+        rooms = [r for r in (self.scene.gt.rooms if self.scene.gt is not None else []) if (r.floor or 0) == floor]
+        p = np.asarray(pose[:2], np.float64)
+        for room in rooms:
+            if cv2.pointPolygonTest(np.asarray(room.polygon, np.float32).reshape(-1, 1, 2),
+                                    (float(p[0]), float(p[1])), False) >= 0:
+                return room.id
+        return None
 
     # ------------------------------------------------------------------ goals
     @cached_property
     def object_index(self) -> np.ndarray:
         return self.scene.goals.object_index()
 
+    def floor_object_index(self, floor: int) -> np.ndarray:
+        """``(rows, cols)`` int32 footprints of ``floor``'s objects (1 + index into the goals' object keys)."""
+        if floor == 0:
+            return self.object_index
+        cache = self.__dict__.setdefault("_floor_index", {})
+        if floor not in cache:
+            cache[floor] = self.scene.goals.object_index(floor)
+        return cache[floor]
+
     def footprint_mask(self, keys) -> np.ndarray:
-        """``(rows, cols)`` bool footprint of goal objects (cached per key tuple)."""
+        """``(rows, cols)`` bool footprint of goal objects, on their floor's grid (cached per key tuple)."""
         keys = tuple(keys)
         cache = self.__dict__.setdefault("_fp_cache", {})
         if keys not in cache:
-            order = self.scene.goals.object_keys
-            cache[keys] = np.isin(self.object_index, [order.index(k) + 1 for k in keys])
+            goals = self.scene.goals
+            order = goals.object_keys
+            floor = goals.objects[keys[0]].floor if keys else 0
+            cache[keys] = np.isin(self.floor_object_index(floor), [order.index(k) + 1 for k in keys])
         return cache[keys]
 
     # ------------------------------------------------------------------ sight and goal regions
@@ -117,38 +224,68 @@ class SceneContext:
         ``z_levels`` (metres above the floor)."""
         return self.mesh_sight(origins_xy, target_xy, z_levels, own, every=every)
 
-    def goal_target(self, key, object_mask: np.ndarray, center_xy, z_levels) -> tuple[np.ndarray, np.ndarray]:
-        """Full-grid ``(region, target)`` for an object the agent found (map candidate, detection): the
+    def sight_on(self, floor: int):
+        """:meth:`sight` on ``floor`` (its floor height and camera height; floor 0's is :meth:`sight` itself)."""
+        if floor == 0:
+            return self.sight
+        cache = self.__dict__.setdefault("_floor_sights", {})
+
+        def sight(origins_xy, target_xy, z_levels, own, *, every: bool = False) -> np.ndarray:
+            if floor not in cache:
+                cache[floor] = self.renderer_on(floor).sight(self.grid)
+            return cache[floor](origins_xy, target_xy, z_levels, own, every=every)
+        return sight
+
+    def goal_target(self, key, object_mask: np.ndarray, center_xy, z_levels, floor: int = 0
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """Full-grid ``(region, target)`` for an object the agent found (map candidate, detection) on ``floor``: the
         routes module's :func:`~pipeline.nav.region.goal_region` (routes.zarr's ``success_m``, the same
         line of sight as the success rule) and its :func:`~pipeline.nav.region.route_target`
         (``eval.goto_stop_radius_m``), which a walk aims for and the region it finishes in. Cached per ``key``."""
         cache = self.__dict__.setdefault("_goal_targets", {})
-        if key not in cache:
+        if (key, floor) not in cache:
             from pipeline.nav.region import goal_region, route_target
 
             ep = self.params.eval
-            region = goal_region(self.navigable, object_mask, self.grid, center_xy, z_levels, self.sight,
-                                 success_m=self.success_m)
-            cache[key] = (region, route_target(region, object_mask, self.grid, stop_radius_m=ep.goto_stop_radius_m))
-        return cache[key]
+            region = goal_region(self.levels[floor].navigable, object_mask, self.grid, center_xy, z_levels,
+                                 self.sight_on(floor), success_m=self.success_m)
+            cache[key, floor] = (region, route_target(region, object_mask, self.grid,
+                                                      stop_radius_m=ep.goto_stop_radius_m))
+        return cache[key, floor]
 
-    def route_to_goal(self, planner, pose, goal, *, key, face_xy):
-        """Route into a ground-truth goal's stored region, as the routes stage plans it
-        (:func:`pipeline.nav.region.route_to_goal`), walked in this scene's world; None when unreachable."""
-        from pipeline.nav.region import GoalTargets, route_to_goal
+    def goal_targets(self, goal):
+        """The :class:`~pipeline.nav.region.GoalTargets` of a ground-truth goal's stored region (cached per goal)."""
+        from pipeline.nav.region import GoalTargets
 
         targets = self.__dict__.setdefault("_stored_targets", {})
         if goal.id not in targets:
             targets[goal.id] = GoalTargets.of(self.stored_goal_region(goal), self.footprint_mask(goal.object_keys),
                                               self.grid, stop_radius_m=self.params.task.stop_radius_m)
-        return route_to_goal(planner, pose, targets[goal.id], key=(key, goal.id), face_xy=face_xy,
+        return targets[goal.id]
+
+    def route_to_goal(self, planner, pose, goal, *, key, face_xy):
+        """Route into a ground-truth goal's stored region, as the routes stage plans it
+        (:func:`pipeline.nav.region.route_to_goal`), walked in this scene's world; None when unreachable.
+        ``planner`` is one of the goal's floor's planners and ``pose`` on that floor."""
+        from pipeline.nav.region import route_to_goal
+
+        return route_to_goal(planner, pose, self.goal_targets(goal), key=(key, goal.id), face_xy=face_xy,
                              walk_end=lambda route: self.walk_end(route, pose))
+
+    def route_across(self, pose, goal, *, key, face_xy):
+        """The route from ``pose`` on another floor than ``goal``'s, over the stairs, into the goal's stored region
+        (:meth:`pipeline.nav.building.BuildingPlanner.route_to_goal`, as the goals stage plans procedural feedback
+        across floors): a :class:`~pipeline.nav.building.FloorRoute`, None when no stairs lead there."""
+        from orion_eval.world import floor_of
+
+        return self.building.route_to_goal(floor_of(pose), tuple(float(v) for v in pose), goal.floor,
+                                           self.goal_targets(goal), key=(key, goal.id), face_xy=face_xy)
 
     def walk_end(self, route, pose) -> np.ndarray:
         """``(2,)`` world xy where walking ``route`` from ``pose`` in this scene's world ends."""
-        from orion_eval.world import Body
+        from orion_eval.world import Body, floor_of
 
-        body = Body(*(float(v) for v in pose))
+        body = Body(*(float(v) for v in pose), floor=floor_of(pose))
         for a in route.actions.tolist():
             if a == 0:
                 break
@@ -163,11 +300,11 @@ class SceneContext:
         return cache[goal.id]
 
     # ------------------------------------------------------------------ maps
-    def map_objects(self, which: str, text: str) -> list[MapObject]:
-        """Candidates of ``text`` on map ``which`` ('vlmap' | 'cfmap'), pose-independent (cached)."""
-        key = (which, text)
+    def map_objects(self, which: str, text: str, floor: int = 0) -> list[MapObject]:
+        """Candidates of ``text`` on map ``which`` ('vlmap' | 'cfmap') of ``floor``, pose-independent (cached)."""
+        key = (which, text, floor)
         if key not in self._map_cache:
-            res = self.scene.map_query(which).query(text, None)
+            res = self.scene.map_query(which, floor).query(text, None)
             out = []
             g = self.grid
             r_all, c_all = np.nonzero(res.labels)  # one pass over the grid, then per component
@@ -189,8 +326,18 @@ class SceneContext:
 
         ep = self.params.eval
         return EgoRenderer(self.scene.recon.mesh_path, floor_z=self.scene.recon.floor_z,
-                           camera_height_m=self.scene.camera_height_m, size=tuple(ep.detect_size),
+                           camera_height_m=self.levels[0].camera_height_m, size=tuple(ep.detect_size),
                            hfov_deg=self.params.task.hfov_deg, gt=self.scene.gt)
+
+    def renderer_on(self, floor: int):
+        """The ego-view renderer of ``floor`` (the one mesh, the camera above that floor)."""
+        if floor == 0:
+            return self.renderer
+        cache = self.__dict__.setdefault("_floor_renderers", {})
+        if floor not in cache:
+            cache[floor] = self.renderer.on_floor(self.scene.recon.floor(floor).floor_z,
+                                                  self.levels[floor].camera_height_m)
+        return cache[floor]
 
     @cached_property
     def encoder(self):
@@ -210,29 +357,41 @@ class SceneContext:
     def text_features(self, texts: list[str]) -> torch.Tensor:
         return cached_text_features(self.encoder, self._text_cache, texts)
 
-    def pose_key(self, pose) -> tuple[int, int, int]:
-        """The place (5 cm) and heading (turn step) a pose is at: what a spin is remembered by, what seeds the
-        detector's and the user's draws. Not what a view is cached by (:meth:`view_key`)."""
+    def pose_key(self, pose) -> tuple[int, ...]:
+        """The place (5 cm) and heading (turn step) a pose is at, and its floor when not 0: what a spin is
+        remembered by, what seeds the detector's and the user's draws. Not what a view is cached by
+        (:meth:`view_key`)."""
+        from orion_eval.world import floor_of
+
         x, y, yaw = pose
-        return (round(x / 0.05), round(y / 0.05), round(yaw / math.radians(self.turn_deg)))
+        key = (round(x / 0.05), round(y / 0.05), round(yaw / math.radians(self.turn_deg)))
+        return key + (floor_of(pose),) if floor_of(pose) else key
 
     def view_key(self, pose) -> tuple[int, int, int]:
         """The pose in micrometres and microradians: the ego view and its detections are cached by it and rendered
         at it (:meth:`view`), so a view is a function of the key alone, whichever pose with that key came first.
         Walks that reach a pose by the same actions reach it to the float, so their views are shared; a coarser
         key would give a pose the view of another pose a few centimetres or degrees away, the one an earlier
-        episode in the same process happened to stand at."""
-        return tuple(round(float(v) * 1e6) for v in pose)
+        episode in the same process happened to stand at. The floor follows when it is not 0."""
+        from orion_eval.world import floor_of
+
+        key = tuple(round(float(v) * 1e6) for v in pose)
+        return key + (floor_of(pose),) if floor_of(pose) else key
 
     @staticmethod
-    def view_pose(key: tuple[int, int, int]) -> tuple[float, float, float]:
+    def view_pose(key: tuple[int, ...]):
         """The pose a :meth:`view_key` names: where its view is rendered and its detections are made."""
-        return tuple(v * 1e-6 for v in key)
+        from orion_eval.world import Pose
+
+        return Pose((v * 1e-6 for v in key[:3]), key[3] if len(key) > 3 else 0)
 
     def view(self, pose):
+        from orion_eval.world import floor_of
+
         k = self.view_key(pose)
         if k not in self._view_cache:
-            self._view_cache[k] = self.renderer.render(self.view_pose(k))
+            pose = self.view_pose(k)
+            self._view_cache[k] = self.renderer_on(floor_of(pose)).render(pose)
         return self._view_cache[k]
 
     @cached_property
@@ -276,8 +435,11 @@ class SceneContext:
         v = self.view(pose)
         detector = self.saliency_detector if kind == "saliency" else self.detector
         if detector is not None:
-            T = self.renderer.T_world_camera(pose)
-            dirs = self.renderer.dirs_cam.reshape(-1, 3).astype(np.float64) @ T[:3, :3].T
+            from orion_eval.world import floor_of
+
+            renderer = self.renderer_on(floor_of(pose))
+            T = renderer.T_world_camera(pose)
+            dirs = renderer.dirs_cam.reshape(-1, 3).astype(np.float64) @ T[:3, :3].T
             found = detector.detect(v, text, T[:3, 3], dirs, ep.detect_max_range_m, key=self.pose_key(pose))
             out = [self._detection(v.points[s.mask][:, :2].astype(np.float64), s.score, int(s.mask.sum()))
                    for s in found]

@@ -20,13 +20,23 @@ feedback kind of :data:`pipeline.goals.feedback.FEEDBACK_KINDS`, mixed):
 
 "The object the agent looks at" is the object whose mass centre is in the ego view and in line of
 sight, nearest first (within 2.5 m), by the same geometry as the success rule.
+
+In a building the user knows the floors: success is judged on the goal's floor only (elsewhere the episode has not
+arrived: distance unknown, null in the results); only objects on the agent's floor can be looked at; directions
+from another floor are planned over the stairs (:meth:`SceneContext.route_across`, as the goals stage plans them)
+and said with the stairs ("Go up the stairs. At the top, follow this route: ..."); and the landmark kind says which
+floor the goal is on when the agent is on another ("It is upstairs."): :meth:`SimulatedUser.floor_words`.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from orion_eval.world import floor_of
 from pipeline.goals.feedback import FEEDBACK_KINDS, feedback_kind
+from pipeline.goals.feedback.base import floor_words
 
 FEEDBACK_KIND_NAMES = tuple(sorted(FEEDBACK_KINDS))  # the goals' feedback kinds (their registry's names)
 FEEDBACK_SETTINGS = ("none", "yesno", *FEEDBACK_KIND_NAMES, "mixed")
@@ -48,18 +58,28 @@ class SimulatedUser:
         # function of (episode, place asked from, what is judged), the same in every setting given that rng
         self.key = int(rng.integers(2**63))
         self.geometry = goal_geometry(ctx, goal.object_keys)
+        self.rule = ctx.level(goal.floor).success  # the success rule of the goal's floor
 
     def instruction(self) -> str:
         return f"Please go to {self.goal.name}."
 
     def judge(self, pose) -> dict:
-        return self.ctx.success.evaluate(pose, self.geometry)
+        """``{success, distance_m, bearing_deg, visible}`` at ``pose``; on another floor than the goal's, no success
+        and an infinite distance (the goal is not on the floor the agent stands on)."""
+        if floor_of(pose) != self.goal.floor:
+            return {"success": False, "distance_m": math.inf, "bearing_deg": 180.0, "visible": False}
+        return self.rule.evaluate(pose, self.geometry)
 
     def looked_at(self, pose, keys) -> str | None:
-        """The key among ``keys`` (the objects the corrective FB names) of the object the agent is looking at."""
+        """The key among ``keys`` (the objects the corrective FB names) of the object the agent is looking at (on
+        the agent's floor)."""
         best, best_d = None, np.inf
+        objects, floor = self.ctx.scene.goals.objects, floor_of(pose)
+        rule = self.ctx.level(floor).success
         for key in keys:
-            r = self.ctx.success.evaluate(pose, goal_geometry(self.ctx, (key,)))
+            if objects[key].floor != floor:
+                continue
+            r = rule.evaluate(pose, goal_geometry(self.ctx, (key,)))
             if r["visible"] and abs(r["bearing_deg"]) <= self.ctx.params.task.hfov_deg / 2 and \
                     r["distance_m"] <= LOOK_RANGE_M and r["distance_m"] < best_d:
                 best, best_d = key, r["distance_m"]
@@ -74,12 +94,21 @@ class SimulatedUser:
 
     def route_from(self, pose):
         """The route from ``pose`` into the routes stage's goal region (it never ends behind a wall), facing the
-        goal's mass centre; None when the goal cannot be reached from ``pose``."""
+        goal's mass centre; None when the goal cannot be reached from ``pose``. From another floor, the route over
+        the stairs (a :class:`~pipeline.nav.building.FloorRoute`)."""
         g = self.goal
-        return self.ctx.route_to_goal(self.ctx.user_planner, pose, g, key="user", face_xy=g.mass_center)
+        if floor_of(pose) != g.floor:
+            return self.ctx.route_across(pose, g, key="user", face_xy=g.mass_center)
+        return self.ctx.route_to_goal(self.ctx.level(g.floor).user_planner, pose, g, key="user",
+                                      face_xy=g.mass_center)
 
     def room_at(self, pose) -> str | None:
-        return self.ctx.scene.room_at(pose[:2])
+        return self.ctx.room_at(pose)
+
+    def floor_words(self, pose) -> str | None:
+        """Where the goal's floor is from the agent's, as a person says it ("upstairs", "2 floors down"); None on
+        the goal's floor."""
+        return floor_words(self.goal.floor - floor_of(pose))
 
     def place_key(self, pose) -> tuple[int, ...]:
         """The place asked from as non-negative seed words."""

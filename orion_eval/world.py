@@ -6,6 +6,14 @@ Actions (the paper's): ``TurnLeft`` / ``TurnRight`` by ``turn_deg`` (15 deg; lef
 cell) leaves the navigable cells; the agent then stays put, as in Habitat and in
 :func:`pipeline.nav.verify.replay`.
 
+A building (several floors) is one navigable grid per floor joined by its stairs (:class:`Stairway`). The body
+stands on a floor (:attr:`Body.floor`; :class:`Pose` carries it beside x, y, yaw). It climbs as a Habitat agent does,
+with ``MoveForward`` on the stair's surface: a forward step from a stair's end on its floor (the cells the building
+planner leads a route to: :meth:`pipeline.nav.building.BuildingPlanner.stair_end_cells`), facing along the stair
+(within half a turn step), steps onto it; each further forward step along it (up or down) walks one of its
+``ceil(run / step_m)`` steps, the last onto the far end's floor, and adds the stair's length along its slope over
+those steps to the distance travelled. A turn on a stair turns; a step across it collides.
+
 Success (``eval.success_rule``):
 
 - ``paper``: the agent is within routes.zarr's ``success_m`` (1.5 m) of the goal's footprint (0 inside),
@@ -26,6 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -35,13 +44,34 @@ from pipeline.nav.fmm import segment_free
 from pipeline.nav.region import SIGHT_LEVELS, own_cells, sight_levels
 from pipeline.nav.verify import point_polygon_distance
 
+if TYPE_CHECKING:
+    from pipeline.nav.building import StairLink
+
 ACTION_WORDS = {FORWARD: "MoveForward", LEFT: "TurnLeft", RIGHT: "TurnRight", STOP: "Stop"}
 NAVCHAT_BANDS = ((0.6, 45.0), (1.2, 30.0), (1.4, 15.0))
 
 
+class Pose(tuple):
+    """``(x, y, yaw)`` world metres and radians, and :attr:`floor`, the floor it stands on (0 on a single floor):
+    what every module and the user are given, read as the plain triple it was before buildings."""
+
+    floor: int
+
+    def __new__(cls, xyyaw, floor: int = 0):
+        self = super().__new__(cls, tuple(xyyaw))
+        self.floor = int(floor)
+        return self
+
+
+def floor_of(pose) -> int:
+    """The floor a pose stands on (0 for a plain ``(x, y, yaw)``)."""
+    return int(getattr(pose, "floor", 0))
+
+
 @dataclass
 class Body:
-    """The agent's pose on the grid and what it has done (world metres, radians)."""
+    """The agent's pose on the grid and what it has done (world metres, radians). In a building, ``floor`` is the
+    floor it stands on (or climbs from) and ``stair`` ``(stair index, step from its foot)`` while on a stair."""
 
     x: float
     y: float
@@ -51,22 +81,95 @@ class Body:
     collisions: int = 0
     actions: list[int] = field(default_factory=list)
     poses: list[tuple[float, float, float]] = field(default_factory=list)
+    floor: int = 0
+    stair: tuple[int, int] | None = None
+    floors: list[int] = field(default_factory=list)  # the floor of each of ``poses``
 
     @property
-    def pose(self) -> tuple[float, float, float]:
-        return (self.x, self.y, self.yaw)
+    def pose(self) -> Pose:
+        return Pose((self.x, self.y, self.yaw), self.floor)
+
+
+@dataclass(frozen=True)
+class Stairway:
+    """A stair of a building as the world walks it: its ``link`` (foot on the lower floor, head on the upper), the
+    full-grid ``(rows, cols)`` bool cells ``ends[floor]`` from which it is stepped onto, and that grid."""
+
+    link: StairLink
+    ends: dict[int, np.ndarray]
+    grid: GridSpec
+    step_m: float
+
+    @property
+    def steps(self) -> int:
+        """Forward steps that walk it (its horizontal run in steps, as the building planner's climb counts them)."""
+        return max(1, int(math.ceil(self.link.run_m / self.step_m - 1e-9)))
+
+    @property
+    def up_heading(self) -> float:
+        (x0, y0), (x1, y1) = self.link.foot_xy, self.link.head_xy
+        return math.atan2(y1 - y0, x1 - x0)
+
+    def at_end(self, floor: int, x: float, y: float) -> bool:
+        """Whether ``(x, y)`` on ``floor`` is on the cells the stair is stepped onto from."""
+        mask = self.ends.get(floor)
+        if mask is None:
+            return False
+        rc = self.grid.world_to_cell(np.array([x, y]))
+        return bool(self.grid.inside(rc) and mask[rc[0], rc[1]])
 
 
 class World:
-    """Moves a :class:`Body` on ``navigable`` ``(rows, cols)`` bool of ``grid``."""
+    """Moves a :class:`Body` on ``navigable`` ``(rows, cols)`` bool of ``grid`` (floor 0); a building adds its other
+    floors ``floors`` ``{floor: (navigable, grid)}`` and its ``stairs`` (see the module docstring)."""
 
-    def __init__(self, navigable: np.ndarray, grid: GridSpec, *, step_m: float = 0.25, turn_deg: float = 15.0):
+    def __init__(self, navigable: np.ndarray, grid: GridSpec, *, step_m: float = 0.25, turn_deg: float = 15.0,
+                 floors: dict[int, tuple[np.ndarray, GridSpec]] | None = None, stairs: list[Stairway] = ()):
         self.nav = np.asarray(navigable, dtype=bool)
         self.grid, self.step_m, self.turn = grid, float(step_m), math.radians(turn_deg)
+        self.levels = {0: (self.nav, grid), **{f: (np.asarray(n, bool), g) for f, (n, g) in (floors or {}).items()}}
+        self.stairs = list(stairs)
 
-    def _crc(self, x: float, y: float) -> np.ndarray:
-        x0, y1 = self.grid.origin_xy
-        return np.array([(y1 - y) / self.grid.cell_size_m - 0.5, (x - x0) / self.grid.cell_size_m - 0.5])
+    @staticmethod
+    def _crc(grid: GridSpec, x: float, y: float) -> np.ndarray:
+        x0, y1 = grid.origin_xy
+        return np.array([(y1 - y) / grid.cell_size_m - 0.5, (x - x0) / grid.cell_size_m - 0.5])
+
+    def _facing(self, yaw: float, heading: float) -> bool:
+        return abs(float(wrap_angle(yaw - heading))) <= self.turn / 2 + 1e-6
+
+    def _stair_ahead(self, body: Body) -> int | None:
+        """The stair a forward step from ``body`` steps onto (its index), or None."""
+        for i, way in enumerate(self.stairs):
+            lk = way.link
+            if body.floor not in (lk.lower, lk.upper) or not way.at_end(body.floor, body.x, body.y):
+                continue
+            into = way.up_heading if body.floor == lk.lower else way.up_heading + math.pi
+            if self._facing(body.yaw, into):
+                return i
+        return None
+
+    def _climb(self, body: Body, i: int) -> bool:
+        """One forward step on stair ``i`` (stepping onto it from its end when the body is not on it yet)."""
+        way = self.stairs[i]
+        lk, n = way.link, way.steps
+        at = body.stair[1] if body.stair is not None else (0 if body.floor == lk.lower else n)
+        if self._facing(body.yaw, way.up_heading):
+            at += 1
+        elif self._facing(body.yaw, way.up_heading + math.pi):
+            at -= 1
+        else:
+            return False  # across the stair: its sides
+        body.travelled_m += lk.length_m / n
+        if at >= n or at <= 0:
+            body.floor = lk.upper if at >= n else lk.lower
+            body.x, body.y = (float(v) for v in (lk.head_xy if at >= n else lk.foot_xy))
+            body.stair = None
+        else:
+            (x0, y0), (x1, y1) = lk.foot_xy, lk.head_xy
+            body.x, body.y = x0 + (x1 - x0) * at / n, y0 + (y1 - y0) * at / n
+            body.stair = (i, at)
+        return True
 
     def act(self, body: Body, action: int) -> bool:
         """Execute one action code; returns False when a forward step collided."""
@@ -76,19 +179,28 @@ class World:
         elif action == RIGHT:
             body.yaw = float(wrap_angle(body.yaw - self.turn))
         elif action == FORWARD:
-            nx, ny = body.x + self.step_m * math.cos(body.yaw), body.y + self.step_m * math.sin(body.yaw)
-            if segment_free(self.nav, self._crc(body.x, body.y), self._crc(nx, ny))[0]:
-                body.x, body.y = nx, ny
-                body.travelled_m += self.step_m
+            stair = None
+            if self.stairs:
+                stair = body.stair[0] if body.stair is not None else self._stair_ahead(body)
+            if stair is not None:
+                ok = self._climb(body, stair)
             else:
+                nav, grid = self.levels[body.floor]
+                nx, ny = body.x + self.step_m * math.cos(body.yaw), body.y + self.step_m * math.sin(body.yaw)
+                if segment_free(nav, self._crc(grid, body.x, body.y), self._crc(grid, nx, ny))[0]:
+                    body.x, body.y = nx, ny
+                    body.travelled_m += self.step_m
+                else:
+                    ok = False
+            if not ok:
                 body.collisions += 1
-                ok = False
         elif action != STOP:
             raise ValueError(f"unknown action code {action}")
         if action != STOP:
             body.steps += 1
             body.actions.append(int(action))
             body.poses.append((round(body.x, 4), round(body.y, 4), round(body.yaw, 4)))
+            body.floors.append(body.floor)
         return ok
 
 

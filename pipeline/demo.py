@@ -1,5 +1,6 @@
 """Pictures for ``zipon demo``: one picture per artifact that exists, under DATA/artifacts/<scene>/renders/ (a
-building's grids: one per floor, ``WHAT_floor<k>.png``; its map queries: every floor side by side)."""
+building's floor plans, grids, goals and routes: one per floor, ``WHAT_floor<k>.png``; its map queries: every floor
+side by side)."""
 
 from __future__ import annotations
 
@@ -20,7 +21,9 @@ def render_all(scenes: list[Scene]) -> list[Path]:
             if scene.gt is not None:
                 from pipeline.sim.topdown import render_scene_png
 
-                written.append(render_scene_png(scene.gt, out / "plan.png"))
+                plans = len(scene.gt.all_floors)
+                written += [render_scene_png(scene.gt, out / ("plan.png" if plans == 1 else f"plan_floor{k}.png"),
+                                             floor=k) for k in range(plans)]
         if art["recon"].exists():
             from pipeline.recon.render import render_recon
 
@@ -32,9 +35,14 @@ def render_all(scenes: list[Scene]) -> list[Path]:
         if art["goals"].exists() and art["recon"].exists():
             from pipeline.goals.render import render_goals
 
-            written.append(render_goals(art["recon"], art["goals"], None, "goals", out / "goals.png"))
-            if art["routes"].exists():
-                written.append(render_goals(art["recon"], art["goals"], art["routes"], "routes", out / "routes.png"))
+            n_floors = len(scene.floors)
+            for k in range(n_floors):
+                name = "" if n_floors == 1 else f"_floor{k}"
+                written.append(render_goals(art["recon"], art["goals"], None, "goals", out / f"goals{name}.png",
+                                            floor=k))
+                if art["routes"].exists():
+                    written.append(render_goals(art["recon"], art["goals"], art["routes"], "routes",
+                                                out / f"routes{name}.png", floor=k))
         for which in ("vlmap", "cfmap"):
             if art[which].exists() and art["goals"].exists():
                 written.append(_query_picture(scene, which, out))

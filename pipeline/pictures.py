@@ -63,6 +63,36 @@ def add_scale_bar(img: np.ndarray, cell_size_m: float, *, meters: float | None =
     return img
 
 
+AXIS_LEFT, AXIS_BOTTOM = 46, 34  # pixels of the margins that hold the metre ticks (add_metre_axes)
+
+
+def add_metre_axes(img: np.ndarray, left_x_m: float, top_y_m: float, px_per_m: float) -> np.ndarray:
+    """``img``, a north-up picture whose top-left corner is world (``left_x_m``, ``top_y_m``) at ``px_per_m`` pixels
+    per metre, with margins holding world x (bottom) and y (left) ticks in metres at a round step at least 60 pixels
+    apart."""
+    h, w = img.shape[:2]
+    out = np.full((h + AXIS_BOTTOM, w + AXIS_LEFT, 3), 255, np.uint8)
+    out[:h, AXIS_LEFT:] = img
+    step = next((m for m in (0.5, 1, 2, 5, 10, 20, 50) if m * px_per_m >= 60), 100)
+    xa, xb = left_x_m, left_x_m + w / px_per_m
+    ya, yb = top_y_m - h / px_per_m, top_y_m
+    ink, font = (40, 40, 40), cv2.FONT_HERSHEY_SIMPLEX
+    cv2.line(out, (AXIS_LEFT - 1, 0), (AXIS_LEFT - 1, h), ink, 1)  # the axes in the margins, beside the picture
+    cv2.line(out, (AXIS_LEFT - 1, h), (AXIS_LEFT + w, h), ink, 1)
+    for x in np.arange(np.ceil(xa / step) * step, xb, step):
+        u = AXIS_LEFT + int(round((x - xa) * px_per_m))
+        cv2.line(out, (u, h), (u, h + 5), ink, 1)
+        text = f"{x + 0.0:g}"  # + 0.0: no "-0"
+        cv2.putText(out, text, (u - 4 * len(text), h + 18), font, 0.4, ink, 1, cv2.LINE_AA)
+    for y in np.arange(np.ceil(ya / step) * step, yb, step):
+        v = int(round((yb - y) * px_per_m))
+        cv2.line(out, (AXIS_LEFT - 6, v), (AXIS_LEFT - 1, v), ink, 1)
+        cv2.putText(out, f"{y + 0.0:g}", (4, v + 4), font, 0.4, ink, 1, cv2.LINE_AA)
+    cv2.putText(out, "x (m, east)", (AXIS_LEFT + w - 90, h + 31), font, 0.4, ink, 1, cv2.LINE_AA)
+    cv2.putText(out, "y (m)", (2, h + 31), font, 0.4, ink, 1, cv2.LINE_AA)
+    return out
+
+
 def frames_contact_sheet(frames_path: Path, out_png: Path, *, count: int = 6, width: int = 320) -> Path:
     """A picture of a frame store: ``count`` evenly spaced frames, colour / depth / instance side by side."""
     from pipeline.frames import FrameStore

@@ -14,8 +14,10 @@ Entities (world frame right-handed, z up, metres; see :mod:`pipeline.geometry`):
                                   planes stacked below the floor, cropped to the observed area (static);
                                   a building: world/grids/floor<id>/{...} below each floor, its query
                                   heatmap from that floor's map
-    world/goals                   Boxes3D: one box per goal object, labelled with the goal's name (static)
-    world/routes                  LineStrips3D: every verified episode's geodesic path (static)
+    world/goals                   Boxes3D: one box per goal object, labelled with the goal's name, standing on
+                                  its floor (static)
+    world/routes                  LineStrips3D: every verified episode's geodesic path, each leg on its floor, a
+                                  building's climb between them (static)
     world/routes/starts           Arrows3D: start poses (static)
     world/episode/robot           Points3D + Arrows3D: the agent's pose per step          timeline: step
     world/episode/path            LineStrips3D: the path walked so far per step
@@ -90,19 +92,21 @@ def write_recording(ws, params, scene: str, out: str | Path, *, episode: str | N
                 where = "" if len(recon.floors) == 1 else f"floor{floor.id}/"
                 summary["grids"] += [where + what for what in _log_grids(rec, rr, recon, result, k, where)]
         floor_z = recon.floor_z if recon is not None else 0.0
+        # each floor's height (a building's goals and route legs stand on their own floor)
+        floor_zs = [f.floor_z_m for f in recon.floors] if recon is not None and len(recon.floors) > 1 else [floor_z]
         goals = None
         if art["goals"].exists():
             from pipeline.goals.store import Goals
 
             goals = Goals(art["goals"])
-            summary["goal_boxes"] = _log_goals(rec, rr, "world/goals", goals, goals.goals, floor_z)
+            summary["goal_boxes"] = _log_goals(rec, rr, "world/goals", goals, goals.goals, floor_zs)
         if art["routes"].exists() and goals is not None:
             from pipeline.routes.store import Routes
 
-            summary["routes"] = _log_routes(rec, rr, Routes(art["routes"]), goals, floor_z)
+            summary["routes"] = _log_routes(rec, rr, Routes(art["routes"]), goals, floor_zs)
         if ep_log is not None:
             if goals is not None:
-                _log_goals(rec, rr, "world/episode/goal", goals, [goals.goal(ep_log["goal"])], floor_z)
+                _log_goals(rec, rr, "world/episode/goal", goals, [goals.goal(ep_log["goal"])], floor_zs)
             summary.update(_log_episode(rec, rr, ep_log, floor_z))
         rec.flush()
         rec.disconnect()
@@ -268,8 +272,9 @@ def _goal_colors(n: int) -> np.ndarray:
     return label_colors(np.arange(1, n + 1)).reshape(-1, 3)
 
 
-def _log_goals(rec, rr, path: str, goals, views, floor_z: float) -> int:
-    """One labelled box per object of each goal (footprint bounds x height range); returns the box count."""
+def _log_goals(rec, rr, path: str, goals, views, floor_zs: list[float]) -> int:
+    """One labelled box per object of each goal (footprint bounds x height range above its floor, ``floor_zs``
+    the world z of each floor); returns the box count."""
     index = {g.id: i for i, g in enumerate(goals.goals)}
     colors = _goal_colors(len(goals.goals))
     centers, half, labels, cols = [], [], [], []
@@ -278,7 +283,7 @@ def _log_goals(rec, rr, path: str, goals, views, floor_z: float) -> int:
             o = goals.objects[key]
             fp = np.asarray(o.footprint, np.float64)
             lo, hi = fp.min(axis=0), fp.max(axis=0)
-            z0, z1 = floor_z + o.z_range[0], floor_z + o.z_range[1]
+            z0, z1 = floor_zs[o.floor] + o.z_range[0], floor_zs[o.floor] + o.z_range[1]
             centers.append([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (z0 + z1) / 2])
             half.append([(hi[0] - lo[0]) / 2, (hi[1] - lo[1]) / 2, max((z1 - z0) / 2, 0.01)])
             labels.append(f"{gv.name} ({key})")
@@ -289,17 +294,20 @@ def _log_goals(rec, rr, path: str, goals, views, floor_z: float) -> int:
     return len(centers)
 
 
-def _log_routes(rec, rr, routes, goals, floor_z: float) -> int:
+def _log_routes(rec, rr, routes, goals, floor_zs: list[float]) -> int:
+    """Every episode's path 5 cm above the floor it is walked on (a building's: leg by leg on each floor, the climb a
+    straight segment from one leg's end to the next leg's start) and its start pose."""
     index = {g.id: i for i, g in enumerate(goals.goals)}
     colors = _goal_colors(len(goals.goals))
     eps = routes.episodes
     if not eps:
         return 0
-    z = floor_z + 0.05
-    strips = [np.column_stack([e.path_xy, np.full(len(e.path_xy), z)]) for e in eps]
+    lift = 0.05
+    strips = [np.concatenate([np.column_stack([xy, np.full(len(xy), floor_zs[f] + lift)]) for f, xy in e.legs()])
+              for e in eps]
     cols = np.asarray([colors[index.get(e.goal_id, 0)] for e in eps], np.uint8)
     rec.log("world/routes", rr.LineStrips3D(strips, colors=cols, radii=0.02, labels=[e.id for e in eps]), static=True)
-    starts = np.asarray([[e.start[0], e.start[1], z] for e in eps])
+    starts = np.asarray([[e.start[0], e.start[1], floor_zs[e.start_floor] + lift] for e in eps])
     yaw = np.asarray([e.start[2] for e in eps])
     rec.log("world/routes/starts", rr.Arrows3D(origins=starts, vectors=np.column_stack(
         [0.4 * np.cos(yaw), 0.4 * np.sin(yaw), np.zeros(len(eps))]), colors=cols), static=True)

@@ -31,23 +31,28 @@ eval: {workers: 1, seeds: [0, 1]}
 """
 
 
+def run_workspace(root: Path, params_text: str):
+    """``params_text`` written to ``root/params.yaml`` and every stage of its scenes built by ``zipon run`` (real
+    code); returns ``(Workspace, Params)``."""
+    from zipon.cli import main
+    from pipeline.paramsfile import load_params
+    from pipeline.paths import Workspace
+
+    (root / "params.yaml").write_text(params_text)
+    code = main(["-q", "-p", str(root / "params.yaml"), "--data-dir", str(root / "data"),
+                 "--manifests-dir", str(root / "manifests"), "run"])
+    assert code == 0, f"zipon run failed in {root}"
+    ws = Workspace.resolve(root / "params.yaml", data_dir=root / "data", manifests_dir=root / "manifests")
+    return ws, load_params(ws.params_path)
+
+
 @pytest.fixture(scope="session")
 def built_scene(tmp_path_factory):
     """The start-to-finish run: a tiny simulated scene built by ``zipon run`` (every stage, real code).
 
     Returns ``(Workspace, Params)``; tests must not modify its artifacts.
     """
-    from zipon.cli import main
-    from pipeline.paramsfile import load_params
-    from pipeline.paths import Workspace
-
-    root = tmp_path_factory.mktemp("smoke_ws")
-    (root / "params.yaml").write_text(TINY_PARAMS)
-    code = main(["-q", "-p", str(root / "params.yaml"), "--data-dir", str(root / "data"),
-                 "--manifests-dir", str(root / "manifests"), "run"])
-    assert code == 0, "zipon run failed on the tiny scene"
-    ws = Workspace.resolve(root / "params.yaml", data_dir=root / "data", manifests_dir=root / "manifests")
-    return ws, load_params(ws.params_path)
+    return run_workspace(tmp_path_factory.mktemp("smoke_ws"), TINY_PARAMS)
 
 
 @pytest.fixture(scope="session")
@@ -57,3 +62,21 @@ def two_storey_maps(tmp_path_factory):
     from tests.fixtures.map_scenes import build_two_storey_maps
 
     return build_two_storey_maps(tmp_path_factory.mktemp("house_ws"))
+
+
+HOUSE_PARAMS = """\
+scenes:
+  house: {source: simulate, building: {kind: house, stories: 2}}
+simulate: {frames: 180, width: 200, height: 150}
+encoders: {simulated: oracle, oracle: {out_size: [30, 40]}}
+goals: {max_goals: 8}
+routes: {episodes_per_goal: 1}
+eval: {workers: 1, seeds: [0]}
+"""
+
+
+@pytest.fixture(scope="session")
+def built_house(tmp_path_factory):
+    """A simulated two-storey house (rooms on both floors, one staircase) built by ``zipon run`` through every
+    stage (about 40 s of CPU). Returns ``(Workspace, Params)``; tests must not modify its artifacts."""
+    return run_workspace(tmp_path_factory.mktemp("house_built"), HOUSE_PARAMS)

@@ -359,7 +359,7 @@ def test_workbench_endpoints(workbench, data):
     method = data.draw(st.sampled_from(methods), label="method")
     url = _re.sub(r"\{(\w+)(:\w+)?\}", lambda m: quote(data.draw(HOSTILE_TEXT, label=m.group(1)) if data.draw(
         st.booleans(), label=f"hostile {m.group(1)}") else ("tiny" if m.group(1) == "scene" else "0"), safe=""), path)
-    query = data.draw(st.dictionaries(st.sampled_from(["x", "y", "u", "v", "yaw_deg", "map", "text", "objects",
+    query = data.draw(st.dictionaries(st.sampled_from(["x", "y", "u", "v", "yaw_deg", "map", "text", "objects", "floor",
                                                        "token"]), HOSTILE_TEXT, max_size=4), label="query")
     headers = {"Origin": data.draw(st.one_of(st.just("http://127.0.0.1"),  # the page's own, half the time
                                              st.sampled_from(["http://evil.example", "null", ""]))),

@@ -47,6 +47,15 @@ searches for and where, through the same rules for every method:
 A spin is remembered where it was made (:meth:`~orion_eval.modules.Modules.look_around_for`): looking
 around again there for the same thing costs no steps.
 
+In a building the agent looks on its own floor first and takes the stairs when something points to another floor:
+candidates are ranked by floor first (the floor the last hint points to, else the agent's own: a map candidate on
+another floor is tried once its own floor's are rejected, and ``goto_object`` climbs to it); the user's procedural
+reply names the stairs ("Go up the stairs. At the top, ..."), which the agent climbs before walking the rest; a
+landmark reply from another floor says the floor ("It is upstairs."), and the agent goes there before it looks for
+the landmarks (a map's landmark instances on the agent's floor count first); an exploration with no frontier left
+on its floor goes on on the next floor (:meth:`~orion_eval.modules.Modules.floor_to_explore`). A rejected place is
+rejected on its floor only.
+
 Without anything left to try, a method that explores searches the frontiers with its detector, for as long
 as frontiers are left and its search still moves it (``eval.explore_max_targets`` bounds one search, not the
 episode: giving up with unexplored rooms left would waste the step budget); one with a detector and no exploration
@@ -89,6 +98,7 @@ class SearchState:
     name: str  # the goal's name
     description: str | None = None  # the user's description of the goal, once given
     rejected: list = field(default_factory=list)  # centres of places the user said "No" to
+    rejected_floors: list = field(default_factory=list)  # the floor of each of them
     deferred: set = field(default_factory=set)  # map candidates whose double-check failed (tried last)
     focus: list = field(default_factory=list)  # per hint, the (K,2) points the goal is near (landmarks, route end)
     route_end: np.ndarray | None = None  # where the user's last route (or pointed destination) ended
@@ -100,6 +110,7 @@ class SearchState:
     marks: list = field(default_factory=list)  # ids of the map's landmark instances in force (those in the hints)
     passed: dict = field(default_factory=dict)  # landmark phrase -> ids of sighted instances that proved wrong
     map_wrong: int = 0  # map candidates the user has said "No" to (ModularAgent.double_check_after)
+    hint_floor: int | None = None  # the floor the user's last hint points to (a building), None: the agent's own
     one_prompt: bool = False  # the detector holds one prompt (CoW's CLIP saliency): the description replaces the name
 
     @property
@@ -115,6 +126,11 @@ class SearchState:
         if not self.description:
             return [self.name]
         return [self.description] if self.one_prompt else [self.description, self.name]
+
+    def reject(self, obj) -> None:
+        """Remember a found object's place (its centre, on its floor) as not the goal."""
+        self.rejected.append(obj.center_xy)
+        self.rejected_floors.append(obj.floor)
 
     def hint_points(self) -> np.ndarray | None:
         """``(K,2)`` points of every hint in force (the landmarks found, a route's end), or None without hints: where
@@ -155,23 +171,32 @@ class ModularAgent(Agent):
             oid = self.next_candidate(m, st, goal_name)
             if oid is None:
                 return
-            st.rejected.append(m.objects[oid].center_xy)
+            st.reject(m.objects[oid])
             fb = parse_feedback(m.talk(f"Is this {goal_name}?"))
             self.update(m, st, fb, oid, goal_name)
 
     # ------------------------------------------------------------------ think and act
     def skip(self, m, st: SearchState, negatives: set):
         radius = self.params.eval.reject_radius_m
-        return lambda i: self.near_any(m, i, st.rejected, radius) or i in negatives
+
+        def rejected(i: int) -> bool:
+            floor = m.objects[i].floor
+            floors = st.rejected_floors + [0] * (len(st.rejected) - len(st.rejected_floors))  # places given bare: 0
+            return self.near_any(m, i, [c for c, f in zip(st.rejected, floors) if f == floor], radius)
+        return lambda i: rejected(i) or i in negatives
 
     def ranked(self, m, st: SearchState, ids: list[int], first: set = frozenset()) -> list[int]:
-        """Nearest the hints first (the agent's distance breaks ties; without hints: nearest the agent). After a
-        route, the distance to its end comes first, in whole metres (the route is not precise), then the hints
-        (the landmarks say where within that metre), then ``first`` (what was seen as the description)."""
+        """On the preferred floor first (the one the last hint points to, else the agent's), then nearest the hints
+        (the agent's distance breaks ties; without hints: nearest the agent). After a route, the distance to its end
+        comes first, in whole metres (the route is not precise), then the hints (the landmarks say where within that
+        metre), then ``first`` (what was seen as the description)."""
+        floor = m.floor if st.hint_floor is None else st.hint_floor
+
         def key(i: int):
             xy = m.objects[i].center_xy
             end = 0 if st.route_end is None else round(float(np.hypot(*(xy - st.route_end))))
-            return end, round(st.focus_distance(xy), 2), i not in first, m.relative(i)[0], i
+            return m.objects[i].floor != floor, end, round(st.focus_distance(xy), 2), i not in first, \
+                m.relative(i)[0], i
         return sorted(ids, key=key)
 
     def map_candidates(self, m, st: SearchState, which: str) -> list[int]:
@@ -217,24 +242,24 @@ class ModularAgent(Agent):
                 hit = m.search_objects(st.queries, dict.fromkeys(st.queries, skip), near=st.hint_points())
                 oid = hit[1] if hit else None
                 if oid is None:
-                    if m.frontier(st.hint_points()) is not None and m.run.body.steps > steps:
+                    if m.can_explore(st.hint_points()) and m.run.body.steps > steps:
                         continue  # frontiers left: search on from here
                     return None
                 m.goto_object(oid)
                 if st.description and m.check_attributes(oid, st.name, st.description) is False:
-                    st.rejected.append(m.objects[oid].center_xy)
+                    st.reject(m.objects[oid])
                     continue
                 return oid
             oid = todo[0]
             if not m.goto_object(oid):
-                st.rejected.append(m.objects[oid].center_xy)
+                st.reject(m.objects[oid])
                 continue
             checks = mods.detector and m.objects[oid].from_map and st.map_wrong >= self.double_check_after
             if checks and oid not in st.deferred and not m.double_check(oid):
                 st.deferred.add(oid)
                 continue
             if mods.detector and st.description and m.check_attributes(oid, st.name, st.description) is False:
-                st.rejected.append(m.objects[oid].center_xy)  # seen, and not the described colour / material
+                st.reject(m.objects[oid])  # seen, and not the described colour / material
                 continue
             return oid
 
@@ -262,8 +287,9 @@ class ModularAgent(Agent):
         while st.spin_at is not None and not st.spotted:
             target, st.spin_at, st.spin_then = st.spin_at, st.spin_then, None
             here = np.asarray(m.pose[:2])
-            if float(np.hypot(*(target - here))) > self.params.eval.reject_radius_m:
-                m.goto_point(target)
+            elsewhere = st.hint_floor is not None and st.hint_floor != m.floor
+            if elsewhere or float(np.hypot(*(target - here))) > self.params.eval.reject_radius_m:
+                m.goto_point(target, floor=st.hint_floor)
             seen = m.look_around_for(st.queries)
             # the described detections first among equals, then what is seen as the name only
             found = [t[0] for q in st.queries for t in seen[q]] + st.spotted
@@ -281,6 +307,11 @@ class ModularAgent(Agent):
         if fb.description:
             st.description = fb.description
             st.spotted = []
+        if fb.stairs or fb.floor_offset:  # the goal is on another floor: go there first
+            m.take_stairs(m.floor + (sum(1 if w == "up" else -1 for w in fb.stairs) or fb.floor_offset))
+            st.hint_floor = m.floor
+            st.spotted, st.focus, st.route_end, st.marks = [], [], None, []
+            st.spin_at, st.spin_then = (np.asarray(m.pose[:2], np.float64) if self.modules.detector else None), None
         if fb.route or fb.destination:
             if fb.route:
                 self.follow_route(m, fb.route)
@@ -359,6 +390,13 @@ class ModularAgent(Agent):
         if which:
             for phrase in (p for p in phrases if p not in st.landmarks):
                 hits = [t[0] for t in m.retrieve_map(phrase, which)]
+                # a building: the instances on the preferred floor, else those of the floor the nearest one is on
+                floor = m.floor if st.hint_floor is None else st.hint_floor
+                mine = [i for i in hits if m.objects[i].floor == floor]
+                if hits and not mine:
+                    st.hint_floor = m.objects[hits[0]].floor
+                    mine = [i for i in hits if m.objects[i].floor == st.hint_floor]
+                hits = mine
                 st.landmark_ids[phrase] = hits
                 st.landmarks[phrase] = self.places(m, hits)
         elif self.modules.detector:

@@ -44,13 +44,19 @@ def validate_edit(edit_file: Path, goals_path: Path) -> GoalsDocument:
 
 
 def check_document(doc: GoalsDocument, goals_path: Path, *, origin: Path | str | None = None) -> GoalsDocument:
-    """``doc`` checked against the scene in ``goals_path``: same scene, and every object and room it names exists
-    there (:class:`InputDataError` naming ``origin``, the field path and the reason)."""
+    """``doc`` checked against the scene in ``goals_path``: same scene, every object and room it names exists
+    there, and each goal's objects lie on one floor (a building's; :class:`InputDataError` naming ``origin``, the
+    field path and the reason)."""
     goals = Goals(goals_path)
     if doc.scene != goals.scene:
         raise InputDataError(f"document is for scene {doc.scene!r}, the goals store is scene {goals.scene!r}",
                              path=origin, field="scene")
     check_against_objects(doc, set(goals.objects), set(goals.document.rooms), path=origin)
+    for i, g in enumerate(doc.goals):
+        if len({goals.objects[k].floor for k in g.objects}) > 1:
+            named = ", ".join(f"{k} (floor {goals.objects[k].floor})" for k in g.objects)
+            raise InputDataError(f"{named} lie on different floors; a goal's objects lie on one floor",
+                                 path=origin, field=f"goals[{i}].objects")
     return doc
 
 

@@ -6,6 +6,12 @@ labels never collide or get clipped), landmark links (dashed) to the objects nam
 feedback. ``routes``: the same goals, plus each stored episode's FMM polyline with its start pose (a
 dot and a heading tick). :func:`render_episodes`: an evaluated episode's walked path over the same map.
 A scale bar and north arrow come from :mod:`pipeline.pictures`.
+
+A building is drawn one floor at a time (``floor``; ``zipon render --what goals`` writes ``goals_floor<k>.png``):
+that floor's colour map, objects and goals (numbered as on every floor, the legend listing the floor's), each route's
+leg on that floor (a cross-floor route is drawn on every floor it crosses), the stairs' ends (a triangle pointing up
+at a foot, down at a head, named by the floor they lead to) and metre axes along the left and bottom edges. A
+single-floor scene's picture is as it always was.
 """
 
 from __future__ import annotations
@@ -19,10 +25,11 @@ from pipeline.errors import ConfigError
 from pipeline.geometry import GridSpec
 from pipeline.goals.store import Goals
 from pipeline.routes.store import Routes
-from pipeline.pictures import add_legend, add_scale_bar, label_colors, write_png
+from pipeline.pictures import add_legend, add_metre_axes, add_scale_bar, label_colors, write_png
 
 WHATS = ("goals", "routes")
 SCALE = 3  # output pixels per grid cell
+STAIR_COLOUR = (255, 152, 0)  # the stairs' ends on a building's floor
 
 
 def _px(grid: GridSpec, xy: np.ndarray) -> np.ndarray:
@@ -34,34 +41,49 @@ def _px(grid: GridSpec, xy: np.ndarray) -> np.ndarray:
     return np.round(np.stack([u, v], -1)).astype(np.int32)
 
 
-def render_goals(recon_path, goals_path, routes_path, what: str, out_png, *, crop: bool = True) -> Path:
-    """Draw goals (and routes) over the colour map; returns the PNG path."""
+def render_goals(recon_path, goals_path, routes_path, what: str, out_png, *, crop: bool = True,
+                 floor: int = 0) -> Path:
+    """Draw goals (and routes) over the colour map of floor ``floor`` (0: the only floor of a single-floor scene);
+    returns the PNG path."""
     from pipeline.recon import Recon
 
     if what not in WHATS:
         raise ConfigError(f"render --what {what!r}: expected one of {list(WHATS)}")
     recon = Recon(recon_path)
+    n_floors = len(recon.floors)
+    if not 0 <= floor < n_floors:
+        raise ConfigError(f"--floor {floor}: {Path(recon_path).parent.name} has {n_floors} "
+                          f"floor{'s' if n_floors != 1 else ''} (0..{n_floors - 1})")
+    building = n_floors > 1
     goals = Goals(goals_path)
-    grid = recon.grid
-    img, box = _base(recon, goals, crop)
+    level = recon.floor(floor)
+    grid = level.grid
+    img, box = _base(level, goals, crop, floor)
     colors = label_colors(np.arange(1, len(goals.goals) + 1)).reshape(-1, 3)
+    shown = [(k, g, col) for k, (g, col) in enumerate(zip(goals.goals, colors), 1) if g.floor == floor]
     overlay = img.copy()
-    for g, col in zip(goals.goals, colors):
+    for _, g, col in shown:
         for fp in g.footprints:
             cv2.fillPoly(overlay, [_px(grid, fp)], tuple(int(c) for c in col))
     img = cv2.addWeighted(overlay, 0.6, img, 0.4, 0)
+    episodes = []
     if what == "routes" and routes_path is not None:
         routes = Routes(routes_path)
+        episodes = [e for e in routes.episodes if floor in e.floors]
         gcol = {g.id: tuple(int(c) for c in col) for g, col in zip(goals.goals, colors)}
-        for e in routes.episodes:
+        for e in episodes:
             col = gcol.get(e.goal_id, (0, 0, 0))
-            cv2.polylines(img, [_px(grid, e.path_xy)], False, col, 2, cv2.LINE_AA)
+            for f, xy in (e.legs() if building else [(floor, e.path_xy)]):
+                if f == floor and len(xy):
+                    cv2.polylines(img, [_px(grid, xy)], False, col, 2, cv2.LINE_AA)
+            if e.start_floor != floor:
+                continue
             s = _px(grid, e.start[:2])[0]
             tip = _px(grid, np.array(e.start[:2]) + 0.4 * np.array([np.cos(e.start[2]), np.sin(e.start[2])]))[0]
             cv2.circle(img, tuple(int(v) for v in s), 5, col, -1, cv2.LINE_AA)
             cv2.circle(img, tuple(int(v) for v in s), 5, (0, 0, 0), 1, cv2.LINE_AA)
             cv2.line(img, tuple(int(v) for v in s), tuple(int(v) for v in tip), (0, 0, 0), 2, cv2.LINE_AA)
-    for g, col in zip(goals.goals, colors):
+    for _, g, col in shown:
         c = _px(grid, g.mass_center)[0]
         for lm in g.landmarks:
             o = goals.objects.get(lm["object"])
@@ -69,16 +91,24 @@ def render_goals(recon_path, goals_path, routes_path, what: str, out_png, *, cro
                 _dashed(img, c, _px(grid, o.mass_center)[0], (60, 60, 60))
         for fp in g.footprints:
             cv2.polylines(img, [_px(grid, fp)], True, (0, 0, 0), 2, cv2.LINE_AA)
-    for k, g in enumerate(goals.goals, 1):
+    if building:
+        _stairs(img, recon, floor, grid)
+    for k, g, _ in shown:
         _marker(img, str(k), _px(grid, g.mass_center)[0])
-    title = f"{goals.scene}: {len(goals.goals)} goals" + (
-        f", {len(Routes(routes_path).episodes)} verified routes" if what == "routes" and routes_path else "")
-    img = _finish(img, box, grid, title, crop)
-    legend = [(tuple(int(v) for v in col), f"{k} {g.name} ({g.type})")
-              for k, (g, col) in enumerate(zip(goals.goals, colors), 1)]
+    if not building:
+        title = f"{goals.scene}: {len(goals.goals)} goals" + (
+            f", {len(episodes)} verified routes" if what == "routes" and routes_path else "")
+    else:
+        # short enough for a small floor's picture: goals shown of all, routes with a leg on this floor
+        title = (f"{goals.scene}, {level.floor.name} ({level.floor_z:.2f} m): {len(shown)}/{len(goals.goals)} goals"
+                 + (f", {len(episodes)} verified routes" if what == "routes" and routes_path else ""))
+    img = _finish(img, box, grid, title, crop, axes=building)
+    legend = [(tuple(int(v) for v in col), f"{k} {g.name} ({g.type})") for k, g, col in shown]
     extra = [((90, 90, 90), "other objects (outline)"), ((60, 60, 60), "- - landmark link")]
     if what == "routes":
         extra.append(((0, 0, 0), "route start + heading"))
+    if building and recon.stairs:
+        extra.append((STAIR_COLOUR, "stairs: up at a foot, down at a head"))
     return write_png(Path(out_png), add_legend(img, legend + extra, title="goals"))
 
 
@@ -112,8 +142,9 @@ def render_episodes(recon_path, goals_path, runs: list[tuple[str, list, str]], o
     return written
 
 
-def _base(recon, goals: Goals, crop: bool) -> tuple[np.ndarray, tuple[int, int, int, int]]:
-    """The lightened colour map upscaled ``SCALE`` times with every object outlined, and the crop box."""
+def _base(recon, goals: Goals, crop: bool, floor: int = 0) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+    """The lightened colour map (of ``recon``: a store, or one floor's grids) upscaled ``SCALE`` times with every
+    object of floor ``floor`` outlined, and the crop box."""
     grid = recon.grid
     base = recon.color.copy()
     base[~(recon.occupancy > 0)] = 255
@@ -121,16 +152,39 @@ def _base(recon, goals: Goals, crop: bool) -> tuple[np.ndarray, tuple[int, int, 
     img = (img.astype(np.float32) * 0.75 + 255 * 0.25).astype(np.uint8)  # lighten so overlays read
     box = _crop_box(recon.occupancy > 0, img.shape) if crop else (0, img.shape[0], 0, img.shape[1])
     for o in goals.objects.values():
-        cv2.polylines(img, [_px(grid, o.footprint)], True, (90, 90, 90), 1, cv2.LINE_AA)
+        if o.floor == floor:
+            cv2.polylines(img, [_px(grid, o.footprint)], True, (90, 90, 90), 1, cv2.LINE_AA)
     return img, box
 
 
-def _finish(img: np.ndarray, box, grid: GridSpec, title: str, crop: bool) -> np.ndarray:
-    """Crop, title band, scale bar and north arrow."""
-    if crop:
-        img = np.ascontiguousarray(img[box[0]:box[1], box[2]:box[3]])
+def _stairs(img: np.ndarray, recon, floor: int, grid: GridSpec) -> None:
+    """The ends of the stairs on ``floor``: a triangle pointing up at a foot, down at a head, and where it leads."""
+    for link in recon.stairs:
+        for end, up, other in ((link.bottom, True, link.top.floor), (link.top, False, link.bottom.floor)):
+            if end.floor != floor:
+                continue
+            u, v = (int(a) for a in _px(grid, end.xy)[0])
+            d = -1 if up else 1
+            tri = np.array([[u, v + 11 * d], [u - 10, v - 8 * d], [u + 10, v - 8 * d]], np.int32)
+            cv2.fillPoly(img, [tri], STAIR_COLOUR, cv2.LINE_AA)
+            cv2.polylines(img, [tri], True, (0, 0, 0), 1, cv2.LINE_AA)
+            text = f"{link.kind} {'up' if up else 'down'} to floor {other}"
+            for colour, width in (((255, 255, 255), 3), ((0, 0, 0), 1)):
+                cv2.putText(img, text, (u + 13, v + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.42, colour, width, cv2.LINE_AA)
+
+
+def _finish(img: np.ndarray, box, grid: GridSpec, title: str, crop: bool, *, axes: bool = False) -> np.ndarray:
+    """Crop, title band, scale bar and north arrow; ``axes``: metre ticks along the left and bottom edges."""
+    if not crop:
+        box = (0, img.shape[0], 0, img.shape[1])
+    img = np.ascontiguousarray(img[box[0]:box[1], box[2]:box[3]])
+    if axes:  # the scale bar and north arrow on the map itself, the ticks in margins around it
+        px_per_m = SCALE / grid.cell_size_m
+        img = add_metre_axes(add_scale_bar(img, grid.cell_size_m / SCALE), grid.origin_xy[0] + box[2] / px_per_m,
+                             grid.origin_xy[1] - box[0] / px_per_m, px_per_m)
     img = np.ascontiguousarray(np.pad(img, ((26, 0), (0, 0), (0, 0)), constant_values=255))
-    img = add_scale_bar(img, grid.cell_size_m / SCALE)
+    if not axes:
+        img = add_scale_bar(img, grid.cell_size_m / SCALE)
     cv2.putText(img, title, (8, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
     return img
 

@@ -8,6 +8,9 @@
   floor (candidate numbers are those of the combined list).
 - :func:`render_map_pca`: one floor's map features projected on their first three principal axes as
   RGB, a quick look at what the map separates.
+
+A building's pictures (each floor of a query of every floor, each floor's features) also have metre axes along
+their left and bottom edges; a single-floor scene's are as they always were.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ import numpy as np
 from pipeline.maps.floors import FloorsResult
 from pipeline.maps.query import QueryResult
 from pipeline.maps.store import SemanticMap
-from pipeline.pictures import add_colorbar, add_legend, add_scale_bar, colorize, write_png
+from pipeline.pictures import add_colorbar, add_legend, add_metre_axes, add_scale_bar, colorize, write_png
 
 HEAT_FLOOR = 0.3  # cells below this probability keep the colour map untinted
 
@@ -85,6 +88,8 @@ def _query_image(result: QueryResult, crop: bool, *, title_floor: bool = False) 
         cv2.circle(img, (int(pc[0]), int(pc[1])), 7, (255, 0, 255), -1)
         cv2.arrowedLine(img, (int(pc[0]), int(pc[1])), (int(tip[0]), int(tip[1])), (255, 0, 255), 3, tipLength=0.35)
     img = add_scale_bar(img, g.cell_size_m / k)
+    if title_floor:  # one floor of a building
+        img = _axes(img, g, r0, c0, k)
     img = add_colorbar(img, 0.0, 1.0, f"P('{result.text}' vs background)")
     legend = [((255, 255, 255), "candidate outline"), ((0, 0, 0), "n = candidate rank")]
     if result.pose is not None:
@@ -113,4 +118,13 @@ def render_map_pca(map_path: str | Path, out_png: str | Path, *, crop: bool = Tr
     img = img.reshape(g.rows, g.cols, 3)
     r0, r1, c0, c1 = _crop_box(smap.observed()) if crop else (0, g.rows, 0, g.cols)
     img, k = _upscale(np.ascontiguousarray(img[r0:r1, c0:c1]))
-    return write_png(Path(out_png), add_scale_bar(img, g.cell_size_m / k))
+    img = add_scale_bar(img, g.cell_size_m / k)
+    if len(smap.floors) > 1:
+        img = _axes(img, g, r0, c0, k)
+    return write_png(Path(out_png), img)
+
+
+def _axes(img: np.ndarray, g, r0: int, c0: int, k: int) -> np.ndarray:
+    """Metre axes on a picture of grid ``g`` cropped at cell (``r0``, ``c0``) and upscaled ``k`` times."""
+    return add_metre_axes(img, g.origin_xy[0] + c0 * g.cell_size_m, g.origin_xy[1] - r0 * g.cell_size_m,
+                          k / g.cell_size_m)

@@ -173,6 +173,14 @@ class EpisodeView:
     instruction: str
     start_floor: int = 0  # a building: the floor it starts on
     floors: tuple[int, ...] = (0,)  # the floors it walks, in order (a stair between each two)
+    leg_points: tuple[int, ...] = ()  # a building: each floor's leg's points in path_xy (empty: one leg)
+
+    def legs(self) -> list[tuple[int, np.ndarray]]:
+        """``[(floor, (K,2) xy)]``: the path cut into the legs walked on each floor, in order (one leg on one
+        floor); a stair joins each leg's end to the next leg's start."""
+        counts = self.leg_points or (len(self.path_xy),)
+        ends = np.cumsum(counts)
+        return [(int(f), self.path_xy[e - n: e]) for f, n, e in zip(self.floors, counts, ends)]
 
 
 class Routes:
@@ -196,7 +204,7 @@ class Routes:
         return EpisodeView(r.id, r.goal_id, r.start, r.geodesic_m,
                            self._path_xy[self._path_off[i]: self._path_off[i + 1]],
                            self._actions[self._act_off[i]: self._act_off[i + 1]], r.instruction,
-                           r.start_floor or 0, tuple(r.floors or (r.start_floor or 0,)))
+                           r.start_floor or 0, tuple(r.floors or (r.start_floor or 0,)), tuple(r.leg_points or ()))
 
     @property
     def step_m(self) -> float:

@@ -79,8 +79,8 @@ def draw_scene_topdown(gt: GTScene, *, px_per_m: float = 50.0, path_xy: np.ndarr
     import cv2
 
     stairs = gt.stairs
+    grid = scene_grid(gt, 1.0 / px_per_m, margin_m=0.8)  # the whole building's: every floor's plan is aligned
     gt = gt.floor_view(floor)
-    grid = scene_grid(gt, 1.0 / px_per_m, margin_m=0.8)
     img = np.full((grid.rows, grid.cols, 3), 255, dtype=np.uint8)
 
     def rc(xy):

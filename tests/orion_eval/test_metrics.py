@@ -68,3 +68,15 @@ def test_per_setting_wilcoxon_and_the_significance_star():
     assert yes["p"] == pytest.approx(wilcoxon(*[np.array([float(e["success"]) for e in eps if e["method"] == m
                                                           and e["feedback"] == "yesno"]) for m in "ab"]).pvalue)
     assert yes["p"] < 0.001 and significantly_best(tests, "a") == {"yesno"} and significantly_best(tests, "b") == set()
+
+
+def test_a_buildings_episodes_are_also_reported_by_whether_they_cross_floors():
+    eps = [{**_ep("a", 0, "g1", True, 4, 8, 1), "cross_floor": False}, {**_ep("a", 0, "g1", False, 9, 3, 5),
+                                                                         "cross_floor": True},
+           {**_ep("a", 1, "g1", True, 9, 9, 2), "cross_floor": True}]
+    res = summarize(eps, methods=["a"], feedback=["yesno"], seeds=[0, 1], scenes=["s"])
+    floors = res["by_floors"]["a"]
+    assert floors["same floor"]["yesno"]["episodes"] == 1 and floors["same floor"]["yesno"]["SR"] == 100.0
+    assert floors["cross floor"]["yesno"]["episodes"] == 2 and floors["cross floor"]["yesno"]["SR"] == 50.0
+    flat = summarize([_ep("a", 0, "g1", True, 4, 8, 1)], methods=["a"], feedback=["yesno"], seeds=[0], scenes=["s"])
+    assert "by_floors" not in flat  # single-floor results as before buildings

@@ -253,3 +253,100 @@ def test_an_exploration_with_hints_goes_first_to_the_frontier_nearest_them(tiny_
     hinted = m.frontier(near=far[None])
     assert np.hypot(*(hinted - far)) < 0.5  # the frontier at the hint, not the nearest one
     assert np.array_equal(m.frontier(near=None), plain)
+
+
+def _house_runs(tiny_house, cross: bool):
+    """ORION episodes of the tiny house, one per goal with an episode starting on another floor (``cross``) or on its
+    own floor: ``(ctx, goal, EpisodeRun)``."""
+    ws, params = tiny_house
+    ctx = SceneContext(Scene(ws, params, "house", STAGES, check=True))
+    for goal in ctx.scene.goals.goals:
+        for ep in ctx.scene.routes.for_goal(goal.id):
+            if (ep.start_floor != goal.floor) == cross:
+                task = Task("house", "orion", "yesno", 0, goal.id, ep.id, ep.start, ep.geodesic_m, ep.start_floor)
+                user = SimulatedUser(ctx, goal, "yesno", np.random.default_rng(0))
+                yield ctx, goal, EpisodeRun(ctx, task, user, 2000, 5)
+                break
+
+
+def _house_run(tiny_house, cross: bool):
+    found = next(_house_runs(tiny_house, cross), None)
+    assert found is not None, "the tiny house has no such episode"
+    return found
+
+
+def test_take_stairs_walks_to_the_stair_and_climbs_it_with_forward_steps(tiny_house):
+    ctx, goal, run = _house_run(tiny_house, cross=True)
+    m = run.modules
+    start = m.floor
+    assert ctx.is_building and len(ctx.world.stairs) >= 1 and start != goal.floor
+    assert m.take_stairs(goal.floor)
+    assert m.floor == goal.floor and run.body.collisions == 0
+    assert run.body.floors[0] == start and run.body.floors[-1] == goal.floor
+    assert any(e[1] == "stairs" for e in run.events)
+    # climbing: the last actions are forward steps along the stair
+    assert run.body.actions[-ctx.world.stairs[0].steps:] == [FORWARD] * ctx.world.stairs[0].steps
+    assert m.take_stairs(goal.floor) and m.floor == goal.floor  # already there: nothing to do
+
+
+def test_a_map_candidate_on_another_floor_is_reached_over_the_stairs_after_those_on_the_agents_floor(tiny_house):
+    """Every floor's map answers ``retrieve_map``; the candidates of the agent's floor rank first (the controller),
+    and ``goto_object`` on a candidate of the other floor climbs there and ends in its goal region."""
+    from orion_eval.agents.controller import ModularAgent, SearchState
+
+    ctx, _, run = _house_run(tiny_house, cross=True)
+    m, here = run.modules, run.modules.floor
+    from pipeline.nav.verify import point_polygon_distance
+
+    for key, obj in sorted(ctx.scene.goals.objects.items()):  # an object of the other floor the map finds
+        if obj.floor == here:
+            continue
+        hits = [i for i, _, _ in m.retrieve_map(obj.cls, "vlmap")]
+        fp = ctx.footprint_mask((key,)).reshape(-1)
+        on_it = [i for i in hits if m.objects[i].floor == obj.floor and fp[m.objects[i].cells].any()]
+        if on_it and any(m.objects[i].floor == here for i in hits):
+            break
+    else:
+        raise AssertionError("the map finds no object of the other floor beside candidates on the agent's")
+    ranked = ModularAgent(ctx.params).ranked(m, SearchState(name=obj.cls), hits)
+    own = [i for i in ranked if m.objects[i].floor == here]
+    assert own and ranked[:len(own)] == own  # the agent's floor first
+    assert m.goto_object(on_it[0]) and m.floor == obj.floor and run.body.collisions == 0
+    assert point_polygon_distance(m.pose[:2], np.asarray(obj.footprint)) <= ctx.success_m
+
+
+def test_an_exploration_with_no_frontier_left_on_its_floor_goes_on_on_the_next(tiny_house):
+    ctx, goal, run = _house_run(tiny_house, cross=False)
+    m = run.modules
+    here = m.floor
+    assert m.floor_to_explore() == 1 - here  # the other floor: never looked around on
+    m._explored_mask()[:] = True  # this floor explored to the end
+    assert m.frontier() is None and m.can_explore()
+    m.search_objects(["a purple elephant"])
+    assert (1 - here) in run.body.floors and any(e[1] == "stairs" for e in run.events)
+    assert (1 - here) in m._explored  # looked around on the other floor
+
+
+def test_an_agent_stopped_on_a_stair_walks_off_it_before_it_plans(tiny_house):
+    ctx, goal, run = _house_run(tiny_house, cross=True)
+    m = run.modules
+    way = ctx.world.stairs[0]
+    lower = way.link.lower
+    if m.floor == lower:
+        assert m.take_stairs(way.link.upper)
+    assert m.take_stairs(lower) and tuple(m.pose[:2]) == way.link.foot_xy  # down: arrived at the foot
+    m.rotate(way.up_heading - m.pose[2])  # turned back: the stair is stepped onto from where a climb arrives
+    run.act(FORWARD), run.act(FORWARD)
+    assert run.body.stair is not None and m.floor == lower  # two steps up the stair
+    m.leave_stair()
+    assert run.body.stair is None and m.floor == way.link.upper
+
+
+def test_a_task_that_does_not_name_its_floor_starts_on_its_episodes(tiny_house):
+    """The workbench's Play builds its task from the episode without a floor: the run starts on the floor
+    routes.zarr records for the episode."""
+    ctx, goal, run = _house_run(tiny_house, cross=True)
+    ep = next(e for e in ctx.scene.routes.episodes if e.id == run.task.episode_id)
+    task = Task("house", "orion", "yesno", 0, goal.id, ep.id, ep.start, ep.geodesic_m)  # no start_floor
+    bare = EpisodeRun(ctx, task, SimulatedUser(ctx, goal, "yesno", np.random.default_rng(0)), 2000, 5)
+    assert bare.body.floor == ep.start_floor != goal.floor and bare.start_floor == ep.start_floor

@@ -205,3 +205,36 @@ def test_scenes_are_handed_to_every_worker():
 
     pids = map_processes(_pid_after, [(2.0,), (2.0,)], 2)
     assert len(set(pids)) == 2 and os.getpid() not in pids
+
+
+def test_a_building_runs_cross_floor_episodes_and_reports_them_apart(tiny_house, tmp_path, capsys):
+    """On the tiny two-storey house the evaluator runs episodes that start on the goal's floor and on the other
+    one (seeds take them in turn), the ground-truth follower reaches the cross-floor goals over the stairs, and the
+    results and the report give the cross-floor episodes apart."""
+    import gzip
+
+    ws, params = tiny_house
+    res = evaluate(ws, params, STAGES, tmp_path, methods=["human", "vlmap"], feedback=["procedural", "landmark"],
+                   seeds=[0, 1], progress=False)
+    eps = res["episodes"]
+    cross = [e for e in eps if e["cross_floor"]]
+    assert cross and len(cross) < len(eps)
+    assert all(e["start_floor"] != e["goal_floor"] for e in cross)
+    human = [e for e in cross if e["method"] == "human"]
+    assert human and all(e["success"] and e["final_floor"] == e["goal_floor"] for e in human)
+    assert all(0 < e["spl"] <= 1 for e in human)
+    floors = res["by_floors"]
+    assert set(floors["human"]) == {"same floor", "cross floor"} and floors["human"]["cross floor"]["procedural"][
+        "SR"] == 100.0
+    with gzip.open(tmp_path / "episodes" / "house.episodes.jsonl.gz", "rt") as f:
+        logs = [json.loads(line) for line in f]
+    walked = next(e for e in logs if e["method"] == "human" and e["cross_floor"])["log"]
+    assert len(walked["floors"]) == len(walked["poses"]) and walked["floors"][0] != walked["floors"][-1]
+    assert any(ev[1] == "stairs" for ev in walked["events"])
+    html = (tmp_path / "report.html").read_text()
+    assert "(cross floor, " in html and "(same floor, " in html
+    from zipon.cli.common import print_eval
+
+    print_eval(res, tmp_path)  # what zipon eval and zipon demo print
+    printed = capsys.readouterr().out
+    assert "buildings" in printed and "cross floor" in printed and "same floor" in printed

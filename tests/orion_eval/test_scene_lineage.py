@@ -101,14 +101,24 @@ def test_zipon_eval_refuses_another_step_size(tiny_scene, tmp_path, capsys):
     assert not (out / "results.json").exists()
 
 
-def test_a_building_is_refused_by_name_with_its_floors():
-    """The agents act on one floor; a scene of several floors is a clear error, never episodes scored on floor 0."""
-    from orion_eval.scene import check_one_floor
-    from pipeline.errors import StageError
-    from pipeline.recon.store import Floor
+def test_a_building_gets_a_level_per_floor_and_a_world_with_its_stairs(tiny_house, tiny_scene):
+    """A scene of several floors is evaluated (no longer refused): one level per floor (its navigable grid, planners
+    and success rule), the world joined at the stairs the reconstruction found; a single floor has one level and a
+    world without stairs."""
+    from orion_eval.scene import SceneContext
 
-    floors = (Floor(id=0, name="ground floor", floor_z_m=0.0), Floor(id=1, name="first floor", floor_z_m=3.0))
-    with pytest.raises(StageError, match=r"scene house: a building of 2 floors \(ground floor, first floor\); the "
-                                         r"evaluator's agents act on one floor and do not take stairs yet"):
-        check_one_floor("house", floors)
-    check_one_floor("flat", floors[:1])  # one floor: evaluated as ever
+    ws, params = tiny_house
+    scene = Scene(ws, params, "house", STAGES, check=True)
+    ctx = SceneContext(scene)
+    assert ctx.is_building and ctx.floor_ids == [0, 1] and [lv.floor for lv in ctx.levels] == [0, 1]
+    for f, lv in enumerate(ctx.levels):
+        assert (lv.navigable == scene.recon.floor(f).navigable).all() and lv.success is not None
+    assert len(ctx.world.stairs) == len(scene.recon.stairs) >= 1
+    way = ctx.world.stairs[0]
+    assert way.ends[0].any() and way.ends[1].any() and way.steps >= 2
+    # each floor's camera stands about as high above it as the recording's (the simulator's 0.88 m)
+    assert all(0.6 < lv.camera_height_m < 1.2 for lv in ctx.levels)
+    ws1, params1 = tiny_scene
+    flat = SceneContext(Scene(ws1, params1, "tiny", STAGES, check=True))
+    assert not flat.is_building and len(flat.levels) == 1 and flat.world.stairs == [] and flat.building is None
+    assert flat.planner is flat.levels[0].planner and flat.success is flat.levels[0].success

@@ -221,3 +221,45 @@ def test_an_unknown_kind_is_an_error_naming_the_registered_kinds(tiny_scene):
         SimulatedUser(ctx, goal, "gesture", np.random.default_rng(0))
     with pytest.raises(TypeError, match=r"\['gesture'\] are filled by no feedback kind"):
         ParsedFeedback(gesture="wave")
+
+
+def test_parse_the_stairs_and_the_floor_of_a_building():
+    """The user's words across floors: the procedural kind says the stairs and what follows them, the landmark kind
+    which floor; the agents read back the flights, the route after them and the floor offset."""
+    fb = parse_feedback("No. Go up the stairs. At the top, follow this route: turn right, go forward 4 meters.")
+    assert fb.stairs == ["up"] and fb.route == [("turn", -90.0), ("forward", 4.0)] and fb.destination is None
+    fb = parse_feedback("No. Go down 2 flights of stairs. At the bottom, it is about 5 meters behind you on the right.")
+    assert fb.stairs == ["down", "down"] and fb.destination == (-135.0, 5.0) and fb.route == []
+    fb = parse_feedback("No. It is upstairs. It is next to the bed.")
+    assert fb.floor_offset == 1 and fb.landmarks == ["the bed"] and fb.stairs == []
+    assert parse_feedback("No. It is 2 floors down.").floor_offset == -2
+    single = parse_feedback("No. It is next to the bed. Follow this route: turn left, go forward 3 meters.")
+    assert single.stairs == [] and single.floor_offset == 0  # nothing of floors on a single floor
+
+
+def test_from_another_floor_the_user_names_the_stairs_and_the_floor(tiny_house):
+    """The user's procedural directions from another floor are planned over the stairs (as the goals stage plans
+    them) and say them; the landmark kind says which floor; success is judged on the goal's floor only."""
+    from orion_eval.world import Pose
+
+    ws, params = tiny_house
+    ctx = SceneContext(Scene(ws, params, "house", STAGES, check=True))
+    said = []
+    for goal in ctx.scene.goals.goals:
+        for ep in ctx.scene.routes.for_goal(goal.id):
+            if ep.start_floor == goal.floor:
+                continue
+            pose = Pose(ep.start, ep.start_floor)
+            way = "up" if goal.floor > ep.start_floor else "down"
+            text = SimulatedUser(ctx, goal, "procedural", np.random.default_rng(0)).respond(pose)[1]
+            assert text.startswith(f"No. Go {way} the stairs."), text
+            fb = parse_feedback(text)
+            assert fb.stairs == [way] and (fb.route or fb.destination or text.endswith("stairs."))
+            land = SimulatedUser(ctx, goal, "landmark", np.random.default_rng(0)).respond(pose)[1]
+            assert land.startswith(f"No. It is {'upstairs' if way == 'up' else 'downstairs'}.")
+            assert parse_feedback(land).floor_offset == goal.floor - ep.start_floor
+            # the goal's own place, seen from the other floor, is no success (nor a distance)
+            assert not SimulatedUser(ctx, goal, "none", np.random.default_rng(0)).judge(
+                Pose(tuple(goal.mass_center) + (0.0,), ep.start_floor))["success"]
+            said.append(text)
+    assert said

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 
 from pipeline.geometry import GridSpec
-from pipeline.pictures import add_colorbar, add_legend, colorize
+from pipeline.pictures import AXIS_BOTTOM, AXIS_LEFT, add_colorbar, add_legend, add_metre_axes, colorize
 
 
 def test_colorbar_band_runs_the_colormap_from_low_to_high():
@@ -49,3 +49,16 @@ def test_query_picture_has_colorbar_and_keeps_unlikely_cells_untinted(tmp_path):
     red = colorize(np.array([[0.95]]), 0.0, 1.0)[0, 0].astype(int)
     assert np.abs(img[top + 12 * k + 4, 12 * k + 4].astype(int) - red).max() < 60
     assert img.shape[0] > top + 40 * k + 40  # colour bar and legend below the map
+
+
+def test_metre_axes_tick_each_round_metre_where_it_lies():
+    img = np.full((300, 600, 3), 200, np.uint8)
+    out = add_metre_axes(img, -1.25, 9.0, 60.0)  # 60 px a metre: a tick every metre
+    assert out.shape == (300 + AXIS_BOTTOM, 600 + AXIS_LEFT, 3) and (out[:300, AXIS_LEFT:] == 200).all()
+    dark = (out < 100).all(axis=-1)
+    for x in range(-1, 9):  # x from -1.25 to 8.75: ticks at -1 .. 8
+        assert dark[302, AXIS_LEFT + round((x + 1.25) * 60)], x
+    for y in range(5, 9):  # y from 9 (the top edge) down to 4 (the bottom edge): ticks at 5 .. 8 inside
+        assert dark[round((9.0 - y) * 60), AXIS_LEFT - 3], y
+    assert not dark[302, AXIS_LEFT + 30]  # no tick between two metres
+    assert dark[305:, AXIS_LEFT:].any() and dark[:300, :AXIS_LEFT - 6].any()  # the labels

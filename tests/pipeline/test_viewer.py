@@ -142,3 +142,34 @@ def test_a_buildings_recording_has_each_floors_grids_and_query_below_that_floor(
     full = np.asarray(recon.mesh().vertices)[:, 2]
     upper = recon.floors[1].floor_z_m
     assert full.max() > upper + 2.3 and upper + 1.0 < mesh_xyz[:, 2].max() < upper + 2.3
+
+
+def test_a_buildings_goals_and_routes_stand_on_their_floors(built_house, tmp_path):
+    import numpy as np
+    import rerun as rr
+
+    from pipeline.goals.store import Goals
+    from pipeline.recon import Recon
+    from pipeline.routes.store import Routes
+    from pipeline.viewer import write_recording
+
+    ws, params = built_house
+    rrd = tmp_path / "house.rrd"
+    write_recording(ws, params, "house", rrd, max_frames=4)
+    floor_z = [f.floor_z_m for f in Recon(ws.artifact("recon", "house")).floors]
+    goals, routes = Goals(ws.artifact("goals", "house")), Routes(ws.artifact("routes", "house"))
+    got = {}
+    for chunk in rr.chunk.RrdReader(rrd).stream():
+        batch = chunk.to_record_batch()
+        if chunk.entity_path == "/world/goals":
+            got["boxes"] = np.asarray(batch.column("Boxes3D:centers")[0].as_py())
+        if chunk.entity_path == "/world/routes":
+            got["strips"] = [np.asarray(s) for s in batch.column("LineStrips3D:strips")[0].as_py()]
+    keys = [k for g in goals.goals for k in g.object_keys]
+    for key, centre in zip(keys, got["boxes"]):  # each box between its floor and that floor's ceiling
+        o = goals.objects[key]
+        assert centre[2] == pytest.approx(floor_z[o.floor] + sum(o.z_range) / 2, abs=1e-3), key
+    for e, strip in zip(routes.episodes, got["strips"]):
+        assert len(strip) == len(e.path_xy)
+        assert sorted({round(z - 0.05, 2) for z in strip[:, 2]}) == sorted({round(floor_z[f], 2) for f in e.floors})
+        assert strip[0, 2] == pytest.approx(floor_z[e.start_floor] + 0.05)

@@ -1,7 +1,11 @@
 """What the annotation page shows of one scene, read from its built artifacts: the top-down layers as PNG, the
 objects, goals (numbered as ``zipon render --what goals`` numbers them), routes and camera trajectory as JSON in
 world metres, the frames that saw a place, map-query proposals, procedural-route previews, and warnings on
-descriptive feedback that contradicts its object."""
+descriptive feedback that contradicts its object.
+
+A building's floors (:mod:`zipon.annotate.floors`): layers, the frames that saw a place and proposals are read per
+floor; objects, rooms, goals, routes (leg by leg) and the trajectory carry their floor; the route preview crosses
+floors over the stairs. A single-floor scene is floor 0 throughout."""
 
 from __future__ import annotations
 
@@ -13,6 +17,8 @@ import cv2
 import numpy as np
 
 from pipeline.errors import InputDataError
+from zipon.annotate.floors import (building_route, check_floor, floor_records, recorded_start_floor, rounded,
+                                   stair_records)
 
 LAYERS = ("color", "height", "occupancy", "navigable", "rooms")
 TRAJECTORY_POINTS = 400  # at most this many camera poses are sent (evenly spaced)
@@ -56,12 +62,14 @@ class SceneView:
         recon = self.recon
         grid = recon.grid
         goals = self.goals
+        building = len(recon.floors) > 1
         out = {
             "scene": self.name,
             "grid": {"rows": grid.rows, "cols": grid.cols, "cell_size_m": grid.cell_size_m,
                      "origin_xy": list(grid.origin_xy), "extent_xy": list(grid.extent_xy),
                      "observed_xy": self._observed_xy()},
             "floor_z": float(recon.meta.floor_z),
+            "floors": floor_records(recon), "stairs": stair_records(recon),
             "layers": [name for name in LAYERS if name != "rooms" or self._rooms()],
             "maps": [m for m in ("vlmap", "cfmap") if self.has(m)],
             "rooms": self._rooms(),
@@ -72,13 +80,20 @@ class SceneView:
             out["objects"] = [_object_json(o) for o in goals.objects.values()]
             out["ground_truth"] = goals.meta.source == "gt"
             out["goals"] = [{"number": k, "id": g.id, "name": g.name, "type": g.type, "room_id": g.room_id,
+                             "floor": g.floor,
                              "objects": list(g.object_keys), "mass_center": [float(v) for v in g.mass_center],
                              "landmarks": [lm["object"] for lm in g.landmarks if "object" in lm]}
                             for k, g in enumerate(goals.goals, 1)]
         if self.has("routes"):
             routes = self.scene.routes
             out["routes"] = [{"id": e.id, "goal_id": e.goal_id, "start": [float(v) for v in e.start],
-                              "path": _rounded(e.path_xy)} for e in routes.episodes]
+                              "path": _rounded(e.path_xy), "start_floor": e.start_floor,
+                              "legs": [{"floor": f, "path": _rounded(xy)} for f, xy in e.legs()]}
+                             for e in routes.episodes]
+        if building:  # each camera pose's floor, as a 4th value
+            floor_of = recon.floor_of_z(recon.poses[:, 2, 3])
+            idx = self._trajectory_index()
+            out["trajectory"] = [[*p, int(floor_of[i])] for p, i in zip(out["trajectory"], idx)]
         return out
 
     def _rooms(self) -> list[dict]:
@@ -87,12 +102,19 @@ class SceneView:
             return []
         outlines = self._get("room_outlines", self._room_outlines)
         rooms = goals.document.rooms
+        # a room's floor: its outline's, else that of an object standing in it
+        floor_of = {o.room: o.floor for o in reversed(list(goals.objects.values())) if o.room}
         return [{"id": rid, "type": r.type, "name": r.name, "owners": list(r.owners),
-                 "polygon": [list(p) for p in outlines.get(rid, [])]} for rid, r in rooms.items()]
+                 "polygon": [list(p) for p in outlines.get(rid, ([], 0))[0]],
+                 "floor": outlines[rid][1] if rid in outlines else floor_of.get(rid, 0)} for rid, r in rooms.items()]
 
     def _observed_rc(self) -> tuple[int, int, int, int]:
-        """``(row0, row1, col0, col1)`` (ends excluded) of the observed cells: the whole grid when none are."""
-        rows, cols = np.nonzero(self.recon.occupancy > 0)
+        """``(row0, row1, col0, col1)`` (ends excluded) of the observed cells of every floor (the floors share one
+        grid placement, so the page keeps its view when the floor changes): the whole grid when none are."""
+        seen = self.recon.occupancy > 0
+        for k in range(1, len(self.recon.floors)):
+            seen |= self.recon.floor(k).occupancy > 0
+        rows, cols = np.nonzero(seen)
         if rows.size == 0:
             return 0, self.recon.grid.rows, 0, self.recon.grid.cols
         return int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
@@ -105,14 +127,12 @@ class SceneView:
         c = grid.cell_size_m
         return [x0 + c0 * c, x0 + c1 * c, y1 - r1 * c, y1 - r0 * c]
 
-    def _room_outlines(self) -> dict[str, list]:
-        """Room id -> floor outline: the simulator's ground truth, else the scene's objects file."""
+    def _room_outlines(self) -> dict[str, tuple[list, int]]:
+        """Room id -> (floor outline, floor): the simulator's ground truth, else the scene's objects file."""
         frames = self.frames
         gt = frames.ground_truth if frames is not None else None
-        if gt is not None:
-            return {r.id: [list(map(float, p)) for p in r.polygon] for r in gt.rooms}
-        objset = self.objects_file()
-        return {} if objset is None else {r.id: [list(map(float, p)) for p in r.polygon] for r in objset.rooms}
+        rooms = gt.rooms if gt is not None else getattr(self.objects_file(), "rooms", [])
+        return {r.id: ([list(map(float, p)) for p in r.polygon], int(r.floor)) for r in rooms}
 
     def objects_file(self):
         """The scene's objects file (``goals.objects_files.<scene>``) as an ObjectSet, or None when it has none."""
@@ -124,11 +144,16 @@ class SceneView:
             return None
         return objects_from_file(sc.workspace.root / rel, self.name)
 
+    def _trajectory_index(self) -> np.ndarray:
+        n = len(self.recon.poses)
+        return np.unique(np.linspace(0, n - 1, min(n, TRAJECTORY_POINTS)).round().astype(int)) if n else \
+            np.zeros(0, int)
+
     def _trajectory(self) -> list[list[float]]:
         poses = self.recon.poses
         if len(poses) == 0:
             return []
-        idx = np.unique(np.linspace(0, len(poses) - 1, min(len(poses), TRAJECTORY_POINTS)).round().astype(int))
+        idx = self._trajectory_index()
         xy = poses[idx, :2, 3]
         fwd = poses[idx, :2, 2]  # the camera's optical axis (z) on the floor plane
         yaw = np.arctan2(fwd[:, 1], fwd[:, 0])
@@ -136,14 +161,16 @@ class SceneView:
 
     # ------------------------------------------------------------------------- layers
 
-    def layer_png(self, name: str) -> bytes:
-        """One pixel per grid cell, north up; transparent where nothing was observed."""
+    def layer_png(self, name: str, floor: int = 0) -> bytes:
+        """One pixel per grid cell of floor ``floor``, north up; transparent where nothing was observed."""
         if name not in LAYERS:
             raise InputDataError(f"unknown layer {name!r}", field="layer", expected=f"one of {list(LAYERS)}")
-        return self._get(("layer", name), lambda: _png(self._layer_rgba(name)))
+        check_floor(self.recon, self.name, floor)
+        key = ("layer", name) if floor == 0 else ("layer", name, floor)
+        return self._get(key, lambda: _png(self._layer_rgba(name, floor)))
 
-    def _layer_rgba(self, name: str) -> np.ndarray:
-        recon = self.recon
+    def _layer_rgba(self, name: str, floor: int = 0) -> np.ndarray:
+        recon = self.recon.floor(floor)
         occ = recon.occupancy
         known = occ > 0
         rgba = np.zeros((*occ.shape, 4), np.uint8)
@@ -164,7 +191,7 @@ class SceneView:
         else:  # rooms: each room outline filled in its own colour
             from pipeline.goals.objects import rasterize_polygons
 
-            rooms = [r for r in self._rooms() if len(r["polygon"]) >= 3]
+            rooms = [r for r in self._rooms() if len(r["polygon"]) >= 3 and r["floor"] == floor]
             lab = rasterize_polygons([np.asarray(r["polygon"]) for r in rooms], recon.grid,
                                      list(range(1, len(rooms) + 1)))
             palette = np.array([[0, 0, 0], *[_hue(i, len(rooms)) for i in range(len(rooms))]], np.uint8)
@@ -175,20 +202,21 @@ class SceneView:
 
     # ------------------------------------------------------------------------- frames that saw a place
 
-    def seen(self, x: float, y: float) -> dict:
-        """Frames whose camera saw the world point (x, y) on the top surface there: its projection falls in the
-        image and the depth there agrees with the distance (so a wall in between rules the frame out). The nearest
-        views first."""
+    def seen(self, x: float, y: float, floor: int = 0) -> dict:
+        """Frames whose camera saw the world point (x, y) on the top surface there (of floor ``floor``): its
+        projection falls in the image and the depth there agrees with the distance (so a wall or a slab in between
+        rules the frame out). The nearest views first."""
         frames = self.frames
         if frames is None:
             raise InputDataError(f"scene {self.name} has no frames.zarr", field="frames")
-        grid = self.recon.grid
+        level = self.recon.floor(check_floor(self.recon, self.name, floor))
+        grid = level.grid
         rc = grid.world_to_cell(np.array([x, y]))
         if not grid.inside(rc):
             raise InputDataError(f"({x:g}, {y:g}) is off the map", field="x,y",
                                  expected=f"a point inside {[round(v, 2) for v in grid.extent_xy]}")
-        h = self._get("height", lambda: self.recon.height)[int(rc[0]), int(rc[1])]
-        z = float(self.recon.meta.floor_z) + (float(h) if np.isfinite(h) else 0.0)
+        h = self._get(("height", floor), lambda: level.height)[int(rc[0]), int(rc[1])]
+        z = float(level.floor_z) + (float(h) if np.isfinite(h) else 0.0)
         point = np.array([x, y, z, 1.0])
         poses = self._get("poses", frames.poses)
         cam = np.einsum("nij,j->ni", np.linalg.inv(poses), point)[:, :3]
@@ -220,12 +248,14 @@ class SceneView:
 
     # ------------------------------------------------------------------------- map-assisted proposals
 
-    def propose(self, which: str, text: str) -> dict:
-        """The map query's candidates for ``text`` as proposed footprints (outline of each connected winning
-        region, world metres) with their scores, and the heatmap as a PNG data URL."""
+    def propose(self, which: str, text: str, floor: int = 0) -> dict:
+        """The map query's candidates for ``text`` on floor ``floor`` as proposed footprints (outline of each
+        connected winning region, world metres) with their scores, and the heatmap as a PNG data URL."""
         import base64
 
-        result = self.scene.map(which).query(text)
+        check_floor(self.recon, self.name, floor)
+        view = self.scene.map(which)
+        result = view.floor(floor).query(text) if len(self.recon.floors) > 1 else view.query(text)
         grid = result.grid
         r0, r1, c0, c1 = self._get("observed_rc", self._observed_rc)  # the heatmap is sent for the observed box
         heat = result.heatmap[r0:r1, c0:c1]
@@ -244,25 +274,26 @@ class SceneView:
                 proposals.append({"rank": c.obj_id, "score": round(float(c.score), 3),
                                   "area_m2": round(float(c.area_m2), 3), "center_xy": [float(v) for v in c.center_xy],
                                   "footprint": outline})
-        return {"text": text, "map": which, "seconds": round(result.seconds, 3), "proposals": proposals,
+        return {"text": text, "map": which, "floor": floor, "seconds": round(result.seconds, 3), "proposals": proposals,
                 "heatmap": "data:image/png;base64," + base64.b64encode(_png(rgba)).decode(),
                 "heatmap_extent_xy": [x0 + c0 * cell, x0 + c1 * cell, y1 - r1 * cell, y1 - r0 * cell]}
 
     # ------------------------------------------------------------------------- procedural preview
 
-    def route(self, start: tuple[float, float, float] | None, object_keys: list[str]) -> dict:
-        """The route (polyline, metres) and its procedural text from ``start`` = (x, y, yaw radians), or from the
-        recording's start pose when None, into the goal region of the objects ``object_keys`` of the built goals:
-        :func:`pipeline.nav.region.route_to_goal`, the route the goals stage's procedural feedback says (the
-        stored region of the goal with exactly these objects, else the region computed as the goals stage
-        computes it)."""
+    def route(self, start: tuple[float, float, float] | None, object_keys: list[str], floor: int | None = None
+              ) -> dict:
+        """The route (polyline, metres) and its procedural text from ``start`` = (x, y, yaw radians) on floor
+        ``floor`` (default 0), or from the recording's start pose when None, into the goal region of the objects
+        ``object_keys`` of the built goals: :func:`pipeline.nav.region.route_to_goal`, the route the goals stage's
+        procedural feedback says (the stored region of the goal with exactly these objects, else the region
+        computed as the goals stage computes it); on a building, over the stairs (:mod:`zipon.annotate.floors`).
+        ``legs`` [{floor, path}] cut the path per floor."""
         from pipeline.nav.actions import RoutePlanner, RouteSettings
         from pipeline.nav.region import GoalTargets, route_to_goal
 
-        if len(self.recon.floors) > 1:  # the preview plans on one grid; a building's feedback crosses floors
-            raise InputDataError(f"scene {self.name} has {len(self.recon.floors)} floors; the route preview plans on "
-                                 "one floor and would not say what the goals stage stored", field="objects",
-                                 expected="a single-floor scene")
+        recon = self.recon
+        if floor is not None:
+            check_floor(recon, self.name, floor)
         goals = self.goals
         if goals is None:
             raise InputDataError(f"scene {self.name} has no goals.zarr", field="goals")
@@ -275,10 +306,13 @@ class SceneView:
                 raise InputDataError(f"scene {self.name} has no recorded start pose", field="start",
                                      expected="x and y of a start on the map")
             start = tuple(float(v) for v in goals.attrs["start_pose"])
-        recon = self.recon
-        grid = recon.grid
+            floor = recorded_start_floor(recon, self.frames)
+        floor = floor or 0
+        grid = recon.floor(floor).grid
         if not grid.inside(grid.world_to_cell(np.array(start[:2]))):
             raise InputDataError(f"start ({start[0]:g}, {start[1]:g}) is off the map", field="start")
+        if len(recon.floors) > 1:
+            return building_route(self, start, floor, tuple(object_keys))
         task = self.scene.params.task
         planner = self._get("planner", lambda: RoutePlanner(recon.navigable, grid, RouteSettings.from_config(task)))
         members = tuple(object_keys)
@@ -286,10 +320,12 @@ class SceneView:
             self._goal_region(members), goals.footprint_mask(list(members)), grid, stop_radius_m=task.stop_radius_m))
         centres = np.array([goals.objects[k].mass_center for k in members], np.float64).reshape(-1, 2)
         route = route_to_goal(planner, start, targets, key=("preview", members), face_xy=centres)
+        head = {"start": [float(v) for v in start], "start_floor": 0, "goal_floor": 0, "stairs": []}
         if route is None:
-            return {"reachable": False, "path": [], "text": None, "start": [float(v) for v in start]}
-        return {"reachable": True, "path": _rounded(route.path.polyline_xy), "text": route.text if route.parts else "",
-                "length_m": round(float(route.path.length_m), 2), "start": [float(v) for v in start]}
+            return {"reachable": False, "path": [], "legs": [], "text": None, **head}
+        path = _rounded(route.path.polyline_xy)
+        return {"reachable": True, "path": path, "legs": [{"floor": 0, "path": path}],
+                "text": route.text if route.parts else "", "length_m": round(float(route.path.length_m), 2), **head}
 
     def _goal_region(self, members: tuple[str, ...]) -> np.ndarray:
         """The goal region of ``members``: the stored one of the built goal with exactly these objects, else
@@ -300,14 +336,15 @@ class SceneView:
                 return goals.goal_region(g.id)
         from pipeline.goals.build import GoalRegions
 
-        return GoalRegions(self.recon, goals.object_set(), goals.success_m)(members, goals.object_index(),
-                                                                            goals.object_keys)
+        floor = goals.objects[members[0]].floor
+        return GoalRegions(self.recon, goals.object_set(), goals.success_m, floor)(
+            members, goals.object_index(floor), goals.object_keys)
 
 
 # ----------------------------------------------------------------------------- helpers
 
 def _object_json(o) -> dict:
-    return {"key": o.key, "cls": o.cls, "room": o.room, "footprint": [list(map(float, p)) for p in o.footprint],
+    return {"key": o.key, "cls": o.cls, "room": o.room, "floor": o.floor, "footprint": [list(map(float, p)) for p in o.footprint],
             "mass_center": [float(v) for v in o.mass_center], "color_name": o.color_name, "material": o.material,
             "size": o.size, "instance_id": o.instance_id, "z_range": [float(v) for v in o.z_range],
             "description": list(o.description)}
@@ -317,8 +354,7 @@ def _pose_xy_yaw(T: np.ndarray) -> list[float]:
     return [round(float(T[0, 3]), 3), round(float(T[1, 3]), 3), round(math.atan2(T[1, 2], T[0, 2]), 3)]
 
 
-def _rounded(xy: np.ndarray) -> list[list[float]]:
-    return [[round(float(a), 3), round(float(b), 3)] for a, b in np.asarray(xy).reshape(-1, 2)]
+_rounded = rounded
 
 
 def _outline(mask: np.ndarray, grid, up: int = 4, offset_rc: tuple[int, int] = (0, 0)) -> list[list[float]]:

@@ -9,7 +9,6 @@ stay inside the workspace, and a scene whose stage lock another run holds is ref
 from __future__ import annotations
 
 import difflib
-import json
 import math
 import re
 import threading
@@ -23,7 +22,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from pipeline.errors import ConfigError, InputDataError
-from zipon.annotate.writes import OBJECTS_DIR
+from zipon.annotate.objects import objects_get, objects_save, objects_validate
 from zipon.annotate.http import (LOOPBACK, MAX_BODY, TOKEN_COOKIE, HTTPError, client_error, endpoint,
                                  error_response, guard, integer, number, server_error)
 
@@ -120,6 +119,20 @@ class Workbench:
                                  f"has finished", "scene")
 
 
+def _floor(request: Request, view) -> int | None:
+    """The ``floor`` query parameter checked against the scene's floors (a 400 naming the floors it has); None when
+    absent."""
+    from zipon.annotate.floors import floors_named
+
+    if "floor" not in request.query_params:
+        return None
+    floor, n = integer(request.query_params["floor"], "floor", -10**6, 10**6), len(view.recon.floors)
+    if not 0 <= floor < n:
+        raise HTTPError(400, f"floor {floor}: scene {view.name} has {n} floor{'s' if n != 1 else ''}: "
+                             f"{floors_named(view.recon)}", "floor")
+    return floor
+
+
 def _png(data: bytes) -> Response:
     return Response(data, media_type="image/png", headers={"Cache-Control": "no-store"})
 
@@ -156,12 +169,14 @@ def scene_summary(request, wb, body):
 
 @endpoint()
 def layer(request, wb, body):
-    return _png(wb.scene(request.path_params["scene"]).layer_png(request.path_params["name"]))
+    view = wb.scene(request.path_params["scene"])
+    return _png(view.layer_png(request.path_params["name"], _floor(request, view) or 0))
 
 
 @endpoint()
 def seen(request, wb, body):
-    return wb.scene(request.path_params["scene"]).seen(number(request, "x"), number(request, "y"))
+    view = wb.scene(request.path_params["scene"])
+    return view.seen(number(request, "x"), number(request, "y"), _floor(request, view) or 0)
 
 
 @endpoint()
@@ -185,17 +200,18 @@ def propose(request, wb, body):
     text = (request.query_params.get("text") or "").strip()
     if not text or len(text) > 200:
         raise HTTPError(400, "give the class or phrase to look for (1 to 200 characters)", "text")
-    return view.propose(which, text)
+    return view.propose(which, text, _floor(request, view) or 0)
 
 
 @endpoint()
 def route(request, wb, body):
     view = wb.scene(request.path_params["scene"])
     keys = [k for k in (request.query_params.get("objects") or "").split(",") if k]
-    # no x and y: from the recording's start pose, where the goals stage's procedural feedback starts
+    # no x and y: from the recording's start pose (and its floor), where the goals stage's procedural feedback
+    # starts; x and y stand on ``floor`` (default 0)
     start = None if "x" not in request.query_params and "y" not in request.query_params else (
         number(request, "x"), number(request, "y"), math.radians(number(request, "yaw_deg", 0.0)))
-    return view.route(start, keys)
+    return view.route(start, keys, _floor(request, view))
 
 
 # ----------------------------------------------------------------------------- goals: read, validate, save, history
@@ -347,65 +363,6 @@ def history_restore(request, wb, body):
     check_document(doc, view.goals.path, origin=f"stored edit {digest}")
     result = _save(request, wb, doc)
     return JSONResponse(result, headers={"ETag": f'"{result["etag"]}"'})
-
-
-# ----------------------------------------------------------------------------- objects files
-
-@endpoint()
-def objects_get(request, wb, body):
-    """The scene's objects file when it has one, else its built objects (and room outlines) to start from."""
-    view = wb.scene(request.path_params["scene"])
-    rel = wb.dataset().params.goals.objects_files.get(view.name)
-    objset = view.objects_file()
-    source = "file"
-    if objset is None and view.goals is not None:
-        objset, source = view.goals.object_set(), "goals"
-    data = {"objects": [], "rooms": []} if objset is None else objset.model_dump(mode="json",
-                                                                                   include={"objects", "rooms"})
-    if objset is not None and not data["rooms"]:
-        data["rooms"] = [{"id": r["id"], "type": r["type"], "polygon": r["polygon"]} for r in view._rooms()]
-    return {"path": rel or f"{OBJECTS_DIR}/{view.name}.yaml", "objects_dir": f"{OBJECTS_DIR}/", "source": source if objset is not None else "empty", **data}
-
-
-def _objects(view, body: dict):
-    from pipeline.goals.objects import objects_from_data
-
-    return objects_from_data({"rooms": body.get("rooms", []), "objects": body.get("objects")}, view.name,
-                             "the edited objects")
-
-
-@endpoint(write=True)
-def objects_validate(request, wb, body):
-    view = wb.scene(request.path_params["scene"])
-    try:
-        objset = _objects(view, body)
-    except InputDataError as err:
-        return JSONResponse({"ok": False, "error": str(err), "field": err.field}, status_code=422)
-    return {"ok": True, "objects": len(objset.objects), "rooms": len(objset.rooms)}
-
-
-@endpoint(write=True)
-def objects_save(request, wb, body):
-    import yaml
-
-    from pipeline.store import write_text_atomic
-
-    view = wb.scene(request.path_params["scene"])
-    path = wb.write_policy().objects_file(body.get("path"), "path")
-    try:
-        objset = _objects(view, body)
-    except InputDataError as err:
-        raise HTTPError(422, str(err), err.field) from None
-    data = objset.model_dump(mode="json", include={"rooms", "objects"})
-    text = (f"# objects of scene {view.name}, written by zipon annotate (the layout zipon goals template starts)\n"
-            + (yaml.safe_dump(data, sort_keys=False, allow_unicode=True, width=100) if path.suffix != ".json"
-               else json.dumps(data, indent=2)))
-    with wb.scene_lock(view.name):
-        write_text_atomic(path, text)
-        wb.forget(view.name)
-    rel = path.relative_to(wb.workspace.root.resolve()).as_posix()
-    return {"path": rel, "objects": len(objset.objects), "rooms": len(objset.rooms),
-            "next": f"in params.yaml: goals: {{objects: file, objects_files: {{{view.name}: {rel}}}}}"}
 
 
 @endpoint()

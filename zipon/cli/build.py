@@ -270,7 +270,7 @@ def demo(
     dataset = Dataset(ws, params)
     pictures = render_all([dataset[s] for s in params.scenes])
     report = None
-    if ok and eval_seeds and built:
+    if ok and eval_seeds and built:  # a building too: its cross-floor episodes are reported apart
         from zipon.evaluate import run_eval
 
         eval_dir = ws.data_dir / "eval" / "demo"

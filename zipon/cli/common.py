@@ -223,6 +223,16 @@ def print_eval(results: dict, out_dir: Path) -> None:
         for setting, m in by_feedback.items():
             table.add_row(method, setting, f"{m['SR']:.1f}", f"{m['SPL']:.1f}", f"{m['SIT']:.1f}", str(m["episodes"]))
     out.print(table)
+    if results.get("by_floors"):  # a building was evaluated: its episodes on the start's floor and across floors
+        floors = Table(title="orion_eval: buildings, goal on the start's floor or another (%)")
+        for col in ("method", "floors", "feedback", "SR", "SPL", "SIT", "episodes"):
+            floors.add_column(col)
+        for method, by_kind in results["by_floors"].items():
+            for kind, by_feedback in by_kind.items():
+                for setting, m in by_feedback.items():
+                    floors.add_row(method, kind, setting, f"{m['SR']:.1f}", f"{m['SPL']:.1f}", f"{m['SIT']:.1f}",
+                                   str(m["episodes"]))
+        out.print(floors)
     from orion_eval.report import run_notes
 
     for note in run_notes(results["run"]):  # which perception built the maps, what detection ran on

@@ -27,7 +27,8 @@ RENDERS = {
     "goals": "goals, landmarks and names on the colour map",
     "routes": "episodes' start poses and geodesic routes on the colour map",
 }
-PER_FLOOR = ("obstacles", "navigable", "color", "height", "vlmap", "cfmap")  # one picture per floor of a building
+# one picture per floor of a building
+PER_FLOOR = ("obstacles", "navigable", "color", "height", "vlmap", "cfmap", "goals", "routes")
 
 
 def _floor_option(sc, floor: int | None, option: str = "--floor") -> int | None:
@@ -56,15 +57,16 @@ def render(
     """Draw an artifact as a north-up PNG with a scale bar.
 
     Examples: `zipon render sim_00 --what navigable` · `zipon render sim_00 --what routes -o routes.png` ·
-    `zipon render house --what color --floor 1` · `zipon render house --what vlmap`
+    `zipon render house --what color --floor 1` · `zipon render house --what vlmap` ·
+    `zipon render house --what routes` (routes_floor0.png, routes_floor1.png: each floor's legs, the stairs marked)
     """
     from pipeline.errors import ConfigError
 
     if what not in RENDERS:
         raise ConfigError(f"--what {what!r}: choose one of {', '.join(RENDERS)}")
-    if floor is not None and what not in PER_FLOOR:
+    if floor is not None and what not in (*PER_FLOOR, "plan"):
         raise ConfigError(f"--floor {floor}: --what {what} is drawn for the whole scene; --floor applies to "
-                          f"{', '.join(PER_FLOOR)}")
+                          f"{', '.join(PER_FLOOR)}, plan")
     sc = open_scene(scene)
     art = sc.path  # on an object store: the artifact's published version, mirrored on first use
     if what in PER_FLOOR:
@@ -75,6 +77,11 @@ def render(
                 from pipeline.maps.render import render_map_pca
 
                 render_map_pca(sc.existing(what), target, floor=k)
+            elif what in ("goals", "routes"):
+                from pipeline.goals.render import render_goals
+
+                render_goals(art("recon"), art("goals"), art("routes") if what == "routes" else None, what, target,
+                             floor=k)
             else:
                 from pipeline.recon.render import render_recon
 
@@ -86,18 +93,25 @@ def render(
         from pipeline.pictures import frames_contact_sheet
 
         frames_contact_sheet(art("frames"), target)
-    elif what == "plan":
+    elif what == "plan":  # the ground truth's floors (a building's: one picture each)
+        from pipeline.errors import InputDataError
         from pipeline.frames import FrameStore
         from pipeline.sim.topdown import render_scene_png
 
         gt = FrameStore(art("frames")).ground_truth
         if gt is None:
             raise ConfigError(f"scene {scene}: --what plan needs ground truth (a simulated scene)")
-        render_scene_png(gt, target)
-    else:
-        from pipeline.goals.render import render_goals
-
-        render_goals(art("recon"), art("goals"), art("routes") if what == "routes" else None, what, target)
+        floors = gt.all_floors
+        if floor is not None and floor >= len(floors):
+            names = ", ".join(f"{f.id} ({f.name}, {f.floor_z:.2f} m)" for f in floors)
+            raise InputDataError(f"got {floor}: scene {scene!r}'s ground truth has {len(floors)} floor"
+                                 f"{'s' if len(floors) != 1 else ''}: {names}", field="--floor",
+                                 expected=f"a floor 0..{len(floors) - 1}")
+        for k in [floor] if floor is not None else range(len(floors)):
+            path = _floor_target(target, k, len(floors))
+            render_scene_png(gt, path, floor=k)
+            out.print(str(path))
+        return
     out.print(str(target))
 
 

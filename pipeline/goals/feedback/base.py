@@ -20,6 +20,8 @@ The kinds:
 
 from __future__ import annotations
 
+import re
+
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any, Callable, ClassVar, Literal, Protocol
@@ -97,6 +99,34 @@ class Speaker(Protocol):
 
     def say_metres(self, metres: float, where: tuple[int, ...]) -> str:
         """A distance as a person says it ("4 meters"), misjudged the same for the same ``where``."""
+
+    def floor_words(self, pose) -> str | None:
+        """Where the goal's floor is from the agent's at ``pose`` (:func:`floor_words`); None on the goal's floor or
+        in a single-floor scene."""
+
+
+def floor_words(floors_up: int) -> str | None:
+    """How a person says where a floor ``floors_up`` floors above (negative: below) is: "upstairs", "downstairs",
+    "2 floors up"; None for the same floor. :func:`read_floor_words` reads it back."""
+    n = int(floors_up)
+    if n == 0:
+        return None
+    if abs(n) == 1:
+        return "upstairs" if n > 0 else "downstairs"
+    return f"{abs(n)} floors {'up' if n > 0 else 'down'}"
+
+
+def read_floor_words(words: str) -> int:
+    """The floors up (negative: down) :func:`floor_words` said in ``words``; 0 when they say none."""
+    words = words.strip().lower()
+    if words in ("upstairs", "downstairs"):
+        return 1 if words == "upstairs" else -1
+    m = re.fullmatch(r"(\d+) floors (up|down)", words)
+    return (int(m.group(1)) if m.group(2) == "up" else -int(m.group(1))) if m else 0
+
+
+#: the floor words :func:`floor_words` says, as a regular expression (one group)
+FLOOR_WORDS = r"(upstairs|downstairs|\d+ floors (?:up|down))"
 
 
 #: how the annotation page edits a kind's value: free text, free text where empty means none (null), or one line

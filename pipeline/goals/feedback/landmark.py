@@ -8,7 +8,9 @@ others of its class ("the white nightstand made of wood"), else its identity ("A
 shelves still has to tell which). The landmarks come in that order, each group nearest first.
 
 Said as stored: "It is on the desk, next to Kate's chair and near Kate's shelf."; read back as ``landmarks`` (the
-phrases without their relation words: ["the desk", "Kate's chair", "Kate's shelf"])."""
+phrases without their relation words: ["the desk", "Kate's chair", "Kate's shelf"]). In a building, to an agent on
+another floor than the goal's, the user first says which floor ("It is upstairs. It is next to the bed."), read back
+as ``floor_offset`` (floors up, negative down: 1)."""
 
 from __future__ import annotations
 
@@ -18,14 +20,15 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
-from pipeline.goals.feedback.base import (FeedbackContext, FeedbackKind, GoalDraft, appearance, class_is_unique,
-                                          object_phrase, register)
+from pipeline.goals.feedback.base import (FLOOR_WORDS, FeedbackContext, FeedbackKind, GoalDraft, Speaker, appearance,
+                                          class_is_unique, object_phrase, read_floor_words, register)
 from pipeline.goals.objects import ObjectRecord
 from pipeline.nav.fmm import segment_free
 
 #: the spatial relation words, as :func:`relation` says them and :meth:`Landmark.parse` strips them
 RELATIONS = ("next to", "near", "on", "under")
 SAID = re.compile(r"It is ((?:next to|near|on|under) .+?)\.(\s|$)")
+FLOOR_SAID = re.compile(rf"It is {FLOOR_WORDS}\.")
 
 
 def polygon_distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -116,7 +119,7 @@ def _join(items: list[str]) -> str:
 class Landmark(FeedbackKind):
     name = "landmark"
     field = (str, Field("", description="salient nearby objects with relation words"))
-    parsed = {"landmarks": list}
+    parsed = {"landmarks": list, "floor_offset": int}
 
     def generate(self, goal: GoalDraft, ctx: FeedbackContext) -> str:
         marks = find_landmarks(goal, ctx)
@@ -126,10 +129,22 @@ class Landmark(FeedbackKind):
         phrases = list(dict.fromkeys(f"{m['relation']} {landmark_phrase(m['object'], ctx)}" for m in marks))
         return f"It is {_join(phrases)}."
 
+    def say(self, value: str, user: Speaker, pose) -> str | None:
+        """The stored landmarks; to an agent on another floor than the goal's, which floor first ("It is
+        upstairs.")."""
+        where = getattr(user, "floor_words", lambda pose: None)(pose)
+        if not where:
+            return value or None
+        return f"It is {where}." + (f" {value}" if value else "")
+
     def parse(self, reply: str) -> dict[str, Any]:
+        found: dict[str, Any] = {}
+        floor = FLOOR_SAID.search(reply)
+        if floor:
+            found["floor_offset"] = read_floor_words(floor.group(1))
         m = SAID.search(reply)
         if not m:
-            return {}
+            return found
         rel = "|".join(re.escape(r) for r in RELATIONS)
         pieces = (re.sub(rf"^({rel})\s+", "", p.strip()) for p in re.split(r",\s*|\s+and\s+", m.group(1)))
-        return {"landmarks": [p for p in pieces if p]}
+        return {**found, "landmarks": [p for p in pieces if p]}

@@ -13,6 +13,13 @@ destination point "It is about 4 meters ahead on your left." (the goal's mass ce
 distances misjudged by the user and said in whole metres, turns only as left / right / around. Read back as
 ``route`` ([("turn", 90.0), ("forward", 5.0)]: degrees counter-clockwise, metres) or ``destination`` ((45.0, 4.0):
 bearing degrees counter-clockwise from ahead, metres).
+
+In a building, from another floor than the goal's, the user says the stairs and what follows them, as a person
+gives directions to someone who can find the stairs (they are on the robot's map): "Go up the stairs. At the top,
+follow this route: turn right, go forward 4 meters." when the walk from the stairs' far end has 1..3 parts, else
+"Go up the stairs. At the top, it is about 4 meters ahead on your left." (seen from the top of the stairs, facing
+along them); several flights are "Go up 2 flights of stairs.". Read back as ``stairs`` (["up"], ["up", "up"]) beside
+the route or destination, which then start at the stairs' far end.
 """
 
 from __future__ import annotations
@@ -34,8 +41,9 @@ POINTING = ("ahead", "ahead on your left", "to your left", "behind you on the le
 #: read before "ahead")
 DIRECTIONS = {way: 45.0 * i if i <= 4 else 45.0 * (i - 8)
               for i, way in sorted(enumerate(POINTING), key=lambda p: -len(p[1]))}
-ROUTE = re.compile(r"Follow this route: (.+?)\.?$")
-POINT = re.compile(rf"It is about ([\d.]+) meters? ({'|'.join(re.escape(d) for d in DIRECTIONS)})\.")
+ROUTE = re.compile(r"[Ff]ollow this route: (.+?)\.?$")
+POINT = re.compile(rf"[Ii]t is about ([\d.]+) meters? ({'|'.join(re.escape(d) for d in DIRECTIONS)})\.")
+STAIRS = re.compile(r"Go (up|down) (?:the stairs|(\d+) flights of stairs)\.")
 TURNS = {"turn around": 180.0, "turn left": 90.0, "turn right": -90.0}
 
 
@@ -62,7 +70,7 @@ class Procedural(FeedbackKind):
     name = "procedural"
     field = (str | None, Field(None, description="route in words from the recording's start; null = none"))
     form = "optional_text"
-    parsed = {"route": list, "destination": lambda: None}
+    parsed = {"route": list, "destination": lambda: None, "stairs": list}
 
     def generate(self, goal: GoalDraft, ctx: FeedbackContext) -> str | None:
         if ctx.planner is None or ctx.start_pose is None:
@@ -89,21 +97,52 @@ class Procedural(FeedbackKind):
         point's."""
         goal = user.goal
         route = user.route_from(pose)
+        if route is not None and getattr(route, "climbs", None):
+            return self.say_stairs(route, user, pose)
         if route is None or not route.parts:
             return None
         here = user.place_key(pose)
         if procedural_allowed(route.parts, user.room_at(pose), goal.room_id):
-            said = [p.kind if p.kind != "go forward" else f"go forward {user.say_metres(p.value, (*here, 0, i))}"
-                    for i, p in enumerate(route.parts)]
-            return f"Follow this route: {', '.join(said)}."
-        x, y, yaw = (float(v) for v in pose)
-        dx, dy = np.asarray(goal.mass_center, np.float64) - (x, y)
+            return f"Follow this route: {self.said_parts(route.parts, user, (*here, 0))}."
+        return f"It is about {self.pointed(goal.mass_center, pose, user, (*here, 1))}."
+
+    @staticmethod
+    def said_parts(parts, user: Speaker, where: tuple[int, ...]) -> str:
+        """Route parts in words, each distance misjudged for ``(*where, its index)``."""
+        return ", ".join(p.kind if p.kind != "go forward" else f"go forward {user.say_metres(p.value, (*where, i))}"
+                         for i, p in enumerate(parts))
+
+    @staticmethod
+    def pointed(target_xy, pose, user: Speaker, where: tuple[int, ...]) -> str:
+        """"4 meters ahead on your left": the distance and direction of ``target_xy`` from ``pose``."""
+        x, y, yaw = (float(v) for v in pose[:3])
+        dx, dy = np.asarray(target_xy, np.float64) - (x, y)
         bearing = float(np.degrees(np.arctan2(dy, dx) - yaw))
         sector = int(round(bearing / 45.0)) % 8
-        return f"It is about {user.say_metres(float(np.hypot(dx, dy)), (*here, 1))} {POINTING[sector]}."
+        return f"{user.say_metres(float(np.hypot(dx, dy)), where)} {POINTING[sector]}"
+
+    def say_stairs(self, route, user: Speaker, pose) -> str:
+        """Directions over the stairs (a :class:`~pipeline.nav.building.FloorRoute`; see the module docstring). The
+        distances after the stairs are misjudged for the place asked from, then 2 (a route's) or 3 (a point's)."""
+        climbs = route.climbs
+        way = "up" if climbs[-1].up else "down"
+        stairs = f"Go {way} the stairs." if len(climbs) == 1 else f"Go {way} {len(climbs)} flights of stairs."
+        last = route.legs[-1][1]
+        if last is None or not last.parts:
+            return stairs
+        here, end = user.place_key(pose), "top" if climbs[-1].up else "bottom"
+        if len(last.parts) <= 3:
+            return f"{stairs} At the {end}, follow this route: {self.said_parts(last.parts, user, (*here, 2))}."
+        lk = climbs[-1].link
+        near, far = (lk.foot_xy, lk.head_xy) if climbs[-1].up else (lk.head_xy, lk.foot_xy)
+        arrived = (far[0], far[1], float(np.arctan2(far[1] - near[1], far[0] - near[0])))
+        return f"{stairs} At the {end}, it is about {self.pointed(user.goal.mass_center, arrived, user, (*here, 3))}."
 
     def parse(self, reply: str) -> dict[str, Any]:
         found: dict[str, Any] = {}
+        m = STAIRS.search(reply)
+        if m:
+            found["stairs"] = [m.group(1)] * int(m.group(2) or 1)
         m = ROUTE.search(reply)
         if m:
             found["route"] = parse_route(m.group(1))

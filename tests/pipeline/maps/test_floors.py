@@ -12,6 +12,7 @@ from pipeline.errors import ArtifactError, InputDataError
 from pipeline.maps.floors import query_floors
 from pipeline.maps.query import open_query
 from pipeline.maps.render import render_map_pca, render_query
+from pipeline.pictures import AXIS_BOTTOM, AXIS_LEFT
 from pipeline.maps.store import BUILDING_FORMAT_VERSION, SemanticMap
 from pipeline.recon import Recon
 
@@ -88,7 +89,9 @@ def test_pictures_of_a_buildings_query_and_of_each_floors_map(two_storey_maps, t
     both = cv2.imread(str(render_query(query_floors(mq, "bed"), tmp_path / "both.png")))
     assert both.shape[1] > 1.9 * one.shape[1]  # the floors side by side
     for k in (0, 1):
-        assert cv2.imread(str(render_map_pca(art["vlmap"], tmp_path / f"pca{k}.png", floor=k))) is not None
+        pca = cv2.imread(str(render_map_pca(art["vlmap"], tmp_path / f"pca{k}.png", floor=k)))
+        assert (pca[:-AXIS_BOTTOM, AXIS_LEFT - 1] < 100).all(axis=-1).mean() > 0.9  # metre axes on a building's floor
+    assert (both[40:200, AXIS_LEFT - 1] < 100).all(axis=-1).all() and not (one[40:200, AXIS_LEFT - 1] < 100).all()
 
 
 def test_a_damaged_building_store_is_refused_naming_what_is_wrong(two_storey_maps, tmp_path):

@@ -3,16 +3,14 @@ input is refused with its status, the field and why, and leaves everything built
 
 from __future__ import annotations
 
-import io
 import json
 import math
 
 import numpy as np
 import pytest
 import yaml
-from PIL import Image
 
-from tests.zipon.annotate.conftest import ORIGIN, SCENE, make_client, tree_state
+from tests.zipon.annotate.conftest import ORIGIN, SCENE, make_client, png, refused, tree_state
 
 W = {"headers": {"Origin": ORIGIN}}  # what the page sends on every write
 
@@ -35,17 +33,8 @@ def goals_doc(client) -> tuple[dict, str]:
     return r.json()["document"], r.headers["etag"].strip('"')
 
 
-def png(r) -> np.ndarray:
-    assert r.status_code == 200 and r.headers["content-type"] == "image/png", r.text
-    return np.asarray(Image.open(io.BytesIO(r.content)))
 
 
-def refused(r, status: int, *words: str) -> dict:
-    assert r.status_code == status, (r.status_code, r.text)
-    body = r.json()
-    for w in words:
-        assert w in body["error"] or w == body.get("field"), (w, body)
-    return body
 
 
 # ----------------------------------------------------------------------------- reading the scene
@@ -544,16 +533,3 @@ def test_warm_reads_the_first_scene_before_the_page_asks(shared_root):
     wb.warm()
     view = wb._views[SCENE]
     assert {("layer", name) for name in LAYERS} <= set(view._cache) and "recon" in view._cache
-
-
-def test_the_route_preview_refuses_a_building_rather_than_plan_on_one_floor(two_storey_maps):
-    """A building's procedural feedback crosses floors; the one-grid preview would say something else: refused."""
-    import zipon
-    from pipeline.errors import InputDataError
-    from zipon.annotate.scene import SceneView
-
-    ws, *_ = two_storey_maps
-    ds = zipon.open(ws.params_path, data_dir=ws.data_dir, manifests_dir=ws.manifests_dir)
-    view = SceneView(ds[next(iter(ds.params.scenes))])
-    with pytest.raises(InputDataError, match=r"has 2 floors; the route preview plans on one floor"):
-        view.route(None, ["sofa_0"])

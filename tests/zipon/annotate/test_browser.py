@@ -1,7 +1,8 @@
 """The annotation page in a real headless browser (Debian's chromium driven by playwright): open the scene, look at
 the frames that saw an object, accept a map proposal, draw a footprint, save the objects file, create a goal with
 descriptive and procedural feedback and save it (goals export then holds it and routes.zarr was rebuilt), see an
-invalid edit refused inline with nothing saved, play one episode as the user. A screenshot of each state is written
+invalid edit refused inline with nothing saved, play one episode as the user; on a two-storey house, switch floors,
+preview a route over the stairs and place an object upstairs. A screenshot of each state is written
 under the test's tmp folder (pytest removes a passing test's folder: keep them with
 ``-o tmp_path_retention_policy=all -s``, which also prints where they are).
 
@@ -13,17 +14,19 @@ from __future__ import annotations
 
 import json
 import shutil
+from contextlib import contextmanager
 
 import pytest
 import yaml
 
-from tests.zipon.annotate.conftest import SCENE
+from tests.zipon.annotate.conftest import SCENE, copy_built, serving
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 
 
-@pytest.fixture
-def page(served):
+@contextmanager
+def chromium_page():
+    """A page of Debian's chromium, headless; no page error may happen while it is open."""
     if not shutil.which(CHROMIUM) and not shutil.os.path.exists(CHROMIUM):
         pytest.skip("Debian's chromium is not installed (setup.sh installs it)")
     from playwright.sync_api import sync_playwright
@@ -36,6 +39,12 @@ def page(served):
         yield pg
         browser.close()
         assert errors == [], errors
+
+
+@pytest.fixture
+def page(served):
+    with chromium_page() as pg:
+        yield pg
 
 
 def at(pg, x: float, y: float) -> tuple[float, float]:
@@ -256,3 +265,90 @@ def test_an_objects_edit_is_dropped_only_when_the_user_says_so_and_cleanly(page,
     pg.click("#objects-save")
     pg.wait_for_selector("#objects-result:not(:empty)")
     assert pg.evaluate(leave) is False and errors == []
+
+
+@pytest.mark.slow
+def test_a_two_storey_house_floor_by_floor(built_house, tmp_path):
+    """The floor selector shows each floor's map, objects, goals and routes; a goal upstairs is shown upstairs and
+    its route from the recording's start climbs the stairs (the stored procedural feedback, drawn on both floors);
+    a route picked upstairs goes down; an object drawn upstairs is saved on floor 1."""
+    from pipeline.goals.objects import objects_from_file
+    from pipeline.goals.store import Goals
+
+    root = copy_built(built_house[0], tmp_path / "ws")
+    shots = tmp_path / "screenshots"
+    shots.mkdir()
+    stored = Goals(root / "data" / "artifacts" / "house" / "goals.zarr")
+    with serving(root) as url, chromium_page() as pg:
+        pg.goto(url + "#house")
+        pg.wait_for_selector("body[data-ready=house]")
+        assert pg.is_visible("#floor") and pg.locator("#floor option").count() == 2
+        assert "2 floors, 1 stairs" in pg.inner_text("#status")
+        data = pg.evaluate("() => S.data")
+        per_floor = {k: sorted(o["key"] for o in data["objects"] if o["floor"] == k) for k in (0, 1)}
+        shown = lambda: sorted(pg.evaluate("() => objectShapes().map(o => o.key)"))  # noqa: E731
+        layer_ready = "k => S.layers['color@' + k] && S.layers['color@' + k].complete && " \
+                      "S.layers['color@' + k].naturalWidth > 0"
+        pg.wait_for_function(f"() => ({layer_ready})(0)")
+        assert shown() == per_floor[0] and per_floor[1]
+        pg.screenshot(path=str(shots / "1_floor0.png"))
+        map0 = pg.locator("#map").screenshot()
+
+        pg.select_option("#floor", "1")
+        pg.wait_for_function(f"() => ({layer_ready})(1)")
+        assert pg.evaluate("() => S.layers['color@1'].src").endswith("/layers/color.png?floor=1")
+        assert shown() == per_floor[1] and pg.locator("#map").screenshot() != map0
+        pg.screenshot(path=str(shots / "2_floor1.png"))
+
+        # a goal upstairs, chosen while downstairs, is shown upstairs; its preview from the recording's start
+        # climbs the stairs and says its stored procedural feedback
+        pg.select_option("#floor", "0")
+        upper = next(i for i, g in enumerate(stored.goals) if g.floor == 1 and g.feedback["procedural"])
+        pg.click(f"#goal-list li >> nth={upper}")
+        assert pg.evaluate("() => S.floor") == 1 and "floor 1" in pg.inner_text(f"#goal-list li >> nth={upper}")
+        pg.click("#route-recorded")
+        pg.wait_for_selector("#route-use:not([hidden])")
+        route = pg.evaluate("() => S.route")
+        assert route["text"] == stored.goals[upper].feedback["procedural"] and "go up the stairs" in route["text"]
+        assert [leg["floor"] for leg in route["legs"]] == [0, 1] and pg.evaluate("() => S.floor") == 0
+        assert "on floor 0" in pg.inner_text("#route-text")
+        pg.screenshot(path=str(shots / "3_route_downstairs.png"))
+        pg.select_option("#floor", "1")
+        pg.wait_for_function(f"() => ({layer_ready})(1)")
+        pg.screenshot(path=str(shots / "4_route_upstairs.png"))
+
+        # a start picked upstairs, to a goal downstairs: down the stairs
+        lower = next(i for i, g in enumerate(stored.goals) if g.floor == 0 and g.feedback["procedural"])
+        pg.click(f"#goal-list li >> nth={lower}")
+        assert pg.evaluate("() => S.floor") == 0
+        pg.select_option("#floor", "1")
+        start = next(r["start"] for r in data["routes"] if r["start_floor"] == 1)
+        pg.click("#route-pick")
+        pg.mouse.click(*at(pg, start[0], start[1]))
+        pg.wait_for_function("() => document.getElementById('route-text').textContent.includes('stairs')")
+        assert "go down the stairs" in pg.inner_text("#route-text")
+        assert pg.evaluate("() => S.route.legs.map(l => l.floor)") == [1, 0]
+        pg.screenshot(path=str(shots / "5_route_down.png"))
+
+        # an object drawn upstairs is saved on floor 1, and is not drawn downstairs
+        pg.click("nav button[data-tab=objects]")
+        pg.wait_for_selector("#object-list li")
+        assert pg.evaluate("() => S.floor") == 1
+        pg.click("#draw")
+        corners = [(4.0, 6.0), (4.6, 6.0), (4.6, 6.5), (4.0, 6.5)]
+        for xy in corners:
+            pg.mouse.click(*at(pg, *xy))
+        pg.click("#draw-done")
+        new = pg.evaluate("() => S.objects.objects[S.objects.objects.length - 1]")
+        assert new["floor"] == 1 and pg.is_visible("#object-form select[name=floor]")
+        assert pg.input_value("#object-form select[name=floor]") == "1"
+        pg.fill("#objects-path", "objects/house.yaml")
+        pg.wait_for_function("() => !document.getElementById('objects-save').disabled")
+        pg.click("#objects-save")
+        pg.wait_for_selector("#objects-result:not(:empty)")
+        pg.screenshot(path=str(shots / "6_object_upstairs.png"))
+        saved = {o.key: o.floor for o in objects_from_file(root / "objects" / "house.yaml", "house").objects}
+        assert saved[new["key"]] == 1 and {k: saved[k] for k in per_floor[1]} == {k: 1 for k in per_floor[1]}
+        pg.select_option("#floor", "0")
+        assert new["key"] not in shown()
+    print(f"screenshots: {shots}")

@@ -29,7 +29,33 @@ def test_render_refuses_a_floor_the_scene_has_not_or_a_whole_scene_picture(two_s
     err = capsys.readouterr().err
     assert "--floor" in err and "has 2 floors: 0 (floor 0, 0.00 m), 1 (floor 1, 3.00 m)" in err and "0..1" in err
     assert cli(ws, "render", "house", "--what", "frames", "--floor", "1") == 1
-    assert "--floor applies to obstacles, navigable, color, height, vlmap, cfmap" in capsys.readouterr().err
+    assert "--floor applies to obstacles, navigable, color, height, vlmap, cfmap, goals, routes" in \
+        capsys.readouterr().err
+
+
+def test_goals_and_routes_are_drawn_per_floor_of_a_building(built_house, built_scene, tmp_path, capsys):
+    ws = built_house[0]
+    capsys.readouterr()
+    assert cli(ws, "render", "house", "--what", "routes", "-o", str(tmp_path / "routes.png")) == 0
+    assert capsys.readouterr().out.split() == [str(tmp_path / "routes_floor0.png"), str(tmp_path / "routes_floor1.png")]
+    assert cli(ws, "render", "house", "--what", "goals", "--floor", "1") == 0
+    assert capsys.readouterr().out.split() == [str(ws.renders("house") / "goals_floor1.png")]
+    assert cli(ws, "render", "house", "--what", "goals", "--floor", "2") == 1
+    assert "has 2 floors: 0 (floor 0, 0.00 m), 1 (floor 1, 2.86 m)" in capsys.readouterr().err
+    # the ground truth's plan: one per floor too
+    assert cli(ws, "render", "house", "--what", "plan", "-o", str(tmp_path / "plan.png")) == 0
+    assert capsys.readouterr().out.split() == [str(tmp_path / "plan_floor0.png"), str(tmp_path / "plan_floor1.png")]
+    assert cli(ws, "render", "house", "--what", "plan", "--floor", "1", "-o", str(tmp_path / "one.png")) == 0
+    assert capsys.readouterr().out.split() == [str(tmp_path / "one_floor1.png")]
+    assert cli(ws, "render", "house", "--what", "plan", "--floor", "2", "-o", str(tmp_path / "two.png")) == 1
+    assert "--floor" in (err := capsys.readouterr().err) and "ground truth has 2 floors: 0 (" in err
+    assert not list(tmp_path.glob("two*.png"))
+    # a single-floor scene: one picture, named as it always was; it has no floor 1
+    tiny = built_scene[0]
+    assert cli(tiny, "render", "tiny", "--what", "goals", "-o", str(tmp_path / "goals.png")) == 0
+    assert capsys.readouterr().out.split() == [str(tmp_path / "goals.png")]
+    assert cli(tiny, "render", "tiny", "--what", "routes", "--floor", "1", "-o", str(tmp_path / "r.png")) == 1
+    assert "scene 'tiny' has 1 floor: 0 (floor 0," in capsys.readouterr().err and not (tmp_path / "r.png").exists()
 
 
 def test_query_answers_from_every_floor_with_the_floor_of_each_candidate(two_storey_maps, tmp_path, capsys):

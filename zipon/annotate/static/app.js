@@ -8,6 +8,7 @@ const S = {
   doc: null, etag: null, goal: -1, selectedObject: null, kinds: [],
   objects: null, objectsDirty: false, object: -1, proposals: [], heatmap: null,
   drawing: null, mode: null, play: null, route: null, routeFor: -1, clicked: null,
+  floor: 0,  // the floor shown (a building's floors: S.data.floors; a single-floor scene is floor 0)
 };
 
 function el(tag, text, cls) {
@@ -28,6 +29,11 @@ async function api(path, opts = {}) {
   return { ok: r.ok, status: r.status, body, etag: (r.headers.get("etag") || "").replace(/"/g, "") };
 }
 const scenePath = (rest) => `/api/scenes/${encodeURIComponent(S.scene)}${rest || ""}`;
+// a building's requests name the floor shown; a single-floor scene's are as they always were
+const building = () => Boolean(S.data && S.data.floors && S.data.floors.length > 1);
+const floorQuery = (sep) => (building() ? `${sep}floor=${S.floor}` : "");
+const onFloor = (x) => (x.floor || 0) === S.floor;
+const floorName = (k) => { const f = S.data.floors[k]; return f ? `floor ${k} (${f.name}, ${f.floor_z_m.toFixed(2)} m)` : `floor ${k}`; };
 
 // ------------------------------------------------------------------ the map: world metres <-> screen pixels
 
@@ -59,7 +65,7 @@ function draw() {
   ctx.clearRect(0, 0, canvas.clientWidth, canvas.clientHeight);
   if (!S.data) return;
   const g = S.data.grid, [x0, x1, y0, y1] = g.extent_xy;
-  const img = S.layers[S.layer];
+  const img = S.layers[layerKey(S.layer)];
   const [u0, v0] = toScreen(x0, y1), [u1, v1] = toScreen(x1, y0);
   ctx.imageSmoothingEnabled = false;
   if (img && img.complete) ctx.drawImage(img, u0, v0, u1 - u0, v1 - v0);
@@ -68,14 +74,17 @@ function draw() {
     ctx.drawImage(S.heatmap, a0, b0, a1 - a0, b1 - b0);
   }
   if ($("show-rooms").checked) {
-    S.data.rooms.forEach((r, i) => { if (r.polygon.length < 3) return; poly(r.polygon); ctx.strokeStyle = hue(i, S.data.rooms.length); ctx.lineWidth = 2; ctx.setLineDash([6, 4]); ctx.stroke(); ctx.setLineDash([]);
+    S.data.rooms.forEach((r, i) => { if (r.polygon.length < 3 || !onFloor(r)) return; poly(r.polygon); ctx.strokeStyle = hue(i, S.data.rooms.length); ctx.lineWidth = 2; ctx.setLineDash([6, 4]); ctx.stroke(); ctx.setLineDash([]);
       const c = centroid(r.polygon), [u, v] = toScreen(c[0], c[1]); ctx.fillStyle = "#333"; ctx.font = "12px sans-serif"; ctx.fillText(r.name || r.id, u - 20, v); });
   }
   if ($("show-trajectory").checked && S.data.trajectory.length) {
-    poly(S.data.trajectory.map((p) => [p[0], p[1]]), false); ctx.strokeStyle = "#7a3db8"; ctx.lineWidth = 1.5; ctx.stroke();
+    // a building's poses carry their floor (4th value): the runs on the floor shown
+    runs(S.data.trajectory, (p) => (p[3] || 0) === S.floor).forEach((run) => {
+      poly(run.map((p) => [p[0], p[1]]), false); ctx.strokeStyle = "#7a3db8"; ctx.lineWidth = 1.5; ctx.stroke(); });
   }
   const goalOf = {};
   if (S.doc) S.doc.goals.forEach((gl, i) => gl.objects.forEach((k) => { goalOf[k] = i; }));
+  stairMarks();
   const objects = objectShapes();
   if ($("show-objects").checked) {
     objects.forEach((o) => {
@@ -87,13 +96,21 @@ function draw() {
     });
   }
   if ($("show-routes").checked) {
-    S.data.routes.forEach((r) => { poly(r.path, false); ctx.strokeStyle = "#d2691e"; ctx.lineWidth = 2; ctx.stroke(); startMark(r.start, "#d2691e"); });
+    S.data.routes.forEach((r) => { drawLegs(r.legs || [{ floor: 0, path: r.path }], "#d2691e", 2);
+      if ((r.start_floor || 0) === S.floor) startMark(r.start, "#d2691e"); });
   }
   if (S.goal >= 0 && S.doc) highlightLandmarks();
-  if (S.route && S.route.path.length) { poly(S.route.path, false); ctx.strokeStyle = "#0a7d2c"; ctx.lineWidth = 3; ctx.stroke(); startMark(S.route.start, "#0a7d2c"); }
+  if (S.route && S.route.path.length) {
+    drawLegs(S.route.legs, "#0a7d2c", 3);
+    if (S.route.start_floor === S.floor) startMark(S.route.start, "#0a7d2c");
+    S.route.stairs.forEach((st) => {  // where the route takes the stairs, on each floor it crosses
+      if (st.from_floor === S.floor) stairLabel(st.from_xy, `${st.up ? "up" : "down"} to floor ${st.to_floor}`, "#0a7d2c");
+      if (st.to_floor === S.floor) stairLabel(st.to_xy, `from floor ${st.from_floor}`, "#0a7d2c");
+    });
+  }
   if ($("show-goals").checked && S.doc) {
     const byKey = Object.fromEntries(objects.map((o) => [o.key, o]));
-    S.doc.goals.forEach((gl, i) => { const o = byKey[gl.objects[0]]; if (!o) return; marker(String(i + 1), o.mass_center, i === S.goal); });
+    S.doc.goals.forEach((gl, i) => { const o = byKey[gl.objects[0]]; if (!o) return; marker(String(i + 1), o.mass_center, i === S.goal); });  // the floor's objects only
   }
   S.proposals.forEach((p) => { poly(p.footprint); ctx.strokeStyle = "#ff7f00"; ctx.lineWidth = 2; ctx.setLineDash([5, 3]); ctx.stroke(); ctx.setLineDash([]);
     const [u, v] = toScreen(p.center_xy[0], p.center_xy[1]); ctx.fillStyle = "#ff7f00"; ctx.font = "bold 12px sans-serif"; ctx.fillText(`#${p.rank} ${p.score.toFixed(2)}`, u + 4, v - 4); });
@@ -106,6 +123,36 @@ function draw() {
   if (S.clicked) { const [u, v] = toScreen(S.clicked[0], S.clicked[1]); ctx.strokeStyle = "#e00"; ctx.lineWidth = 2; ctx.beginPath(); ctx.arc(u, v, 7, 0, 2 * Math.PI); ctx.stroke(); }
   axes();
   scaleBar();
+}
+
+// consecutive items of ``list`` that pass ``keep``, as runs of at least two
+function runs(list, keep) {
+  const out = []; let run = [];
+  list.forEach((p) => { if (keep(p)) run.push(p); else { if (run.length > 1) out.push(run); run = []; } });
+  if (run.length > 1) out.push(run);
+  return out;
+}
+
+function drawLegs(legs, colour, width) {
+  legs.filter((l) => l.floor === S.floor && l.path.length > 1).forEach((l) => { poly(l.path, false); ctx.strokeStyle = colour; ctx.lineWidth = width; ctx.stroke(); });
+}
+
+function stairLabel(xy, text, colour) {
+  const [u, v] = toScreen(xy[0], xy[1]);
+  // above the stair's own label (a stair often lies at the edge of the map, where the axis band is)
+  ctx.font = "bold 11px sans-serif"; ctx.lineWidth = 3; ctx.strokeStyle = "#fff"; ctx.strokeText(text, u + 10, v - 18);
+  ctx.fillStyle = colour; ctx.fillText(text, u + 10, v - 18);
+}
+
+// the stairs' ends on the floor shown: a triangle pointing up at a foot, down at a head
+function stairMarks() {
+  (S.data.stairs || []).forEach((st) => [[st.bottom, true], [st.top, false]].forEach(([end, up]) => {
+    if (end.floor !== S.floor) return;
+    const [u, v] = toScreen(end.xy[0], end.xy[1]), d = up ? -1 : 1;
+    ctx.beginPath(); ctx.moveTo(u, v + 9 * d); ctx.lineTo(u - 8, v - 6 * d); ctx.lineTo(u + 8, v - 6 * d); ctx.closePath();
+    ctx.fillStyle = "#ff9800"; ctx.fill(); ctx.strokeStyle = "#000"; ctx.lineWidth = 1; ctx.stroke();
+    label(`${st.kind} ${up ? "up" : "down"} to floor ${up ? st.top.floor : st.bottom.floor}`, u + 10, v - 4);
+  }));
 }
 
 function axes() {
@@ -121,7 +168,7 @@ function axes() {
   for (let y = Math.ceil(ya / step) * step; y <= yb; y += step) {
     const [, v] = toScreen(0, y); ctx.beginPath(); ctx.moveTo(30, v); ctx.lineTo(25, v); ctx.stroke(); ctx.fillText(`${+y.toFixed(1)}`, 2, v + 3);
   }
-  ctx.fillText("x, y in metres", 34, h - 20);
+  ctx.fillText("x, y in metres" + (building() ? ` · ${floorName(S.floor)}` : ""), 34, h - 20);
 }
 
 function label(text, u, v) {
@@ -172,11 +219,12 @@ function scaleBar() {
   ctx.fillText("N ↑", w - 34, 18);
 }
 
-function objectShapes() {
-  // the objects drawn: the objects file being edited when it is open, else the built ones
+function allObjects() {
+  // the objects: the objects file being edited when it is open, else the built ones (every floor)
   if (S.objects) return S.objects.objects.filter((o) => o.footprint && o.footprint.length >= 3).map((o) => ({ ...o, mass_center: o.mass_center || centroid(o.footprint) }));
   return S.data ? S.data.objects : [];
 }
+function objectShapes() { return allObjects().filter(onFloor); }  // the objects drawn: the floor shown
 
 function inside(pt, polygon) {
   let c = false;
@@ -224,7 +272,7 @@ async function click(pt) {
   const r3 = (v) => Math.round(v * 1000) / 1000;
   pt = [r3(pt[0]), r3(pt[1])];
   if (S.drawing) { S.drawing.points.push(pt); draw(); return; }
-  if (S.mode === "route") { setMode(null); await routePreview([pt[0], pt[1], 0]); return; }
+  if (S.mode === "route") { setMode(null); await routePreview([pt[0], pt[1], 0], S.floor); return; }
   const hit = objectShapes().find((o) => inside(pt, o.footprint));
   S.selectedObject = hit ? hit.key : null;
   if (hit && S.doc) { const gi = S.doc.goals.findIndex((gl) => gl.objects.includes(hit.key)); if (gi >= 0) selectGoal(gi); }
@@ -237,10 +285,10 @@ async function click(pt) {
 
 async function showViews(pt) {
   const box = $("views"); box.replaceChildren(el("p", `frames that saw (${pt[0]}, ${pt[1]}) …`));
-  const r = await api(scenePath(`/seen?x=${pt[0]}&y=${pt[1]}`));
+  const r = await api(scenePath(`/seen?x=${pt[0]}&y=${pt[1]}${floorQuery("&")}`));
   box.replaceChildren();
   if (!r.ok) { box.append(el("p", r.body.error, "error")); return; }
-  box.append(el("p", `${r.body.frames.length} of ${r.body.candidates} frames facing it saw (${pt[0]}, ${pt[1]}); nearest first`, "note"));
+  box.append(el("p", `${r.body.frames.length} of ${r.body.candidates} frames facing it saw (${pt[0]}, ${pt[1]})${building() ? " on " + floorName(S.floor) : ""}; nearest first`, "note"));
   r.body.frames.forEach((f) => {
     const fig = el("figure"), img = el("img");
     img.alt = `frame ${f.frame}`;
@@ -252,8 +300,14 @@ async function showViews(pt) {
 
 // ------------------------------------------------------------------ goals
 
+function goalFloor(gl) {
+  const o = allObjects().find((x) => x.key === gl.objects[0]);
+  return o ? o.floor || 0 : null;
+}
+
 function goalRow(gl, i) {
-  const li = el("li", `${gl.name} (${gl.type})`);
+  const f = building() ? goalFloor(gl) : null;
+  const li = el("li", `${gl.name} (${gl.type})` + (f !== null ? ` · floor ${f}` : ""));
   li.dataset.index = i;
   if (i === S.goal) li.className = "selected";
   li.addEventListener("click", () => selectGoal(i));
@@ -297,6 +351,8 @@ async function loadFeedbackKinds() {
 }
 
 function selectGoal(i) {
+  const on = building() ? goalFloor(S.doc.goals[i]) : null;
+  if (on !== null && on !== S.floor) setFloor(on);  // a goal is shown on its own floor
   S.goal = i; S.route = null; $("route-text").textContent = ""; $("route-use").hidden = true;
   const f = $("goal-form"), gl = S.doc.goals[i];
   f.hidden = false;
@@ -361,14 +417,15 @@ $("route-use").addEventListener("click", () => {
 
 // start: [x, y, 0] picked on the map (facing east), or null for the recording's start pose, where the goals
 // stage's procedural feedback starts (the server plans both with the one route_to_goal of pipeline.nav.region)
-async function routePreview(start) {
+async function routePreview(start, floor) {
   const gl = S.doc.goals[S.goal];
-  const at = start ? `x=${start[0]}&y=${start[1]}&yaw_deg=0&` : "";
+  const at = start ? `x=${start[0]}&y=${start[1]}&yaw_deg=0&` + (building() ? `floor=${floor}&` : "") : "";
   const r = await api(scenePath(`/route?${at}objects=${encodeURIComponent(gl.objects.join(","))}`));
   if (!r.ok) { $("route-text").textContent = r.body.error; return; }
   start = r.body.start;
   S.route = { ...r.body, start };
-  const from = `from (${start[0].toFixed(2)}, ${start[1].toFixed(2)}), ${(start[2] * 180 / Math.PI).toFixed(0)} deg`;
+  const from = `from (${start[0].toFixed(2)}, ${start[1].toFixed(2)})${building() ? " on floor " + r.body.start_floor : ""}, ${(start[2] * 180 / Math.PI).toFixed(0)} deg`;
+  if (r.body.reachable && r.body.start_floor !== S.floor) setFloor(r.body.start_floor);
   $("route-text").textContent = r.body.reachable ? `${from}, ${r.body.length_m} m: ${r.body.text || "already there"}` : "the goal cannot be reached from there";
   $("route-use").hidden = !r.body.reachable;
   draw();
@@ -423,7 +480,7 @@ function renderObjects() {
   const list = $("object-list"); list.replaceChildren();
   if (!S.objects) return;
   S.objects.objects.forEach((o, i) => {
-    const li = el("li", `${o.key} (${o.cls})`); if (i === S.object) li.className = "selected";
+    const li = el("li", `${o.key} (${o.cls})` + (building() ? ` · floor ${o.floor || 0}` : "")); if (i === S.object) li.className = "selected";
     li.addEventListener("click", () => selectObject(i)); list.append(li);
   });
 }
@@ -431,7 +488,9 @@ function renderObjects() {
 function selectObject(i) {
   S.object = i; S.selectedObject = S.objects.objects[i].key;
   const f = $("object-form"), o = S.objects.objects[i];
+  if (building() && (o.floor || 0) !== S.floor) setFloor(o.floor || 0);  // an object is shown on its own floor
   f.hidden = false;
+  f.floor.value = String(o.floor || 0);
   ["key", "cls", "color_name", "material", "size"].forEach((k) => { f[k].value = o[k] || ""; });
   f.room.value = o.room || "";
   f.description.value = (o.description || []).join("\n");
@@ -444,10 +503,13 @@ $("object-form").addEventListener("input", () => {
   const f = $("object-form"), o = S.objects.objects[S.object];
   ["key", "cls", "color_name", "material", "size"].forEach((k) => { o[k] = f[k].value; });
   o.room = f.room.value || null;
+  if (building()) o.floor = Number(f.floor.value);
   o.description = f.description.value.split("\n").filter((l) => l.trim());
   o.footprint = f.footprint.value.split("\n").filter((l) => l.trim()).map((l) => l.split(",").map((v) => Number(v.trim())));
   if (o.footprint.length >= 3 && o.footprint.every((p) => p.length === 2 && p.every(Number.isFinite))) o.mass_center = centroid(o.footprint);
-  S.selectedObject = o.key; renderObjects(); draw(); validateObjects();
+  S.selectedObject = o.key; renderObjects();
+  if (building() && o.floor !== S.floor) setFloor(o.floor);  // moved to another floor: follow it there
+  draw(); validateObjects();
 });
 
 $("object-delete").addEventListener("click", () => {
@@ -462,11 +524,12 @@ function newKey(cls) {
 
 function addObject(cls, footprint) {
   const c = centroid(footprint);
-  S.objects.objects.push({ key: newKey(cls), cls, instance_id: 0, room: roomAt(c), footprint, mass_center: c, z_range: [0, 1], size: "big", color_name: "", material: "", description: [] });
+  // a new object stands on the floor shown
+  S.objects.objects.push({ key: newKey(cls), cls, instance_id: 0, room: roomAt(c), floor: S.floor, footprint, mass_center: c, z_range: [0, 1], size: "big", color_name: "", material: "", description: [] });
   selectObject(S.objects.objects.length - 1); validateObjects();
 }
 
-function roomAt(pt) { const r = (S.objects.rooms || []).find((q) => q.polygon.length >= 3 && inside(pt, q.polygon)); return r ? r.id : null; }
+function roomAt(pt) { const r = (S.objects.rooms || []).find((q) => onFloor(q) && q.polygon.length >= 3 && inside(pt, q.polygon)); return r ? r.id : null; }
 
 $("draw").addEventListener("click", () => { S.drawing = { kind: "object", points: [] }; setMode("click the footprint's corners, then Finish polygon"); $("draw-done").hidden = false; });
 $("room-draw").addEventListener("click", () => { S.drawing = { kind: "room", points: [] }; setMode("click the room's corners, then Finish polygon"); $("draw-done").hidden = false; });
@@ -475,7 +538,7 @@ $("draw-done").addEventListener("click", () => {
   if (!d || d.points.length < 3) { $("objects-error").textContent = "a polygon needs at least 3 corners"; draw(); return; }
   if (d.kind === "room") {
     let n = 1; const ids = new Set(S.objects.rooms.map((r) => r.id)); while (ids.has(`room_${n}`)) n++;
-    S.objects.rooms.push({ id: `room_${n}`, type: "room", polygon: d.points }); draw(); validateObjects(); return;
+    S.objects.rooms.push({ id: `room_${n}`, type: "room", floor: S.floor, polygon: d.points }); draw(); validateObjects(); return;
   }
   addObject(($("propose-text").value.trim() || "object").split(/\s+/).pop(), d.points);
 });
@@ -483,13 +546,13 @@ $("draw-done").addEventListener("click", () => {
 $("propose").addEventListener("click", async () => {
   const text = $("propose-text").value.trim();
   status(`asking the ${$("propose-map").value} for "${text}" …`);
-  const r = await api(scenePath(`/propose?map=${$("propose-map").value}&text=${encodeURIComponent(text)}`));
+  const r = await api(scenePath(`/propose?map=${$("propose-map").value}&text=${encodeURIComponent(text)}${floorQuery("&")}`));
   if (!r.ok) { $("objects-error").textContent = r.body.error; status(""); return; }
   $("objects-error").textContent = "";
   S.proposals = r.body.proposals;
   S.heatmapExtent = r.body.heatmap_extent_xy;
   S.heatmap = new Image(); S.heatmap.onload = draw; S.heatmap.src = r.body.heatmap;
-  status(`${r.body.proposals.length} proposals for "${r.body.text}" (${r.body.seconds} s)`);
+  status(`${r.body.proposals.length} proposals for "${r.body.text}"${building() ? " on " + floorName(r.body.floor) : ""} (${r.body.seconds} s)`);
   renderProposals();
 });
 
@@ -606,13 +669,27 @@ $("scene").addEventListener("change", () => {
 });
 window.addEventListener("resize", draw);
 
+const layerKey = (name) => `${name}@${S.floor}`;
 function loadLayer(name) {
   return new Promise((done) => {
-    if (S.layers[name]) { done(); return; }
+    const key = layerKey(name);
+    if (S.layers[key]) { done(); return; }
     const img = new Image(); img.onload = () => { draw(); done(); }; img.onerror = done;
-    img.src = scenePath(`/layers/${name}.png`); S.layers[name] = img;
+    img.src = scenePath(`/layers/${name}.png${floorQuery("?")}`); S.layers[key] = img;
   });
 }
+
+// show floor k: its layer, objects, rooms, goals, routes' legs and stairs (the map keeps its place: the floors
+// share one grid); the map proposals, made on the floor shown before, are dropped
+function setFloor(k) {
+  if (!building() || k === S.floor) return;
+  S.floor = k; $("floor").value = String(k);
+  S.proposals = []; S.heatmap = null; renderProposals();
+  renderGoals(); renderObjects();
+  loadLayer(S.layer).then(draw);
+  draw();
+}
+$("floor").addEventListener("change", () => setFloor(Number($("floor").value)));
 
 async function loadScene(name, keepView) {
   S.scene = name; status(`loading ${name} …`); delete document.body.dataset.ready;
@@ -626,6 +703,13 @@ async function loadScene(name, keepView) {
   $("layer").value = S.layer;
   $("propose-map").replaceChildren(...S.data.maps.map((m) => el("option", m)));
   S.layers = {};
+  const floors = S.data.floors || [];
+  if (!keepView || S.floor >= floors.length) S.floor = 0;
+  $("floor-pick").hidden = floors.length < 2;
+  document.querySelectorAll(".on-building").forEach((e) => { e.hidden = floors.length < 2; });
+  const floorOptions = () => floors.map((f, k) => { const o = el("option", `${k}: ${f.name} (${f.floor_z_m.toFixed(2)} m)`); o.value = String(k); return o; });
+  $("floor").replaceChildren(...floorOptions()); $("floor").value = String(S.floor);
+  $("object-form").floor.replaceChildren(...floorOptions());
   if (!$("tab-objects").hidden) await loadObjects();
   const first = loadLayer(S.layer);  // the others are fetched when chosen
   const g = await goalsAsked;
@@ -636,7 +720,8 @@ async function loadScene(name, keepView) {
   if (!keepView) fit();
   await first;
   draw();
-  status(`${name}: ${S.data.objects.length} objects, ${S.data.goals.length} goals, ${S.data.routes.length} routes` + (S.data.ground_truth ? " (ground truth)" : ""));
+  status(`${name}: ${S.data.objects.length} objects, ${S.data.goals.length} goals, ${S.data.routes.length} routes` + (S.data.ground_truth ? " (ground truth)" : "")
+    + (building() ? `, ${S.data.floors.length} floors, ${S.data.stairs.length} stairs` : ""));
   document.body.dataset.ready = name;
 }
 
