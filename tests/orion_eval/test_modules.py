@@ -253,3 +253,25 @@ def test_an_exploration_with_hints_goes_first_to_the_frontier_nearest_them(tiny_
     hinted = m.frontier(near=far[None])
     assert np.hypot(*(hinted - far)) < 0.5  # the frontier at the hint, not the nearest one
     assert np.array_equal(m.frontier(near=None), plain)
+
+
+def test_an_exploration_restarted_starts_over_from_where_the_agent_stands(tiny_scene):
+    """restart_exploration forgets the places covered, not what each spin saw: a spin remembered where the agent stands
+    costs no steps and covers its place again, so the frontiers are those around it, the earlier places' included."""
+    ctx, goal, run = _run(tiny_scene)
+    m = run.modules
+    m.look_around("bicycle")
+    first = m._explored_mask().copy()
+    target = m.frontier()
+    assert target is not None and m.goto_point(target)
+    m.look_around("bicycle")
+    both = m._explored_mask().copy()
+    assert (both & ~first).any()  # the second spin covered more
+    steps = run.body.steps
+    m.restart_exploration()
+    m.look_around("bicycle")  # remembered here: no steps, and only this place is covered now
+    assert run.body.steps == steps
+    here = m._explored_mask()
+    assert here.any() and (first & ~here).any() and not (here & ~both).any()
+    assert m.frontier() is not None
+
