@@ -362,9 +362,19 @@ class Modules:
                     found[s] += [t[0] for t in self.detect_object(s)]
                 for _ in range(per_view):
                     self.run.act(LEFT)
-            self._mark_explored()
             seen.update(found)
+        cg = self.here.planner.crop_grid  # the agent's floor's (a building's floors have their own)
+        if new or not self._explored_mask()[tuple(cg.world_to_cell(np.asarray(self.pose[:2])))]:
+            self._mark_explored()  # a spin remembered here covers its place again after the exploration restarted
         return {s: self._triples(seen[s]) for s in obj_strs}
+
+    def restart_exploration(self) -> None:
+        """Forget which places the exploration has covered (not what each spin saw there): the next search starts
+        over from where the agent stands, its nearest frontiers first. CoW's exploration does so when its target
+        changes (navchat's ``search_object`` for CoW: a target other than the last one resets the frontier map,
+        ``fbe.reset(reset_floor=True)``, and spins first), so a search for the goal after one for a landmark explores
+        outward from the landmark again instead of only the frontiers the landmark search left."""
+        self._explored.clear()  # every floor's: CoW's reset forgets its whole frontier map
 
     def frontier(self, near: np.ndarray | None = None) -> np.ndarray | None:
         """World xy of the nearest frontier cell (navigable, unexplored, next to explored) at least 1 m away; with

@@ -44,6 +44,11 @@ searches for and where, through the same rules for every method:
   there, and the map's candidates of the name are ranked by distance to the route's end (in whole metres: the
   route is not precise), then by the landmarks.
 
+An exploration searches for one target at a time, and starts over from where the agent stands when the target
+changes (:meth:`ModularAgent.explore_for`, as CoW's frontier-based exploration resets its frontier map for a new
+target): the goal's search after a landmark was found explores outward from the landmark, and a one-prompt
+localiser's search starts over when a description replaces its prompt.
+
 A spin is remembered where it was made (:meth:`~orion_eval.modules.Modules.look_around_for`): looking
 around again there for the same thing costs no steps.
 
@@ -112,6 +117,7 @@ class SearchState:
     map_wrong: int = 0  # map candidates the user has said "No" to (ModularAgent.double_check_after)
     hint_floor: int | None = None  # the floor the user's last hint points to (a building), None: the agent's own
     one_prompt: bool = False  # the detector holds one prompt (CoW's CLIP saliency): the description replaces the name
+    target: tuple = ()  # what the exploration last searched for (ModularAgent.explore_for)
 
     @property
     def queries(self) -> list[str]:
@@ -131,6 +137,14 @@ class SearchState:
         """Remember a found object's place (its centre, on its floor) as not the goal."""
         self.rejected.append(obj.center_xy)
         self.rejected_floors.append(obj.floor)
+
+    @property
+    def goal_target(self) -> tuple:
+        """What a search for the goal is a search for: the goal's name (a phrase-grounding detector's prompts narrow
+        it: navchat's ORION ``search_object`` takes the goal's ``target`` and a ``prompt`` that may describe it), or,
+        for a one-prompt localiser, the prompt itself (CoW's ``search_object`` takes one ``target``, the text its CLIP
+        scores the views against)."""
+        return tuple(self.queries) if self.one_prompt else (self.name,)
 
     def hint_points(self) -> np.ndarray | None:
         """``(K,2)`` points of every hint in force (the landmarks found, a route's end), or None without hints: where
@@ -239,6 +253,7 @@ class ModularAgent(Agent):
                 if not mods.detector:
                     return None
                 steps = m.run.body.steps
+                self.explore_for(m, st, st.goal_target)
                 hit = m.search_objects(st.queries, dict.fromkeys(st.queries, skip), near=st.hint_points())
                 oid = hit[1] if hit else None
                 if oid is None:
@@ -412,7 +427,8 @@ class ModularAgent(Agent):
         """Without a map: one spin for the landmarks ``lost`` and the goal together (the goal itself may be in sight);
         when none of ``phrases`` is found and nothing of the goal seen, a method that explores searches the frontiers
         for every landmark not found, watching for the goal at every look (the landmarks are salient objects, easier to
-        find than the goal: the paper's reason landmarks help exploration-based methods)."""
+        find than the goal: the paper's reason landmarks help exploration-based methods). A landmark found was what
+        the exploration last searched for (:meth:`explore_for`): the goal's search after it starts over from it."""
         seen = m.look_around_for([*lost, *st.queries])
         if st.spin_at is not None and float(np.hypot(*(st.spin_at - m.pose[:2]))) <= self.params.eval.reject_radius_m:
             st.spin_at = None  # the look-around due here (a route's end) is this one
@@ -421,16 +437,31 @@ class ModularAgent(Agent):
             st.landmark_ids[phrase] = ids
             st.landmarks[phrase] = self.places(m, ids)
         self.spot(m, st, [t for q in st.queries for t in seen[q]])
-        if any(st.landmarks.get(p) is not None for p in phrases) or not self.modules.explore or st.spotted:
-            return
-        skip = self.skip(m, st, set())
-        hit = m.search_objects([*st.queries, *lost], {**dict.fromkeys(st.queries, skip),
-                                                     **{p: st.passed.get(p, set()).__contains__ for p in lost}})
-        if hit and hit[0] in st.queries:
-            st.spotted = [hit[1]]
-        elif hit:
-            st.landmark_ids[hit[0]] = [hit[1]]
-            st.landmarks[hit[0]] = self.places(m, [hit[1]])
+        if not any(st.landmarks.get(p) is not None for p in phrases) and self.modules.explore and not st.spotted:
+            skip = self.skip(m, st, set())
+            hit = m.search_objects([*st.queries, *lost], {**dict.fromkeys(st.queries, skip),
+                                                         **{p: st.passed.get(p, set()).__contains__ for p in lost}})
+            if hit and hit[0] in st.queries:
+                st.spotted = [hit[1]]
+            elif hit:
+                st.landmark_ids[hit[0]] = [hit[1]]
+                st.landmarks[hit[0]] = self.places(m, [hit[1]])
+        found = tuple(p for p in lost if st.landmarks.get(p) is not None)
+        if found and self.modules.explore:
+            st.target = found
+
+    @staticmethod
+    def explore_for(m, st: SearchState, target: tuple) -> None:
+        """Make ``target`` what the exploration searches for; when it is not what the last search was for, the
+        exploration starts over from where the agent stands (:meth:`~orion_eval.modules.Modules.restart_exploration`:
+        CoW's frontier-based exploration resets its frontier map whenever its search target changes). So once a
+        landmark is found, the goal is searched outward from the landmark, its neighbourhood seen again from new
+        places, rather than only at the frontiers the landmark's search left (which, the landmark's surroundings
+        being marked explored by one spin there, lie away from it, and run out)."""
+        if target != st.target:
+            if st.target:
+                m.restart_exploration()
+            st.target = target
 
     def spot(self, m, st: SearchState, found: list) -> None:
         """Add detections of the goal's query (``(obj_id, d, a)``) to the places to try, unless rejected."""

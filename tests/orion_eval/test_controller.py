@@ -456,3 +456,38 @@ def test_a_landmark_not_found_is_looked_for_again_where_the_exploration_left_off
     left = m.frontier()
     cow.locate_landmarks(m, st, ["bicycle"])
     assert left is None or run.body.steps > first  # on to the next frontier, not the same spin again
+
+
+def test_the_exploration_starts_over_when_its_target_changes(ctx):
+    """CoW's exploration resets its frontier map when its search target changes (navchat's search_object for CoW): the
+    goal's search after a landmark was found, or after a description replaced CoW's one prompt, starts over from where
+    the agent stands; a phrase-grounding detector's target stays the goal's name whatever its prompt (ORION)."""
+    goal, run, cow = episode(ctx, "cow")
+    m = run.modules
+    restarts = []
+    m.restart_exploration = lambda: restarts.append(run.body.steps)
+    st = cow.state(goal.name)
+    cow.explore_for(m, st, st.goal_target)
+    cow.explore_for(m, st, st.goal_target)
+    assert restarts == [] and st.target == (goal.name,)  # the first search, then the same target: no restart
+    st.description = "red chair made of wood"
+    cow.explore_for(m, st, st.goal_target)
+    assert len(restarts) == 1 and st.target == ("red chair made of wood",)
+    orion = build_agent("orion", ctx.params)
+    sto = orion.state(goal.name)
+    orion.explore_for(m, sto, sto.goal_target)
+    sto.description = "red chair made of wood"
+    orion.explore_for(m, sto, sto.goal_target)
+    assert len(restarts) == 1 and sto.target == (goal.name,)
+    # a landmark found (here seen by the spin where the agent stands) is what the exploration last searched for
+    oid = m.register(np.asarray(m.pose[:2]) + 1.0, np.zeros(0, np.int64), "detect")
+    m.look_around_for = lambda strs: {s: [(oid, 1.0, 0.0)] if s == "the bed" else [] for s in strs}
+    cow.find_landmarks(m, st, ["the bed"], ["the bed"])
+    assert st.landmark_ids["the bed"] == [oid] and st.target == ("the bed",)
+    cow.explore_for(m, st, st.goal_target)
+    assert len(restarts) == 2 and st.target == ("red chair made of wood",)
+    # a landmark not found leaves the goal's search where it was
+    m.look_around_for = lambda strs: {s: [] for s in strs}
+    m.search_objects = lambda *a, **k: None
+    cow.find_landmarks(m, st, ["the sofa"], ["the sofa"])
+    assert st.landmarks["the sofa"] is None and st.target == ("red chair made of wood",)

@@ -350,3 +350,25 @@ def test_a_task_that_does_not_name_its_floor_starts_on_its_episodes(tiny_house):
     task = Task("house", "orion", "yesno", 0, goal.id, ep.id, ep.start, ep.geodesic_m)  # no start_floor
     bare = EpisodeRun(ctx, task, SimulatedUser(ctx, goal, "yesno", np.random.default_rng(0)), 2000, 5)
     assert bare.body.floor == ep.start_floor != goal.floor and bare.start_floor == ep.start_floor
+
+
+def test_an_exploration_restarted_starts_over_from_where_the_agent_stands(tiny_scene):
+    """restart_exploration forgets the places covered, not what each spin saw: a spin remembered where the agent stands
+    costs no steps and covers its place again, so the frontiers are those around it, the earlier places' included."""
+    ctx, goal, run = _run(tiny_scene)
+    m = run.modules
+    m.look_around("bicycle")
+    first = m._explored_mask().copy()
+    target = m.frontier()
+    assert target is not None and m.goto_point(target)
+    m.look_around("bicycle")
+    both = m._explored_mask().copy()
+    assert (both & ~first).any()  # the second spin covered more
+    steps = run.body.steps
+    m.restart_exploration()
+    m.look_around("bicycle")  # remembered here: no steps, and only this place is covered now
+    assert run.body.steps == steps
+    here = m._explored_mask()
+    assert here.any() and (first & ~here).any() and not (here & ~both).any()
+    assert m.frontier() is not None
+
