@@ -431,6 +431,11 @@ class RunParams(Section):
     )
     encoder_batch_size: int = Field(4, gt=0, description="images per encoder forward pass")
     torch_threads: int = Field(0, ge=0, description="torch CPU threads of the encoders (0 = leave torch's default)")
+    recon_tile_m: float = Field(
+        16.0, ge=0, description="reconstruct fuses the TSDF volume in square tiles of this side (whole 0.4 m blocks at "
+        "the default voxel), one at a time, so its memory depends on the tile, not on the floor's area; the outputs "
+        "are the same bytes for any tile size (pipeline.recon.tiles); 0 = one volume for the whole scene, metres"
+    )
     map_fold_cache: bool = Field(
         True, description="keep each map's fold of its complete frame chunks beside it (data/artifacts/<scene>/"
         ".<stage>.fold, as big as the map's fp32 sums) so a rerun after frames were appended fuses only the new ones"

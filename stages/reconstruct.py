@@ -30,6 +30,6 @@ def run(ctx: StageContext) -> dict:
             f"grid {grid.rows}x{grid.cols} at {grid.cell_size_m} m")
     return reconstruct(
         ctx.inputs["frames"], ctx.outputs["recon"], ctx.outputs["recon_mesh"], ctx.outputs["recon_points"], p, grid,
-        params_digest=ctx.params_digest, log=ctx.log,
+        params_digest=ctx.params_digest, tile_m=ctx.runtime.recon_tile_m, log=ctx.log,
         progress=lambda it, n: ctx.progress(it, total=n, description="fusing"),
     )

@@ -88,10 +88,10 @@ class MeshSight:
                   tolerance_m: float = 0.15) -> "MeshSight":
         import open3d as o3d
 
-        mesh = o3d.io.read_triangle_mesh(str(mesh_path))
+        from pipeline.recon.store import read_mesh_geometry
+
+        v, t = read_mesh_geometry(mesh_path)  # positions and triangles only: a large floor's mesh is GBs in full
         scene = o3d.t.geometry.RaycastingScene()
-        v = np.asarray(mesh.vertices, dtype=np.float32)
-        t = np.asarray(mesh.triangles, dtype=np.uint32)
         if len(t):
             scene.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(t))
         return cls(scene, cam_z=float(floor_z) + float(camera_height_m), floor_z=floor_z, grid=grid,

@@ -28,42 +28,64 @@ from pipeline.store import artifact_attrs
 
 def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_path: Path,
                 p: ReconstructParams, grid: GridParams, *, frames: Sequence[int] | None = None,
-                params_digest: str | None = None, log: Callable[[str], None] = lambda m: None, progress=None) -> dict:
+                params_digest: str | None = None, tile_m: float = 0.0, log: Callable[[str], None] = lambda m: None,
+                progress=None) -> dict:
     """Fuse ``frames_path`` (``frames``: a subset of frame indices; default all) and write the outputs.
 
-    Returns the summary figures (the stage's manifest summary).
+    ``tile_m`` > 0 fuses in tiles of that side (:mod:`pipeline.recon.tiles`: memory bounded by a tile, the same
+    outputs); 0 fuses one volume. Returns the summary figures (the stage's manifest summary).
     """
-    from pipeline.recon import tsdf  # open3d: imported by the work, not by the stage's config (zipon status)
+    from pipeline.recon import tiles
+
+    with tiles.spill_dir(recon_path) as workdir:
+        return _reconstruct(frames_path, recon_path, mesh_path, points_path, p, grid, frames=frames,
+                            params_digest=params_digest, tile_m=tile_m, workdir=Path(workdir), log=log,
+                            progress=progress)
+
+
+def _reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_path: Path, p: ReconstructParams,
+                 grid: GridParams, *, frames, params_digest, tile_m: float, workdir: Path, log, progress) -> dict:
+    from pipeline.recon import tiles, tsdf  # open3d: imported by the work, not by the stage's config (zipon status)
     from pipeline.recon.refine import PoseRefiner
 
     store = FrameStore(frames_path)
     grids_mod.lattice_ratio(grid, p)  # fail on a bad voxel/cell pairing before the long part
     t0 = time.perf_counter()
     refiner = PoseRefiner(p) if p.refine_poses else None
-    fusion = tsdf.fuse(store, p, frames=frames, refiner=refiner, progress=progress)
+    tiled = None
+    if tile_m > 0 and refiner is None:
+        tiled = tiles.fuse_tiled(store, p, tile_m, workdir, frames=frames, progress=progress)
+    fusion = tiled or tsdf.fuse(store, p, frames=frames, refiner=refiner, progress=progress)
     t_fuse = time.perf_counter() - t0
     if fusion.empty_frames:
         log(f"warning: {len(fusion.empty_frames)} frames without valid depth skipped (first: {fusion.empty_frames[0]})")
 
     t1 = time.perf_counter()
-    mesh = tsdf.extract_mesh(fusion.volume, p)
-    xyz, normals, colors = tsdf.extract_points(fusion.volume, p)
-    if len(mesh.triangles) == 0 or len(xyz) == 0:
+    if tiled is not None:
+        (xyz, normals, colors), voxels, n_triangles = (tiled.xyz, tiled.normals, tiled.colors), tiled.voxels, \
+            tiled.n_triangles
+        log(f"fused in {tiled.tiles_fused} tiles of {tiled.layout.tile_blocks * tiled.layout.block_m:g} m "
+            f"(at most {tiled.peak_blocks} of {tiled.n_blocks} TSDF blocks held at once)")
+    else:
+        mesh = tsdf.extract_mesh(fusion.volume, p)
+        xyz, normals, colors = tsdf.extract_points(fusion.volume, p)
+        voxels = lambda: tsdf.iter_voxels(fusion.volume, p, min_weight=p.occupancy_min_weight)  # noqa: E731
+        n_triangles = len(mesh.triangles)
+    if n_triangles == 0 or len(xyz) == 0:
         if len(fusion.frames_fused) == 1:
             raise StageError(f"{frames_path}: a single frame was fused (frame {fusion.frames_fused[0]}): a place counts "
                              f"as seen in {p.min_weight:g}+ frames (reconstruct.min_weight), so one frame maps "
                              "nothing; record more frames of the scene")
         raise StageError(f"{frames_path}: the fused volume has no surface ({len(fusion.frames_fused)} frames fused); "
                          f"an empty scene, or no place seen in {p.min_weight:g}+ frames (reconstruct.min_weight)")
-    mesh_info = write_mesh(mesh_path, mesh)
+    mesh_info = tiled.write_mesh(mesh_path) if tiled is not None else write_mesh(mesh_path, mesh)
     points_info = write_points(points_path, xyz, normals, colors)
-    del mesh
+    mesh = None
     t_extract = time.perf_counter() - t1
 
     t2 = time.perf_counter()
     found, spec, per_floor, stairs, warnings = floors_grids_stairs(
-        xyz, normals, colors, lambda: tsdf.iter_voxels(fusion.volume, p, min_weight=p.occupancy_min_weight),
-        fusion.T_world_camera, grid, p, source=str(frames_path))
+        xyz, normals, colors, voxels, fusion.T_world_camera, grid, p, source=str(frames_path))
     building = len(found.floors) > 1
     t_grids = time.perf_counter() - t2
     grids = per_floor[0]
@@ -113,6 +135,7 @@ def reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pat
         "frames_per_s": round(len(fusion.frames_fused) / max(t_fuse, 1e-9), 2),
         "refinement": refinement,
         "keyframes": keyframes,
+        **({"tiles": tiled.summary()} if tiled is not None else {}),
     }
     attrs = artifact_attrs(
         ARTIFACT, FORMAT_VERSION, "reconstruct", params_digest or digest_value(p.model_dump(mode="json")),

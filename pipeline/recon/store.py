@@ -328,6 +328,35 @@ def write_mesh(path: Path, mesh: o3d.geometry.TriangleMesh) -> dict:
             "bounds_min": np.round(v.min(axis=0), 4).tolist(), "bounds_max": np.round(v.max(axis=0), 4).tolist()}
 
 
+_PLY_MESH_HEADER = (b"ply\nformat binary_little_endian 1.0\ncomment Created by Open3D\nelement vertex %d\n"
+                    b"property double x\nproperty double y\nproperty double z\nproperty double nx\n"
+                    b"property double ny\nproperty double nz\nproperty uchar red\nproperty uchar green\n"
+                    b"property uchar blue\nelement face %d\nproperty list uchar uint vertex_indices\nend_header\n")
+
+
+def read_mesh_geometry(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices ``(n, 3)`` float32 m and triangles ``(m, 3)`` uint32 of a mesh PLY, nothing else.
+
+    A file :func:`write_mesh` wrote is read through a memory map, field by field (no normals, colours or float64
+    copy of the whole mesh in memory); any other PLY through open3d.
+    """
+    with open(path, "rb") as f:
+        head = f.read(1024)
+    end = head.find(b"end_header\n")
+    counts = [int(w) for w in head[:end].split() if w.isdigit()][:2] if end > 0 else []
+    if len(counts) == 2 and head[: end + 11] == _PLY_MESH_HEADER % tuple(counts):
+        vertex = np.dtype([("xyz", "<f8", (3,)), ("normal", "<f8", (3,)), ("rgb", "u1", (3,))])
+        face = np.dtype([("n", "u1"), ("index", "<u4", (3,))])
+        n_v, n_f = counts
+        vertices = np.memmap(path, vertex, "r", offset=end + 11, shape=(n_v,))
+        faces = np.memmap(path, face, "r", offset=end + 11 + n_v * vertex.itemsize, shape=(n_f,))
+        return vertices["xyz"].astype(np.float32), np.ascontiguousarray(faces["index"])
+    import open3d as o3d
+
+    mesh = o3d.io.read_triangle_mesh(str(path))
+    return np.asarray(mesh.vertices, dtype=np.float32), np.asarray(mesh.triangles, dtype=np.uint32)
+
+
 def write_points(path: Path, xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray) -> dict:
     """Write surface points as a binary PLY (positions m, normals, colours) in :func:`canonical_point_order`."""
     import open3d as o3d

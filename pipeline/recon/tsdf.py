@@ -215,6 +215,13 @@ def fuse(store: FrameStore, p: ReconstructParams, *, frames: Iterable[int] | Non
             fusion.T_world_camera[i] = T
     if selector is not None:
         fusion.keyframe_reasons = dict(selector.reasons)
+    check_empty_frames(store, p, fusion)
+    return fusion
+
+
+def check_empty_frames(store: FrameStore, p: ReconstructParams, fusion) -> None:
+    """Raise :class:`InputDataError` naming the first empty frame when more than ``p.max_invalid_frame_fraction`` of
+    the frames considered (or all of them) have no valid depth (``fusion``: a :class:`Fusion` or a tiled one)."""
     considered = len(fusion.frames_fused) + len(fusion.not_keyframes) + len(fusion.empty_frames)
     if fusion.empty_frames and (not fusion.frames_fused or
                                 len(fusion.empty_frames) > p.max_invalid_frame_fraction * considered):
@@ -225,7 +232,6 @@ def fuse(store: FrameStore, p: ReconstructParams, *, frames: Iterable[int] | Non
             expected=f"at most {p.max_invalid_frame_fraction:.0%} of frames without valid depth "
                      "(reconstruct.max_invalid_frame_fraction)",
         )
-    return fusion
 
 
 def extract_mesh(volume: o3d.t.geometry.VoxelBlockGrid, p: ReconstructParams) -> o3d.geometry.TriangleMesh:

@@ -3,7 +3,7 @@
 import numpy as np
 import open3d as o3d
 
-from pipeline.recon.store import canonical_mesh, canonical_point_order, write_mesh, write_points
+from pipeline.recon.store import canonical_mesh, canonical_point_order, read_mesh_geometry, write_mesh, write_points
 
 
 def _mesh(vertices, triangles, colors):
@@ -106,3 +106,16 @@ def test_a_buildings_store_reads_per_floor_and_refuses_what_does_not_fit(house, 
                              floors=[{**f.model_dump(mode="json"), "id": f.id * 7} for f in recon.floors]))
     with pytest.raises(ArtifactError, match="floors/7 missing \\(floor 1 listed in attrs.floors\\)"):
         moved.floor(1)
+
+
+def test_mesh_geometry_is_read_as_open3d_reads_it_from_our_files_and_any_other(tmp_path):
+    mesh = o3d.geometry.TriangleMesh.create_sphere(radius=0.5, resolution=8)
+    mesh.vertex_colors = o3d.utility.Vector3dVector(np.full((len(mesh.vertices), 3), 0.3))
+    write_mesh(tmp_path / "ours.ply", mesh)
+    o3d.io.write_triangle_mesh(str(tmp_path / "ascii.ply"), mesh, write_ascii=True)
+    for name in ("ours.ply", "ascii.ply"):
+        expected = o3d.io.read_triangle_mesh(str(tmp_path / name))
+        vertices, triangles = read_mesh_geometry(tmp_path / name)
+        assert vertices.dtype == np.float32 and triangles.dtype == np.uint32
+        np.testing.assert_array_equal(vertices, np.asarray(expected.vertices, dtype=np.float32))
+        np.testing.assert_array_equal(triangles, np.asarray(expected.triangles, dtype=np.uint32))

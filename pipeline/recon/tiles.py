@@ -1,0 +1,342 @@
+"""TSDF fusion in spatial tiles: reconstruct's memory bounded by a tile, not by the floor's area.
+
+The hashed TSDF volume holds every block of the observed surface's truncation band: on a 60 m x 40 m office
+that is gigabytes. Here the xy plane is cut into square tiles of whole TSDF blocks (:class:`TileLayout`), and the
+frames are fused one tile at a time, each tile into its own ``VoxelBlockGrid`` holding the tile's blocks and a
+one-block margin around them: a frame is read for every tile its view can reach (its frustum to
+``depth_max_m + sdf_trunc_m``, from the pose alone), and only the blocks of that tile (and margin) are
+integrated. The tile's surface points, mesh triangles and observed voxels are then extracted, its voxels spilled
+to a temporary file (the grids read them once the floors are known), and the volume freed.
+
+Exactness: a voxel's TSDF, weight and colour depend only on the frames whose blocks include it, in frame order,
+so a block fused in a tile's volume holds the same bits as in one volume of the whole scene. Extraction looks at
+most two voxels past a zero crossing (the crossing's neighbour and the central-difference normal), well inside the
+margin, so each tile extracts exactly the points, vertices and triangles the whole volume has near its core. Each
+output is kept by the one tile that owns it: a point or vertex by its position, a triangle by its centroid, a
+voxel by its block (:meth:`TileLayout.owner`, boundaries half a voxel before each tile's first voxel). So the
+points (put in canonical order), the mesh (canonicalised by :func:`pipeline.recon.store.canonical_mesh`, which
+merges the vertices two tiles both used) and every grid are byte for byte those of one volume, for any tile size
+and thread count. A frame whose blocks leave the footprint it was read for is an error, never a silent loss.
+
+Not tiled: pose refinement (``reconstruct.refine_poses``) aligns each frame to the model fused so far, which is
+the whole scene's; with it, fusion keeps one volume.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterator, Sequence
+
+import numpy as np
+import open3d as o3d
+
+from pipeline.config import ReconstructParams
+from pipeline.errors import StageError
+from pipeline.frames import FrameStore
+from pipeline.geometry import Intrinsics, invert_pose
+from pipeline.prefetch import prefetched
+from pipeline.recon import tsdf
+from pipeline.recon.keyframes import KeyframeRule, KeyframeSelector
+from pipeline.recon.tiled_mesh import SpilledPart, spill_part, write_tiled_mesh
+
+o3c = o3d.core
+_VOXELS_PER_READ = 1 << 21  # voxels handed to the grids at once from a tile's spill file
+
+
+@dataclass(frozen=True)
+class TileLayout:
+    """Square tiles of ``tile_blocks`` TSDF blocks, tile ``(0, 0)`` starting at block ``first_block`` (x, y).
+
+    ``shape`` is (tiles along x, tiles along y). Tile ``(i, j)`` owns blocks ``first_block + (i, j) * tile_blocks``
+    up to the next tile's first; its volume also holds a margin of one block on every side.
+    """
+
+    voxel_size_m: float
+    block_resolution: int
+    tile_blocks: int
+    first_block: tuple[int, int]
+    shape: tuple[int, int]
+
+    @property
+    def block_m(self) -> float:
+        return self.voxel_size_m * self.block_resolution
+
+    @property
+    def n_tiles(self) -> int:
+        return self.shape[0] * self.shape[1]
+
+    def tiles(self) -> list[tuple[int, int]]:
+        """Every tile, x-major."""
+        return [(i, j) for i in range(self.shape[0]) for j in range(self.shape[1])]
+
+    def block_range(self, tile: tuple[int, int], margin: int) -> tuple[np.ndarray, np.ndarray]:
+        """The tile's block indices (x, y), first and last inclusive, widened by ``margin`` blocks."""
+        lo = np.asarray(self.first_block) + np.asarray(tile) * self.tile_blocks
+        return lo - margin, lo + self.tile_blocks - 1 + margin
+
+    def owner(self, xy_m: np.ndarray) -> np.ndarray:
+        """``(N, 2)`` int tile index owning each world point ``(N, 2)`` metres, clipped into the layout.
+
+        A tile's core in voxel units runs from half a voxel before its first voxel to half a voxel before the next
+        tile's first: lattice points (the other two coordinates of an extracted point) never sit on a boundary.
+        """
+        voxel = np.asarray(xy_m, np.float64) / self.voxel_size_m + 0.5
+        first = np.asarray(self.first_block) * self.block_resolution
+        tile = np.floor((voxel - first) / (self.tile_blocks * self.block_resolution)).astype(np.int64)
+        return np.clip(tile, 0, np.asarray(self.shape) - 1)
+
+    def owns(self, tile: tuple[int, int], xy_m: np.ndarray) -> np.ndarray:
+        """``(N,)`` bool: the points ``tile`` keeps (:meth:`owner`)."""
+        t = self.owner(xy_m)
+        return (t[:, 0] == tile[0]) & (t[:, 1] == tile[1])
+
+
+def frustum_blocks(T_world_camera: np.ndarray, intr: Intrinsics, p: ReconstructParams) -> np.ndarray:
+    """``(F, 2, 2)`` int: the first and last block index (x, y) each camera ``(F, 4, 4)`` can touch.
+
+    Fusion touches blocks along each pixel's ray up to ``sdf_trunc_m`` past a depth of at most ``depth_max_m``:
+    inside the pyramid from the camera to its image corners at that z-depth (one pixel wider), plus one block.
+    """
+    far = p.depth_max_m + p.sdf_trunc_m
+    u = np.array([-1.0, intr.width, intr.width, -1.0])
+    v = np.array([-1.0, -1.0, intr.height, intr.height])
+    corners = np.stack([(u - intr.cx) / intr.fx * far, (v - intr.cy) / intr.fy * far, np.full(4, far)], axis=1)
+    local = np.vstack([np.zeros((1, 3)), corners])  # camera frame: apex and far corners
+    world = np.einsum("fij,pj->fpi", T_world_camera[:, :3, :3], local) + T_world_camera[:, None, :3, 3]
+    block = p.voxel_size_m * p.block_resolution
+    lo = np.floor(world[..., :2].min(axis=1) / block).astype(np.int64) - 1
+    hi = np.floor(world[..., :2].max(axis=1) / block).astype(np.int64) + 1
+    return np.stack([lo, hi], axis=1)
+
+
+def tile_layout(footprints: np.ndarray, p: ReconstructParams, tile_m: float) -> TileLayout:
+    """The tiles covering every footprint ``(F, 2, 2)`` (:func:`frustum_blocks`), ``tile_m`` metres a side
+    (rounded to whole blocks, at least one)."""
+    tile_blocks = max(1, int(round(tile_m / (p.voxel_size_m * p.block_resolution))))
+    lo, hi = footprints[:, 0].min(axis=0), footprints[:, 1].max(axis=0)
+    shape = -(-(hi - lo + 1) // tile_blocks)
+    return TileLayout(p.voxel_size_m, p.block_resolution, tile_blocks, (int(lo[0]), int(lo[1])),
+                      (int(shape[0]), int(shape[1])))
+
+
+@dataclass
+class TiledFusion:
+    """What :func:`fuse_tiled` fused and extracted (the fields of :class:`pipeline.recon.tsdf.Fusion` it shares mean
+    the same), the voxels spilled under ``workdir``."""
+
+    layout: TileLayout
+    workdir: Path
+    n_blocks: int = 0
+    peak_blocks: int = 0  # the most blocks one tile's volume held (its margin included): what memory is bounded by
+    tiles_fused: int = 0  # tiles some frame reached
+    frames_fused: list[int] = field(default_factory=list)
+    empty_frames: list[int] = field(default_factory=list)
+    T_world_camera: dict[int, np.ndarray] = field(default_factory=dict)
+    not_keyframes: dict[int, np.ndarray] = field(default_factory=dict)
+    keyframe_reasons: dict[str, int] = field(default_factory=dict)
+    xyz: np.ndarray | None = None  # (N,3) float32, canonical order (tsdf.extract_points)
+    normals: np.ndarray | None = None
+    colors: np.ndarray | None = None
+    mesh_parts: list[SpilledPart] = field(default_factory=list)  # each tile's mesh, spilled (written by write_mesh)
+    n_triangles: int = 0
+    voxel_files: list[Path] = field(default_factory=list)
+
+    def summary(self) -> dict:
+        """The tiling as the stage summary records it."""
+        return {"side_m": round(self.layout.tile_blocks * self.layout.block_m, 4), "layout": list(self.layout.shape),
+                "fused": self.tiles_fused, "peak_blocks": self.peak_blocks}
+
+    def write_mesh(self, path: Path) -> dict:
+        """The scene's mesh as :func:`pipeline.recon.store.write_mesh` writes it (a slab at a time)."""
+        return write_tiled_mesh(path, self.mesh_parts, self.workdir)
+
+    def voxels(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """The observed voxels (weight >= ``occupancy_min_weight``) as :func:`pipeline.recon.tsdf.iter_voxels`
+        yields them, tile by tile from the spill files, a bounded number at a time."""
+        for path in self.voxel_files:
+            with np.load(path) as spill:
+                lattice, values = spill["lattice"], spill["tsdf"]
+            for s in range(0, len(values), _VOXELS_PER_READ):
+                yield lattice[s : s + _VOXELS_PER_READ], values[s : s + _VOXELS_PER_READ]
+
+
+def _frame_plan(store: FrameStore, p: ReconstructParams, intr: Intrinsics, wanted: np.ndarray, fusion: TiledFusion
+                ) -> np.ndarray:
+    """Which frames are fused (all wanted frames, or the keyframes among those with depth), filling the frame
+    bookkeeping of ``fusion`` as :func:`pipeline.recon.tsdf.fuse` does. Returns ``(N,)`` bool of frames to fuse
+    (frames with no depth are found, and dropped, while the tiles read them)."""
+    fuse = wanted.copy()
+    if not p.keyframes:
+        return fuse
+    selector = KeyframeSelector(KeyframeRule.from_params(p), intr)
+    idx = np.flatnonzero(wanted)
+    for block in store.iter_blocks(p.block_frames, start=int(idx.min()), stop=int(idx.max()) + 1, rgb=False):
+        depth = tsdf.prepare_depth(block.depth_mm, p)
+        has_depth = depth.reshape(len(depth), -1).any(axis=1)
+        for j in range(len(depth)):
+            i = block.start + j
+            if not wanted[i]:
+                continue
+            T = block.T_world_camera[j].astype(np.float64)
+            if not has_depth[j]:
+                fusion.empty_frames.append(i)
+                fuse[i] = False
+            elif not selector.offer(depth[j], np.eye(4) @ T):
+                fusion.not_keyframes[i] = np.eye(4) @ T
+                fuse[i] = False
+    fusion.keyframe_reasons = dict(selector.reasons)
+    return fuse
+
+
+def _fuse_tile(store: FrameStore, p: ReconstructParams, intr: Intrinsics, layout: TileLayout, tile: tuple[int, int],
+               frames: np.ndarray, footprints: np.ndarray, fusion: TiledFusion, seen: np.ndarray
+               ) -> o3d.t.geometry.VoxelBlockGrid:
+    """One tile's volume: ``frames`` (sorted store indices) fused into the tile's blocks and margin.
+
+    ``seen`` ``(N,)`` int8: -1 unread, 0 no valid depth, 1 depth (filled as frames are read)."""
+    volume = tsdf.new_volume(p)
+    lo, hi = layout.block_range(tile, margin=1)
+    K = o3c.Tensor(intr.K, o3c.float64)
+    K_integrate = o3c.Tensor(tsdf.integration_K(intr))
+    trunc_mult = p.sdf_trunc_m / p.voxel_size_m
+    chunk = store.block_frames
+    groups = np.unique(frames // chunk)
+    wanted = np.zeros(store.n_frames, bool)
+    wanted[frames] = True
+
+    def blocks():
+        for g in groups:
+            yield tsdf.prepare_block(store.read(int(g * chunk), int(min((g + 1) * chunk, store.n_frames))), p)
+
+    for block in prefetched(blocks(), name="recon-read"):
+        for j in range(len(block.depth_mm)):
+            i = block.start + j
+            if not wanted[i]:
+                continue
+            seen[i] = int(block.has_depth[j])
+            if not block.has_depth[j]:
+                continue
+            depth = o3d.t.geometry.Image(o3c.Tensor.from_numpy(np.ascontiguousarray(block.depth_mm[j])))
+            extrinsic = o3c.Tensor(invert_pose(block.T_world_camera[j]), o3c.float64)
+            coords = volume.compute_unique_block_coordinates(depth, K, extrinsic, 1000.0, p.depth_max_m, trunc_mult)
+            xy = coords.numpy()[:, :2]
+            if len(xy) and ((xy < footprints[i, 0]).any() or (xy > footprints[i, 1]).any()):
+                raise StageError(f"{store.path}: frame {i} touches TSDF blocks outside the footprint its pose "
+                                 f"predicts (blocks {xy.min(axis=0)}..{xy.max(axis=0)}, predicted "
+                                 f"{footprints[i, 0]}..{footprints[i, 1]}): fuse it untiled (run.recon_tile_m: 0)")
+            inside = np.flatnonzero(((xy >= lo) & (xy <= hi)).all(axis=1))
+            if inside.size == 0:
+                continue
+            color = o3d.t.geometry.Image(o3c.Tensor.from_numpy(np.ascontiguousarray(block.rgb[j])))
+            mine = coords if inside.size == len(xy) else coords[o3c.Tensor(inside.astype(np.int64))]
+            volume.integrate(mine, depth, color, K_integrate, extrinsic, 1000.0, p.depth_max_m, trunc_mult)
+    return volume
+
+
+def _extract(volume: o3d.t.geometry.VoxelBlockGrid, layout: TileLayout, tile: tuple[int, int],
+             p: ReconstructParams, workdir: Path) -> tuple[tuple[np.ndarray, ...], SpilledPart | None,
+                                                         tuple[np.ndarray, ...], int, int]:
+    """The tile's own points (xyz, normals, colours), its mesh part spilled under ``workdir``
+    (:func:`pipeline.recon.tiled_mesh.spill_part`), the observed voxels of its own blocks (lattice, tsdf), its own
+    block and triangle counts."""
+    xyz, normals, colors = tsdf.extract_points(volume, p)
+    keep = layout.owns(tile, xyz[:, :2])
+    points = (xyz[keep], normals[keep], colors[keep])
+
+    mesh = tsdf.extract_mesh(volume, p)
+    v = np.asarray(mesh.vertices)
+    c = np.asarray(mesh.vertex_colors) if mesh.has_vertex_colors() else np.zeros((len(v), 3))
+    tri = np.asarray(mesh.triangles)
+    if len(tri):
+        tri = tri[layout.owns(tile, v[tri].mean(axis=1)[:, :2])]
+    owned = layout.owns(tile, v[:, :2]) if len(v) else np.zeros(0, bool)
+    mesh_part = spill_part(v, c, tri, owned, workdir / f"mesh_{tile[0]}_{tile[1]}")
+    del mesh
+
+    lo, hi = layout.block_range(tile, margin=0)
+    lattices, values = [], []
+    for lattice, t in tsdf.iter_voxels(volume, p, min_weight=p.occupancy_min_weight):
+        block_xy = np.floor_divide(lattice[:, :2], p.block_resolution)
+        own = ((block_xy >= lo) & (block_xy <= hi)).all(axis=1)
+        lattices.append(lattice[own])
+        values.append(t[own])
+    voxels = (np.concatenate(lattices) if lattices else np.zeros((0, 3), np.int32),
+              np.concatenate(values) if values else np.zeros(0, np.float32))
+    keys = volume.hashmap().key_tensor()[volume.hashmap().active_buf_indices().to(o3c.int64)].numpy()
+    n_blocks = int(((keys[:, :2] >= lo) & (keys[:, :2] <= hi)).all(axis=1).sum())
+    return points, mesh_part, voxels, n_blocks, len(tri)
+
+
+def fuse_tiled(store: FrameStore, p: ReconstructParams, tile_m: float, workdir: Path, *,
+               frames: Sequence[int] | None = None, progress: Callable | None = None) -> TiledFusion | None:
+    """Fuse ``frames`` (default all) of ``store`` tile by tile (module doc), extracting each tile as it is done.
+
+    Returns None when every view fits in one tile (then :func:`pipeline.recon.tsdf.fuse` is the same work without
+    re-reading). Raises :class:`pipeline.errors.InputDataError` for too many frames without depth, as ``fuse``
+    does. ``progress(iterator, n_tiles)`` may wrap the tile loop.
+    """
+    wanted = np.zeros(store.n_frames, bool)
+    if frames is None:
+        wanted[:] = True
+    else:
+        idx = np.asarray(list(frames), dtype=np.int64)
+        if idx.size == 0 or idx.min() < 0 or idx.max() >= store.n_frames:
+            return None  # fuse() reports the bad selection
+        wanted[idx] = True
+    p = tsdf.with_stride(p, store.intrinsics)
+    intr = tsdf.strided(store.intrinsics, p.depth_stride)
+    poses = store.poses().astype(np.float64)
+    footprints = frustum_blocks(poses, intr, p)
+    layout = tile_layout(footprints[wanted], p, tile_m)
+    if layout.n_tiles == 1:
+        return None
+    fusion = TiledFusion(layout, Path(workdir))
+    to_fuse = _frame_plan(store, p, intr, wanted, fusion)
+    seen = np.full(store.n_frames, -1, np.int8)
+    points = []
+    tiles = layout.tiles()
+    for tile in (progress(iter(tiles), len(tiles)) if progress else tiles):
+        lo, hi = layout.block_range(tile, margin=1)
+        reach = to_fuse & (footprints[:, 1] >= lo).all(axis=1) & (footprints[:, 0] <= hi).all(axis=1)
+        if not reach.any():
+            continue
+        volume = _fuse_tile(store, p, intr, layout, tile, np.flatnonzero(reach), footprints, fusion, seen)
+        if volume.hashmap().size() == 0:  # the frames that might reach it did not
+            continue
+        fusion.peak_blocks = max(fusion.peak_blocks, int(volume.hashmap().size()))
+        fusion.tiles_fused += 1
+        tile_points, mesh_part, (lattice, values), n_blocks, n_triangles = _extract(volume, layout, tile, p,
+                                                                                     fusion.workdir)
+        del volume
+        fusion.n_blocks += n_blocks
+        fusion.n_triangles += n_triangles
+        points.append(tile_points)
+        if mesh_part is not None:
+            fusion.mesh_parts.append(mesh_part)
+        if len(values):
+            path = fusion.workdir / f"voxels_{tile[0]}_{tile[1]}.npz"
+            np.savez(path, lattice=lattice, tsdf=values)
+            fusion.voxel_files.append(path)
+    fused = np.flatnonzero(to_fuse & (seen == 1))
+    fusion.empty_frames = sorted(fusion.empty_frames + np.flatnonzero(to_fuse & (seen == 0)).tolist())
+    fusion.frames_fused = fused.tolist()
+    fusion.T_world_camera = {int(i): poses[i] for i in fused}
+    tsdf.check_empty_frames(store, p, fusion)
+    fusion.xyz, fusion.normals, fusion.colors = _canonical_points(points)
+    return fusion
+
+
+def _canonical_points(parts: list[tuple[np.ndarray, ...]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    from pipeline.recon.store import canonical_point_order
+
+    xyz, normals, colors = (np.concatenate([part[k] for part in parts]) if parts else np.zeros((0, 3), np.float32)
+                            for k in range(3))
+    order = canonical_point_order(xyz, normals, colors)
+    return xyz[order], normals[order], colors[order].astype(np.uint8)
+
+
+def spill_dir(next_to: Path) -> tempfile.TemporaryDirectory:
+    """A temporary folder for the tiles' voxels beside ``next_to`` (the output being written)."""
+    return tempfile.TemporaryDirectory(prefix=".recon-tiles-", dir=Path(next_to).parent)

@@ -1,0 +1,92 @@
+"""Fusion in tiles: the same bytes as one volume, memory bounded by a tile, and a frame that leaves its predicted
+footprint refused by name."""
+
+import numpy as np
+import pytest
+import zarr
+
+from pipeline.config import GridParams, ReconstructParams
+from pipeline.errors import StageError
+from pipeline.frames import FrameStore
+from pipeline.recon import tiles, tsdf
+from pipeline.recon.build import reconstruct
+from tests.fixtures.recon_scenes import write_box_room_frames
+
+GRID = GridParams(rows=120, cols=160)
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory):
+    path, _ = write_box_room_frames(tmp_path_factory.mktemp("tiles") / "frames.zarr", n_frames=24)
+    return path
+
+
+def _build(frames, out, p, tile_m):
+    out.mkdir()
+    summary = reconstruct(frames, out / "recon.zarr", out / "mesh.ply", out / "points.ply", p, GRID, tile_m=tile_m)
+    group = zarr.open_group(str(out / "recon.zarr"), mode="r")
+    arrays = {k: group[k][...] for k in group.array_keys()}
+    return summary, arrays, (out / "mesh.ply").read_bytes(), (out / "points.ply").read_bytes()
+
+
+@pytest.mark.parametrize("keyframes", [False, True])
+def test_small_tiles_give_the_bytes_of_one_volume_holding_a_fraction_of_it(frames, tmp_path, keyframes):
+    p = ReconstructParams(keyframes=keyframes)
+    whole, whole_arrays, whole_mesh, whole_points = _build(frames, tmp_path / "whole", p, 0.0)
+    tiled, tiled_arrays, tiled_mesh, tiled_points = _build(frames, tmp_path / "tiled", p, 2.0)
+    assert "tiles" not in whole and tiled["tiles"]["fused"] >= 4  # a 6 x 3 m room in 2 m tiles
+    assert tiled_mesh == whole_mesh and tiled_points == whole_points
+    assert tiled_arrays.keys() == whole_arrays.keys()
+    for key, value in whole_arrays.items():
+        np.testing.assert_array_equal(tiled_arrays[key], value, err_msg=key)
+    for key in ("tsdf_blocks", "points", "mesh_vertices", "mesh_triangles", "frames_fused", "cells_occupied",
+                "cells_free", "cells_navigable", "keyframes"):
+        assert tiled[key] == whole[key], key
+    # memory: no tile's volume (its margin included) held more than half of the scene's blocks
+    assert tiled["tiles"]["peak_blocks"] < whole["tsdf_blocks"] / 2
+
+
+def test_a_scene_within_one_tile_fuses_one_volume(frames, tmp_path):
+    summary, *_ = _build(frames, tmp_path / "one", ReconstructParams(), 40.0)
+    assert "tiles" not in summary
+
+
+def test_pose_refinement_keeps_one_volume(frames, tmp_path):
+    summary, *_ = _build(frames, tmp_path / "refined", ReconstructParams(refine_poses=True), 1.2)
+    assert "tiles" not in summary and summary["refinement"]["enabled"]
+
+
+def test_voxels_and_blocks_are_each_owned_by_one_tile(frames, tmp_path):
+    store = FrameStore(frames)
+    p = ReconstructParams()
+    fusion = tsdf.fuse(store, p)
+    whole = np.concatenate([lat for lat, _ in tsdf.iter_voxels(fusion.volume, p, min_weight=p.occupancy_min_weight)])
+    tiled = tiles.fuse_tiled(store, p, 2.0, tmp_path)
+    parts = np.concatenate([lat for lat, _ in tiled.voxels()])
+    assert tiled.n_blocks == fusion.n_blocks
+    assert len(parts) == len(whole)
+    np.testing.assert_array_equal(parts[np.lexsort(parts.T)], whole[np.lexsort(whole.T)])
+
+
+def test_ownership_boundaries_lie_half_a_voxel_before_a_tiles_first_voxel():
+    layout = tiles.TileLayout(voxel_size_m=0.025, block_resolution=16, tile_blocks=2, first_block=(-1, 0),
+                              shape=(3, 2))
+    # tile 1 along x starts at block 1, voxel 16: x = 0.4 m; its core runs from 0.3875 m
+    xy = np.array([[0.3874, 0.0], [0.3876, 0.0], [0.4, 0.0], [-5.0, 0.0], [9.0, 100.0]])
+    np.testing.assert_array_equal(layout.owner(xy), [[0, 0], [1, 0], [1, 0], [0, 0], [2, 1]])
+    lo, hi = layout.block_range((1, 0), margin=1)
+    np.testing.assert_array_equal(lo, [0, -1])
+    np.testing.assert_array_equal(hi, [3, 2])
+
+
+def test_a_frame_reaching_past_its_predicted_footprint_is_refused_by_name(frames, tmp_path):
+    store = FrameStore(frames)
+    p = tsdf.with_stride(ReconstructParams(), store.intrinsics)
+    intr = tsdf.strided(store.intrinsics, p.depth_stride)
+    footprints = tiles.frustum_blocks(store.poses().astype(np.float64), intr, p)
+    layout = tiles.tile_layout(footprints, p, 2.0)
+    footprints[4] = footprints[4].mean(axis=0).astype(np.int64)  # a footprint of one block
+    fusion = tiles.TiledFusion(layout, tmp_path)
+    with pytest.raises(StageError, match=r"frame 4 touches TSDF blocks outside the footprint its pose predicts"):
+        tiles._fuse_tile(store, p, intr, layout, (0, 0), np.arange(store.n_frames), footprints, fusion,
+                         np.full(store.n_frames, -1, np.int8))
