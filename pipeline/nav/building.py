@@ -155,7 +155,9 @@ class BuildingPlanner:
 
     def stair_end_cells(self, link: StairLink, floor: int) -> np.ndarray | None:
         """``(rows, cols)`` bool: the navigable cells of ``floor`` within :data:`STAIR_END_RADIUS_M` of the stair's
-        end there; None when there is none (the stair does not reach that floor's walkable space)."""
+        end there; None when there is none (the stair does not reach that floor's walkable space). All of them, the
+        cells in the clearance band along a wall or the stairwell's edge included: a stair's end lies at such an edge,
+        and a leg's walk (whole steps) often stops on one of them — where the climb starts as well."""
         key = (link.id, floor)
         if key not in self._end_masks:
             planner = self.planners[floor]
@@ -170,7 +172,7 @@ class BuildingPlanner:
                 rr, cc = np.mgrid[r0:r1, c0:c1]
                 centres = g.cell_to_world(np.stack([rr.ravel(), cc.ravel()], axis=1))
                 near = (np.hypot(*(centres - xy).T) <= STAIR_END_RADIUS_M).reshape(rr.shape)
-                mask[r0:r1, c0:c1] = near & planner.plan_mask[r0:r1, c0:c1]
+                mask[r0:r1, c0:c1] = near & planner.navigable[r0:r1, c0:c1]
             self._end_masks[key] = mask if mask.any() else None
         return self._end_masks[key]
 

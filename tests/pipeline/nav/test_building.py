@@ -85,6 +85,28 @@ def test_a_route_up_walks_to_the_stair_climbs_it_and_ends_in_the_goal_region(bui
     assert route.length_m == pytest.approx(leg0.path.length_m + math.hypot(3.0, 3.0) + leg1.path.length_m)
 
 
+def test_the_stair_end_is_every_navigable_cell_near_it_the_clearance_band_included(building):
+    cells = building.stair_end_cells(STAIR, 0)
+    centres = GRID.cell_to_world(np.argwhere(cells))
+    assert np.hypot(*(centres - STAIR.foot_xy).T).max() <= 0.3 + 1e-9 and not (cells & ~GROUND).any()
+    # the foot is 0.3 m from the wall under the stair: the cells nearest it are in the wall's clearance band
+    assert (cells & ~building.planners[0].plan_mask).any()
+
+
+def test_a_leg_whose_walk_stops_in_the_clearance_band_ends_at_the_stair(building):
+    # from here the leg's walk stops on the stair end's cells beside the wall under the stair (0.36 m from the
+    # foot when the stair end held only the clearance band's inner cells: the routes stage rejected such episodes)
+    start = (2.2, 2.55, 0.0)
+    targets, _ = targets_at(UPPER, (8.0, 4.5))
+    route = building.route_to_goal(0, start, 1, targets, key="g", face_xy=np.array([(8.0, 4.5)]))
+    (_, leg0), _ = route.legs
+    settings = building.planners[0].settings
+    end = replay(leg0.actions, start, GROUND, GRID, [], step_m=settings.step_m, turn_deg=settings.turn_deg)
+    rc = GRID.world_to_cell(np.asarray(end.final_xyyaw[:2]))
+    assert end.collisions == 0 and building.stair_end_cells(STAIR, 0)[rc[0], rc[1]]
+    assert math.dist(end.final_xyyaw[:2], STAIR.foot_xy) <= 0.3 + 1e-9
+
+
 def test_the_geodesic_distance_across_floors_goes_through_the_stair(building):
     targets, _ = targets_at(UPPER, (8.0, 4.5))
     goal_field = building.planners[1].field(("g", "region"), targets.region, "navigable", region=True)
