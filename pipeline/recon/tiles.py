@@ -43,6 +43,7 @@ from pipeline.recon.tiled_mesh import SpilledPart, spill_part, write_tiled_mesh
 
 o3c = o3d.core
 _VOXELS_PER_READ = 1 << 21  # voxels handed to the grids at once from a tile's spill file
+_TILE_INITIAL_BLOCKS = 256  # a tile volume's first allocation (the hash map grows on demand)
 
 
 @dataclass(frozen=True)
@@ -196,7 +197,9 @@ def _fuse_tile(store: FrameStore, p: ReconstructParams, intr: Intrinsics, layout
     """One tile's volume: ``frames`` (sorted store indices) fused into the tile's blocks and margin.
 
     ``seen`` ``(N,)`` int8: -1 unread, 0 no valid depth, 1 depth (filled as frames are read)."""
-    volume = tsdf.new_volume(p)
+    # a tile's volume starts small and grows with what it holds: allocating (and zeroing) the whole-scene default
+    # for every tile cost more than fusing a small room's tiles
+    volume = tsdf.new_volume(p, block_count=_TILE_INITIAL_BLOCKS)
     lo, hi = layout.block_range(tile, margin=1)
     K = o3c.Tensor(intr.K, o3c.float64)
     K_integrate = o3c.Tensor(tsdf.integration_K(intr))

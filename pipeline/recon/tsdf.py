@@ -55,15 +55,16 @@ class Fusion:
         return int(self.volume.hashmap().size())
 
 
-def new_volume(p: ReconstructParams) -> o3d.t.geometry.VoxelBlockGrid:
-    """An empty TSDF volume with ``tsdf``, ``weight`` and ``color`` (0..255 float) per voxel."""
+def new_volume(p: ReconstructParams, block_count: int = _INITIAL_BLOCKS) -> o3d.t.geometry.VoxelBlockGrid:
+    """An empty TSDF volume with ``tsdf``, ``weight`` and ``color`` (0..255 float) per voxel; ``block_count`` sizes
+    the first allocation only (its voxels are zeroed up front: 4096 blocks of 16^3 voxels are 335 MB)."""
     return o3d.t.geometry.VoxelBlockGrid(
         attr_names=("tsdf", "weight", "color"),
         attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
         attr_channels=((1), (1), (3)),
         voxel_size=p.voxel_size_m,
         block_resolution=p.block_resolution,
-        block_count=_INITIAL_BLOCKS,
+        block_count=block_count,
         device=_CPU,
     )
 
