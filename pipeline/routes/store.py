@@ -197,7 +197,27 @@ class Routes:
         self._path_off = self.group["path_offset"][:]
         self._actions = self.group["actions"][:]
         self._act_off = self.group["action_offset"][:]
+        self._check_buildings()
         self.episodes = [self._view(i) for i in range(len(self.records))]
+
+    def _check_buildings(self) -> None:
+        """A building's episode records agree with the arrays: one leg per floor walked, starting on its first, the
+        legs' points adding up to the episode's polyline (a store edited by hand otherwise slices legs silently)."""
+        for i, r in enumerate(self.records):
+            if r.floors is None and r.leg_points is None and r.start_floor is None:
+                continue
+            floors, legs = list(r.floors or []), list(r.leg_points or [])
+            n_points = int(self._path_off[i + 1] - self._path_off[i])
+            problem = ("floors is empty" if not floors else
+                       f"a negative floor in floors {floors}" if min(floors) < 0 else
+                       f"start_floor {r.start_floor} is not the first of floors {floors}"
+                       if r.start_floor is not None and r.start_floor != floors[0] else
+                       f"{len(legs)} leg_points for {len(floors)} floors" if len(legs) != len(floors) else
+                       f"leg_points {legs} add up to {sum(legs)}, not the episode's {n_points} path points"
+                       if min(legs) < 0 or sum(legs) != n_points else "")
+            if problem:
+                raise ArtifactError(f"{self.path}: attrs.episodes[{i}] ({r.id!r}): {problem}; rebuild the routes "
+                                    "(zipon run --stage routes --force)")
 
     def _view(self, i: int) -> EpisodeView:
         r = self.records[i]

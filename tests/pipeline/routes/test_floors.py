@@ -133,3 +133,23 @@ def test_a_single_floor_scenes_stores_carry_no_building_keys(tmp_path):
     r = Routes(tmp_path / "routes.zarr")
     assert all(k not in rec for rec in r.attrs["episodes"] for k in ("start_floor", "floors", "leg_points"))
     assert np.all([e.floors == (0,) for e in r.episodes])
+
+
+def test_a_building_episode_whose_legs_do_not_match_its_path_is_refused_naming_it(built, tmp_path):
+    import shutil
+
+    import zarr
+
+    from pipeline.errors import ArtifactError
+
+    src = built[0] / "routes.zarr"
+    copy = shutil.copytree(src, tmp_path / "routes.zarr")
+    group = zarr.open_group(str(copy), mode="r+")
+    episodes = group.attrs["episodes"]
+    i = next(k for k, e in enumerate(episodes) if len(e.get("floors", [])) > 1)
+    episodes[i]["leg_points"] = [episodes[i]["leg_points"][0] + 1, *episodes[i]["leg_points"][1:]]
+    group.attrs["episodes"] = episodes
+    with pytest.raises(ArtifactError, match=rf"routes.zarr: attrs.episodes\[{i}\] \('[^']+'\): leg_points .* add up to "
+                                            r"\d+, not the episode's \d+ path points"):
+        Routes(copy)
+    assert len(Routes(src).episodes) == len(episodes)  # the store as built reads
