@@ -56,6 +56,13 @@ def make_client(root: Path, **kw):
     return TestClient(app(root / "params.yaml", root / "data", root / "manifests", **kw), base_url=ORIGIN)
 
 
+def scene_summary(client, scene: str) -> dict:
+    """``GET /api/scenes/<scene>``, asserted to answer 200."""
+    r = client.get(f"/api/scenes/{scene}")
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
 @pytest.fixture(scope="module")
 def shared_root(built_scene, tmp_path_factory) -> Path:
     """A copy only read (tests that write take their own)."""

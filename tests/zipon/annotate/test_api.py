@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from tests.zipon.annotate.conftest import ORIGIN, SCENE, make_client, png, refused, tree_state
+from tests.zipon.annotate.conftest import ORIGIN, SCENE, scene_summary, make_client, png, refused, tree_state
 
 W = {"headers": {"Origin": ORIGIN}}  # what the page sends on every write
 
@@ -22,9 +22,7 @@ def client(shared_root):
 
 @pytest.fixture(scope="module")
 def summary(client):
-    r = client.get(f"/api/scenes/{SCENE}")
-    assert r.status_code == 200, r.text
-    return r.json()
+    return scene_summary(client, SCENE)
 
 
 def goals_doc(client) -> tuple[dict, str]:

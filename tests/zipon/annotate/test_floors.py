@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from tests.zipon.annotate.conftest import ORIGIN, SCENE, copy_built, make_client, png, refused
+from tests.zipon.annotate.conftest import ORIGIN, SCENE, scene_summary, copy_built, make_client, png, refused
 
 W = {"headers": {"Origin": ORIGIN}}
 HOUSE = "house"
@@ -30,9 +30,7 @@ def client(house_root):
 
 @pytest.fixture(scope="module")
 def summary(client):
-    r = client.get(f"/api/scenes/{HOUSE}")
-    assert r.status_code == 200, r.text
-    return r.json()
+    return scene_summary(client, HOUSE)
 
 
 
