@@ -318,6 +318,16 @@ class RoutePlanner:
             self._fields[ck] = geodesic_field(mask, target, self.grid)
         return self._fields[ck]
 
+    def forget(self, owner: object) -> None:
+        """Drop the cached fields and goal cells of key ``owner`` and of the keys ``(owner, ...)`` (a goal's aims):
+        a caller done with a goal keeps memory to the goals still to plan, each field being a whole floor's grid."""
+        def owned(key: object) -> bool:
+            return key == owner or (isinstance(key, tuple) and len(key) > 0 and key[0] == owner)
+
+        for cache in (self._fields, self._goals):
+            for ck in [ck for ck in cache if owned(ck[0])]:
+                del cache[ck]
+
     def route_into(self, pose_xy_yaw, cells: np.ndarray, *, key: object = None, face_xy=None,
                    end_mask: np.ndarray | None = None) -> Route | None:
         """:meth:`route` to the explicit ``cells`` ``(rows, cols)`` bool (a goal region or route target of
