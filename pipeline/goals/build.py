@@ -161,12 +161,15 @@ def build_goals(objset: ObjectSet, grid: GridSpec, walls: np.ndarray, *, planner
         object_index = [indexes[f] for f in sorted(indexes)]
     goals = []
     landmarks = {}
+    planners = list({id(c.planner): c.planner for c in contexts.values() if hasattr(c.planner, "forget")}.values())
     for d in drafts:
         ctx = contexts[by_key[d.members[0]].floor if building is not None else 0]
         fb = {name: kind().generate(d, ctx) for name, kind in sorted(FEEDBACK_KINDS.items())}
         goals.append(GoalEntry(id=d.id, name=d.name, type=d.type, room=d.room_name, room_id=d.room_id,
                                objects=list(d.members), feedback=Feedback(**fb)))
         landmarks[d.id] = find_landmarks(d, ctx)
+        for p in planners:  # the goal's fields (a floor's grid each): memory for one goal's at a time
+            p.forget(d.id)
     doc = GoalsDocument(
         scene=objset.scene,
         rooms={r.id: RoomEntry(type=r.type, owners=list(r.owners), name=r.name) for r in rooms.values()},

@@ -157,7 +157,8 @@ class _Collector:
         self.xyz: list[list[np.ndarray]] = [[] for _ in boxes]
 
     def add(self, index: np.ndarray, tri_xyz: np.ndarray, which=None) -> None:
-        lo, hi = tri_xyz[:, :, :2].min(axis=1), tri_xyz[:, :, :2].max(axis=1)
+        a, b, c = tri_xyz[:, 0, :2], tri_xyz[:, 1, :2], tri_xyz[:, 2, :2]  # (three 2-column minima: no axis reduce)
+        lo, hi = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
         for b in range(len(self.boxes)) if which is None else which:
             x0, y0, x1, y1 = self.boxes[b]
             keep = (hi[:, 0] >= x0) & (lo[:, 0] <= x1) & (hi[:, 1] >= y0) & (lo[:, 1] <= y1)
@@ -244,7 +245,8 @@ def _read_strips(layout: PlyLayout, boxes: np.ndarray) -> list[MeshWindow]:
             for s in range(f_lo, f_hi, CHUNK_FACES):
                 index = layout.faces(f, s, min(s + CHUNK_FACES, f_hi))
                 first = index[:, 0]
-                if (first != index.min(axis=1)).any() or first[0] < last_first or (np.diff(first) < 0).any():
+                if (index[:, 1] < first).any() or (index[:, 2] < first).any() or first[0] < last_first or \
+                        (np.diff(first) < 0).any():
                     raise _NotCanonical
                 last_first = int(first[-1])
                 a, b = int(first[0]), int(index.max()) + 1
@@ -252,7 +254,8 @@ def _read_strips(layout: PlyLayout, boxes: np.ndarray) -> list[MeshWindow]:
                 if (np.diff(xyz[:, 0]) < 0).any():
                     raise _NotCanonical
                 tri = xyz[index - a]
-                if (tri[:, :, 0].max(axis=1) - tri[:, :, 0].min(axis=1) > STRIP_MARGIN_M).any():
+                x = tri[:, :, 0]  # the first vertex is the leftmost (vertices sorted by x): no triangle reaches past
+                if (np.maximum(x[:, 1], x[:, 2]) - x[:, 0] > STRIP_MARGIN_M).any():  # the margin
                     raise _NotCanonical
                 out.add(index, tri, which)
     return out.windows()

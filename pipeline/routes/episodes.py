@@ -119,17 +119,17 @@ def _goal_episodes(planner: RoutePlanner, goal: GoalTarget, rng: np.random.Gener
         aims = [((goal.id, name), mask) for name, mask in
                 route_aims(goal.region, goal.object_mask, grid, stop_radius_m=settings.stop_radius_m)]
         fld = planner.field((goal.id, "region"), goal.region, "navigable", region=True)  # l: to the region
-        fld_clear = planner.field((goal.id, "region"), goal.region, "clear", region=True)
+        reach_clear = planner.reach(goal.region, "clear", region=True)  # where its field on the clearance mask is finite
     else:
         aims = [(goal.id, goal.object_mask)]
         fld = planner.field(goal.id, goal.object_mask, "navigable")
-        fld_clear = planner.field(goal.id, goal.object_mask, "clear")
+        reach_clear = planner.reach(goal.object_mask, "clear")
     as_region = goal.region is not None
-    if not np.isfinite(fld_clear).any() or not (fld_clear == 0).any():
+    if not reach_clear.any():  # no target cell on the clearance mask (those would be reached, at 0)
         out.unreachable.append({"goal": goal.id, "reason": "no cell with clearance in the goal region"})
         return
     # starts that reach the goal with clearance (robust to drive), l (navigable mask) >= min_geodesic_m
-    both = np.where(np.isfinite(fld_clear), fld, np.inf)
+    both = np.where(reach_clear, fld, np.inf)
     starts = sample_starts(both, planner.plan_mask, grid, episodes_per_goal, min_geodesic_m, rng,
                            settings.turn_deg)
     if not starts:
