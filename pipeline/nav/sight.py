@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import ArtifactError
+from pipeline.errors import ArtifactError, MissingInputError
 from pipeline.geometry import GridSpec
 from pipeline.nav.region import MeshSight
 
@@ -56,6 +56,8 @@ class PlyLayout:
 
     @classmethod
     def of(cls, path: Path) -> PlyLayout | None:
+        if not Path(path).is_file():
+            raise MissingInputError(f"{path}: no mesh file to cast line of sight on (reconstruct writes it)")
         with open(path, "rb") as f:
             head = f.read(1 << 16)
         end = head.find(b"end_header\n")

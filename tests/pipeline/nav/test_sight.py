@@ -5,7 +5,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from pipeline.errors import ArtifactError
+from pipeline.errors import ArtifactError, MissingInputError
 from pipeline.geometry import GridSpec
 from pipeline.nav.region import MeshSight, group_region, own_cells, sight_levels, sight_window
 from pipeline.nav.sight import STRIP_MARGIN_M, PlyLayout, WindowedSight, read_windows
@@ -177,3 +177,9 @@ def test_a_face_that_is_no_triangle_is_an_error_naming_it(tmp_path):
     assert PlyLayout.of(path) is not None
     with pytest.raises(ArtifactError, match=r"quad\.ply: face 0 is not a triangle"):
         read_windows(path, [(0.0, 0.0, 1.0, 1.0)])
+
+
+def test_a_missing_mesh_is_an_error_naming_it(tmp_path):
+    sight = WindowedSight(tmp_path / "recon_mesh.ply", floor_z=0.0, camera_height_m=CAM_H, grid=GRID)
+    with pytest.raises(MissingInputError, match=r"recon_mesh\.ply: no mesh file to cast line of sight on"):
+        sight(np.array([[1.0, 1.0]]), (2.0, 2.0), [0.5], np.zeros((GRID.rows, GRID.cols), bool))
