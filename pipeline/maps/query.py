@@ -386,7 +386,8 @@ def _wrap(a: float) -> float:
 # ----------------------------------------------------------------------------- API for the CLI / evaluator
 
 #: the open queries, least recently used first; at most :data:`CACHE_SIZE` are kept (each holds its map's
-#: features, so an evaluation of many scenes in one process would otherwise keep every scene's maps)
+#: features, so a long-lived process that queries many scenes, the workbench's server or an evaluation's report
+#: drawing each scene's queries, would otherwise keep every map it ever opened)
 _CACHE: OrderedDict[tuple, MapQuery] = OrderedDict()
 CACHE_SIZE = 8  # a scene's two maps on up to four floors
 
