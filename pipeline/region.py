@@ -20,6 +20,8 @@ from typing import Iterator, Sequence
 from pipeline.errors import InputDataError
 from pipeline.geometry import GridSpec
 
+EDGE = 1e-6  # cells: how near a cells' edge a region's edge counts as on it
+
 
 @dataclass(frozen=True)
 class Region:
@@ -106,10 +108,10 @@ def region_window(grid: GridSpec, region: Region | None, option: str = "--region
         return whole(grid)
     s = grid.cell_size_m
     gx0, gy1 = grid.origin_xy
-    # cell (r, c) covers x in [gx0 + c s, gx0 + (c+1) s) and y in (gy1 - (r+1) s, gy1 - r s] (pipeline.geometry)
-    r0, c0 = (int(v) for v in grid.world_to_cell((region.x0, region.y1)))
-    c1 = math.ceil((region.x1 - gx0) / s - 1e-9)
-    r1 = math.ceil((gy1 - region.y0) / s - 1e-9)
+    # cell (r, c) covers x in [gx0 + c s, gx0 + (c+1) s) and y in (gy1 - (r+1) s, gy1 - r s] (pipeline.geometry);
+    # an edge within a millionth of a cell of a cells' edge lies on it (3.2 m / 0.05 m is 63.99999999 in floats)
+    c0, c1 = math.floor((region.x0 - gx0) / s + EDGE), math.ceil((region.x1 - gx0) / s - EDGE)
+    r0, r1 = math.floor((gy1 - region.y1) / s + EDGE), math.ceil((gy1 - region.y0) / s - EDGE)
     win = Window(max(r0, 0), min(r1, grid.rows), max(c0, 0), min(c1, grid.cols))
     if win.r0 >= win.r1 or win.c0 >= win.c1:
         x0, x1, y0, y1 = grid.extent_xy

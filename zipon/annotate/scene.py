@@ -167,6 +167,13 @@ class SceneView:
 
     # ------------------------------------------------------------------------- layers
 
+    def warm(self) -> None:
+        """Read what every layer picture of the scene shares (each floor's brightest height), so the page's first
+        pictures (of the windows it shows, unknown before it asks) wait for none of it."""
+        for floor in range(len(self.recon.floors)):
+            level = self.recon.floor(floor)
+            self._get(("height_top", floor), lambda level=level: height_top(level))
+
     def layer_png(self, name: str, floor: int = 0) -> bytes:
         """The whole grid of floor ``floor`` as one layer, one pixel per cell (see :meth:`layer`)."""
         return self.layer(name, floor)[0]

@@ -69,19 +69,17 @@ class Workbench:
         return self._views[name]
 
     def warm(self) -> None:
-        """Read the first scene's summary and layers and import what a save imports (torch and open3d, through the
+        """Read the first scene's summary and what its layers share (:meth:`SceneView.warm`) and import what a save imports (torch and open3d, through the
         stage runner's thread limits), so the first page and the first save do not wait for them. ``zipon
         annotate`` runs it in a thread while the server starts."""
         from pipeline.engine.process import limit_native_threads
-        from zipon.annotate.scene import LAYERS
 
         ds = self.dataset()
         name = self.default_scene or next(iter(ds.params.scenes), None)
         if name is not None and self.workspace.artifact("recon", name).exists():
             view = self.scene(name)
             view.summary()
-            for layer_name in LAYERS:
-                view.layer_png(layer_name)
+            view.warm()
         limit_native_threads(ds.params.run.threads_per_worker)
 
     def forget(self, name: str) -> None:
