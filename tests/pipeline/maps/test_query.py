@@ -314,3 +314,20 @@ def test_a_region_off_the_grid_is_refused_naming_it(tiled_map, box, message):
     with pytest.raises(InputDataError) as err:
         MapQuery(SemanticMap(tiled_map), TENC, QueryParams()).query("chair", region=Region(*box))
     assert str(err.value) == message
+
+
+def test_open_queries_are_cached_up_to_a_bound(map_path):
+    """An evaluation opens each scene's maps once and many scenes in one process: the cache keeps the most recently
+    used queries only (each holds its map's features), and a repeated open returns the cached one."""
+    from pipeline.config import Params
+    from pipeline.maps import query
+
+    query._CACHE.clear()
+    params = [Params.model_validate({"scenes": {}, "encoders": {"oracle": {"dim": 64}}})
+              for _ in range(query.CACHE_SIZE + 3)]
+    opened = [query.open_query(map_path, p) for p in params]
+    assert len(query._CACHE) == query.CACHE_SIZE
+    assert query.open_query(map_path, params[-1]) is opened[-1]  # kept: the same object
+    assert query.open_query(map_path, params[0]) is not opened[0]  # dropped long ago: opened afresh
+    assert np.array_equal(query.open_query(map_path, params[0]).query("chair").wins, opened[0].query("chair").wins)
+    query._CACHE.clear()
