@@ -480,9 +480,9 @@ def _wrap(a: float) -> float:
 
 # ----------------------------------------------------------------------------- API for the CLI / evaluator
 
-#: the open queries, least recently used first; at most :data:`CACHE_SIZE` are kept (each holds its map's
-#: features once held, so a long-lived process that queries many scenes, the workbench's server or an evaluation's report
-#: drawing each scene's queries, would otherwise keep every map it ever opened)
+#: the open queries, least recently used first; at most :data:`CACHE_SIZE` are kept (each may hold its map's features,
+#: ``query.hold_features_mb``, so a long-lived process that queries many scenes, the workbench's server or an
+#: evaluation's report drawing each scene's queries, would otherwise keep every map it ever opened)
 _CACHE: OrderedDict[tuple, MapQuery] = OrderedDict()
 CACHE_SIZE = 8  # a scene's two maps on up to four floors
 
