@@ -89,6 +89,11 @@ class QueryParams(Section):
         "of their features, with exact rescoring of every cell that could win (exact wins and candidates); 0 = exact"
     )
     query_lowrank_min_cells: int = Field(50_000, gt=0, description="smaller maps are always scored exactly")
+    hold_features_mb: float = Field(
+        512, ge=0, description="from a map's second query on, its features are held in memory as float32 (twice "
+        "this) when their stored float16 size is at most this, so a repeated query costs one product; a larger map "
+        "is read tile by tile for every query (memory: one tile's features); 0 = always read tile by tile, MB"
+    )
     levels: Literal["top", "max"] = Field(
         "top", description="top: a cell is scored by its top-down feature (its highest level: a table hides the "
         "chair under it); max: a cfmap that stores voxels (maps.cfmap_voxels) scores each cell by its best height "

@@ -324,8 +324,11 @@ class MapView:
         return open_query(self.path, sc.params, recon_path=recon if recon.exists() else None,
                           frames_path=sc.path("frames"), floor=floor)
 
-    def query(self, text: str, pose: Sequence[float] | None = None, *, pose_floor: int = 0):
+    def query(self, text: str, pose: Sequence[float] | None = None, *, pose_floor: int = 0, region=None):
         """Heatmap and object candidates for ``text``.
+
+        ``region`` = (x0, y0, x1, y1) world metres (or a :class:`~pipeline.region.Region`) scores only the cells in
+        it, reading only the map's tiles it meets; the result's grid, heatmap and cells are then the region's.
 
         ``pose`` = (x, y, yaw): world metres and radians (counter-clockwise from +x); candidates are then
         sorted by distance and carry ``distance_m`` / ``angle_rad`` from it. A pose off the map's grid is
@@ -338,24 +341,34 @@ class MapView:
         if self.floor_index is not None or n_floors == 1:
             if pose is not None:
                 pose = check_pose(self.grid, pose, field="pose")
-            return self._query(self.floor_index or 0).query(text, pose)
+            return self._query(self.floor_index or 0).query(text, pose, region=_region(region))
         from pipeline.maps.floors import query_floors
 
         if pose is not None:
             if not 0 <= pose_floor < n_floors:
                 raise InputDataError(f"got {pose_floor}", field="pose_floor", expected=f"a floor 0..{n_floors - 1}")
             pose = check_pose(self.store.floor_map(pose_floor).grid, pose, field="pose")
-        return query_floors([self._query(k) for k in range(n_floors)], text, pose, pose_floor=pose_floor)
+        return query_floors([self._query(k) for k in range(n_floors)], text, pose, pose_floor=pose_floor,
+                            region=_region(region))
 
     def features_at(self, xy) -> tuple[np.ndarray, np.ndarray]:
         """Features ``(K,D)`` float32 at world points ``xy`` ``(K,2)`` metres and a ``(K,)`` bool observed mask
-        (rows of unobserved or off-grid points are zeros)."""
+        (rows of unobserved or off-grid points are zeros); reads only the tiles holding the points."""
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         return self.store.features_at(self.grid.world_to_cell(xy))
 
-    def to_xarray(self):
-        """The map as an ``xarray.Dataset`` on its dense grid (see :func:`map_to_xarray`)."""
-        return map_to_xarray(self.store)
+    def to_xarray(self, region=None):
+        """The map as an ``xarray.Dataset`` on its dense grid, or on the cells of ``region`` = (x0, y0, x1, y1)
+        world metres; lazy: features are read tile by tile when computed (see :func:`map_to_xarray`)."""
+        return map_to_xarray(self.store, _region(region))
+
+
+def _region(region):
+    """A :class:`~pipeline.region.Region` from ``(x0, y0, x1, y1)`` (or one already), None for None; an
+    InputDataError naming ``region`` when it is not four finite numbers of a non-empty box."""
+    from pipeline.region import Region, parse_region
+
+    return region if region is None or isinstance(region, Region) else parse_region(region, "region")
 
 
 def check_pose(grid, pose: Sequence[float], *, field: str) -> tuple[float, float, float]:
@@ -380,41 +393,52 @@ def grid_coords(grid) -> dict[str, np.ndarray]:
     return {"y": y, "x": x}
 
 
-def map_to_xarray(smap):
+def map_to_xarray(smap, region=None):
     """A :class:`~pipeline.maps.store.SemanticMap` as ``xarray.Dataset`` on dims ``(y, x[, feature])``.
 
-    ``features`` ``(y, x, feature)`` float16 is a lazy dask array gathered tile by tile from the stored
-    compact rows (NaN where unobserved), so a 600x600x512 map costs nothing until sliced; ``observed``,
-    ``weight``, ``count`` and ``top_z`` (world z of the cell's top level, metres) are ``(y, x)``.
+    ``features`` ``(y, x, feature)`` float16 is a lazy dask array, one block per stored tile, each read from the
+    store only when computed (NaN where unobserved), so a map of any size costs nothing until sliced; ``observed``,
+    ``weight``, ``count`` and ``top_z`` (world z of the cell's top level, metres) are ``(y, x)``, read for the
+    cells covered only. ``region`` (a :class:`~pipeline.region.Region`, world metres) covers only its cells (an
+    InputDataError naming ``region`` when it misses the grid), reading only the tiles it meets.
     Coordinates ``x``, ``y`` are world metres of the cell centres; units are in each variable's attrs.
     """
     import dask.array as da
     import xarray as xr
 
-    g = smap.grid
-    index = smap.index
+    from pipeline.region import region_window
+
+    window = region_window(smap.grid, region, "region")
+    g = window.grid(smap.grid)
+    index = smap.index_in(window)
     ok = index >= 0
-    rows = index[ok]
-    feats = smap.features16()
-    dim = feats.shape[1]
+    rows = index[ok].astype(np.int64)
+    dim = smap.dim
     tile = smap.tile_cells
 
-    def gather(block: np.ndarray) -> np.ndarray:
+    def gather(block: np.ndarray) -> np.ndarray:  # one tile's part: its rows are one contiguous range of top/*
         out = np.full(block.shape + (dim,), np.nan, np.float16)
         m = block >= 0
-        out[m] = feats[block[m]]
+        if m.any():
+            s, e = int(block[m].min()), int(block[m].max()) + 1
+            out[m] = smap.read_rows(s, e)[1][block[m] - s]
         return out
 
-    lazy_index = da.from_array(index, chunks=(tile, tile), name=f"zipon-index-{smap.path}")
+    def cuts(lo: int, hi: int) -> tuple[int, ...]:  # block sizes along one axis, cut at the tiles' edges
+        edges = [lo, *range((lo // tile + 1) * tile, hi, tile), hi]
+        return tuple(b - a for a, b in zip(edges[:-1], edges[1:]))
+
+    lazy_index = da.from_array(index, chunks=(cuts(window.r0, window.r1), cuts(window.c0, window.c1)),
+                               name=f"zipon-index-{smap.path}-{smap.floor_index}-{window}")
     features = lazy_index.map_blocks(gather, new_axis=2, chunks=lazy_index.chunks + ((dim,),), dtype=np.float16,
-                                     name=f"zipon-features-{smap.path}")
+                                     name=f"zipon-features-{smap.path}-{smap.floor_index}-{window}")
 
     def dense(values: np.ndarray, fill, dtype) -> np.ndarray:
         out = np.full(index.shape, fill, dtype)
-        out[ok] = values[rows]
+        out[ok] = values
         return out
 
-    top_z = smap.lattice.level_z(smap.level)
+    top_z = smap.lattice.level_z(smap.rows_of("level", rows))
     enc = {k: v for k, v in smap.encoder.items() if isinstance(v, (str, int, float, bool))}
     coords = grid_coords(g)
     ds = xr.Dataset(
@@ -422,9 +446,9 @@ def map_to_xarray(smap):
             "features": (("y", "x", "feature"), features,
                          {"units": "1", "long_name": f"unit L2-norm {enc.get('name')} feature, NaN = unobserved"}),
             "observed": (("y", "x"), ok, {"units": "1", "long_name": "cell has a feature"}),
-            "weight": (("y", "x"), dense(smap.weight.astype(np.float32), np.nan, np.float32),
+            "weight": (("y", "x"), dense(smap.rows_of("weight", rows).astype(np.float32), np.nan, np.float32),
                        {"units": "1", "long_name": "sum of point weights fused into the cell"}),
-            "count": (("y", "x"), dense(smap.count.astype(np.int32), -1, np.int32),
+            "count": (("y", "x"), dense(smap.rows_of("count", rows).astype(np.int32), -1, np.int32),
                       {"units": "points", "long_name": "points fused (0 = filled from a neighbour, -1 = unobserved)"}),
             "top_z": (("y", "x"), dense(top_z.astype(np.float32), np.nan, np.float32),
                       {"units": "m", "long_name": "world z of the level whose feature the cell holds"}),

@@ -226,7 +226,9 @@ STORE_MAY_IMPORT = {"pipeline", "pipeline.config", "pipeline.stageconfig", "pipe
                     # the action codes routes.zarr stores (constants only)
                     "pipeline.nav.codes",
                     # the floor records (Floor) a building's map stores keep, as recon.zarr defines them
-                    "pipeline.recon.store"}
+                    "pipeline.recon.store",
+                    # the window of cells (and stored tiles) a reader of a region reads (a leaf: geometry, errors)
+                    "pipeline.region"}
 
 
 def test_stores_import_no_algorithm_that_fills_them():

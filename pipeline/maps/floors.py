@@ -48,13 +48,15 @@ class FloorsResult:
 
 
 def query_floors(queries: list[MapQuery], text: str, pose: tuple[float, float, float] | None = None, *,
-                 pose_floor: int = 0, max_candidates: int | None = None) -> FloorsResult:
+                 pose_floor: int = 0, max_candidates: int | None = None, region=None) -> FloorsResult:
     """Query ``text`` on every floor (``queries[k]``: floor k's :class:`MapQuery`); ``pose`` (x, y, yaw: world
-    metres, radians) stands on floor ``pose_floor``. See the module doc for the order of the candidates."""
+    metres, radians) stands on floor ``pose_floor``; ``region`` (a :class:`~pipeline.region.Region`, world metres)
+    limits every floor's query to it. See the module doc for the order of the candidates."""
     if pose is not None and not 0 <= pose_floor < len(queries):
         raise InputDataError(f"got {pose_floor}", field="pose floor", expected=f"a floor 0..{len(queries) - 1}")
     t0 = time.perf_counter()
-    results = [q.query(text, pose if pose is not None and k == pose_floor else None) for k, q in enumerate(queries)]
+    results = [q.query(text, pose if pose is not None and k == pose_floor else None, region=region)
+               for k, q in enumerate(queries)]
     if pose is not None:
         others = sorted((c for r in results if r.floor != pose_floor for c in r.candidates),
                         key=lambda c: (-c.score * c.area_m2, c.floor, c.obj_id))

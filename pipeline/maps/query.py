@@ -29,12 +29,18 @@ level); ``max`` scores each cell of a cfmap that stores voxels by its best level
 (:class:`~pipeline.maps.levels.LevelScorer`), so a chair under a table top or a picture on a wall
 wins cells the top-down view gives to the table or the wall. A vlmap has one level per cell.
 
-The background scores are computed once per :class:`MapQuery` (with the first query's, in one pass),
-text features are cached per prompt. The first query reads the stored fp16 features in small chunks
-(upcast per chunk: no fp32 copy of the map, whose first touch costs more than the product); from the
-second query on, the map is kept as one fp32 copy, so a repeated query costs one ``(N,D) @ (D,)``
-product plus the connected components. Scoring is numpy: with an encoder whose text side needs no torch (the oracle,
-:func:`pipeline.encoders.text.text_encoder`) a query never imports torch.
+Tiles and memory: the map's features are read one stored chunk at a time (whole spatial tiles' rows,
+:meth:`~pipeline.maps.store.SemanticMap.blocks`), each upcast and scored, so a query holds one chunk's features
+plus a few float32 scores per observed cell, never the map's ``(N,D)`` features. The background scores are computed
+once per :class:`MapQuery` (with the first query's, in the same pass), text features are cached per prompt. From
+the second query on, a map whose fp16 features fit ``query.hold_features_mb`` is held as one fp32 copy (read tile
+by tile), so a repeated query costs one ``(N,D) @ (D,)`` product (or the low-rank one) plus the connected
+components; a larger map is read tile by tile for every query. A ``region`` (world metres,
+:mod:`pipeline.region`) scores only the cells in it, reading only the tiles it meets; the result's grid is then
+the region's window (its heatmap, masks and candidates' cells are on that grid; world metres are unchanged).
+Every path gives the same scores: float32 products of the stored fp16 features. Scoring is numpy: with an encoder
+whose text side needs no torch (the oracle, :func:`pipeline.encoders.text.text_encoder`) a query never imports
+torch.
 """
 
 from __future__ import annotations
@@ -52,6 +58,7 @@ from pipeline.errors import ArtifactError, LineageError
 from pipeline.geometry import GridSpec
 from pipeline.maps.scoring import chunked_scores, logsumexp
 from pipeline.maps.store import SemanticMap
+from pipeline.region import Region, Window, region_window, whole
 
 DEFAULT_TEMPERATURE = 0.1
 
@@ -96,6 +103,7 @@ class QueryResult:
     color: np.ndarray | None = field(default=None, repr=False)  # (rows, cols, 3) uint8 recon colour, if known
     floor: int = 0  # index of the floor queried (lowest first; 0 for a single-floor scene)
     floor_name: str = "floor 0"
+    region: Region | None = None  # the region queried (world metres; ``grid`` is then its window), None = the floor
 
     def to_json(self) -> dict:
         """JSON-able summary (no arrays): the query, the floor, the pose and every candidate."""
@@ -105,6 +113,7 @@ class QueryResult:
             "map": self.artifact,
             "floor": self.floor,
             "floor_name": self.floor_name,
+            "region": None if self.region is None else asdict(self.region),
             "pose": None if self.pose is None else list(self.pose),
             "background": self.background,
             "temperature": self.temperature,
@@ -127,8 +136,9 @@ class MapQuery:
     """
 
     def __init__(self, smap: SemanticMap, encoder, params, *, navigable: np.ndarray | None = None, gt=None,
-                 color: np.ndarray | None = None):
+                 color: np.ndarray | None = None, recon_floor=None):
         self.map, self.encoder, self.params, self.color = smap, encoder, params, color
+        self.recon_floor = recon_floor  # recon's FloorGrids: the colour of each queried window, read when asked
         ident = smap.encoder
         if ident.get("name") != encoder.name or int(ident.get("dim", -1)) != encoder.dim:
             raise ArtifactError(
@@ -145,14 +155,12 @@ class MapQuery:
         self.levels = params.levels if smap.has_voxels else "top"  # a map without voxels has one level per cell
         self._levels = None  # the LevelScorer, built on the first query that needs it
         self._text: dict[str, np.ndarray] = {}
-        self._f16 = smap.features16()  # (N,D) float16 as stored
-        self._f32: np.ndarray | None = None  # its fp32 copy, made on the second query (see the module docstring)
+        self._f32: np.ndarray | None = None  # (N,D) fp32, held from the second query when it fits (module doc)
         self._n_queries = 0
         self._bg_feats = self.text_features(self.background) if self.background else None
         self._bg_scores: np.ndarray | None = None  # (N,Tb), computed with the first query
         self._bg_cache: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
         self._lowrank: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        self._row, self._col = np.divmod(smap.cell, self.grid.cols)
         self._nav_rc: np.ndarray | None = None  # (M,2) navigable cells, row-major
         if navigable is not None:
             if navigable.shape != (self.grid.rows, self.grid.cols):
@@ -196,19 +204,50 @@ class MapQuery:
 
     # ------------------------------------------------------------------ scores
     def _product(self, text: np.ndarray) -> np.ndarray:
-        """``(N,T)`` float32 scores of every cell against ``text`` ``(T,D)``."""
+        """``(N,T)`` float32 scores of every cell against ``text`` ``(T,D)``: of the held features, else read block by
+        block (:meth:`~pipeline.maps.store.SemanticMap.blocks`)."""
         if self._f32 is not None:
             return self._f32 @ text.T
-        return chunked_scores(self._f16, text)
+        out = np.empty((self.map.n_cells, len(text)), np.float32)
+        for rows, _, feats in self.map.blocks():
+            out[rows[0]:rows[-1] + 1] = chunked_scores(feats, text)  # a whole-floor block's rows are contiguous
+        return out
+
+    def _window_product(self, window: Window, text: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rows ``(n,)`` and flat cells ``(n,)`` of the observed cells in ``window`` and their ``(n,T)`` float32
+        scores against ``text``, reading only the tiles the window meets."""
+        rows, cells, scores = [], [], []
+        if self._f32 is not None:  # held: the rows of the window's tiles, no read
+            r = np.concatenate([np.arange(s, e) for s, e in self.map.row_ranges(window)] or [np.zeros(0, np.int64)])
+            r = r[window.contains(*np.divmod(self.map.cell[r], self.grid.cols))]
+            return r, self.map.cell[r], self._f32[r] @ text.T
+        for r, c, feats in self.map.blocks(window):
+            rows.append(r)
+            cells.append(c)
+            scores.append(chunked_scores(feats, text))
+        if not rows:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, len(text)), np.float32)
+        return np.concatenate(rows), np.concatenate(cells), np.concatenate(scores)
+
+    def _hold(self) -> None:
+        """Keep the map's features as one fp32 copy (read block by block) when their fp16 size fits
+        ``query.hold_features_mb``."""
+        n, dim = self.map.n_cells, self.map.dim
+        if self._f32 is not None or n * dim * 2 > self.params.hold_features_mb * 2**20:
+            return
+        f32 = np.empty((n, dim), np.float32)
+        for rows, _, feats in self.map.blocks():
+            f32[rows[0]:rows[-1] + 1] = feats
+        self._f32 = f32
 
     def _rows(self, idx: np.ndarray) -> np.ndarray:
-        """``(len(idx),D)`` float32 features of the cells ``idx``."""
-        return self._f32[idx] if self._f32 is not None else self._f16[idx].astype(np.float32)
+        """``(len(idx),D)`` float32 features of the held cells ``idx``."""
+        return self._f32[idx]
 
     def _basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Rank-k basis V ``(D,k)`` of the map features, projections ``(N,k)`` and residual norms ``(N,)``."""
+        """Rank-k basis V ``(D,k)`` of the held map features, projections ``(N,k)`` and residual norms ``(N,)``."""
         if self._lowrank is None:
-            n = len(self._f16)
+            n = len(self._f32)
             sample = self._rows(np.linspace(0, n - 1, min(n, 20_000)).astype(np.int64))
             _, _, vh = np.linalg.svd(sample, full_matrices=False)
             V = np.ascontiguousarray(vh[: self.params.query_rank].T)
@@ -229,8 +268,9 @@ class MapQuery:
         """
         if exact is not None:
             return exact
-        n, dim = self._f16.shape
-        if self.params.query_rank == 0 or n < self.params.query_lowrank_min_cells or self.params.query_rank >= dim:
+        n, dim = self.map.n_cells, self.map.dim
+        if (self._f32 is None or self.params.query_rank == 0 or n < self.params.query_lowrank_min_cells
+                or self.params.query_rank >= dim):
             return self._product(q[None])[:, 0]
         V, P, resid = self._basis()
         ql = V.T @ q
@@ -249,35 +289,86 @@ class MapQuery:
         q = self.text_features([text])[0]
         return self._product(q[None])[:, 0]
 
-    def query(self, text: str, pose: tuple[float, float, float] | None = None) -> QueryResult:
-        """Heatmap and candidates for ``text``; ``pose`` = (x, y, yaw) world metres / radians."""
+    def query(self, text: str, pose: tuple[float, float, float] | None = None, *, region: Region | None = None
+              ) -> QueryResult:
+        """Heatmap and candidates for ``text``; ``pose`` = (x, y, yaw) world metres / radians; ``region`` (world
+        metres) scores only its cells (an InputDataError naming ``region`` when it misses the grid)."""
         t0 = time.perf_counter()
-        g = self.grid
         q = self.text_features([text])[0]
-        if self._n_queries == 1:  # queried again: keep one fp32 copy for this and every later query
-            self._f32 = self._f16.astype(np.float32)
-        self._n_queries += 1
+        window = region_window(self.grid, region, "region")
+        if window == whole(self.grid):
+            self._n_queries += 1
+            if self._n_queries == 2:  # queried again: hold the features when they fit (module doc)
+                self._hold()
+            rows, cells = None, self.map.cell  # (N,) int64, read once (then each block's cells come from it)
+            s, bg_max, bg_lse, keep = self._floor_scores(q)
+        else:
+            rows, cells, s, bg_max, bg_lse, keep = self._region_scores(q, window)
+        if self.levels == "max":
+            s, bg_max, bg_lse = self._level_scores(q, keep, s, bg_max, bg_lse, rows)
+        prob = 1.0 / (1.0 + np.exp(np.clip(bg_lse - s / self.temperature, -80, 80)))
+        g = window.grid(self.grid)
+        r, c = np.divmod(cells, self.grid.cols)
+        local = (r - window.r0) * g.cols + (c - window.c0)  # flat cells of the window's grid
+        heat = np.full(g.rows * g.cols, np.nan, np.float32)
+        heat[local] = prob
+        wins_flat = np.zeros(g.rows * g.cols, np.uint8)
+        wins_flat[local[(s > bg_max) & (prob >= self.params.min_probability)]] = 1
+        heat, wins = heat.reshape(g.rows, g.cols), wins_flat.reshape(g.rows, g.cols)
+        box = self._observed_box() if rows is None else _box(r - window.r0, c - window.c0)
+        cands, labels = self._candidates(wins, heat, pose, window, box)
+        return QueryResult(text=text, artifact=self.map.artifact, grid=g, heatmap=heat, wins=wins.astype(bool),
+                           candidates=cands, pose=None if pose is None else tuple(float(v) for v in pose),
+                           background=[self.background[i] for i in keep], temperature=self.temperature,
+                           seconds=time.perf_counter() - t0, levels=self.levels, labels=labels,
+                           color=self._color(window), floor=self.map.floor_index, floor_name=self.map.floor.name,
+                           region=region)
+
+    def _floor_scores(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int]]:
+        """``(s, bg_max, bg_lse)`` ``(N,)`` of every observed cell and the background prompts in play."""
         exact = None
         if self._bg_feats is not None and self._bg_scores is None:  # the first query: background and query in one pass
             both = self._product(np.concatenate([self._bg_feats, q[None]]))
             self._bg_scores, exact = both[:, :-1], both[:, -1]
         bg_max, bg_lse, keep = self._background_for(q)
-        s = self._scores(q, bg_max, bg_lse, exact)
-        if self.levels == "max":
-            s, bg_max, bg_lse = self._level_scorer().cell_scores(
-                q, self._bg_feats[keep] if keep else None, self.temperature, s, bg_max, bg_lse)
-        prob = 1.0 / (1.0 + np.exp(np.clip(bg_lse - s / self.temperature, -80, 80)))
-        heat = np.full(g.rows * g.cols, np.nan, np.float32)
-        heat[self.map.cell] = prob
-        wins_flat = np.zeros(g.rows * g.cols, np.uint8)
-        wins_flat[self.map.cell[(s > bg_max) & (prob >= self.params.min_probability)]] = 1
-        heat, wins = heat.reshape(g.rows, g.cols), wins_flat.reshape(g.rows, g.cols)
-        cands, labels = self._candidates(wins, heat, pose)
-        return QueryResult(text=text, artifact=self.map.artifact, grid=g, heatmap=heat, wins=wins.astype(bool),
-                           candidates=cands, pose=None if pose is None else tuple(float(v) for v in pose),
-                           background=[self.background[i] for i in keep], temperature=self.temperature,
-                           seconds=time.perf_counter() - t0, levels=self.levels, labels=labels, color=self.color,
-                           floor=self.map.floor_index, floor_name=self.map.floor.name)
+        return self._scores(q, bg_max, bg_lse, exact), bg_max, bg_lse, keep
+
+    def _region_scores(self, q: np.ndarray, window: Window):
+        """Rows, flat cells and ``(s, bg_max, bg_lse)`` of the observed cells in ``window`` (its tiles only), and
+        the background prompts in play."""
+        keep = [] if self._bg_feats is None else [int(i) for i in np.flatnonzero(self._bg_feats @ q <= 0.99)]
+        text = np.concatenate([self._bg_feats[keep], q[None]]) if keep else q[None]
+        rows, cells, both = self._window_product(window, text)
+        if keep:
+            bg = both[:, :-1]
+            bg_max, bg_lse = bg.max(axis=1), logsumexp(bg / np.float32(self.temperature), axis=1)
+        else:
+            bg_max = bg_lse = np.full(len(rows), -np.inf, np.float32)
+        return rows, cells, both[:, -1], bg_max, bg_lse, keep
+
+    def _level_scores(self, q, keep, s, bg_max, bg_lse, rows):
+        """The cells' scores from their best height level (:class:`~pipeline.maps.levels.LevelScorer`); ``rows``:
+        the map rows ``s`` etc. hold (None: every row)."""
+        bg = self._bg_feats[keep] if keep else None
+        if rows is None:
+            return self._level_scorer().cell_scores(q, bg, self.temperature, s, bg_max, bg_lse)
+        full = [np.full(self.map.n_cells, -np.inf, np.float32) for _ in range(3)]
+        for f, v in zip(full, (s, bg_max, bg_lse)):
+            f[rows] = v
+        s, bg_max, bg_lse = self._level_scorer().cell_scores(q, bg, self.temperature, *full)
+        return s[rows], bg_max[rows], bg_lse[rows]
+
+    def _color(self, window: Window) -> np.ndarray | None:
+        """``(rows, cols, 3)`` uint8 recon colour of ``window`` (read from recon's tiles when given so)."""
+        if self.color is not None:
+            return self.color[window.slices]
+        if self.recon_floor is None:
+            return None
+        if window != whole(self.grid):
+            return self.recon_floor.window(window).color
+        if "_floor_color" not in self.__dict__:  # the whole floor's, read once
+            self.__dict__["_floor_color"] = self.recon_floor.color
+        return self.__dict__["_floor_color"]
 
     def _level_scorer(self):
         """The map's :class:`~pipeline.maps.levels.LevelScorer` (voxel features read on first use)."""
@@ -291,20 +382,15 @@ class MapQuery:
         """``(r0, r1, c0, c1)`` bounding box (end exclusive) of the map's observed cells (cached)."""
         box = self.__dict__.get("_obs_box")
         if box is None:
-            g = self.grid
-            cells = np.asarray(self.map.cell)
-            if len(cells):
-                r, c = np.divmod(cells, g.cols)
-                box = (int(r.min()), int(r.max()) + 1, int(c.min()), int(c.max()) + 1)
-            else:
-                box = (0, 1, 0, 1)  # nothing observed: a one-cell box (no wins anywhere)
-            self.__dict__["_obs_box"] = box
+            box = self.__dict__["_obs_box"] = _box(*np.divmod(np.asarray(self.map.cell), self.grid.cols))
         return box
 
-    def _candidates(self, wins: np.ndarray, heat: np.ndarray, pose) -> tuple[list[Candidate], np.ndarray]:
-        g = self.grid
+    def _candidates(self, wins: np.ndarray, heat: np.ndarray, pose, window: Window,
+                    box: tuple[int, int, int, int]) -> tuple[list[Candidate], np.ndarray]:
+        """Candidates on the window's grid (``wins``, ``heat`` its shape; ``box`` its observed cells)."""
+        g = window.grid(self.grid)
         # components only where the map has observed cells (wins are 0 elsewhere): work on that bounding box
-        r0, r1, c0, c1 = self._observed_box()
+        r0, r1, c0, c1 = box
         n, sub, stats, centroids = cv2.connectedComponentsWithStats(np.ascontiguousarray(wins[r0:r1, c0:c1]),
                                                                     connectivity=8, ltype=cv2.CV_32S)
         stats[:, cv2.CC_STAT_LEFT] += c0
@@ -349,8 +435,9 @@ class MapQuery:
             nxy = tuple(float(v) for v in g.cell_to_world(np.array(nrc)))
             gxy = g.cell_to_world(np.array([centroids[k, 1], centroids[k, 0]]))
             approach = None
+            full = (crc[0] + window.r0, crc[1] + window.c0)  # the cell in the floor's grid
             if self._nav_rc is not None:
-                approach = tuple(float(v) for v in g.cell_to_world(self._nearest_navigable(crc)))
+                approach = tuple(float(v) for v in self.grid.cell_to_world(self._nearest_navigable(full)))
             dist = ang = None
             if pose is not None:
                 dist = float(math.hypot(nxy[0] - pose[0], nxy[1] - pose[1]))
@@ -358,7 +445,7 @@ class MapQuery:
             x, y, w, h = (int(v) for v in stats[k, :4])
             gt_id = gt_cls = None
             if self._footprints is not None:
-                gt_id = int(self._footprints[crc])
+                gt_id = int(self._footprints[full])
                 gt_cls = self.gt.object(gt_id).cls if gt_id else None
             out.append(Candidate(obj_id=0, center_xy=cxy, centroid_xy=(float(gxy[0]), float(gxy[1])), nearest_xy=nxy,
                                  approach_xy=approach, distance_m=dist, angle_rad=ang,
@@ -368,6 +455,14 @@ class MapQuery:
         for i, c in enumerate(out, 1):
             c.obj_id = i
         return out, labels
+
+
+def _box(row: np.ndarray, col: np.ndarray) -> tuple[int, int, int, int]:
+    """``(r0, r1, c0, c1)`` bounding box (end exclusive) of cells ``(row, col)``; a one-cell box when there are
+    none (no wins anywhere)."""
+    if not len(row):
+        return 0, 1, 0, 1
+    return int(row.min()), int(row.max()) + 1, int(col.min()), int(col.max()) + 1
 
 
 def _first_per_label(lab: np.ndarray, key: np.ndarray) -> np.ndarray:
@@ -385,9 +480,9 @@ def _wrap(a: float) -> float:
 
 # ----------------------------------------------------------------------------- API for the CLI / evaluator
 
-#: the open queries, least recently used first; at most :data:`CACHE_SIZE` are kept (each holds its map's
-#: features, so a long-lived process that queries many scenes, the workbench's server or an evaluation's report
-#: drawing each scene's queries, would otherwise keep every map it ever opened)
+#: the open queries, least recently used first; at most :data:`CACHE_SIZE` are kept (each may hold its map's features,
+#: ``query.hold_features_mb``, so a long-lived process that queries many scenes, the workbench's server or an
+#: evaluation's report drawing each scene's queries, would otherwise keep every map it ever opened)
 _CACHE: OrderedDict[tuple, MapQuery] = OrderedDict()
 CACHE_SIZE = 8  # a scene's two maps on up to four floors
 
@@ -412,7 +507,7 @@ def open_query(map_path: str | Path, params, *, recon_path: str | Path | None = 
         _CACHE.move_to_end(key)
         return _CACHE[key]
     smap = SemanticMap(map_path, floor)
-    navigable = color = None
+    navigable = recon_floor = None
     if recon_path is not None:
         from pipeline.recon import Recon
 
@@ -424,7 +519,7 @@ def open_query(map_path: str | Path, params, *, recon_path: str | Path | None = 
         if grids.grid != smap.grid:
             raise LineageError(f"{map_path}: grid {smap.grid} differs from {recon_path}'s {grids.grid}"
                                f"{f' (floor {floor})' if floor else ''}; rebuild the map")
-        navigable, color = grids.navigable, grids.color
+        navigable, recon_floor = grids.navigable, grids
     gt = None
     if frames_path is not None and Path(frames_path).exists():
         gt = FrameStore(frames_path).ground_truth
@@ -435,7 +530,7 @@ def open_query(map_path: str | Path, params, *, recon_path: str | Path | None = 
         encoder = build_encoder(params.encoders, smap.encoder["name"], runtime=params.run)
     encoder.bind_scene(gt)
     mq = MapQuery(smap, encoder, params.query, navigable=navigable, gt=None if gt is None else gt_floor(gt, smap.floor),
-                  color=color)
+                  recon_floor=recon_floor)
     _CACHE[key] = mq
     while len(_CACHE) > CACHE_SIZE:
         _CACHE.popitem(last=False)

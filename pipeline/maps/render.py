@@ -24,6 +24,7 @@ from pipeline.maps.floors import FloorsResult
 from pipeline.maps.query import QueryResult
 from pipeline.maps.store import SemanticMap
 from pipeline.pictures import add_colorbar, add_legend, add_metre_axes, add_scale_bar, colorize, write_png
+from pipeline.region import Region, Window, region_window, whole
 
 HEAT_FLOOR = 0.3  # cells below this probability keep the colour map untinted
 
@@ -88,7 +89,7 @@ def _query_image(result: QueryResult, crop: bool, *, title_floor: bool = False) 
         cv2.circle(img, (int(pc[0]), int(pc[1])), 7, (255, 0, 255), -1)
         cv2.arrowedLine(img, (int(pc[0]), int(pc[1])), (int(tip[0]), int(tip[1])), (255, 0, 255), 3, tipLength=0.35)
     img = add_scale_bar(img, g.cell_size_m / k)
-    if title_floor:  # one floor of a building
+    if title_floor or result.region is not None:  # one floor of a building, or a region: where it lies
         img = _axes(img, g, r0, c0, k)
     img = add_colorbar(img, 0.0, 1.0, f"P('{result.text}' vs background)")
     legend = [((255, 255, 255), "candidate outline"), ((0, 0, 0), "n = candidate rank")]
@@ -102,26 +103,64 @@ def _query_image(result: QueryResult, crop: bool, *, title_floor: bool = False) 
     return np.concatenate([band, img], axis=0)
 
 
-def render_map_pca(map_path: str | Path, out_png: str | Path, *, crop: bool = True, floor: int = 0) -> Path:
-    """Features of floor ``floor`` (an index, lowest first) of a map as RGB (first three principal components);
-    unobserved cells white."""
+def render_map_pca(map_path: str | Path, out_png: str | Path, *, crop: bool = True, floor: int = 0,
+                   region: Region | None = None) -> Path:
+    """Features of floor ``floor`` (an index, lowest first) of a map as RGB (first three principal components of the
+    cells drawn); unobserved cells white.
+
+    Read block by block (:meth:`~pipeline.maps.store.SemanticMap.blocks`), twice (the principal axes from every
+    k-th cell and the mean, then each block projected), so memory is one stored chunk's features plus a few bytes
+    per cell drawn. ``region`` (world metres) draws only its cells,
+    reading only the tiles it meets (an InputDataError naming ``--region`` when it misses the grid); without it,
+    ``crop`` trims the picture to the observed cells plus a margin."""
     smap = SemanticMap(map_path, floor)
     g = smap.grid
-    img = np.full((g.rows * g.cols, 3), 255, np.uint8)
-    if smap.n_cells >= 3:
-        f = smap.features().astype(np.float64)
-        f = f - f.mean(axis=0)
-        _, _, vt = np.linalg.svd(f[:: max(1, len(f) // 20000)], full_matrices=False)
-        p = f @ vt[:3].T
+    window = region_window(g, region) if region is not None else whole(g)
+    step = max(1, sum(e - s for s, e in smap.row_ranges(window)) // 20000)
+    total, n, box = np.zeros(smap.dim), 0, None
+    s_sum, s_outer, s_n = np.zeros(smap.dim), np.zeros((smap.dim, smap.dim)), 0
+    for rows, cells, feats in smap.blocks(window):  # pass 1: the mean, every step-th cell's moments, the box
+        f = feats.astype(np.float64)
+        total += f.sum(axis=0)
+        picked = f[(np.arange(n, n + len(f)) % step) == 0]
+        s_sum, s_outer, s_n = s_sum + picked.sum(axis=0), s_outer + picked.T @ picked, s_n + len(picked)
+        n += len(f)
+        r, c = np.divmod(cells, g.cols)
+        box = _union(box, (int(r.min()), int(r.max()) + 1, int(c.min()), int(c.max()) + 1))
+    if region is None and crop and box is not None:
+        window = Window(max(box[0] - 10, 0), min(box[1] + 10, g.rows), max(box[2] - 10, 0), min(box[3] + 10, g.cols))
+    h, w = window.shape
+    img = np.full((h * w, 3), 255, np.uint8)
+    if n >= 3:
+        mean = total / n
+        vt = _principal_axes(s_outer, s_sum, s_n, mean)
+        where, proj = [], []
+        for _, cells, feats in smap.blocks(window):  # pass 2: each block projected on the axes
+            r, c = np.divmod(cells, g.cols)
+            where.append((r - window.r0) * w + (c - window.c0))
+            proj.append(((feats.astype(np.float64) - mean) @ vt[:3].T).astype(np.float32))
+        p = np.concatenate(proj)
         lo, hi = np.percentile(p, 1, axis=0), np.percentile(p, 99, axis=0)
-        img[smap.cell] = ((p - lo) / np.maximum(hi - lo, 1e-9) * 255).clip(0, 255).astype(np.uint8)
-    img = img.reshape(g.rows, g.cols, 3)
-    r0, r1, c0, c1 = _crop_box(smap.observed()) if crop else (0, g.rows, 0, g.cols)
-    img, k = _upscale(np.ascontiguousarray(img[r0:r1, c0:c1]))
+        img[np.concatenate(where)] = ((p - lo) / np.maximum(hi - lo, 1e-9) * 255).clip(0, 255).astype(np.uint8)
+    img, k = _upscale(img.reshape(h, w, 3))
     img = add_scale_bar(img, g.cell_size_m / k)
-    if len(smap.floors) > 1:
-        img = _axes(img, g, r0, c0, k)
+    if len(smap.floors) > 1 or region is not None:
+        img = _axes(img, g, window.r0, window.c0, k)
     return write_png(Path(out_png), img)
+
+
+def _principal_axes(outer: np.ndarray, total: np.ndarray, n: int, mean: np.ndarray, k: int = 3) -> np.ndarray:
+    """``(k, D)`` first principal axes of ``n`` samples about ``mean`` from their moments ``outer`` = sum x x^T and
+    ``total`` = sum x (the scatter matrix's leading eigenvectors, each signed so its largest entry is positive)."""
+    scatter = outer - np.outer(total, mean) - np.outer(mean, total) + n * np.outer(mean, mean)
+    _, vectors = np.linalg.eigh(scatter)
+    axes = vectors[:, ::-1][:, :k].T
+    return axes * np.sign(axes[np.arange(len(axes)), np.abs(axes).argmax(axis=1)])[:, None]
+
+
+def _union(a: tuple[int, int, int, int] | None, b: tuple[int, int, int, int]) -> tuple[int, int, int, int]:
+    """The bounding box ``(r0, r1, c0, c1)`` of two boxes (``a`` None: ``b``)."""
+    return b if a is None else (min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3]))
 
 
 def _axes(img: np.ndarray, g, r0: int, c0: int, k: int) -> np.ndarray:

@@ -377,7 +377,6 @@ class SemanticMap:
         self.lattice = self.meta.lattice.lattice(self.grid)
         self.encoder = self.meta.encoder.as_dict()
         self.tile_cells = self.meta.tile_cells
-        self.cell = self.group["top"]["cell"][...].astype(np.int64)
         self._features: np.ndarray | None = None
         self._index: np.ndarray | None = None
 
@@ -387,7 +386,13 @@ class SemanticMap:
 
     @property
     def n_cells(self) -> int:
-        return len(self.cell)
+        return int(self.meta.n_cells)
+
+    @cached_property
+    def cell(self) -> np.ndarray:
+        """``(N,)`` int64 flat cell ids ``row * cols + col`` of the observed cells, tile-major (read on first use: a
+        reader of a region needs only its tiles', :meth:`blocks`)."""
+        return self.group["top"]["cell"][...].astype(np.int64)
 
     # read on first use (a query needs none of them)
     @cached_property
@@ -455,22 +460,101 @@ class SemanticMap:
         """True for a cfmap that stores its sparse voxel map (level-aware queries: :mod:`pipeline.maps.levels`)."""
         return "voxels" in self.group
 
+    def tile_rows(self, tile_row: int, tile_col: int) -> tuple[int, int]:
+        """Rows ``[s, e)`` of ``top/*`` holding spatial tile (``tile_row``, ``tile_col``)."""
+        t = tile_row * -(-self.grid.cols // self.tile_cells) + tile_col
+        return int(self.tile_start[t]), int(self.tile_start[t + 1])
+
     def tile(self, tile_row: int, tile_col: int) -> tuple[np.ndarray, np.ndarray]:
-        """Cells ``(n,)`` and features ``(n,D)`` float16 of one spatial tile (reads only its chunks)."""
-        per_row = -(-self.grid.cols // self.tile_cells)
-        t = tile_row * per_row + tile_col
-        s, e = int(self.tile_start[t]), int(self.tile_start[t + 1])
-        return self.cell[s:e], self.group["top"]["features"][s:e]
+        """Cells ``(n,)`` int64 and features ``(n,D)`` float16 of one spatial tile (reads only its chunks)."""
+        s, e = self.tile_rows(tile_row, tile_col)
+        return self.read_rows(s, e)
+
+    def read_rows(self, start: int, end: int) -> tuple[np.ndarray, np.ndarray]:
+        """Cells ``(n,)`` int64 and features ``(n,D)`` float16 of rows ``[start, end)`` of ``top/*``: from the
+        cached features when :meth:`features16` was called, else only the chunks those rows meet."""
+        top = self.group["top"]
+        cells = self.cell[start:end] if "cell" in self.__dict__ else top["cell"][start:end].astype(np.int64)
+        feats = self._features[start:end] if self._features is not None else top["features"][start:end]
+        return cells, feats
+
+    def row_ranges(self, window=None) -> list[tuple[int, int]]:
+        """Rows ``[s, e)`` of ``top/*`` holding the stored tiles that meet ``window`` (a
+        :class:`~pipeline.region.Window`; default: the whole grid), merged where contiguous: the tiles of one tile
+        row of the window are one range (rows are tile-major), the whole grid is ``[(0, N)]``."""
+        from pipeline.region import whole
+
+        window = window or whole(self.grid)
+        tile = self.tile_cells
+        ranges: list[tuple[int, int]] = []
+        for tr in range(window.r0 // tile, -(-window.r1 // tile)):
+            s = self.tile_rows(tr, window.c0 // tile)[0]
+            e = self.tile_rows(tr, -(-window.c1 // tile) - 1)[1]
+            if e <= s:
+                continue
+            if ranges and ranges[-1][1] == s:
+                ranges[-1] = (ranges[-1][0], e)
+            else:
+                ranges.append((s, e))
+        return ranges
+
+    def blocks(self, window=None):
+        """``(rows, cells, features)`` of the observed cells in ``window`` (a :class:`~pipeline.region.Window`;
+        default: the whole grid), one block at a time: ``rows`` ``(n,)`` int64 ascending rows of ``top/*``,
+        ``cells`` ``(n,)`` int64 flat ids, ``features`` ``(n,D)`` float16. Blocks are the stored feature chunks
+        (``tile_cells``² rows, whole tiles' cells) cut to the tiles the window meets (:meth:`row_ranges`), so each
+        chunk is read once per tile row of the window, only those chunks are read, and memory is one chunk's
+        features, whatever the map's size."""
+        from pipeline.region import whole
+
+        every = whole(self.grid)
+        window = window or every
+        chunk = int(self.group["top"]["features"].chunks[0]) if self._features is None else 1 << 30
+        for s, e in self.row_ranges(window):
+            cuts = [s, *range((s // chunk + 1) * chunk, e, chunk), e]  # at the chunks' edges
+            for a, b in zip(cuts[:-1], cuts[1:]):
+                cells, feats = self.read_rows(a, b)
+                rows = np.arange(a, b, dtype=np.int64)
+                if window != every:  # the cells inside the window only
+                    keep = window.contains(*np.divmod(cells, self.grid.cols))
+                    rows, cells, feats = rows[keep], cells[keep], feats[keep]
+                if len(rows):
+                    yield rows, cells, feats
+
+    def index_in(self, window) -> np.ndarray:
+        """``(h, w)`` int32 rows of ``top/*`` for the cells of ``window`` (a :class:`~pipeline.region.Window`), -1 =
+        unobserved; reads only the index chunks the window meets."""
+        if self._index is not None:
+            return self._index[window.slices]
+        return self.group["top"]["index"][window.slices]
+
+    def rows_of(self, name: str, rows: np.ndarray) -> np.ndarray:
+        """``top/<name>`` at the given rows (any order, repeats allowed): from the cache when held, else only the
+        chunks holding them."""
+        rows = np.asarray(rows, np.int64)
+        if name == "features" and self._features is not None:
+            return self._features[rows]
+        if name in self.__dict__:  # a cached_property already read (weight, count, level, cell)
+            return self.__dict__[name][rows]
+        if not len(rows):
+            arr = self.group["top"][name]
+            return np.zeros((0, *arr.shape[1:]), arr.dtype)
+        unique, inverse = np.unique(rows, return_inverse=True)
+        return self.group["top"][name].get_orthogonal_selection(unique)[inverse]
 
     def features_at(self, rc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Features ``(K,D)`` float32 at ``(K,2)`` (row, col) cells and a ``(K,)`` observed mask (zeros elsewhere)."""
+        """Features ``(K,D)`` float32 at ``(K,2)`` (row, col) cells and a ``(K,)`` observed mask (zeros elsewhere);
+        reads only the index and feature chunks holding those cells."""
         rc = np.asarray(rc, np.int64).reshape(-1, 2)
         inside = self.grid.inside(rc)
         rows = np.full(len(rc), -1, np.int64)
-        rows[inside] = self.index[rc[inside, 0], rc[inside, 1]]
+        if self._index is not None:
+            rows[inside] = self._index[rc[inside, 0], rc[inside, 1]]
+        elif inside.any():
+            rows[inside] = self.group["top"]["index"].get_coordinate_selection((rc[inside, 0], rc[inside, 1]))
         ok = rows >= 0
         out = np.zeros((len(rc), self.dim), np.float32)
-        out[ok] = self.features16()[rows[ok]]
+        out[ok] = self.rows_of("features", rows[ok])
         return out, ok
 
     def voxels(self) -> MapVoxels | None:

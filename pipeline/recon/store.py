@@ -376,34 +376,63 @@ class TopDown:
 
     group: Any
 
+    def read(self, name: str) -> np.ndarray:
+        """The grid ``name`` (``occupancy``, ``navigable``, ``color``, ``height``) as this view covers it."""
+        return self.group[name][...]
+
     @property
     def occupancy(self) -> np.ndarray:
         """``(rows, cols)`` uint8: 0 unknown, 1 free, 2 occupied."""
-        return self.group["occupancy"][...]
+        return self.read("occupancy")
 
     @property
     def navigable(self) -> np.ndarray:
         """``(rows, cols)`` bool."""
-        return self.group["navigable"][...]
+        return self.read("navigable")
 
     @property
     def color(self) -> np.ndarray:
         """``(rows, cols, 3)`` uint8 RGB of the top surface."""
-        return self.group["color"][...]
+        return self.read("color")
 
     @property
     def height(self) -> np.ndarray:
         """``(rows, cols)`` float32 metres above the floor, NaN unknown."""
-        return self.group["height"][...]
+        return self.read("height")
 
 
 class FloorGrids(TopDown):
     """Read-only view of one floor's grids in a ``recon.zarr``: ``occupancy``, ``navigable``, ``color``, ``height``
     (read on access), ``grid`` (its :class:`GridSpec`), ``floor_z`` (world z, m), ``floor`` (its :class:`Floor`
-    record), ``stats``."""
+    record), ``stats``. :meth:`window` gives a part of it."""
 
     def __init__(self, group, floor: Floor, grid: GridSpec, floor_z: float, stats: dict):
         self.group, self.floor, self.grid, self.floor_z, self.stats = group, floor, grid, floor_z, stats
+
+    def window(self, window) -> "WindowGrids":
+        """The cells of ``window`` (a :class:`~pipeline.region.Window` of this floor's grid)."""
+        return WindowGrids(self, window)
+
+    def tile_windows(self, window=None):
+        """The stored tiles (128-cell zarr chunks) meeting ``window`` (default: the whole grid), each as the
+        :class:`WindowGrids` of its cells inside the window, row-major."""
+        from pipeline.region import whole
+
+        for _, _, part in (window or whole(self.grid)).tiles(TILE):
+            yield WindowGrids(self, part)
+
+
+class WindowGrids(TopDown):
+    """A floor's grids in a window of cells: each grid read on access holds only the window's cells (zarr reads
+    only the tiles it meets). ``grid`` is the window's own :class:`GridSpec` (world metres unchanged), ``cells``
+    the window in the floor's grid; ``floor``, ``floor_z``, ``stats`` are the floor's."""
+
+    def __init__(self, floor: FloorGrids, window):
+        self.group, self.floor, self.floor_z, self.stats = floor.group, floor.floor, floor.floor_z, floor.stats
+        self.grid, self.cells = window.grid(floor.grid), window
+
+    def read(self, name: str) -> np.ndarray:
+        return self.group[name][self.cells.slices]
 
 
 @dataclass

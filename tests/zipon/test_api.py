@@ -96,6 +96,48 @@ def test_to_xarray_is_the_dense_grid_in_metres(ds):
     assert np.allclose(feats[0], vec.astype(np.float32)) and not feats[1].any()
 
 
+def test_a_map_view_reads_a_region_lazily_tile_by_tile(ds, monkeypatch):
+    import dask
+
+    from pipeline.maps.store import SemanticMap
+    from pipeline.region import Window
+    from tests.fixtures.tiled_maps import chunk_reads
+
+    scene = ds["tiny"]
+    view = scene.vlmap
+    g = view.grid
+    whole = view.to_xarray()
+    rows, cols = np.divmod(view.store.cell, g.cols)
+    win = Window(int(rows.min()) + 10, int(rows.min()) + 90, int(cols.min()) + 20, int(cols.min()) + 120)
+    x0, y1 = g.origin_xy
+    s = g.cell_size_m  # the box of those cells, world metres
+    box = (x0 + win.c0 * s, y1 - win.r1 * s, x0 + win.c1 * s, y1 - win.r0 * s)
+    fresh = type(view)(scene, "vlmap")  # a view that has read nothing yet
+    with chunk_reads(monkeypatch) as reads:
+        part = fresh.to_xarray(region=box)
+    assert "top/features" not in reads  # nothing of the features until computed
+    assert part.features.shape == (80, 100, view.store.dim)
+    np.testing.assert_allclose(part.x.values, whole.x.values[win.c0:win.c1], rtol=0, atol=1e-9)  # world metres
+    np.testing.assert_array_equal(part.observed.values, whole.observed.values[win.slices])
+    assert part.observed.values.any()
+    with chunk_reads(monkeypatch) as reads, dask.config.set(scheduler="sync"):  # read here, where they are counted
+        feats = part.features.values
+    np.testing.assert_array_equal(feats, whole.features.values[win.slices])
+    smap = SemanticMap(view.path)
+    chunk = smap.group["top"]["features"].chunks[0]
+    holding = {k for a, b in smap.row_ranges(win) for k in range(a // chunk, (b - 1) // chunk + 1)}
+    assert 0 < reads["top/features"] and {int(k.split("/")[3]) for k in reads.keys_read if "features" in k} <= holding
+    # a query of that box answers as the floor's query does there
+    cls = scene.frames.ground_truth.objects[0].cls
+    full, boxed = view.query(cls), view.query(cls, region=box)
+    np.testing.assert_allclose(boxed.heatmap, full.heatmap[win.slices], rtol=0, atol=2e-6)
+    assert boxed.grid == win.grid(g) and boxed.region is not None
+    with pytest.raises(InputDataError, match=r"field region: x 1e\+06..1e\+06 m, y 0..1 m lies outside"):
+        view.query(cls, region=(1e6, 0, 1e6 + 1, 1))
+    with pytest.raises(InputDataError, match="field region: x runs from 2 to 1: inverted"):
+        view.to_xarray(region=(2, 0, 1, 1))
+
+
 def test_stores_open_in_xarray_with_named_dims_and_units(ds):
     import xarray as xr
 

@@ -11,16 +11,20 @@ from __future__ import annotations
 
 import math
 import re
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
 from pipeline.errors import InputDataError
+from pipeline.region import region_window
 from zipon.annotate.floors import (building_route, check_floor, floor_records, recorded_start_floor, rounded,
                                    stair_records)
+from zipon.annotate.layers import LAYERS, Picture, height_top, paint, stride_for
 
-LAYERS = ("color", "height", "occupancy", "navigable", "rooms")
+PICTURES_KEPT = 8  # layer pictures kept per scene (the page asks again for the window it shows as it pans)
 TRAJECTORY_POINTS = 400  # at most this many camera poses are sent (evenly spaced)
 SEEN_MAX = 6  # frames listed for a clicked place
 SEEN_TOLERANCE_M = 0.15  # a frame saw the place when its depth there is within this of the distance
@@ -110,14 +114,16 @@ class SceneView:
 
     def _observed_rc(self) -> tuple[int, int, int, int]:
         """``(row0, row1, col0, col1)`` (ends excluded) of the observed cells of every floor (the floors share one
-        grid placement, so the page keeps its view when the floor changes): the whole grid when none are."""
-        seen = self.recon.occupancy > 0
-        for k in range(1, len(self.recon.floors)):
-            seen |= self.recon.floor(k).occupancy > 0
-        rows, cols = np.nonzero(seen)
-        if rows.size == 0:
+        grid placement, so the page keeps its view when the floor changes), found tile by tile: the whole grid when
+        none are."""
+        from pipeline.recon.render import observed_window
+
+        boxes = [w for w in (observed_window(self.recon.floor(k), margin=0) for k in range(len(self.recon.floors)))
+                 if w is not None]
+        if not boxes:
             return 0, self.recon.grid.rows, 0, self.recon.grid.cols
-        return int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
+        return (min(w.r0 for w in boxes), max(w.r1 for w in boxes), min(w.c0 for w in boxes),
+                max(w.c1 for w in boxes))
 
     def _observed_xy(self) -> list[float]:
         """``(x_min, x_max, y_min, y_max)`` of the observed cells (what the page fits to), metres."""
@@ -161,44 +167,43 @@ class SceneView:
 
     # ------------------------------------------------------------------------- layers
 
+    def warm(self) -> None:
+        """Read what every layer picture of the scene shares (each floor's brightest height), so the page's first
+        pictures (of the windows it shows, unknown before it asks) wait for none of it."""
+        for floor in range(len(self.recon.floors)):
+            level = self.recon.floor(floor)
+            self._get(("height_top", floor), lambda level=level: height_top(level))
+
     def layer_png(self, name: str, floor: int = 0) -> bytes:
-        """One pixel per grid cell of floor ``floor``, north up; transparent where nothing was observed."""
+        """The whole grid of floor ``floor`` as one layer, one pixel per cell (see :meth:`layer`)."""
+        return self.layer(name, floor)[0]
+
+    def layer(self, name: str, floor: int = 0, region=None, px: int | None = None) -> tuple[bytes, Picture]:
+        """Layer ``name`` of floor ``floor`` as a PNG and what it covers (:mod:`zipon.annotate.layers`): the cells
+        of ``region`` (a :class:`~pipeline.region.Region`; the whole grid for None) at most ``px`` pixels on the
+        longer side, painted from the recon tiles the region meets. The last few pictures are kept."""
         if name not in LAYERS:
             raise InputDataError(f"unknown layer {name!r}", field="layer", expected=f"one of {list(LAYERS)}")
         check_floor(self.recon, self.name, floor)
-        key = ("layer", name) if floor == 0 else ("layer", name, floor)
-        return self._get(key, lambda: _png(self._layer_rgba(name, floor)))
-
-    def _layer_rgba(self, name: str, floor: int = 0) -> np.ndarray:
-        recon = self.recon.floor(floor)
-        occ = recon.occupancy
-        known = occ > 0
-        rgba = np.zeros((*occ.shape, 4), np.uint8)
-        if name == "color":
-            rgba[..., :3] = recon.color
-        elif name == "height":
-            h = recon.height
-            finite = np.isfinite(h)
-            top = float(np.nanpercentile(h[finite], 99)) if finite.any() else 1.0
-            v = np.clip(np.nan_to_num(h) / max(top, 1e-6), 0, 1)
-            rgba[..., :3] = cv2.applyColorMap((v * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)[..., ::-1]
-            known = finite
-        elif name == "occupancy":
-            rgba[..., :3] = np.where((occ == 2)[..., None], [40, 40, 40], [235, 235, 235])
-        elif name == "navigable":
-            nav = recon.navigable
-            rgba[..., :3] = np.where(nav[..., None], [120, 200, 120], [200, 200, 200])
-        else:  # rooms: each room outline filled in its own colour
-            from pipeline.goals.objects import rasterize_polygons
-
-            rooms = [r for r in self._rooms() if len(r["polygon"]) >= 3 and r["floor"] == floor]
-            lab = rasterize_polygons([np.asarray(r["polygon"]) for r in rooms], recon.grid,
-                                     list(range(1, len(rooms) + 1)))
-            palette = np.array([[0, 0, 0], *[_hue(i, len(rooms)) for i in range(len(rooms))]], np.uint8)
-            rgba[..., :3] = palette[lab]
-            known = lab > 0
-        rgba[..., 3] = np.where(known, 255, 0)
-        return rgba
+        level = self.recon.floor(floor)
+        window = region_window(level.grid, region, "region")
+        stride = stride_for(window, px)
+        key = (name, floor, window, stride)
+        pictures, lock = self._get("pictures", OrderedDict), self._get("pictures_lock", threading.Lock)
+        with lock:  # requests are served from a thread pool
+            if key in pictures:
+                pictures.move_to_end(key)
+                return pictures[key]
+        top = self._get(("height_top", floor), lambda: height_top(level)) if name == "height" else 1.0
+        rooms = [r for r in self._rooms() if len(r["polygon"]) >= 3 and r["floor"] == floor] if name == "rooms" \
+            else []
+        picture = paint(level, name, window, stride, top_m=top, rooms=rooms)
+        done = (_png(picture.rgba), picture)
+        with lock:
+            pictures[key] = done
+            while len(pictures) > PICTURES_KEPT:
+                pictures.popitem(last=False)
+        return done
 
     # ------------------------------------------------------------------------- frames that saw a place
 
@@ -374,11 +379,6 @@ def _outline(mask: np.ndarray, grid, up: int = 4, offset_rc: tuple[int, int] = (
         if area < 0:
             xy = xy[::-1]
     return _rounded(xy)
-
-
-def _hue(i: int, n: int) -> list[int]:
-    hsv = np.array([[[int(180 * i / max(n, 1)), 120, 230]]], np.uint8)
-    return [int(v) for v in cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0, 0]]
 
 
 def _png(img: np.ndarray) -> bytes:

@@ -69,19 +69,17 @@ class Workbench:
         return self._views[name]
 
     def warm(self) -> None:
-        """Read the first scene's summary and layers and import what a save imports (torch and open3d, through the
+        """Read the first scene's summary and what its layers share (:meth:`SceneView.warm`) and import what a save imports (torch and open3d, through the
         stage runner's thread limits), so the first page and the first save do not wait for them. ``zipon
         annotate`` runs it in a thread while the server starts."""
         from pipeline.engine.process import limit_native_threads
-        from zipon.annotate.scene import LAYERS
 
         ds = self.dataset()
         name = self.default_scene or next(iter(ds.params.scenes), None)
         if name is not None and self.workspace.artifact("recon", name).exists():
             view = self.scene(name)
             view.summary()
-            for layer_name in LAYERS:
-                view.layer_png(layer_name)
+            view.warm()
         limit_native_threads(ds.params.run.threads_per_worker)
 
     def forget(self, name: str) -> None:
@@ -169,8 +167,20 @@ def scene_summary(request, wb, body):
 
 @endpoint()
 def layer(request, wb, body):
+    """A layer of the floor shown: the whole grid one pixel per cell, or (``region=x0,y0,x1,y1`` metres, ``px``
+    the most pixels on the longer side) the window the page shows, painted from the tiles it meets
+    (:mod:`zipon.annotate.layers`). Headers say what the picture covers: ``X-Zipon-Extent`` (x0,x1,y0,y1 metres)
+    and ``X-Zipon-Stride`` (cells per pixel)."""
+    from pipeline.region import parse_region
+
     view = wb.scene(request.path_params["scene"])
-    return _png(view.layer_png(request.path_params["name"], _floor(request, view) or 0))
+    q = request.query_params
+    region = parse_region(q["region"], "region") if "region" in q else None
+    px = integer(q["px"], "px", 16, 16384) if "px" in q else None
+    data, picture = view.layer(request.path_params["name"], _floor(request, view) or 0, region, px)
+    return Response(data, media_type="image/png", headers={
+        "Cache-Control": "no-store", "X-Zipon-Stride": str(picture.stride),
+        "X-Zipon-Extent": ",".join(f"{v:.4f}" for v in picture.extent_xy)})
 
 
 @endpoint()

@@ -8,7 +8,7 @@ each candidate with its floor.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Tuple
 
 import typer
 from rich.table import Table
@@ -29,6 +29,24 @@ RENDERS = {
 }
 # one picture per floor of a building
 PER_FLOOR = ("obstacles", "navigable", "color", "height", "vlmap", "cfmap", "goals", "routes")
+# pictures of a region (read tile by tile: only the tiles the region meets)
+REGIONAL = ("obstacles", "navigable", "color", "height", "vlmap", "cfmap")
+REGION_HELP = ("X0 Y0 X1 Y1: only this box, world metres (x east, y north; see the metre axes of a whole-floor "
+               "render); reads only the stored tiles it meets")
+
+
+def _region_option(sc, region, floors: list[int], option: str = "--region"):
+    """``region`` (four numbers or None) as a :class:`~pipeline.region.Region`, checked against the grid of each of
+    ``floors`` (an error naming ``option`` when it is empty, inverted or misses a floor's grid)."""
+    if region is None or all(v is None for v in region):
+        return None
+    from pipeline.region import parse_region, region_window
+
+    box = parse_region(region, option)
+    recon = sc.recon
+    for k in floors:
+        region_window(recon.floor(k).grid, box, option)
+    return box
 
 
 def _floor_option(sc, floor: int | None, option: str = "--floor") -> int | None:
@@ -53,12 +71,15 @@ def render(
                                            "WHAT.png; a building's floors: WHAT_floor<id>.png)"),
     floor: Optional[int] = typer.Option(None, "--floor", "-f", min=0, help="the floor to draw (0 = the lowest); "
                                         f"default: every floor of a building, one PNG each ({', '.join(PER_FLOOR)})"),
+    region: Optional[Tuple[float, float, float, float]] = typer.Option(
+        None, "--region", metavar="X0 Y0 X1 Y1", help=f"{REGION_HELP} ({', '.join(REGIONAL)})"),
 ):
     """Draw an artifact as a north-up PNG with a scale bar.
 
     Examples: `zipon render sim_00 --what navigable` · `zipon render sim_00 --what routes -o routes.png` ·
     `zipon render house --what color --floor 1` · `zipon render house --what vlmap` ·
-    `zipon render house --what routes` (routes_floor0.png, routes_floor1.png: each floor's legs, the stairs marked)
+    `zipon render house --what routes` (routes_floor0.png, routes_floor1.png: each floor's legs, the stairs marked) ·
+    `zipon render office --what vlmap --floor 0 --region 10 5 20 12` (a 10 m x 7 m part, full resolution)
     """
     from pipeline.errors import ConfigError
 
@@ -67,16 +88,20 @@ def render(
     if floor is not None and what not in (*PER_FLOOR, "plan"):
         raise ConfigError(f"--floor {floor}: --what {what} is drawn for the whole scene; --floor applies to "
                           f"{', '.join(PER_FLOOR)}, plan")
+    wants_region = region is not None and not all(v is None for v in region)
+    if wants_region and what not in REGIONAL:
+        raise ConfigError(f"--region: --what {what} is drawn whole; --region applies to {', '.join(REGIONAL)}")
     sc = open_scene(scene)
     art = sc.path  # on an object store: the artifact's published version, mirrored on first use
     if what in PER_FLOOR:
         floors = [_floor_option(sc, floor)] if floor is not None else list(range(len(sc.floors)))
+        box = _region_option(sc, region, floors)
         for k in floors:
             target = _floor_target(out_png or sc.workspace.renders(scene) / f"{what}.png", k, len(sc.floors))
             if what in ("vlmap", "cfmap"):
                 from pipeline.maps.render import render_map_pca
 
-                render_map_pca(sc.existing(what), target, floor=k)
+                render_map_pca(sc.existing(what), target, floor=k, region=box)
             elif what in ("goals", "routes"):
                 from pipeline.goals.render import render_goals
 
@@ -85,7 +110,7 @@ def render(
             else:
                 from pipeline.recon.render import render_recon
 
-                render_recon(art("recon"), what, target, floor=k)
+                render_recon(art("recon"), what, target, floor=k, region=box)
             out.print(str(target), soft_wrap=True)
         return
     target = Path(out_png) if out_png else sc.workspace.renders(scene) / f"{what}.png"
@@ -170,12 +195,19 @@ def query(
                                         "--pose stands on it); default: every floor of a building"),
     pose_floor: Optional[int] = typer.Option(None, "--pose-floor", min=0, help="when every floor is searched: the "
                                              "floor the --pose stands on (default 0); its candidates come first"),
+    region: Optional[Tuple[float, float, float, float]] = typer.Option(
+        None, "--region", metavar="X0 Y0 X1 Y1", help=f"look in this box only: {REGION_HELP}; candidates' cells "
+        "are then those of the box's grid"),
 ):
     """Query a semantic map with text: a similarity heatmap and object candidates (floor, distance, angle in
     degrees, score, and the ground-truth object key such as `chair_0` when the scene has one).
 
     Examples: `zipon query sim_00 chair --pose 2,3,90` · `zipon query sim_00 "green plant" --map cfmap --png plant.png`
-    · `zipon query sim_00 chair --map cfmap --levels max` · `zipon query house bed --floor 1`
+    · `zipon query sim_00 chair --map cfmap --levels max` · `zipon query house bed --floor 1` ·
+    `zipon query office chair --region 10 5 20 12`
+
+    The map is scored one stored tile at a time (memory: a tile's features), and with --region only the tiles
+    the box meets are read.
     """
     import math
 
@@ -196,7 +228,9 @@ def query(
     if floor is not None:
         view = view.floor(_floor_option(sc, floor))
     _floor_option(sc, pose_floor, "--pose-floor")
-    result = view.query(text, parse_pose(pose, degrees=True) if pose else None, pose_floor=pose_floor or 0)
+    box = _region_option(sc, region, [floor] if floor is not None else list(range(len(sc.floors))))
+    result = view.query(text, parse_pose(pose, degrees=True) if pose else None, pose_floor=pose_floor or 0,
+                        region=box)
     building = len(sc.floors) > 1
     keys = _object_keys(sc)
     if png:

@@ -211,6 +211,111 @@ def test_the_first_query_reads_fp16_chunks_and_later_ones_one_fp32_copy(map_path
     np.testing.assert_allclose(q.scores("table"), q._f32 @ q.text_features(["table"])[0], rtol=1e-6)
 
 
+# ----------------------------------------------------------------------------- tile by tile (a map of many tiles)
+
+
+@pytest.fixture(scope="module")
+def tiled_map(tmp_path_factory):
+    from tests.fixtures.tiled_maps import write_tiled_map
+
+    return write_tiled_map(tmp_path_factory.mktemp("tiled") / "vlmap.zarr")
+
+
+def _whole_array_answer(path, text, params):
+    """The query's heatmap and winning cells computed from the whole (N,D) feature array at once, in numpy."""
+    from tests.fixtures.tiled_maps import ENC as TENC
+
+    smap = SemanticMap(path)
+    f = smap.features()  # the whole array
+    q = np.asarray(TENC.encode_text([text]), np.float32)[0]
+    bg = np.asarray(TENC.encode_text(list(params.background)), np.float32)
+    bg = bg[bg @ q <= 0.99]
+    s, sb = f @ q, f @ bg.T
+    t = np.float32(params.temperature or TENC.identity().get("temperature") or 0.1)
+    lse = np.log(np.exp(sb / t).sum(axis=1))
+    prob = 1.0 / (1.0 + np.exp(np.clip(lse - s / t, -80, 80)))
+    heat = np.full(smap.grid.rows * smap.grid.cols, np.nan, np.float32)
+    heat[smap.cell] = prob
+    wins = np.zeros(smap.grid.rows * smap.grid.cols, bool)
+    wins[smap.cell[(s > sb.max(axis=1)) & (prob >= params.min_probability)]] = True
+    return heat.reshape(smap.grid.rows, smap.grid.cols), wins.reshape(smap.grid.rows, smap.grid.cols)
+
+
+def test_a_query_read_block_by_block_equals_the_whole_array_and_the_held_paths(tiled_map, monkeypatch):
+    from tests.fixtures.tiled_maps import ENC as TENC
+    from tests.fixtures.tiled_maps import chunk_reads, chunks_of
+
+    streamed = MapQuery(SemanticMap(tiled_map), TENC, QueryParams(hold_features_mb=0, query_rank=0))
+    held = MapQuery(SemanticMap(tiled_map), TENC, QueryParams(query_rank=0))
+    for text in ("chair", "table", "bed", "lamp"):
+        with chunk_reads(monkeypatch) as reads:
+            a = streamed.query(text, (1.0, 1.0, 0.5))
+        # every feature chunk read once, in pieces of one chunk (never the array at once)
+        assert reads["top/features"] == chunks_of(tiled_map, "top/features")
+        assert len(set(reads.keys_read)) == len(reads.keys_read)
+        b = held.query(text, (1.0, 1.0, 0.5))  # from its second query on: the whole fp32 array in memory
+        heat, wins = _whole_array_answer(tiled_map, text, streamed.params)
+        np.testing.assert_allclose(a.heatmap, heat, rtol=0, atol=2e-6)
+        np.testing.assert_allclose(b.heatmap, heat, rtol=0, atol=2e-6)
+        assert (a.wins == wins).all() and (b.wins == wins).all()
+        assert [asdict_c(c) for c in a.candidates] == [asdict_c(c) for c in b.candidates]
+    assert held._f32 is not None and streamed._f32 is None
+    assert [c.center_rc for c in streamed.query("chair").candidates] == [(29, 34), (117, 189)]
+
+
+def asdict_c(c):
+    """A candidate's fields, scores rounded to float32 precision."""
+    from dataclasses import asdict
+
+    d = asdict(c)
+    d["score"] = round(d["score"], 5)
+    return d
+
+
+def test_a_region_query_reads_only_the_tiles_it_meets_and_answers_as_the_floor_does_there(tiled_map, monkeypatch):
+    from pipeline.region import Region, region_window
+    from tests.fixtures.tiled_maps import ENC as TENC
+    from tests.fixtures.tiled_maps import chunk_reads
+
+    smap = SemanticMap(tiled_map)
+    floor = MapQuery(smap, TENC, QueryParams(hold_features_mb=0)).query("chair")
+    region = Region(-1.0, 2.5, 1.0, 4.5)  # around the first chair (rows 20..40, cols 25..45 of 5 cm cells)
+    win = region_window(smap.grid, region)
+    q = MapQuery(SemanticMap(tiled_map), TENC, QueryParams(hold_features_mb=0))
+    with chunk_reads(monkeypatch) as reads:
+        r = q.query("chair", region=region)
+    # exactly the feature chunks holding the rows of the tiles the window meets
+    chunk = SemanticMap(tiled_map).group["top"]["features"].chunks[0]
+    want = {f"top/features/c/{k}/0" for s, e in smap.row_ranges(win) for k in range(s // chunk, (e - 1) // chunk + 1)}
+    got = {k for k in reads.keys_read if k.startswith("top/features/")}
+    assert got == want and len(want) < len(list((tiled_map / "top/features/c").rglob("*/*")))
+    assert "top/index" not in reads
+    assert r.grid == win.grid(smap.grid) and r.heatmap.shape == win.shape and r.region == region
+    np.testing.assert_allclose(r.heatmap, floor.heatmap[win.slices], rtol=0, atol=2e-6)
+    assert [c.center_xy for c in r.candidates] == [floor.candidates[0].center_xy]
+    assert r.to_json()["region"] == {"x0": -1.0, "y0": 2.5, "x1": 1.0, "y1": 4.5}
+    # the held path gives the same answer
+    q.query("chair")
+    held = MapQuery(SemanticMap(tiled_map), TENC, QueryParams())
+    held.query("bed")
+    held.query("bed")
+    assert held._f32 is not None
+    np.testing.assert_allclose(held.query("chair", region=region).heatmap, r.heatmap, rtol=0, atol=2e-6)
+
+
+@pytest.mark.parametrize("box, message", [
+    ((20.0, 0.0, 30.0, 5.0), "field region: x 20..30 m, y 0..5 m lies outside the floor's grid (expected a box "
+                             "meeting x -2.00..9.50 m, y -2.50..5.00 m)"),
+])
+def test_a_region_off_the_grid_is_refused_naming_it(tiled_map, box, message):
+    from pipeline.region import Region
+    from tests.fixtures.tiled_maps import ENC as TENC
+
+    with pytest.raises(InputDataError) as err:
+        MapQuery(SemanticMap(tiled_map), TENC, QueryParams()).query("chair", region=Region(*box))
+    assert str(err.value) == message
+
+
 def test_open_queries_are_cached_up_to_a_bound(map_path):
     """An evaluation opens each scene's maps once and many scenes in one process: the cache keeps the most recently
     used queries only (each holds its map's features), and a repeated open returns the cached one."""

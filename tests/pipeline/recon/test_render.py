@@ -39,3 +39,32 @@ def test_each_floor_of_a_building_renders_with_its_stairs_and_a_missing_floor_is
     assert min(orange) > 20  # the stairs' foot on floor 0, its head on floor 1
     with pytest.raises(ConfigError, match="--floor 2: .* has 2 floors \\(0..1\\)"):
         render_recon(recon.path, "obstacles", tmp_path / "x.png", floor=2)
+
+
+def test_a_region_reads_only_its_tiles_and_the_whole_floor_is_painted_tile_by_tile(tmp_path, monkeypatch):
+    import cv2
+    import numpy as np
+
+    from pipeline.errors import InputDataError
+    from pipeline.region import Region
+    from tests.fixtures.tiled_maps import chunk_reads, write_tiled_recon
+
+    recon = write_tiled_recon(tmp_path / "recon.zarr")  # 300 x 420 cells: 3 x 4 tiles of 128
+    with chunk_reads(monkeypatch) as reads:
+        render_recon(recon, "color", tmp_path / "all.png")
+    # the observed box (a pass over the occupancy tiles), then the colour of the 3 x 3 tiles it meets
+    assert reads["occupancy"] == 12 and reads["color"] == 9 and "height" not in reads
+    # the red block, rows 140..160 x cols 130..170 = x -3.5..-1.5 m, y -1..0 m: tiles (1, 1) only
+    with chunk_reads(monkeypatch) as reads:
+        png = render_recon(recon, "color", tmp_path / "part.png", region=Region(-3.4, -0.9, -1.6, -0.1))
+    assert dict(reads) == {"color": 1}
+    img = cv2.imread(str(png))
+    red = (img[..., 2] > 180) & (img[..., 1] < 80) & (img[..., 0] < 80)
+    assert red.mean() > 0.4  # the picture is the block (with its axes and title around it)
+    with chunk_reads(monkeypatch) as reads:
+        render_recon(recon, "height", tmp_path / "h.png", region=Region(-9.0, -7.0, -2.0, 6.0))
+    assert dict(reads) == {"height": 2 * 6}  # 3 x 2 tiles: their top height first, then the picture
+    with pytest.raises(InputDataError, match="field --region: x 12..13 m, y 0..1 m lies outside the floor's grid"):
+        render_recon(recon, "color", tmp_path / "x.png", region=Region(12.0, 0.0, 13.0, 1.0))
+    assert not (tmp_path / "x.png").exists()
+    assert np.isfinite(img).all()

@@ -97,6 +97,45 @@ def test_unknown_layer(client):
     refused(client.get(f"/api/scenes/{SCENE}/layers/feelings.png"), 422, "unknown layer 'feelings'", "layer")
 
 
+@pytest.mark.parametrize("name", ["color", "height", "navigable", "rooms"])
+def test_a_layer_window_is_the_floor_picture_there_at_the_resolution_asked(client, summary, name, monkeypatch):
+    from tests.fixtures.tiled_maps import chunk_reads
+
+    g = summary["grid"]
+    whole = png(client.get(f"/api/scenes/{SCENE}/layers/{name}.png"))
+    x0, x1, y0, y1 = summary["grid"]["observed_xy"]
+    box = f"{x0:.3f},{y0:.3f},{x0 + 2:.3f},{y0 + 1.5:.3f}"  # a 2 m x 1.5 m corner: 40 x 30 cells, full resolution
+    with chunk_reads(monkeypatch) as reads:
+        r = client.get(f"/api/scenes/{SCENE}/layers/{name}.png", params={"region": box, "px": 800})
+    img = png(r)
+    assert img.shape == (30, 40, 4) and r.headers["x-zipon-stride"] == "1"
+    ex0, ex1, ey0, ey1 = map(float, r.headers["x-zipon-extent"].split(","))
+    c0, r0 = round((ex0 - g["origin_xy"][0]) / g["cell_size_m"]), round((g["origin_xy"][1] - ey1) / g["cell_size_m"])
+    assert (ex1 - ex0, ey1 - ey0) == pytest.approx((2.0, 1.5), abs=0.051)
+    assert np.array_equal(img, whole[r0:r0 + 30, c0:c0 + 40])  # the same cells as the floor's picture
+    assert sum(reads.values()) <= 4 * 3  # at most 2 x 2 of the 128-cell tiles (a grid or two each), never all
+    # the floor at a zoom that fits 150 px: every k-th cell
+    fit = client.get(f"/api/scenes/{SCENE}/layers/{name}.png", params={"region": f"{x0},{y0},{x1},{y1}",
+                                                                        "px": 150})
+    k = int(fit.headers["x-zipon-stride"])
+    small = png(fit)
+    assert k > 1 and max(small.shape[:2]) <= 150
+    fx0, _, _, fy1 = map(float, fit.headers["x-zipon-extent"].split(","))
+    fc0, fr0 = round((fx0 - g["origin_xy"][0]) / g["cell_size_m"]), round((g["origin_xy"][1] - fy1) / g["cell_size_m"])
+    assert np.array_equal(small, whole[fr0::k, fc0::k][:small.shape[0], :small.shape[1]])
+
+
+@pytest.mark.parametrize("params, status, words", [
+    ({"region": "1,2,0,3"}, 422, ("x runs from 1 to 0: inverted", "region")),
+    ({"region": "0,2,1,2"}, 422, ("y runs from 2 to 2: empty", "region")),
+    ({"region": "1000,1000,1001,1001"}, 422, ("lies outside the floor's grid", "region")),
+    ({"region": "a,b,c,d"}, 422, ("region",)),
+    ({"px": "0"}, 400, ("px=0 is outside 16..16384", "px")),
+])
+def test_a_bad_layer_window_is_refused_naming_the_parameter(client, params, status, words):
+    refused(client.get(f"/api/scenes/{SCENE}/layers/color.png", params=params), status, *words)
+
+
 def test_frames_that_saw_a_place(client, summary):
     from pipeline.frames import FrameStore
 
@@ -524,10 +563,9 @@ def test_eval_of_human_feedback_without_played_episodes_says_where_to_play(own_r
 
 
 def test_warm_reads_the_first_scene_before_the_page_asks(shared_root):
-    from zipon.annotate.scene import LAYERS
-
     wb = make_client(shared_root).app.state.workbench
     assert wb._views == {}
     wb.warm()
     view = wb._views[SCENE]
-    assert {("layer", name) for name in LAYERS} <= set(view._cache) and "recon" in view._cache
+    # the summary, and what the layers' pictures share (the pictures are of the windows the page will ask for)
+    assert {("height_top", 0), "recon", "observed_rc"} <= set(view._cache)

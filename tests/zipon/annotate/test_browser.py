@@ -62,17 +62,22 @@ def goals_export(root) -> dict:
     return yaml.safe_load(out.read_text())
 
 
+def opened(pg, served, tmp_path):
+    """The page ``pg`` on the served scene, loaded: ``(pg, the workspace root, a folder for screenshots)``."""
+    url, root = served
+    shots = tmp_path / "screenshots"
+    shots.mkdir()
+    pg.goto(url)
+    pg.wait_for_selector(f"body[data-ready={SCENE}]")
+    return pg, root, shots
+
+
 @pytest.mark.slow
 def test_the_page_end_to_end(page, served, tmp_path):
     from pipeline.goals.objects import objects_from_file
     from pipeline.engine.manifest import Manifest
 
-    url, root = served
-    shots = tmp_path / "screenshots"
-    shots.mkdir()
-    pg = page
-    pg.goto(url)
-    pg.wait_for_selector(f"body[data-ready={SCENE}]")
+    pg, root, shots = opened(page, served, tmp_path)
     data = pg.evaluate("() => S.data")
     assert pg.locator("#goal-list li").count() == len(data["goals"]) > 0
     pg.screenshot(path=str(shots / "1_scene.png"))
@@ -287,8 +292,8 @@ def test_a_two_storey_house_floor_by_floor(built_house, tmp_path):
         data = pg.evaluate("() => S.data")
         per_floor = {k: sorted(o["key"] for o in data["objects"] if o["floor"] == k) for k in (0, 1)}
         shown = lambda: sorted(pg.evaluate("() => objectShapes().map(o => o.key)"))  # noqa: E731
-        layer_ready = "k => S.layers['color@' + k] && S.layers['color@' + k].complete && " \
-                      "S.layers['color@' + k].naturalWidth > 0"
+        layer_ready = "k => S.layers['color@' + k] && S.layers['color@' + k].img && " \
+                      "S.layers['color@' + k].img.naturalWidth > 0"
         pg.wait_for_function(f"() => ({layer_ready})(0)")
         assert shown() == per_floor[0] and per_floor[1]
         pg.screenshot(path=str(shots / "1_floor0.png"))
@@ -296,7 +301,7 @@ def test_a_two_storey_house_floor_by_floor(built_house, tmp_path):
 
         pg.select_option("#floor", "1")
         pg.wait_for_function(f"() => ({layer_ready})(1)")
-        assert pg.evaluate("() => S.layers['color@1'].src").endswith("/layers/color.png?floor=1")
+        assert pg.evaluate("() => S.layers['color@1'].url").endswith("&floor=1")
         assert shown() == per_floor[1] and pg.locator("#map").screenshot() != map0
         pg.screenshot(path=str(shots / "2_floor1.png"))
 
@@ -351,4 +356,70 @@ def test_a_two_storey_house_floor_by_floor(built_house, tmp_path):
         assert saved[new["key"]] == 1 and {k: saved[k] for k in per_floor[1]} == {k: 1 for k in per_floor[1]}
         pg.select_option("#floor", "0")
         assert new["key"] not in shown()
+    print(f"screenshots: {shots}")
+
+
+@pytest.mark.slow
+def test_the_map_asks_for_the_window_it_shows(page, served, tmp_path):
+    """The layer is the floor at a zoom that fits the screen, then, zoomed in, the part shown at one pixel per cell:
+    the server paints only that window (zipon/annotate/layers.py), never the whole floor per request."""
+    pg, _, shots = opened(page, served, tmp_path)
+    ready = "() => { const l = S.layers['color@0']; return l && l.img && !l.pending && l.img.naturalWidth > 0; }"
+    pg.wait_for_function(ready)
+    g = pg.evaluate("() => S.data.grid")
+    first = pg.evaluate("() => ({url: S.layers['color@0'].url, extent: S.layers['color@0'].extent, "
+                        "stride: S.layers['color@0'].stride, w: S.layers['color@0'].img.naturalWidth, "
+                        "h: S.layers['color@0'].img.naturalHeight})")
+    assert "region=" in first["url"] and "px=" in first["url"]
+    ex0, ex1, ey0, ey1 = first["extent"]
+    gx0, gx1, gy0, gy1 = g["extent_xy"]
+    ox0, ox1, oy0, oy1 = g["observed_xy"]
+    assert ex0 <= ox0 and ex1 >= ox1 and ey0 <= oy0 and ey1 >= oy1  # the observed floor is in it
+    assert (ex1 - ex0) * (ey1 - ey0) < (gx1 - gx0) * (gy1 - gy0)  # not the whole (mostly empty) grid
+    assert first["stride"] == 1  # this small floor fits the screen at one pixel per cell
+    pg.screenshot(path=str(shots / "1_fit.png"))
+    box = pg.locator("#map").bounding_box()
+    middle = (box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+
+    def zoom(steps: int, dy: int) -> dict:
+        """``steps`` turns of the mouse wheel on the map's middle, in one go (as a fast spin of the wheel)."""
+        before = pg.evaluate("() => S.layers['color@0'].url")
+        pg.evaluate(f"""() => {{ const r = canvas.getBoundingClientRect();
+            for (let i = 0; i < {steps}; i++) canvas.dispatchEvent(new WheelEvent("wheel", {{deltaY: {dy},
+                clientX: r.left + r.width / 2, clientY: r.top + r.height / 2, bubbles: true, cancelable: true}})); }}""")
+        pg.wait_for_function("() => { const l = S.layers['color@0']; return l && l.img && !l.pending && "
+                             f"l.url !== {before!r}; }}")
+        return pg.evaluate("() => ({extent: S.layers['color@0'].extent, stride: S.layers['color@0'].stride, "
+                           "w: S.layers['color@0'].img.naturalWidth, h: S.layers['color@0'].img.naturalHeight})")
+
+    # zoomed far out: the whole grid at a zoom that fits, every k-th cell
+    out = zoom(20, 120)
+    assert out["stride"] > 1 and out["extent"] == pytest.approx([gx0, gx1, gy0, gy1], abs=out["stride"] * 0.05)
+    assert max(out["w"], out["h"]) <= max(box["width"], box["height"]) * 2
+    seen = pg.evaluate("""() => { const img = S.layers['color@0'].img, c = document.createElement("canvas");
+        c.width = img.naturalWidth; c.height = img.naturalHeight; const x = c.getContext("2d"); x.drawImage(img, 0, 0);
+        const d = x.getImageData(0, 0, c.width, c.height).data; let n = 0;
+        for (let i = 3; i < d.length; i += 4) n += d[i] > 0; return n; }""")
+    fx0, fx1, fy0, fy1 = g["observed_xy"]  # the floor's cells, every stride-th: about its area in pixels
+    assert seen == pytest.approx((fx1 - fx0) * (fy1 - fy0) / (out["stride"] * 0.05) ** 2, rel=0.5)
+    pg.screenshot(path=str(shots / "2_zoomed_out.png"))
+    out_map = pg.locator("#map").screenshot()
+    # zoomed far in on the middle: the part shown (and half a screen around it), one pixel per cell
+    zoomed = zoom(34, -120)
+    zx0, zx1, zy0, zy1 = zoomed["extent"]
+    assert zoomed["stride"] == 1 and (zx1 - zx0) < 0.5 * (gx1 - gx0)
+    assert zoomed["w"] == round((zx1 - zx0) / g["cell_size_m"])
+    vis = pg.evaluate("() => [toWorld(0, canvas.clientHeight), toWorld(canvas.clientWidth, 0)]")
+    assert zx0 <= max(vis[0][0], gx0) + 1e-3 and zx1 >= min(vis[1][0], gx1) - 1e-3  # covers what is shown
+    assert zy0 <= max(vis[0][1], gy0) + 1e-3 and zy1 >= min(vis[1][1], gy1) - 1e-3
+    pg.screenshot(path=str(shots / "3_zoomed_in.png"))
+    assert pg.locator("#map").screenshot() != out_map
+    # a small pan stays inside the loaded window: nothing new is asked
+    url_before = pg.evaluate("() => S.layers['color@0'].url")
+    pg.mouse.move(*middle)
+    pg.mouse.down()
+    pg.mouse.move(middle[0] + 40, middle[1] + 20, steps=4)
+    pg.mouse.up()
+    pg.wait_for_timeout(400)
+    assert pg.evaluate("() => S.layers['color@0'].url") == url_before
     print(f"screenshots: {shots}")

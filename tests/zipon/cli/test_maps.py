@@ -89,3 +89,49 @@ def test_query_limited_to_one_floor(two_storey_maps, capsys):
     assert "with --floor the pose stands on that floor" in capsys.readouterr().err
     assert cli(ws, "query", "house", "sofa", "--pose", "3,2,0", "--pose-floor", "4") == 1
     assert "--pose-floor" in capsys.readouterr().err
+
+
+def test_render_and_query_a_region(two_storey_maps, tmp_path, capsys):
+    from pipeline.recon import Recon
+
+    ws = two_storey_maps[0]
+    x0, x1, y0, y1 = Recon(ws.artifact("recon", "house")).grid.extent_xy
+    capsys.readouterr()
+    # the whole floor's sofa, then the same query in a box around it: the same candidate, the box's grid
+    assert cli(ws, "query", "house", "sofa", "--floor", "0", "--json") == 0
+    sofa = json.loads(capsys.readouterr().out)["candidates"][0]
+    sx, sy = sofa["center_xy"]
+    box = [f"{v:g}" for v in (sx - 1.0, sy - 1.0, sx + 1.0, sy + 1.0)]
+    assert cli(ws, "query", "house", "sofa", "--floor", "0", "--json", "--region", *box,
+               "--png", str(tmp_path / "sofa.png")) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["region"] == dict(zip(("x0", "y0", "x1", "y1"), map(float, box)))
+    assert [c["center_xy"] for c in doc["candidates"]] == [sofa["center_xy"]]
+    assert doc["cells_observed"] <= 41 * 41 and (tmp_path / "sofa.png").is_file()
+    for what in ("color", "vlmap"):
+        out = tmp_path / f"{what}.png"
+        assert cli(ws, "render", "house", "--what", what, "--floor", "1", "--region", *box, "-o", str(out)) == 0
+        drawn = tmp_path / f"{what}_floor1.png"  # a building's picture names its floor
+        assert capsys.readouterr().out.split() == [str(drawn)] and drawn.is_file()
+
+
+def test_a_bad_region_is_one_line_naming_the_option(two_storey_maps, tmp_path, capsys):
+    from pipeline.recon import Recon
+
+    ws = two_storey_maps[0]
+    x0, x1, y0, y1 = Recon(ws.artifact("recon", "house")).grid.extent_xy
+    outside = [f"{x1 + 1:g}", "0", f"{x1 + 3:g}", "1"]
+    for args, message in (
+        (["render", "house", "--what", "color", "--region", "1", "2", "0", "3"], "x runs from 1 to 0: inverted"),
+        (["render", "house", "--what", "vlmap", "--floor", "0", "--region", "0", "2", "1", "2"],
+         "y runs from 2 to 2: empty"),
+        (["render", "house", "--what", "height", "--region", *outside], "lies outside the floor's grid"),
+        (["query", "house", "sofa", "--region", *outside], "lies outside the floor's grid"),
+        (["query", "house", "sofa", "--floor", "0", "--region", "0", "3", "1", "-3"], "y runs from 3 to -3: inverted"),
+        (["render", "house", "--what", "goals", "--region", "0", "0", "1", "1"],
+         "--region: --what goals is drawn whole; --region applies to obstacles, navigable, color, height, vlmap"),
+    ):
+        assert cli(ws, *args, "-o" if args[0] == "render" else "--png", str(tmp_path / "x.png")) == 1, args
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("error:") and "--region" in err and message in err and "\n" not in err, err
+        assert not (tmp_path / "x.png").exists()

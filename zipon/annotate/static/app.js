@@ -64,11 +64,13 @@ function draw() {
   ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
   ctx.clearRect(0, 0, canvas.clientWidth, canvas.clientHeight);
   if (!S.data) return;
-  const g = S.data.grid, [x0, x1, y0, y1] = g.extent_xy;
-  const img = S.layers[layerKey(S.layer)];
-  const [u0, v0] = toScreen(x0, y1), [u1, v1] = toScreen(x1, y0);
+  const shown = S.layers[layerKey(S.layer)];  // the layer's picture of (about) the window shown, where it lies
   ctx.imageSmoothingEnabled = false;
-  if (img && img.complete) ctx.drawImage(img, u0, v0, u1 - u0, v1 - v0);
+  if (shown && shown.img) {
+    const [x0, x1, y0, y1] = shown.extent, [u0, v0] = toScreen(x0, y1), [u1, v1] = toScreen(x1, y0);
+    ctx.drawImage(shown.img, u0, v0, u1 - u0, v1 - v0);
+  }
+  scheduleLayer();
   if (S.heatmap && S.heatmap.complete) {
     const [hx0, hx1, hy0, hy1] = S.heatmapExtent, [a0, b0] = toScreen(hx0, hy1), [a1, b1] = toScreen(hx1, hy0);
     ctx.drawImage(S.heatmap, a0, b0, a1 - a0, b1 - b0);
@@ -669,14 +671,52 @@ $("scene").addEventListener("change", () => {
 });
 window.addEventListener("resize", draw);
 
+// A layer is asked for the window the map shows (plus half a screen each side, so a small pan needs nothing new), at
+// the screen's resolution: the floor at a zoom that fits, a zoomed part at one pixel per cell. The server paints
+// it from the recon tiles that window meets (zipon/annotate/layers.py). S.layers[name@floor] = {img, extent
+// (x0, x1, y0, y1 metres), stride (cells per pixel), url}; the picture shown stays until the next one arrives.
 const layerKey = (name) => `${name}@${S.floor}`;
+function wantedLayer() {
+  const g = S.data.grid, [gx0, gx1, gy0, gy1] = g.extent_xy, w = canvas.clientWidth, h = canvas.clientHeight;
+  const [ax, ay] = toWorld(0, h), [bx, by] = toWorld(w, 0), mx = (bx - ax) / 2, my = (by - ay) / 2;
+  const box = [Math.max(gx0, ax - mx), Math.min(gx1, bx + mx), Math.max(gy0, ay - my), Math.min(gy1, by + my)];
+  if (!(box[0] < box[1] && box[2] < box[3]) || !(w > 0 && h > 0)) return null;  // the view is off the grid
+  const px = Math.ceil(Math.max(box[1] - box[0], box[3] - box[2]) * S.view.s * (window.devicePixelRatio || 1));
+  const visible = [Math.max(gx0, ax), Math.min(gx1, bx), Math.max(gy0, ay), Math.min(gy1, by)];
+  return { box, px: Math.min(Math.max(px, 16), 16384), visible };
+}
+function layerFits(shown, want) {
+  if (!shown || !shown.img) return false;
+  const [ex0, ex1, ey0, ey1] = shown.extent, [vx0, vx1, vy0, vy1] = want.visible, tol = 1e-3;
+  const covers = ex0 <= vx0 + tol && ex1 >= vx1 - tol && ey0 <= vy0 + tol && ey1 >= vy1 - tol;
+  const screenPx = S.view.s * (window.devicePixelRatio || 1) * S.data.grid.cell_size_m * shown.stride;
+  return covers && (shown.stride === 1 || screenPx <= 1.5) && screenPx >= 0.25;  // sharp enough, not too fine
+}
 function loadLayer(name) {
-  return new Promise((done) => {
-    const key = layerKey(name);
-    if (S.layers[key]) { done(); return; }
-    const img = new Image(); img.onload = () => { draw(); done(); }; img.onerror = done;
-    img.src = scenePath(`/layers/${name}.png${floorQuery("?")}`); S.layers[key] = img;
-  });
+  const key = layerKey(name), want = S.data ? wantedLayer() : null, shown = S.layers[key];
+  if (!want || layerFits(shown, want)) return Promise.resolve();
+  const r = (v) => v.toFixed(3), [x0, x1, y0, y1] = want.box;
+  const url = scenePath(`/layers/${name}.png?region=${r(x0)},${r(y0)},${r(x1)},${r(y1)}&px=${want.px}${floorQuery("&")}`);
+  if (shown && shown.pending === url) return shown.promise;
+  const next = { ...(shown || {}), pending: url };
+  next.promise = (async () => {
+    const resp = await fetch(url);
+    if (!resp.ok) { if (S.layers[key] === next) delete next.pending; status((await resp.json()).error); return; }
+    const extent = resp.headers.get("X-Zipon-Extent").split(",").map(Number);
+    const img = new Image(); img.src = URL.createObjectURL(await resp.blob());
+    await img.decode();
+    if (S.layers[key] !== next) { URL.revokeObjectURL(img.src); return; }  // another window was asked since
+    if (shown && shown.img) URL.revokeObjectURL(shown.img.src);
+    S.layers[key] = { img, extent, stride: Number(resp.headers.get("X-Zipon-Stride")), url };
+    draw();
+  })();
+  S.layers[key] = next;
+  return next.promise;
+}
+let layerTimer = null;
+function scheduleLayer() {  // after the view stopped moving for a moment: the window it shows, if not loaded
+  clearTimeout(layerTimer);
+  layerTimer = setTimeout(() => { if (S.data) loadLayer(S.layer); }, 120);
 }
 
 // show floor k: its layer, objects, rooms, goals, routes' legs and stairs (the map keeps its place: the floors
@@ -711,13 +751,13 @@ async function loadScene(name, keepView) {
   $("floor").replaceChildren(...floorOptions()); $("floor").value = String(S.floor);
   $("object-form").floor.replaceChildren(...floorOptions());
   if (!$("tab-objects").hidden) await loadObjects();
+  if (!keepView) fit();  // the view first: the layer is asked for the window it shows
   const first = loadLayer(S.layer);  // the others are fetched when chosen
   const g = await goalsAsked;
   S.doc = g.ok ? g.body.document : null; S.etag = g.ok ? g.body.digest : null; S.goal = -1;
   $("goal-form").hidden = true; $("goal-error").textContent = g.ok ? "" : g.body.error; $("goal-warnings").replaceChildren();
   $("goals-save").disabled = !g.ok;
   renderGoals();
-  if (!keepView) fit();
   await first;
   draw();
   status(`${name}: ${S.data.objects.length} objects, ${S.data.goals.length} goals, ${S.data.routes.length} routes` + (S.data.ground_truth ? " (ground truth)" : "")
