@@ -54,7 +54,9 @@ from scipy.spatial import cKDTree
 from pipeline.config import GridParams, ReconstructParams
 from pipeline.errors import ConfigError, InputDataError, StageError
 from pipeline.geometry import GridSpec
+from pipeline.recon import surface as surface_mod
 from pipeline.recon.store import FREE, OCCUPIED, TILE, UNKNOWN, Grids
+from pipeline.recon.surface import COLUMNS, Surface
 
 _GROW_MARGIN_M = 1.0  # grid.extent 'grow': the surface's percentile box plus this on each side must fit
 _GROW_MAX_CELLS = 20_000  # ... and a grid side longer than this (1 km at 5 cm) is a wrong pose, not a building
@@ -93,13 +95,28 @@ def place_grid(xyz: np.ndarray, grid: GridParams, p: ReconstructParams) -> GridS
     a surface that fits gets exactly the rows x cols grid. The origin is snapped so every cell centre is a TSDF
     lattice column.
     """
+    box = None if grid.centre_xy is not None else np.percentile(xyz[:, :2], [0.5, 99.5], axis=0)
+    return _placed(box, grid, p)
+
+
+def surface_box(surface: Surface) -> np.ndarray:
+    """``(2, 2)``: the 0.5 and 99.5 percentiles of the surface's x and y (rows), as :func:`place_grid` takes them
+    with ``np.percentile`` of the whole array, selected exactly a chunk at a time
+    (:func:`pipeline.recon.surface.percentiles`)."""
+    n = surface.count
+    return np.stack([surface_mod.percentiles(lambda k=k: (c[0][:, k] for c in surface.chunks(("xyz",))), [0.5, 99.5],
+                                             n) for k in (0, 1)], axis=1)
+
+
+def _placed(box: np.ndarray | None, grid: GridParams, p: ReconstructParams) -> GridSpec:
+    """:func:`place_grid` on the surface's percentile ``box`` ``(2, 2)`` (None: the centre is pinned)."""
     n = lattice_ratio(grid, p)
     v, s = p.voxel_size_m, grid.cell_size_m
     rows, cols = grid.rows, grid.cols
     if grid.centre_xy is not None:
         centre = np.asarray(grid.centre_xy, np.float64)
     else:
-        lo, hi = np.percentile(xyz[:, :2], [0.5, 99.5], axis=0)
+        lo, hi = box
         centre = (lo + hi) / 2.0
         if grid.extent == "grow":
             need = np.ceil((hi - lo + 2 * _GROW_MARGIN_M) / s).astype(np.int64)  # cells along x, y
@@ -196,7 +213,7 @@ class Columns:
 
 
 def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.ndarray, np.ndarray]],
-                     p: ReconstructParams) -> Columns:
+                     p: ReconstructParams, *, whole_columns: bool = False) -> Columns:
     """The cell-centre columns of observed voxels (see the module doc and :class:`Columns`).
 
     ``occupied``: a voxel of the cell-centre column in the obstacle band lies behind a surface
@@ -205,6 +222,10 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
     ``obstacle_min_height_m`` and ``hidden_free_max_height_m`` was observed in front of a surface
     (positive TSDF): the space low above the floor there was seen empty, so the cell is no unseen
     inside of furniture.
+
+    The chunks of ``voxels`` may split a column: its voxels are gathered across them. ``whole_columns``: each chunk
+    holds every voxel of the lattice columns it touches (a fusion tile's voxels), so the solid tops are found chunk
+    by chunk (the same ones: :func:`solid_tops` looks only along a column), memory bounded by a chunk.
     """
     v = p.voxel_size_m
     n = int(round(grid.cell_size_m / v))
@@ -225,7 +246,7 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
     solid_lo = np.full(cells, levels, dtype=np.int64)  # level index, ``levels`` = none
     solid_hi = np.full(cells, -1, dtype=np.int64)
     top_cells = np.zeros(cells, dtype=bool)
-    keys, values = [], []
+    keys, values, found = [], [], []
     for lattice, tsdf in voxels:
         centre = ((lattice[:, 0] - k0[0]) % n == 0) & ((lattice[:, 1] - k0[1]) % n == 0)
         lat, t = lattice[centre], tsdf[centre]
@@ -243,10 +264,15 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
         near = inside & (level >= lo) & (level <= hi)
         keys.append(cell[near] * levels + (level[near] - lo))
         values.append(t[near])
+        if whole_columns:
+            found.append(solid_tops(keys.pop(), values.pop(), levels, first=max_gap + 1, last=levels - 2,
+                                    max_gap=max_gap))
     behind_surface = solid_hi >= 0
     if keys:
-        tops, slabs = solid_tops(np.concatenate(keys), np.concatenate(values), levels, first=max_gap + 1,
-                                 last=levels - 2, max_gap=max_gap)
+        found.append(solid_tops(np.concatenate(keys), np.concatenate(values), levels, first=max_gap + 1,
+                                last=levels - 2, max_gap=max_gap))
+    if found:
+        tops, slabs = (np.concatenate([f[k] for f in found]) for k in (0, 1))
         tops = np.concatenate([tops, board_slabs(slabs, levels, grid)])
         top_cell, top_level = tops // levels, tops % levels - 1  # the solid lies just below the voxel
         np.minimum.at(solid_lo, top_cell, top_level)
@@ -340,13 +366,19 @@ def surface_occupancy(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: 
     passing a few millimetres outside a cell centre sends a stray point or two into that cell;
     ``surface_min_points`` keeps those out.
     """
+    return (surface_counts(grid, floor_z, xyz, normals, p) >= p.surface_min_points).reshape(grid.rows, grid.cols)
+
+
+def surface_counts(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.ndarray, p: ReconstructParams
+                   ) -> np.ndarray:
+    """``(rows * cols,)`` int64: the band's points in each cell, moved half a cell in (:func:`surface_occupancy`;
+    counts of chunks add up)."""
     z_rel = xyz[:, 2] - floor_z
     band = (z_rel >= p.obstacle_min_height_m) & (z_rel <= p.obstacle_max_height_m)
     moved = xyz[band, :2] - 0.5 * grid.cell_size_m * normals[band, :2]
     rc = grid.world_to_cell(moved)
     rc = rc[grid.inside(rc)]
-    counts = np.bincount(rc[:, 0] * grid.cols + rc[:, 1], minlength=grid.rows * grid.cols)
-    return (counts >= p.surface_min_points).reshape(grid.rows, grid.cols)
+    return np.bincount(rc[:, 0] * grid.cols + rc[:, 1], minlength=grid.rows * grid.cols)
 
 
 def in_front_of_faces(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.ndarray, candidates: np.ndarray,
@@ -426,33 +458,62 @@ def top_surface(grid: GridSpec, floor_z: float, xyz: np.ndarray, colors: np.ndar
 
     The highest point of each cell (up to ``height_max_m`` above the floor) wins.
     """
-    rc = grid.world_to_cell(xyz[:, :2])
-    inside = grid.inside(rc)
-    z = xyz[:, 2].astype(np.float64) - floor_z
-    keep = inside & (z <= p.height_max_m)
-    flat = rc[keep, 0] * grid.cols + rc[keep, 1]
-    zk, ck = z[keep], colors[keep]
-    order = np.lexsort((ck[:, 2], ck[:, 1], ck[:, 0], zk, flat))  # ties broken by colour: deterministic
-    flat, zk, ck = flat[order], zk[order], ck[order]
-    last = np.r_[flat[1:] != flat[:-1], True] if flat.size else np.zeros(0, bool)
-    height = np.full(grid.rows * grid.cols, np.nan, np.float32)
-    color = np.zeros((grid.rows * grid.cols, 3), np.uint8)
-    height[flat[last]] = zk[last]
-    color[flat[last]] = ck[last]
-    return height.reshape(grid.rows, grid.cols), color.reshape(grid.rows, grid.cols, 3), int((~inside).sum())
+    top = TopSurface(grid, floor_z, p)
+    top.add(xyz, colors)
+    return top.result()
 
 
-def placed_grid(xyz: np.ndarray, T_world_camera: dict[int, np.ndarray], grid_params: GridParams,
+class TopSurface:
+    """:func:`top_surface` a chunk of points at a time: the highest point of each cell so far (ties broken by the
+    greatest colour, so the winner does not depend on the order the points come in)."""
+
+    def __init__(self, grid: GridSpec, floor_z: float, p: ReconstructParams):
+        self.grid, self.floor_z, self.p = grid, floor_z, p
+        self.z = np.full(grid.rows * grid.cols, -np.inf)
+        self.color = np.zeros((grid.rows * grid.cols, 3), np.uint8)
+        self.seen = np.zeros(grid.rows * grid.cols, bool)
+        self.outside = 0
+
+    def add(self, xyz: np.ndarray, colors: np.ndarray) -> None:
+        grid = self.grid
+        rc = grid.world_to_cell(xyz[:, :2])
+        inside = grid.inside(rc)
+        z = xyz[:, 2].astype(np.float64) - self.floor_z
+        keep = inside & (z <= self.p.height_max_m)
+        flat = rc[keep, 0] * grid.cols + rc[keep, 1]
+        zk, ck = z[keep], colors[keep]
+        order = np.lexsort((ck[:, 2], ck[:, 1], ck[:, 0], zk, flat))  # ties broken by colour: deterministic
+        flat, zk, ck = flat[order], zk[order], ck[order]
+        last = np.r_[flat[1:] != flat[:-1], True] if flat.size else np.zeros(0, bool)
+        cell, z_new, c_new = flat[last], zk[last], ck[last].astype(np.int16)
+        z_old, c_old = self.z[cell], self.color[cell].astype(np.int16)
+        lighter = np.zeros(len(cell), bool)  # the new colour is the greater (r, then g, then b)
+        for k in (2, 1, 0):
+            lighter = (c_new[:, k] > c_old[:, k]) | ((c_new[:, k] == c_old[:, k]) & lighter)
+        better = ~self.seen[cell] | (z_new > z_old) | ((z_new == z_old) & lighter)
+        self.z[cell[better]] = z_new[better]
+        self.color[cell[better]] = c_new[better]
+        self.seen[cell] = True
+        self.outside += int((~inside).sum())
+
+    def result(self) -> tuple[np.ndarray, np.ndarray, int]:
+        """Height ``(rows, cols)`` float32 (NaN unknown), colour ``(rows, cols, 3)`` uint8, points outside."""
+        height = np.where(self.seen, self.z, np.nan).astype(np.float32)
+        shape = (self.grid.rows, self.grid.cols)
+        return height.reshape(shape), self.color.reshape(shape + (3,)), self.outside
+
+
+def placed_grid(surface: Surface, T_world_camera: dict[int, np.ndarray], grid_params: GridParams,
                 p: ReconstructParams, *, source: str = "frames") -> GridSpec:
     """The grid every floor of one reconstruction shares (:func:`place_grid`), checked to hold every camera.
 
-    ``xyz`` ``(N,3)`` surface points; ``T_world_camera``: frame index -> pose used. Raises
+    ``surface``: the surface points; ``T_world_camera``: frame index -> pose used. Raises
     :class:`StageError` for an empty scene and :class:`InputDataError` naming the first camera outside the grid.
     """
-    if xyz.shape[0] == 0:
+    if surface.count == 0:
         raise StageError(f"{source}: the fused volume has no surface (empty scene, or depth never observed "
                          f"{p.min_weight:g}+ times at the same place: reconstruct.min_weight)")
-    grid = place_grid(xyz, grid_params, p)
+    grid = _placed(None if grid_params.centre_xy is not None else surface_box(surface), grid_params, p)
     cam_idx = np.array(sorted(T_world_camera), dtype=np.int64)
     cam = np.stack([T_world_camera[i][:3, 3] for i in cam_idx])
     cam_rc = grid.world_to_cell(cam[:, :2])
@@ -470,14 +531,16 @@ def placed_grid(xyz: np.ndarray, T_world_camera: dict[int, np.ndarray], grid_par
     return grid
 
 
-def floor_grids(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray,
-                voxels: Iterable[tuple[np.ndarray, np.ndarray]], p: ReconstructParams, *, floor_points: int = 0,
-                source: str = "frames", floor_name: str | None = None, void: np.ndarray | None = None) -> Grids:
+def floor_grids(grid: GridSpec, floor_z: float, surface: Surface, voxels: Iterable[tuple[np.ndarray, np.ndarray]],
+                p: ReconstructParams, *, band: tuple[float, float] | None = None, whole_columns: bool = False,
+                floor_points: int = 0, source: str = "frames", floor_name: str | None = None,
+                void: np.ndarray | None = None) -> Grids:
     """All grids of one floor at world height ``floor_z`` on ``grid``.
 
-    ``xyz``/``normals``/``colors``: the surface points of the floor's band (:func:`pipeline.recon.store.floor_bands`;
-    all of them for a single floor); ``voxels``: :func:`pipeline.recon.tsdf.iter_voxels` (the columns read
-    only the heights near this floor). Raises :class:`StageError` when more than ``max_outside_fraction`` of the
+    ``surface``: the surface points, of which the floor's ``band`` ``(lo, hi)`` of world heights
+    (:func:`pipeline.recon.store.floor_bands`; None: all of them, a single floor) is read a chunk at a time;
+    ``voxels``: :func:`pipeline.recon.tsdf.iter_voxels` (the columns read only the heights near this floor;
+    ``whole_columns``: see :func:`column_occupancy`). Raises :class:`StageError` when more than ``max_outside_fraction`` of the
     surface falls outside the grid or no free floor cell was seen (``floor_name`` names the floor of a building).
     ``floor_points``: the surface points the floor height rests on (a figure of ``stats``).
     ``void``: ``(rows, cols)`` bool, cells where the floor has no floor: the stairwell over a flight from the floor
@@ -488,14 +551,20 @@ def floor_grids(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.nda
     """
     where = f"{source}: {floor_name}" if floor_name else source
     inferable = np.ones((grid.rows, grid.cols), bool) if void is None else ~void
-    columns = column_occupancy(grid, floor_z, voxels, p)
+    columns = column_occupancy(grid, floor_z, voxels, p, whole_columns=whole_columns)
     floor_seen, low_air = columns.floor_seen, columns.low_air
-    occupied = columns.occupied | surface_occupancy(grid, floor_z, xyz, normals, p)
-    height, color, outside = top_surface(grid, floor_z, xyz, colors, p)
-    outside_fraction = outside / xyz.shape[0]
+    counts = np.zeros(grid.rows * grid.cols, np.int64)
+    top, n_points = TopSurface(grid, floor_z, p), 0
+    for xyz, normals, colors in _band_chunks(surface, band):
+        counts += surface_counts(grid, floor_z, xyz, normals, p)
+        top.add(xyz, colors)
+        n_points += len(xyz)
+    occupied = columns.occupied | (counts >= p.surface_min_points).reshape(grid.rows, grid.cols)
+    height, color, outside = top.result()
+    outside_fraction = outside / n_points
     if outside_fraction > p.max_outside_fraction:
         raise StageError(
-            f"{where}: {outside} of {xyz.shape[0]} surface points ({outside_fraction:.1%}) fall outside the "
+            f"{where}: {outside} of {n_points} surface points ({outside_fraction:.1%}) fall outside the "
             f"{grid.rows}x{grid.cols} grid at {grid.cell_size_m} m (expected at most "
             f"{p.max_outside_fraction:.1%}: enlarge grid.rows/cols or grid.cell_size_m)"
         )
@@ -506,7 +575,7 @@ def floor_grids(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.nda
                           p.building_closing_m, p.fill_enclosed_max_m2) & ~low_air & inferable
     occupied |= hidden
     # Last, so that no rule above fills a cell an observed face passes in front of.
-    cleared = in_front_of_faces(grid, floor_z, xyz, normals, occupied, columns.solid_z, p)
+    cleared = faces_cleared(grid, floor_z, surface, band, occupied, columns.solid_z, p)
     occupied &= ~cleared
     free = floor_seen & ~occupied
     occupancy = np.full(occupied.shape, UNKNOWN, np.uint8)
@@ -530,6 +599,43 @@ def floor_grids(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.nda
         "points_outside_fraction": round(float(outside_fraction), 6),
     }
     return Grids(grid, floor_z, occupancy, navigable, color, height, stats)
+
+
+def _band_chunks(surface: Surface, band: tuple[float, float] | None, columns=COLUMNS):
+    """The surface's points with world height in ``band`` ``[lo, hi)`` (None: all), a chunk at a time."""
+    for chunk in surface.chunks(columns):
+        if band is None:
+            yield chunk
+            continue
+        z = chunk[0][:, 2]
+        keep = (z >= band[0]) & (z < band[1])
+        yield tuple(c[keep] for c in chunk)
+
+
+def faces_cleared(grid: GridSpec, floor_z: float, surface: Surface, band: tuple[float, float] | None,
+                  candidates: np.ndarray, solid_z: np.ndarray, p: ReconstructParams) -> np.ndarray:
+    """:func:`in_front_of_faces` tile by tile: each candidate votes with the points of ``band`` within reach, read
+    from the tile owning its centre and the tiles beside it (a few centimetres, well inside a neighbour), so the
+    result is that of all the points at once."""
+    out = np.zeros((grid.rows, grid.cols), dtype=bool)
+    cells = np.argwhere(candidates)
+    if not len(cells):
+        return out
+    centres = grid.cell_to_world(cells)
+    owner = surface.tile_of(centres)
+    reach = max(_FACE_RADIUS_CELLS * grid.cell_size_m, _FLAT_RADIUS_M) + p.voxel_size_m
+    for tile in np.unique(owner, axis=0):
+        here = (owner == tile).all(axis=1)
+        c = centres[here]
+        box = (c[:, 0].min() - reach, c[:, 0].max() + reach, c[:, 1].min() - reach, c[:, 1].max() + reach)
+        xyz, normals = surface.near((int(tile[0]), int(tile[1])), box, ("xyz", "normals"))
+        if band is not None:
+            keep = (xyz[:, 2] >= band[0]) & (xyz[:, 2] < band[1])
+            xyz, normals = xyz[keep], normals[keep]
+        mine = np.zeros_like(candidates)
+        mine[cells[here, 0], cells[here, 1]] = True
+        out |= in_front_of_faces(grid, floor_z, xyz, normals, mine, solid_z, p)
+    return out
 
 
 def with_solid(grids: Grids, solid: np.ndarray, p: ReconstructParams) -> Grids:

@@ -7,6 +7,7 @@ from pipeline.config import GridParams, ReconstructParams
 from pipeline.errors import ConfigError, StageError
 from pipeline.geometry import GridSpec
 from pipeline.recon.floors import estimate_floor
+from pipeline.recon.surface import Surface
 from pipeline.recon.grids import (column_occupancy, enclosed_unknown, floor_grids, in_front_of_faces, lattice_ratio,
                                    navigable_mask, place_grid, surface_occupancy)
 
@@ -25,7 +26,7 @@ def test_floor_is_lowest_strong_horizontal_peak_not_the_biggest_or_an_outlier():
     nw = np.tile([0.0, 1.0, 0.0], (3000, 1))
     xyz = np.concatenate([floor, table, speck, wall])
     normals = np.concatenate([nf, nt, ns, nw])
-    z, count = estimate_floor(xyz, normals, camera_z=np.full(5, 1.2))
+    z, count = estimate_floor(Surface.of(xyz, normals), camera_z=np.full(5, 1.2))
     assert abs(z - 0.317) < 0.005
     assert count > 3000
 
@@ -34,7 +35,7 @@ def test_no_floor_under_the_cameras_is_a_stage_error():
     rng = np.random.default_rng(1)
     wall = np.c_[rng.uniform(0, 4, 500), np.zeros(500), rng.uniform(0, 2, 500)]
     with pytest.raises(StageError, match="no floor found.*reconstruct.floor_z_m"):
-        estimate_floor(wall, np.tile([0.0, 1.0, 0.0], (500, 1)), camera_z=np.ones(3))
+        estimate_floor(Surface.of(wall, np.tile([0.0, 1.0, 0.0], (500, 1))), camera_z=np.ones(3))
 
 
 def test_grid_is_centred_on_the_surface_and_cell_centres_fall_on_the_voxel_lattice():
@@ -97,7 +98,7 @@ def test_an_empty_scene_is_a_stage_error_not_an_empty_map():
 
     empty = np.zeros((0, 3), np.float32)
     with pytest.raises(StageError, match="frames.zarr: the fused volume has no surface"):
-        placed_grid(empty, {0: np.eye(4)}, GridParams(), ReconstructParams(), source="frames.zarr")
+        placed_grid(Surface.of(empty, empty), {0: np.eye(4)}, GridParams(), ReconstructParams(), source="frames.zarr")
 
 
 def test_furniture_against_an_unseen_outer_wall_is_filled_but_an_unentered_room_is_not():
@@ -294,7 +295,7 @@ def _ringed_hole(void: bool):
     lattice, tsdf = np.concatenate([v[0] for v in voxels]), np.concatenate([v[1] for v in voxels])
     xyz = np.c_[np.random.default_rng(0).uniform(0.05, 0.95, (200, 2)), np.zeros(200)]
     normals = np.tile([0.0, 0.0, 1.0], (200, 1))
-    return floor_grids(grid, 0.0, xyz, normals, np.zeros((200, 3)), [(lattice, tsdf)], ReconstructParams(),
+    return floor_grids(grid, 0.0, Surface.of(xyz, normals), [(lattice, tsdf)], ReconstructParams(),
                        void=inside if void else None), ring, inside
 
 

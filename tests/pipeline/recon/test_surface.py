@@ -1,0 +1,89 @@
+"""The surface points in parts (pipeline.recon.surface): exact order statistics, and a points file and face test
+that are those of the whole arrays whatever the parts."""
+
+import numpy as np
+import pytest
+
+from pipeline.config import ReconstructParams
+from pipeline.geometry import GridSpec
+from pipeline.recon.grids import faces_cleared, in_front_of_faces
+from pipeline.recon.store import write_points
+from pipeline.recon.surface import Surface, median, order_statistics, percentiles
+
+
+def _chunked(values, size):
+    return lambda: (values[i : i + size] for i in range(0, len(values), size))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_medians_and_percentiles_streamed_are_numpys_on_the_whole_array(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 20000))
+    values = rng.normal(0.0, rng.uniform(0.01, 60.0), n).astype(np.float32)
+    if seed % 2:
+        values = np.round(values, 2).astype(np.float32)  # many ties, negative and positive
+    chunks = _chunked(values, 777)
+    assert median(chunks) == np.median(values.astype(np.float64))
+    want = np.percentile(values, [0.5, 99.5])
+    got = percentiles(chunks, [0.5, 99.5])
+    assert got.dtype == want.dtype and np.array_equal(got, want)
+    ranks = rng.integers(0, n, 5)
+    stats = order_statistics(chunks, ranks)
+    assert [stats[int(r)] for r in ranks] == [np.sort(values)[r] for r in ranks]
+
+
+def test_a_rank_outside_the_values_is_refused():
+    with pytest.raises(ValueError, match="outside 0..2"):
+        order_statistics(_chunked(np.ones(3, np.float32), 2), [3])
+
+
+def _cloud(rng, n):
+    xyz = rng.uniform([0.0, 0.0, 0.0], [4.0, 3.0, 2.0], (n, 3)).astype(np.float32)
+    xyz[: n // 4] = np.round(xyz[: n // 4], 1)  # shared positions: the colours and normals break the ties
+    normals = rng.normal(size=(n, 3)).astype(np.float32)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    colors = rng.integers(0, 4, (n, 3)).astype(np.uint8)
+    return xyz, normals, colors
+
+
+def _tiled(xyz, normals, colors, tmp_path, side=1.0):
+    """The points in ``side`` m tiles, spilled under ``tmp_path`` in shuffled tile order."""
+    owner = lambda xy: np.floor(np.asarray(xy, np.float64) / side).astype(np.int64)  # noqa: E731
+    surface = Surface(owner, tmp_path)
+    tile = owner(xyz[:, :2])
+    for t in np.random.default_rng(1).permutation(np.unique(tile, axis=0)):
+        mine = (tile == t).all(axis=1)
+        surface.add((int(t[0]), int(t[1])), xyz[mine], normals[mine], colors[mine])
+    return surface
+
+
+def test_the_points_file_of_spilled_tiles_is_the_bytes_open3d_writes_for_the_whole_cloud(tmp_path):
+    xyz, normals, colors = _cloud(np.random.default_rng(0), 30000)
+    write_points(tmp_path / "whole.ply", xyz, normals, colors)
+    surface = _tiled(xyz, normals, colors, tmp_path)
+    assert len(surface.parts) >= 12 and surface.count == len(xyz)
+    assert surface.write_ply(tmp_path / "tiled.ply") == {"file": "tiled.ply", "count": len(xyz)}
+    assert Surface.of(xyz, normals, colors).write_ply(tmp_path / "one.ply")["count"] == len(xyz)
+    whole = (tmp_path / "whole.ply").read_bytes()
+    assert (tmp_path / "tiled.ply").read_bytes() == whole == (tmp_path / "one.ply").read_bytes()
+
+
+def test_the_face_test_tile_by_tile_reads_the_neighbours_points_within_reach(tmp_path):
+    # faces along the tile boundaries x = 1 and y = 1: each cell centre beside them votes with points of two tiles
+    rng = np.random.default_rng(3)
+    grid = GridSpec(40, 40, 0.05, (0.0, 2.0))
+    y = rng.uniform(0.0, 2.0, 4000)
+    z = rng.uniform(0.15, 1.4, 4000)
+    x = np.where(np.arange(4000) % 2, 1.0 + rng.normal(0, 0.01, 4000), rng.uniform(0, 2, 4000))
+    y = np.where(np.arange(4000) % 2, y, 1.0 + rng.normal(0, 0.01, 4000))
+    xyz = np.c_[x, y, z].astype(np.float32)
+    normals = np.where((np.arange(4000) % 2)[:, None] == 1, [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]).astype(np.float32)
+    candidates = np.ones((40, 40), bool)
+    solid_z = np.full((40, 40, 2), np.nan, np.float32)
+    p = ReconstructParams()
+    whole = in_front_of_faces(grid, 0.0, xyz, normals, candidates, solid_z, p)
+    surface = _tiled(xyz, normals, np.zeros_like(xyz, np.uint8), tmp_path)
+    assert whole.sum() > 20
+    np.testing.assert_array_equal(faces_cleared(grid, 0.0, surface, None, candidates, solid_z, p), whole)
+    np.testing.assert_array_equal(faces_cleared(grid, 0.0, Surface.of(xyz, normals), None, candidates, solid_z, p),
+                                  whole)
