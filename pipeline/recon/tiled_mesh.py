@@ -102,8 +102,34 @@ def _slab(arrays: list[Path], keys: list[Path | np.ndarray], lo: float, hi: floa
     return np.concatenate(parts) if parts else None
 
 
+def _row_hash(rows: np.ndarray) -> np.ndarray:
+    """``(k,)`` uint64: a hash of the bits of each float64 row ``(k, 6)`` (each word mixed in, then scrambled)."""
+    bits = np.ascontiguousarray(rows, np.float64).view(np.uint64)
+    h = np.full(len(rows), 0x9E3779B97F4A7C15, np.uint64)
+    for j in range(bits.shape[1]):
+        h = (h ^ bits[:, j]) * np.uint64(0xBF58476D1CE4E5B9)
+        h ^= h >> np.uint64(31)
+    return h
+
+
 def _ranks(table: np.ndarray, base: int, rows: np.ndarray, where: str) -> np.ndarray:
-    """Global index of each of ``rows`` ``(k, 6)`` in ``table`` (unique canonical rows, the first at ``base``)."""
+    """Global index of each of ``rows`` ``(k, 6)`` in ``table`` (unique canonical rows, the first at ``base``).
+
+    Looked up by a hash of the row's bits, each match checked row for row; should two rows share a hash, the exact
+    (and slower) lexicographic search answers instead."""
+    if len(table) and len(rows):
+        th = _row_hash(table)
+        order = np.argsort(th, kind="stable")
+        sorted_h = th[order]
+        qh = _row_hash(rows)
+        at = order[np.minimum(np.searchsorted(sorted_h, qh), len(table) - 1)]
+        if np.array_equal(table[at], rows):
+            return base + at
+    return _ranks_by_sort(table, base, rows, where)
+
+
+def _ranks_by_sort(table: np.ndarray, base: int, rows: np.ndarray, where: str) -> np.ndarray:
+    """:func:`_ranks` by one lexicographic sort of the table and the rows together."""
     keys = np.concatenate([table, rows])
     flag = np.r_[np.zeros(len(table)), np.ones(len(rows))]
     order = np.lexsort((flag, *keys.T[::-1]))

@@ -4,9 +4,6 @@ that are those of the whole arrays whatever the parts."""
 import numpy as np
 import pytest
 
-from pipeline.config import ReconstructParams
-from pipeline.geometry import GridSpec
-from pipeline.recon.grids import faces_cleared, in_front_of_faces
 from pipeline.recon.store import write_points
 from pipeline.recon.surface import Surface, median, order_statistics, percentiles
 
@@ -46,7 +43,7 @@ def _cloud(rng, n):
     return xyz, normals, colors
 
 
-def _tiled(xyz, normals, colors, tmp_path, side=1.0):
+def tiled_surface(xyz, normals, colors, tmp_path, side=1.0):
     """The points in ``side`` m tiles, spilled under ``tmp_path`` in shuffled tile order."""
     owner = lambda xy: np.floor(np.asarray(xy, np.float64) / side).astype(np.int64)  # noqa: E731
     surface = Surface(owner, tmp_path)
@@ -60,30 +57,9 @@ def _tiled(xyz, normals, colors, tmp_path, side=1.0):
 def test_the_points_file_of_spilled_tiles_is_the_bytes_open3d_writes_for_the_whole_cloud(tmp_path):
     xyz, normals, colors = _cloud(np.random.default_rng(0), 30000)
     write_points(tmp_path / "whole.ply", xyz, normals, colors)
-    surface = _tiled(xyz, normals, colors, tmp_path)
+    surface = tiled_surface(xyz, normals, colors, tmp_path)
     assert len(surface.parts) >= 12 and surface.count == len(xyz)
     assert surface.write_ply(tmp_path / "tiled.ply") == {"file": "tiled.ply", "count": len(xyz)}
     assert Surface.of(xyz, normals, colors).write_ply(tmp_path / "one.ply")["count"] == len(xyz)
     whole = (tmp_path / "whole.ply").read_bytes()
     assert (tmp_path / "tiled.ply").read_bytes() == whole == (tmp_path / "one.ply").read_bytes()
-
-
-def test_the_face_test_tile_by_tile_reads_the_neighbours_points_within_reach(tmp_path):
-    # faces along the tile boundaries x = 1 and y = 1: each cell centre beside them votes with points of two tiles
-    rng = np.random.default_rng(3)
-    grid = GridSpec(40, 40, 0.05, (0.0, 2.0))
-    y = rng.uniform(0.0, 2.0, 4000)
-    z = rng.uniform(0.15, 1.4, 4000)
-    x = np.where(np.arange(4000) % 2, 1.0 + rng.normal(0, 0.01, 4000), rng.uniform(0, 2, 4000))
-    y = np.where(np.arange(4000) % 2, y, 1.0 + rng.normal(0, 0.01, 4000))
-    xyz = np.c_[x, y, z].astype(np.float32)
-    normals = np.where((np.arange(4000) % 2)[:, None] == 1, [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]).astype(np.float32)
-    candidates = np.ones((40, 40), bool)
-    solid_z = np.full((40, 40, 2), np.nan, np.float32)
-    p = ReconstructParams()
-    whole = in_front_of_faces(grid, 0.0, xyz, normals, candidates, solid_z, p)
-    surface = _tiled(xyz, normals, np.zeros_like(xyz, np.uint8), tmp_path)
-    assert whole.sum() > 20
-    np.testing.assert_array_equal(faces_cleared(grid, 0.0, surface, None, candidates, solid_z, p), whole)
-    np.testing.assert_array_equal(faces_cleared(grid, 0.0, Surface.of(xyz, normals), None, candidates, solid_z, p),
-                                  whole)
