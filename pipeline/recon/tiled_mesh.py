@@ -183,8 +183,10 @@ def write_tiled_mesh(path: Path, parts: list[SpilledPart], workdir: Path) -> dic
                 tri = tri[np.lexsort((tri[:, 2], tri[:, 1], tri[:, 0]))]
             if len(cur_v):
                 verts = np.concatenate([prev_v, cur_v, next_v])
-                local = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts[:, :3]),
-                                                  o3d.utility.Vector3iVector(np.concatenate([prev_t, tri]) - prev_base))
+                # contiguous float64 / int32: open3d copies those at once, anything else an element at a time
+                local = o3d.geometry.TriangleMesh(
+                    o3d.utility.Vector3dVector(np.ascontiguousarray(verts[:, :3])),
+                    o3d.utility.Vector3iVector((np.concatenate([prev_t, tri]) - prev_base).astype(np.int32)))
                 local.compute_vertex_normals()
                 normals = np.asarray(local.vertex_normals)[len(prev_v): len(prev_v) + len(cur_v)]
                 vf.write(vertex_records(cur_v[:, :3], normals, cur_v[:, 3:]).tobytes())
