@@ -53,11 +53,20 @@ class Part:
         return out
 
     def x_range(self, lo: float, hi: float) -> tuple[int, int]:
-        """The rows whose x lies in ``[lo, hi)`` (rows are sorted by x): ``(start, stop)``."""
+        """The rows whose x lies in ``[lo, hi)`` (rows are sorted by x): ``(start, stop)``.
+
+        The bounds are searched as float32 (a float64 key would convert the whole column): each rounded up to the
+        least float32 not below it, which keeps exactly the float32 values not below the float64 bound."""
         x = self.arrays["x"] if self.arrays is not None else np.load(self.files["x"], mmap_mode="r")
-        span = int(np.searchsorted(x, lo)), int(np.searchsorted(x, hi))
+        span = int(np.searchsorted(x, _ceil32(lo))), int(np.searchsorted(x, _ceil32(hi)))
         del x
         return span
+
+
+def _ceil32(v: float) -> np.float32:
+    """The least float32 not below ``v``."""
+    f = np.float32(v)
+    return np.nextafter(f, np.float32(np.inf)) if f < v else f
 
 
 class Surface:
@@ -134,7 +143,7 @@ class Surface:
                 part = self.parts.get((tile[0] + di, tile[1] + dj))
                 if part is None or part.box[0] > x1 or part.box[1] < x0 or part.box[2] > y1 or part.box[3] < y0:
                     continue
-                start, stop = part.x_range(x0, np.nextafter(np.float32(x1), np.float32(np.inf)))
+                start, stop = part.x_range(x0, np.nextafter(_ceil32(x1), np.float32(np.inf)))
                 for s in range(start, stop, CHUNK):
                     e = min(stop, s + CHUNK)
                     xyz = part.read("xyz", s, e)
@@ -161,6 +170,7 @@ class Surface:
                 elif parts:
                     x0, x1 = min(p.box[0] for p in parts), max(p.box[1] for p in parts)
                     cuts = x0 + _SLAB_M * np.arange(int(np.floor((x1 - x0) / _SLAB_M)) + 2)
+                    cuts[-1] = np.inf  # the last slab takes every point left, whatever the rounding
                     for lo, hi in zip(cuts[:-1], cuts[1:]):
                         rows = [[], [], []]
                         for part in parts:

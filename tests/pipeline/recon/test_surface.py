@@ -63,3 +63,14 @@ def test_the_points_file_of_spilled_tiles_is_the_bytes_open3d_writes_for_the_who
     assert Surface.of(xyz, normals, colors).write_ply(tmp_path / "one.ply")["count"] == len(xyz)
     whole = (tmp_path / "whole.ply").read_bytes()
     assert (tmp_path / "tiled.ply").read_bytes() == whole == (tmp_path / "one.ply").read_bytes()
+
+
+def test_a_parts_x_range_is_the_float64_comparison_searched_in_float32():
+    rng = np.random.default_rng(2)
+    xyz = np.c_[rng.normal(0, 10, (5000, 1)), np.zeros((5000, 2))].astype(np.float32)
+    part = Surface.of(xyz, np.zeros_like(xyz)).parts[(0, 0)]
+    x = part.read("x").astype(np.float64)
+    bounds = [*rng.normal(0, 10, 200), *x[:50], *np.nextafter(x[:50], np.inf), *np.nextafter(x[:50], -np.inf)]
+    for lo in bounds:
+        start, stop = part.x_range(lo, lo + 1.0)
+        assert (start, stop) == (int((x < lo).sum()), int((x < lo + 1.0).sum()))
