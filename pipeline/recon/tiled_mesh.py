@@ -70,16 +70,16 @@ def spill_part(vertices: np.ndarray, colors: np.ndarray, triangles: np.ndarray, 
     if not len(mine) and not len(triangles):
         return None
     mine = mine[canonical_point_order(mine[:, :3], mine[:, 3:])]
-    tri_rows = rows[triangles]
-    first_x = tri_rows[:, :, 0].min(axis=1) if len(triangles) else np.zeros(0)
+    first_x = vertices[triangles, 0].min(axis=1) if len(triangles) else np.zeros(0)
     order = np.argsort(first_x, kind="stable")
+    tri_rows = rows[triangles[order]]  # gathered once, already in order: the largest array of a tile's extraction
     part = SpilledPart(stem.with_suffix(".owned.npy"), stem.with_suffix(".rows.npy"), stem.with_suffix(".x.npy"),
                        stem.with_suffix(".owned_x.npy"),
                        (float(min(mine[:, 0].min(initial=np.inf), first_x.min(initial=np.inf))),
                         float(max(mine[:, 0].max(initial=-np.inf), tri_rows[:, :, 0].max(initial=-np.inf)))))
     np.save(part.owned, mine)
     np.save(part.owned_x, np.ascontiguousarray(mine[:, 0]))
-    np.save(part.rows, tri_rows[order])
+    np.save(part.rows, tri_rows)
     np.save(part.first_x, first_x[order])
     return part
 
