@@ -28,6 +28,7 @@ from pipeline.recon.store import canonical_point_order
 _SLAB_M = 1.0  # slab width along x (at least a voxel: a triangle spans at most one)
 _VERTEX = np.dtype([("xyz", "<f8", (3,)), ("normal", "<f8", (3,)), ("rgb", "u1", (3,))])
 _FACE = np.dtype([("n", "u1"), ("index", "<u4", (3,))])
+_GATHER = 1 << 18  # triangles gathered at once when a tile's part is spilled
 
 
 def ply_header(n_vertices: int, n_faces: int | None) -> bytes:
@@ -70,18 +71,31 @@ def spill_part(vertices: np.ndarray, colors: np.ndarray, triangles: np.ndarray, 
     if not len(mine) and not len(triangles):
         return None
     mine = mine[canonical_point_order(mine[:, :3], mine[:, 3:])]
-    first_x = vertices[triangles, 0].min(axis=1) if len(triangles) else np.zeros(0)
+    tri_x = vertices[triangles, 0] if len(triangles) else np.zeros((0, 3))
+    first_x = tri_x.min(axis=1)
     order = np.argsort(first_x, kind="stable")
-    tri_rows = rows[triangles[order]]  # gathered once, already in order: the largest array of a tile's extraction
     part = SpilledPart(stem.with_suffix(".owned.npy"), stem.with_suffix(".rows.npy"), stem.with_suffix(".x.npy"),
                        stem.with_suffix(".owned_x.npy"),
                        (float(min(mine[:, 0].min(initial=np.inf), first_x.min(initial=np.inf))),
-                        float(max(mine[:, 0].max(initial=-np.inf), tri_rows[:, :, 0].max(initial=-np.inf)))))
+                        float(max(mine[:, 0].max(initial=-np.inf), tri_x.max(initial=-np.inf)))))
+    del tri_x
     np.save(part.owned, mine)
     np.save(part.owned_x, np.ascontiguousarray(mine[:, 0]))
-    np.save(part.rows, tri_rows)
+    _save_gathered(part.rows, rows, triangles[order])
     np.save(part.first_x, first_x[order])
     return part
+
+
+def _save_gathered(path: Path, rows: np.ndarray, index: np.ndarray) -> None:
+    """``np.save(path, rows[index])`` (``rows`` ``(n, 6)`` float64, ``index`` ``(m, 3)``) without holding
+    ``rows[index]``, the largest array of a tile's extraction (144 bytes a triangle): gathered and written
+    :data:`_GATHER` triangles at a time."""
+    header = {"descr": np.lib.format.dtype_to_descr(np.dtype("<f8")), "fortran_order": False,
+              "shape": (len(index), 3, rows.shape[1])}
+    with open(path, "wb") as f:
+        np.lib.format.write_array_header_1_0(f, header)
+        for s in range(0, len(index), _GATHER):
+            f.write(np.ascontiguousarray(rows[index[s : s + _GATHER]], "<f8").tobytes())
 
 
 def _slab(arrays: list[Path], keys: list[Path | np.ndarray], lo: float, hi: float) -> np.ndarray | None:

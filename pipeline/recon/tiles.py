@@ -244,6 +244,7 @@ def _extract(volume: o3d.t.geometry.VoxelBlockGrid, layout: TileLayout, tile: tu
     xyz, normals, colors = tsdf.extract_points(volume, p)
     keep = layout.owns(tile, xyz[:, :2])
     points = (xyz[keep], normals[keep], colors[keep])
+    del xyz, normals, colors
 
     mesh = tsdf.extract_mesh(volume, p)
     v = np.asarray(mesh.vertices)
@@ -253,7 +254,8 @@ def _extract(volume: o3d.t.geometry.VoxelBlockGrid, layout: TileLayout, tile: tu
         tri = tri[layout.owns(tile, v[tri].mean(axis=1)[:, :2])]
     owned = layout.owns(tile, v[:, :2]) if len(v) else np.zeros(0, bool)
     mesh_part = spill_part(v, c, tri, owned, workdir / f"mesh_{tile[0]}_{tile[1]}")
-    del mesh
+    n_triangles = len(tri)
+    del mesh, v, c, tri, owned  # the legacy mesh and the views into it: freed before the voxels are read
 
     lo, hi = layout.block_range(tile, margin=0)
     lattices, values = [], []
@@ -266,7 +268,7 @@ def _extract(volume: o3d.t.geometry.VoxelBlockGrid, layout: TileLayout, tile: tu
               np.concatenate(values) if values else np.zeros(0, np.float32))
     keys = volume.hashmap().key_tensor()[volume.hashmap().active_buf_indices().to(o3c.int64)].numpy()
     n_blocks = int(((keys[:, :2] >= lo) & (keys[:, :2] <= hi)).all(axis=1).sum())
-    return points, mesh_part, voxels, n_blocks, len(tri)
+    return points, mesh_part, voxels, n_blocks, n_triangles
 
 
 def fuse_tiled(store: FrameStore, p: ReconstructParams, tile_m: float, workdir: Path, *,
