@@ -259,7 +259,7 @@ def _extract(volume: o3d.t.geometry.VoxelBlockGrid, layout: TileLayout, tile: tu
 
     lo, hi = layout.block_range(tile, margin=0)
     lattices, values = [], []
-    for lattice, t in tsdf.iter_voxels(volume, p, min_weight=p.occupancy_min_weight):
+    for lattice, t in tsdf.iter_voxels(volume, p, min_weight=p.occupancy_min_weight, blocks_per_chunk=256):
         block_xy = np.floor_divide(lattice[:, :2], p.block_resolution)
         own = ((block_xy >= lo) & (block_xy <= hi)).all(axis=1)
         lattices.append(lattice[own])
