@@ -8,8 +8,9 @@ over the recording time so that exactly ``frames`` frames sample it.
 
 In a building of several floors the robot tours floor 0, walks to the foot of the stairs, climbs
 them (forward steps along the flight, as a Habitat agent does), tours the next floor, and so on to
-the top; then it walks back down to floor 0. Rounds repeat (further viewpoints) until the walk
-has enough actions. A state carries the height of the walking surface under the robot (a floor,
+the top; then it walks back down to floor 0. Each floor is toured as an apartment is, in rounds of
+further viewpoints, until it has its share of the actions (the walk's minimum split by the floors'
+navigable areas); the first round also walks the stair hall to its dead end beyond the flight. A state carries the height of the walking surface under the robot (a floor,
 or the ramp over a flight's steps, :meth:`pipeline.scene_gt.GTStair.surface_z`), so the camera
 stays at one height above it.
 """
@@ -300,14 +301,38 @@ def plan_actions(gt: GTScene, radius_m: float, min_actions: int) -> tuple[np.nda
 STAIR_SPOT_M = 0.5  # the robot stands this far before a flight's foot / beyond its top to take it
 
 
+def _floor_shares(tours: list[_FloorTour], min_actions: int) -> list[int]:
+    """Actions each floor's tour takes at least: ``min_actions`` split by the floors' navigable areas."""
+    area = np.array([float(t.fs.navigable.sum()) * t.fs.grid.cell_size_m ** 2 for t in tours])
+    return [int(np.ceil(min_actions * a / area.sum())) for a in area]
+
+
+def _stair_halls(tour: _FloorTour, floor: int, stairs: list[GTStair]) -> list[int]:
+    """Per room of ``tour``: 1 for a room a flight starts or ends in on ``floor`` (the stair hall), else 0. The
+    first round walks such a room to its second viewpoint too, the farthest from its most open spot (the landing):
+    the hall's dead end beyond the flight, which no room's doorway leads through."""
+    fs = tour.fs
+    out = [0] * len(tour.gt.rooms)
+    for s in stairs:
+        for end, on in ((s.bottom, s.lower), (s.top, s.upper)):
+            if on == floor:
+                rc = np.clip(fs.grid.world_to_cell(np.asarray(end[:2])), 0, [fs.grid.rows - 1, fs.grid.cols - 1])
+                near = fs.room_of_cell[max(rc[0] - 2, 0):rc[0] + 3, max(rc[1] - 2, 0):rc[1] + 3]
+                for k in np.unique(near[near >= 0]):
+                    out[int(k)] = 1
+    return out
+
+
 def _plan_building(gt: GTScene, radius_m: float, min_actions: int) -> tuple[np.ndarray, list[str]]:
-    """Rounds up through every floor (touring each) and back down to floor 0, until ``min_actions``."""
+    """Up through every floor, touring each as an apartment is toured (rounds of further viewpoints) until it has
+    its share of ``min_actions`` (:func:`_floor_shares`), then back down to floor 0."""
     floors = gt.all_floors
     tours = [_FloorTour(gt.floor_view(f.id), radius_m) for f in floors]
     by_lower = {s.lower: s for s in gt.stairs}
     missing = [f.id for f in floors[:-1] if f.id not in by_lower]
     if missing:
         raise StageError(f"scene {gt.name}: no stairs up from floors {missing}")
+    shares = _floor_shares(tours, min_actions)
     start_room = tours[0].largest_room()
     walker = _Walker(tours[0].fs, tours[0].views[start_room][0], z=floors[0].floor_z)
     walker.spin()
@@ -323,26 +348,28 @@ def _plan_building(gt: GTScene, radius_m: float, min_actions: int) -> tuple[np.n
         walker.take_stairs(stair, up, tours[reached].fs, floors[reached].floor_z, STAIR_SPOT_M)
         return reached
 
-    def enough() -> bool:
-        return len(walker.states) - 1 >= min_actions
-
-    floor, level = 0, 0
-    while True:
-        for f in range(len(floors)):
-            if level > 0 and enough():
-                break  # a later round stops where the walk is long enough, and goes down
-            while floor < f:
-                floor = climb(floor, True)
-            tour = tours[f]
-            queue = [(k, level % len(tour.views[k])) for k in range(len(tour.gt.rooms))
-                     if not (level == 0 and f == 0 and k == start_room)]
-            while queue and not (level > 0 and enough()):
-                tour.visit_next(walker, queue, visited)
-        while floor > 0:
-            floor = climb(floor, False)
-        if enough():
-            return np.asarray(walker.states), visited
-        level += 1
+    for f, tour in enumerate(tours):
+        if f > 0:
+            climb(f - 1, True)
+        arrived = len(walker.states) - (1 if f == 0 else 0)  # floor 0's share counts its first spin
+        n_rooms = len(tour.gt.rooms)
+        ahead = _stair_halls(tour, floors[f].id, gt.stairs)
+        queue = [(k, v) for k in range(n_rooms) for v in range(1 + ahead[k])
+                 if not (f == 0 and k == start_room and v == 0) and v < len(tour.views[k])]
+        level = 0
+        while queue:  # the apartment's rounds (plan_actions); a later round stops where the floor has its share
+            tour.visit_next(walker, queue, visited)
+            if level > 0 and len(walker.states) - arrived >= shares[f]:
+                break
+            if not queue and len(walker.states) - arrived < shares[f]:
+                level += 1
+                queue = [(k, level + ahead[k]) for k in range(n_rooms) if len(tour.views[k]) > level + ahead[k]]
+                if not queue:
+                    level = 0
+                    queue = [(k, 0) for k in range(n_rooms)]
+    for f in range(len(floors) - 1, 0, -1):
+        climb(f, False)
+    return np.asarray(walker.states), visited
 
 
 def sample_trajectory(states: np.ndarray, frames: int, fps: float, camera_height_m: float,

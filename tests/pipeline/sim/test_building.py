@@ -139,6 +139,36 @@ def test_the_walk_climbs_tours_both_floors_and_comes_down(walk, house):
     np.testing.assert_allclose(walk.frame_T[:, 2, 3], key_z + 0.88, atol=1e-4)  # key stamps are whole ns
 
 
+@pytest.mark.parametrize("frames", [60, 240])
+def test_the_walk_enters_each_hall_end_and_splits_its_actions_by_floor_area(house, frames):
+    """Each floor's stair hall has a dead end beyond the flight (downstairs past its head, upstairs past the railing
+    at its foot) that no doorway leads through: the walk goes to its far wall on every floor, and each floor gets
+    a share of the actions as large as its share of the navigable area (an apartment's tour per floor)."""
+    p = SimulateParams(frames=frames)
+    walk = SimulatedRecording("house_t", p, gt=house)
+    s = walk.states
+    (stair,) = house.stairs
+    way = _way(stair)
+    axis = int(np.argmax(np.abs(way)))
+    foot, head = np.dot(stair.bottom[:2], way), np.dot(stair.top[:2], way)
+    along = s[:, :2] @ way
+    areas = []
+    for f in house.floors:
+        on = s[:, 3] == f.floor_z
+        (hall,) = [r for r in house.rooms if r.floor == f.id and r.type == "hallway"]
+        ends = np.sort(np.asarray(hall.polygon)[:, axis]) * np.sign(way[axis])
+        if f.id == stair.lower:  # past the flight's head, up to the wall at the hall's far end
+            wall, reached = max(ends), along[on].max()
+            assert reached > head + 1.0
+        else:  # past the railing at the flight's foot
+            wall, reached = min(ends), along[on].min()
+            assert reached < foot - 1.0
+        assert abs(wall - reached) < 1.0, (f.id, wall, reached)  # the dead end is at least LANDING_M (2 m) long
+        areas.append(free_space(house.floor_view(f.id), p.robot_radius_m).navigable.sum())
+        assert on.sum() >= p.min_actions_per_frame * frames * areas[-1] / sum(
+            free_space(house.floor_view(g.id), p.robot_radius_m).navigable.sum() for g in house.floors)
+
+
 def test_three_stories_switch_back():
     gt = generate_scene("house_t", SimulateParams(), BuildingParams(kind="house", stories=3))
     assert [f.id for f in gt.floors] == [0, 1, 2] and [(s.lower, s.upper) for s in gt.stairs] == [(0, 1), (1, 2)]
