@@ -22,7 +22,8 @@ from pipeline.frames import FrameStore
 from pipeline.recon import grids as grids_mod
 from pipeline.recon.floors import find_floors
 from pipeline.recon.stairs import find_flights, stair_links, unlinked_warnings
-from pipeline.recon.store import ARTIFACT, FORMAT_VERSION, floor_bands, write_mesh, write_points, write_recon
+from pipeline.recon.store import ARTIFACT, FORMAT_VERSION, floor_bands, write_mesh, write_recon
+from pipeline.recon.surface import Surface
 from pipeline.store import artifact_attrs
 
 
@@ -62,16 +63,15 @@ def _reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pa
 
     t1 = time.perf_counter()
     if tiled is not None:
-        (xyz, normals, colors), voxels, n_triangles = (tiled.xyz, tiled.normals, tiled.colors), tiled.voxels, \
-            tiled.n_triangles
+        surface, voxels, n_triangles = tiled.surface, tiled.voxels, tiled.n_triangles
         log(f"fused in {tiled.tiles_fused} tiles of {tiled.layout.tile_blocks * tiled.layout.block_m:g} m "
             f"(at most {tiled.peak_blocks} of {tiled.n_blocks} TSDF blocks held at once)")
     else:
         mesh = tsdf.extract_mesh(fusion.volume, p)
-        xyz, normals, colors = tsdf.extract_points(fusion.volume, p)
+        surface = Surface.of(*tsdf.extract_points(fusion.volume, p))
         voxels = lambda: tsdf.iter_voxels(fusion.volume, p, min_weight=p.occupancy_min_weight)  # noqa: E731
         n_triangles = len(mesh.triangles)
-    if n_triangles == 0 or len(xyz) == 0:
+    if n_triangles == 0 or surface.count == 0:
         if len(fusion.frames_fused) == 1:
             raise StageError(f"{frames_path}: a single frame was fused (frame {fusion.frames_fused[0]}): a place counts "
                              f"as seen in {p.min_weight:g}+ frames (reconstruct.min_weight), so one frame maps "
@@ -79,20 +79,20 @@ def _reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pa
         raise StageError(f"{frames_path}: the fused volume has no surface ({len(fusion.frames_fused)} frames fused); "
                          f"an empty scene, or no place seen in {p.min_weight:g}+ frames (reconstruct.min_weight)")
     mesh_info = tiled.write_mesh(mesh_path) if tiled is not None else write_mesh(mesh_path, mesh)
-    points_info = write_points(points_path, xyz, normals, colors)
+    points_info = surface.write_ply(points_path)
     mesh = None
     t_extract = time.perf_counter() - t1
 
     t2 = time.perf_counter()
     found, spec, per_floor, stairs, warnings = floors_grids_stairs(
-        xyz, normals, colors, voxels, fusion.T_world_camera, grid, p, source=str(frames_path))
+        surface, voxels, fusion.T_world_camera, grid, p, source=str(frames_path), whole_columns=tiled is not None)
     building = len(found.floors) > 1
     t_grids = time.perf_counter() - t2
     grids = per_floor[0]
     outside = sum(g.stats["points_outside_grid"] for g in per_floor)
     if outside:
         log(f"warning: {outside} surface points lie outside the grid "
-            f"({outside / xyz.shape[0]:.2%}); they are counted, not mapped")
+            f"({outside / surface.count:.2%}); they are counted, not mapped")
     for line in warnings:
         log(f"warning: {line}")
 
@@ -157,27 +157,27 @@ def _reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pa
     return figures
 
 
-def floors_grids_stairs(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray, voxels: Callable[[], Iterable],
-                        T_world_camera: dict[int, np.ndarray], grid: GridParams, p: ReconstructParams, *, source: str):
+def floors_grids_stairs(surface: Surface, voxels: Callable[[], Iterable], T_world_camera: dict[int, np.ndarray],
+                        grid: GridParams, p: ReconstructParams, *, source: str, whole_columns: bool = False):
     """The floors (:func:`find_floors`), the grid they share, each floor's grids from the surface of its band, the
     stairs joining them (each flight solid on the floor it rises from) and what disagreed.
 
-    ``voxels()`` iterates the volume's observed voxels afresh (once per floor). Returns
+    ``surface`` is read a chunk (or a tile) at a time; ``voxels()`` iterates the volume's observed voxels afresh
+    (once per floor; ``whole_columns``: a chunk holds whole lattice columns, :func:`grids.column_occupancy`). Returns
     ``(FoundFloors, GridSpec, [Grids per floor], [StairLink], [warning lines])``.
     """
     camera_z = np.array([T_world_camera[i][2, 3] for i in sorted(T_world_camera)])
-    found = find_floors(xyz, normals, camera_z, p)
-    spec = grids_mod.placed_grid(xyz, T_world_camera, grid, p, source=source)
+    found = find_floors(surface, camera_z, p)
+    spec = grids_mod.placed_grid(surface, T_world_camera, grid, p, source=source)
     building = len(found.floors) > 1
-    flights = find_flights(xyz, normals, found.floors, spec, p) if building else []
+    flights = find_flights(surface, found.floors, spec, p) if building else []
     footprints = [f.footprint((spec.rows, spec.cols), spec.cell_size_m) for f in flights]
     per_floor = []
-    for k, (floor, (lo, hi), n_points) in enumerate(zip(found.floors, floor_bands(found.floors), found.floor_points)):
-        band = slice(None) if not building else (xyz[:, 2] >= lo) & (xyz[:, 2] < hi)
+    for k, (floor, band, n_points) in enumerate(zip(found.floors, floor_bands(found.floors), found.floor_points)):
         wells = [m for f, m in zip(flights, footprints) if f.upper == k]  # the stairwells over flights arriving here
         per_floor.append(grids_mod.floor_grids(
-            spec, floor.floor_z_m, xyz[band], normals[band], colors[band], voxels(), p, floor_points=n_points,
-            source=source, floor_name=f"{floor.name} ({floor.floor_z_m:.2f} m)" if building else None,
+            spec, floor.floor_z_m, surface, voxels(), p, band=band if building else None, whole_columns=whole_columns,
+            floor_points=n_points, source=source, floor_name=f"{floor.name} ({floor.floor_z_m:.2f} m)" if building else None,
             void=np.logical_or.reduce(wells) if wells else None))
     for flight, footprint in zip(flights, footprints):  # the flight is solid on the floor it rises from
         per_floor[flight.lower] = grids_mod.with_solid(per_floor[flight.lower], footprint, p)

@@ -27,6 +27,7 @@ surface at its height is a one-line :class:`ConfigError` naming the key.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable, Iterator
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
@@ -34,7 +35,9 @@ from scipy.signal import find_peaks
 
 from pipeline.config import MIN_STOREY_M, ReconstructParams
 from pipeline.errors import ConfigError, StageError
+from pipeline.recon import surface as surface_mod
 from pipeline.recon.store import Floor
+from pipeline.recon.surface import Surface
 
 _UP_COS = 0.9  # normals within ~25 deg of +z count as horizontal, upward-facing surfaces
 _FLOOR_BIN_M = 0.01
@@ -62,67 +65,106 @@ class FoundFloors:
 
 # ----------------------------------------------------------------------------- the surface
 
-def estimate_floor(xyz: np.ndarray, normals: np.ndarray, camera_z: np.ndarray) -> tuple[float, int]:
+def _z_of(surface: Surface, select: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> Callable[[], Iterator]:
+    """The heights (float32) of the points ``select(xyz, normals)`` keeps, chunk by chunk, afresh at each call."""
+    def values():
+        for xyz, normals in surface.chunks(("xyz", "normals")):
+            yield xyz[select(xyz, normals), 2]
+    return values
+
+
+def _extent(values: Callable[[], Iterator]) -> tuple[int, float, float]:
+    """Count, least and greatest of the values (as float64; 0, nan, nan when none)."""
+    n, lo, hi = 0, np.inf, -np.inf
+    for v in values():
+        if len(v):
+            n, lo, hi = n + len(v), min(lo, float(v.min())), max(hi, float(v.max()))
+    return n, (np.float64(lo) if n else np.nan), (np.float64(hi) if n else np.nan)
+
+
+def _histogram(values: Callable[[], Iterator], base: float, length: int) -> np.ndarray:
+    """Counts of the values in :data:`_FLOOR_BIN_M` bins from ``base`` (``length`` bins), float64."""
+    hist = np.zeros(length, np.int64)
+    for v in values():
+        hist += np.bincount(((v.astype(np.float64) - base) / _FLOOR_BIN_M).astype(np.int64), minlength=length)
+    return hist.astype(np.float64)
+
+
+def _lowest_strong_peak(values: Callable[[], Iterator], n: int, z_min: float, z_max: float, *, fixed_bins: bool
+                        ) -> tuple[float, int]:
+    """The median height of the values near the lowest strong peak of their histogram, and how many those are.
+
+    ``fixed_bins``: the histogram runs one bin past the top (the floor's rule), else to the top's bin (the
+    ceiling's)."""
+    base = np.floor(z_min / _FLOOR_BIN_M) * _FLOOR_BIN_M
+    length = int(np.ceil((z_max - base) / _FLOOR_BIN_M)) + 1 if fixed_bins else \
+        int(np.asarray((z_max - base) / _FLOOR_BIN_M).astype(np.int64)) + 1
+    smooth = np.convolve(_histogram(values, base, length), np.ones(3), mode="same")
+    first = int(np.flatnonzero(smooth >= _FLOOR_PEAK_FRACTION * smooth.max())[0])
+    while first + 1 < length and smooth[first + 1] > smooth[first]:  # climb to the local peak
+        first += 1
+    centre = base + (first + 0.5) * _FLOOR_BIN_M
+
+    def near():
+        for v in values():
+            yield v[np.abs(v.astype(np.float64) - centre) <= 2 * _FLOOR_BIN_M]
+    n_near = surface_mod.count(near)
+    return surface_mod.median(near, n_near), n_near
+
+
+def estimate_floor(surface: Surface, camera_z: np.ndarray, above: float = -np.inf) -> tuple[float, int]:
     """Floor height (world z, metres) under the cameras and the number of floor points it rests on.
 
-    ``xyz``/``normals`` ``(N,3)`` surface points; ``camera_z`` ``(F,)`` camera heights. The lowest strong
-    peak of the height histogram of upward-facing points below the cameras' median, refined by their median.
-    Raises :class:`StageError` when no upward-facing surface lies below the cameras (e.g. a world that is
-    not z-up: set ``reconstruct.floor_z_m`` or convert the poses at ingest).
+    ``surface``: the surface points (only those higher than ``above`` are read); ``camera_z`` ``(F,)`` camera
+    heights. The lowest strong peak of the height histogram of upward-facing points below the cameras' median,
+    refined by their median. Raises :class:`StageError` when no upward-facing surface lies below the cameras (e.g.
+    a world that is not z-up: set ``reconstruct.floor_z_m`` or convert the poses at ingest).
     """
-    below = xyz[:, 2] < np.median(camera_z)
-    z = xyz[(normals[:, 2] > _UP_COS) & below, 2].astype(np.float64)
-    if z.size < _FLOOR_MIN_POINTS:
+    top = np.median(camera_z)
+    values = _z_of(surface, lambda xyz, normals: (xyz[:, 2] > above) & (normals[:, 2] > _UP_COS) & (xyz[:, 2] < top))
+    n, z_min, z_max = _extent(values)
+    if n < _FLOOR_MIN_POINTS:
         raise StageError(
-            f"no floor found: {z.size} upward-facing surface points below the cameras "
+            f"no floor found: {n} upward-facing surface points below the cameras "
             f"(expected at least {_FLOOR_MIN_POINTS} in a z-up world); set reconstruct.floor_z_m "
             "if the floor is not visible or the world frame is not z-up"
         )
-    lo = np.floor(z.min() / _FLOOR_BIN_M) * _FLOOR_BIN_M
-    n_bins = int(np.ceil((z.max() - lo) / _FLOOR_BIN_M)) + 1
-    hist = np.bincount(((z - lo) / _FLOOR_BIN_M).astype(np.int64), minlength=n_bins).astype(np.float64)
-    smooth = np.convolve(hist, np.ones(3), mode="same")
-    first = int(np.flatnonzero(smooth >= _FLOOR_PEAK_FRACTION * smooth.max())[0])
-    while first + 1 < n_bins and smooth[first + 1] > smooth[first]:  # climb to the local peak
-        first += 1
-    centre = lo + (first + 0.5) * _FLOOR_BIN_M
-    near = z[np.abs(z - centre) <= 2 * _FLOOR_BIN_M]
-    return float(np.median(near)), int(near.size)
+    return _lowest_strong_peak(values, n, z_min, z_max, fixed_bins=True)
 
 
-def surface_peaks(z: np.ndarray, xy: np.ndarray) -> list[tuple[float, float]]:
+def surface_peaks(surface: Surface) -> list[tuple[float, float]]:
     """Peaks of the smoothed height histogram of upward-facing points (1 cm bins, Gaussian sigma 2 bins, peaks
     at least 0.2 m apart, as HOV-SG segments floors): ``[(height m, area m^2)]`` lowest first, ``area`` the
     horizontal area (10 cm cells) the points within 2 cm of the peak cover."""
-    if z.size < _FLOOR_MIN_POINTS:
+    up = _z_of(surface, lambda xyz, normals: normals[:, 2] > _UP_COS)
+    n, z_min, z_max = _extent(up)
+    if n < _FLOOR_MIN_POINTS:
         return []
-    lo = np.floor(z.min() / _FLOOR_BIN_M) * _FLOOR_BIN_M
-    hist = np.bincount(((z - lo) / _FLOOR_BIN_M).astype(np.int64)).astype(np.float64)
+    lo = np.floor(z_min / _FLOOR_BIN_M) * _FLOOR_BIN_M
+    hist = _histogram(up, lo, int(np.asarray((z_max - lo) / _FLOOR_BIN_M).astype(np.int64)) + 1)
     smooth = gaussian_filter1d(hist, sigma=2)
     peaks, _ = find_peaks(smooth, distance=round(_PEAK_SEPARATION_M / _FLOOR_BIN_M), height=_FLOOR_MIN_POINTS / 10)
-    out = []
-    for k in peaks:
-        centre = lo + (k + 0.5) * _FLOOR_BIN_M
-        near = np.abs(z - centre) <= 2 * _FLOOR_BIN_M
-        cells = np.unique(np.floor(xy[near] / _AREA_CELL_M).astype(np.int64), axis=0)
-        out.append((round(float(centre), 3), round(len(cells) * _AREA_CELL_M**2, 2)))
-    return out
+    centres = [lo + (k + 0.5) * _FLOOR_BIN_M for k in peaks]
+    cells = [np.zeros((0, 2), np.int64) for _ in centres]
+    for xyz, normals in surface.chunks(("xyz", "normals")):
+        top = xyz[normals[:, 2] > _UP_COS]
+        z = top[:, 2].astype(np.float64)
+        for k, centre in enumerate(centres):
+            near = np.abs(z - centre) <= 2 * _FLOOR_BIN_M
+            if near.any():
+                new = np.floor(top[near, :2].astype(np.float64) / _AREA_CELL_M).astype(np.int64)
+                cells[k] = np.unique(np.concatenate([cells[k], new]), axis=0)
+    return [(round(float(c), 3), round(len(seen) * _AREA_CELL_M**2, 2)) for c, seen in zip(centres, cells)]
 
 
-def ceiling_above(xyz: np.ndarray, normals: np.ndarray, lo: float, hi: float) -> float | None:
+def ceiling_above(surface: Surface, lo: float, hi: float) -> float | None:
     """The ceiling between world heights ``lo`` (a floor's cameras) and ``hi`` (the next floor): the lowest
     strong peak of downward-facing points there, or None when fewer than 50 were seen."""
-    z = xyz[(normals[:, 2] < -_UP_COS) & (xyz[:, 2] > lo) & (xyz[:, 2] < hi), 2].astype(np.float64)
-    if z.size < _FLOOR_MIN_POINTS:
+    values = _z_of(surface, lambda xyz, normals: (normals[:, 2] < -_UP_COS) & (xyz[:, 2] > lo) & (xyz[:, 2] < hi))
+    n, z_min, z_max = _extent(values)
+    if n < _FLOOR_MIN_POINTS:
         return None
-    base = np.floor(z.min() / _FLOOR_BIN_M) * _FLOOR_BIN_M
-    hist = np.bincount(((z - base) / _FLOOR_BIN_M).astype(np.int64)).astype(np.float64)
-    smooth = np.convolve(hist, np.ones(3), mode="same")
-    first = int(np.flatnonzero(smooth >= _FLOOR_PEAK_FRACTION * smooth.max())[0])
-    while first + 1 < len(smooth) and smooth[first + 1] > smooth[first]:
-        first += 1
-    centre = base + (first + 0.5) * _FLOOR_BIN_M
-    return round(float(np.median(z[np.abs(z - centre) <= 2 * _FLOOR_BIN_M])), 4)
+    return round(_lowest_strong_peak(values, n, z_min, z_max, fixed_bins=False)[0], 4)
 
 
 # ----------------------------------------------------------------------------- the cameras
@@ -156,28 +198,27 @@ def camera_levels(camera_z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 # ----------------------------------------------------------------------------- floors
 
-def find_floors(xyz: np.ndarray, normals: np.ndarray, camera_z: np.ndarray, p: ReconstructParams) -> FoundFloors:
+def find_floors(surface: Surface, camera_z: np.ndarray, p: ReconstructParams) -> FoundFloors:
     """The scene's floors (see the module doc): pinned (``reconstruct.floors`` / ``floor_z_m``) or found.
 
-    ``xyz``/``normals`` ``(N,3)`` surface points, ``camera_z`` ``(F,)`` heights of the fused cameras.
+    ``surface``: the surface points (read a chunk at a time), ``camera_z`` ``(F,)`` heights of the fused cameras.
     One camera level gives exactly the floor every earlier zipon found (:func:`estimate_floor`).
     """
     if p.floors is not None:
-        return pinned_floors(xyz, normals, camera_z, p)
+        return pinned_floors(surface, camera_z, p)
     if p.floor_z_m is not None:
         return FoundFloors([Floor(id=0, name="floor 0", floor_z_m=float(p.floor_z_m), source="pinned",
                                   frames=int(camera_z.size))], [0], camera_floor=np.zeros(camera_z.size, np.int64))
     levels, label = camera_levels(camera_z)
-    up = normals[:, 2] > _UP_COS
-    peaks = surface_peaks(xyz[up, 2].astype(np.float64), xyz[up, :2].astype(np.float64))
+    peaks = surface_peaks(surface)
     figures = {"camera_levels_m": [round(float(c), 3) for c in levels],
                "surface_peaks": [{"z_m": z, "area_m2": a} for z, a in peaks]}
     if len(levels) == 1:
-        z, n = estimate_floor(xyz, normals, camera_z)
+        z, n = estimate_floor(surface, camera_z)
         floors = [(z, "surface", n)]
         warnings: list[str] = []
     else:
-        floors, warnings = _per_level(xyz, normals, camera_z, levels, label)
+        floors, warnings = _per_level(surface, camera_z, levels, label)
     floors, label, merged = _merge_close(floors, label)
     warnings += merged
     warnings += _unwalked_surfaces(peaks, [z for z, _, _ in floors])
@@ -185,20 +226,19 @@ def find_floors(xyz: np.ndarray, normals: np.ndarray, camera_z: np.ndarray, p: R
     for i, (z, source, _) in enumerate(floors):
         cams = camera_z[label == i]
         top = floors[i + 1][0] - 0.05 if i + 1 < len(floors) else np.inf
-        ceiling = ceiling_above(xyz, normals, float(np.median(cams)) if cams.size else z + 0.5, top)
+        ceiling = ceiling_above(surface, float(np.median(cams)) if cams.size else z + 0.5, top)
         records.append(Floor(id=i, name=f"floor {i}", floor_z_m=float(z), ceiling_z_m=ceiling,
                              source=source, frames=int(cams.size)))
     return FoundFloors(records, [n for _, _, n in floors], warnings, label, figures)
 
 
-def _per_level(xyz, normals, camera_z, levels, label) -> tuple[list[tuple[float, str, int]], list[str]]:
+def _per_level(surface, camera_z, levels, label) -> tuple[list[tuple[float, str, int]], list[str]]:
     """Each camera level's floor: :func:`estimate_floor` on the points above the level below; a level with no
     floor surface takes the camera height the other levels stand at."""
     found: list[tuple[float, str, int] | None] = []
     for k, level in enumerate(levels):
-        above = xyz[:, 2] > (levels[k - 1] if k else -np.inf)
         try:
-            z, n = estimate_floor(xyz[above], normals[above], camera_z[label == k])
+            z, n = estimate_floor(surface, camera_z[label == k], above=levels[k - 1] if k else -np.inf)
             found.append((z, "surface", n))
         except StageError:
             found.append(None)
@@ -246,24 +286,25 @@ def _unwalked_surfaces(peaks: list[tuple[float, float]], floor_z: list[float]) -
     return out
 
 
-def pinned_floors(xyz: np.ndarray, normals: np.ndarray, camera_z: np.ndarray, p: ReconstructParams) -> FoundFloors:
+def pinned_floors(surface: Surface, camera_z: np.ndarray, p: ReconstructParams) -> FoundFloors:
     """``reconstruct.floors`` as :class:`Floor` records, each checked against the surface: a pinned floor with
     fewer than 50 upward-facing points within ``floor_tolerance_m`` is a :class:`ConfigError` naming its key."""
-    up = normals[:, 2] > _UP_COS
-    z_up = xyz[up, 2].astype(np.float64)
+    floors = [pin.floor_z_m for pin in p.floors]
+    points = [0] * len(floors)
+    for z_up in _z_of(surface, lambda xyz, normals: normals[:, 2] > _UP_COS)():
+        z_up = z_up.astype(np.float64)
+        for i, z in enumerate(floors):
+            points[i] += int((np.abs(z_up - z) <= p.floor_tolerance_m).sum())
     records = []
-    for i, pin in enumerate(p.floors):
-        n = int((np.abs(z_up - pin.floor_z_m) <= p.floor_tolerance_m).sum())
+    for i, (pin, n) in enumerate(zip(p.floors, points)):
         if n < _FLOOR_MIN_POINTS:
-            peaks = surface_peaks(z_up, xyz[up, :2].astype(np.float64))
+            peaks = surface_peaks(surface)
             big = sorted(peaks, key=lambda pa: -pa[1])[:3]
             seen = ", ".join(f"{z:.2f} m ({a:.1f} m^2)" for z, a in sorted(big)) or "none"
             raise ConfigError(f"reconstruct.floors[{i}].floor_z_m: no floor at {pin.floor_z_m:.2f} m: {n} "
                               f"upward-facing surface points within {p.floor_tolerance_m} m (expected at least "
                               f"{_FLOOR_MIN_POINTS}); the largest upward surfaces lie at {seen}")
-    floors = [pin.floor_z_m for pin in p.floors]
     label = floor_of_cameras(floors, camera_z)
-    points = [int((np.abs(z_up - z) <= p.floor_tolerance_m).sum()) for z in floors]
     for i, pin in enumerate(p.floors):
         records.append(Floor(id=i, name=pin.name or f"floor {i}", floor_z_m=float(pin.floor_z_m),
                              ceiling_z_m=pin.ceiling_z_m, source="pinned", frames=int((label == i).sum())))

@@ -10,7 +10,7 @@ row, col). Definitions (heights are above the estimated floor ``floor_z``):
   observed under it, or a flat patch of columns with a run of at most 7.5 cm never observed between
   seen air — a thin table top or seat seen only at grazing angles from above, whose inside fusion never
   reaches); or ``surface_min_points`` surface points of that band, moved half
-  a cell into the solid along their normals, lie in the cell (:func:`surface_occupancy`).
+  a cell into the solid along their normals, lie in the cell (:func:`pipeline.recon.cell_surface.surface_occupancy`).
   Voxels seen once count. The grid origin is snapped so that every cell centre is a
   voxel-lattice column, which makes the test "is the cell centre inside geometry" — the
   rasterisation the ground truth uses (:meth:`GTScene.occupancy`). Vertical structures thinner
@@ -25,7 +25,7 @@ row, col). Definitions (heights are above the estimated floor ``floor_z``):
   ``building_closing_m``) in an unknown region no bigger than ``fill_enclosed_max_m2``, never in
   the unknown world outside it or in a room never entered.
   Last, an occupied cell whose centre lies in front of the vertical faces passing within 0.4 cell
-  of it (the median signed distance of their extracted surface points, :func:`in_front_of_faces`)
+  of it (the median signed distance of their extracted surface points, :func:`~pipeline.recon.cell_surface.in_front_of_faces`)
   is cleared: voxel signs near faces are blurred by a few millimetres (grazing views, views past
   convex corners), the interpolated surface much less.
 - **free** (code 1): not occupied, and the floor was observed at the cell centre (a voxel observed
@@ -49,12 +49,14 @@ from typing import Iterable
 
 import numpy as np
 from scipy.ndimage import binary_closing, binary_dilation, binary_fill_holes, distance_transform_edt, label
-from scipy.spatial import cKDTree
 
 from pipeline.config import GridParams, ReconstructParams
 from pipeline.errors import ConfigError, InputDataError, StageError
 from pipeline.geometry import GridSpec
+from pipeline.recon import surface as surface_mod
+from pipeline.recon.cell_surface import TopSurface, band_chunks, faces_cleared, surface_counts
 from pipeline.recon.store import FREE, OCCUPIED, TILE, UNKNOWN, Grids
+from pipeline.recon.surface import Surface
 
 _GROW_MARGIN_M = 1.0  # grid.extent 'grow': the surface's percentile box plus this on each side must fit
 _GROW_MAX_CELLS = 20_000  # ... and a grid side longer than this (1 km at 5 cm) is a wrong pose, not a building
@@ -64,11 +66,6 @@ _SOLID_TOP_MAX_TSDF = 0.9
 _SOLID_TOP_MIN_RISE = 0.1
 _SLAB_MAX_M = 0.075  # solid_tops: an unobserved run at most this tall between seen free space is a thin board
 _SLAB_MIN_AREA_M2 = 0.25  # ... where such cells form a patch at least this big
-# in_front_of_faces: every side-facing point (|n_z| < 0.3) within 0.4 cell of a centre votes (at least 5:
-# a face's points over the band's height); an upward/downward-facing point within 5 mm of the centre means
-# a top or underside over it.
-_FACE_NZ, _FACE_RADIUS_CELLS, _FACE_MIN_POINTS, _FLAT_NZ, _FLAT_RADIUS_M = 0.3, 0.4, 5, 0.7, 0.005
-_FACE_BLOCK_ENTRIES = 1 << 19  # candidate cells x neighbours per block (~50 MB of neighbour arrays)
 
 
 # ----------------------------------------------------------------------------- grid placement
@@ -93,13 +90,28 @@ def place_grid(xyz: np.ndarray, grid: GridParams, p: ReconstructParams) -> GridS
     a surface that fits gets exactly the rows x cols grid. The origin is snapped so every cell centre is a TSDF
     lattice column.
     """
+    box = None if grid.centre_xy is not None else np.percentile(xyz[:, :2], [0.5, 99.5], axis=0)
+    return _placed(box, grid, p)
+
+
+def surface_box(surface: Surface) -> np.ndarray:
+    """``(2, 2)``: the 0.5 and 99.5 percentiles of the surface's x and y (rows), as :func:`place_grid` takes them
+    with ``np.percentile`` of the whole array, selected exactly a chunk at a time
+    (:func:`pipeline.recon.surface.percentiles`)."""
+    n = surface.count
+    return np.stack([surface_mod.percentiles(lambda k=k: (c[0][:, k] for c in surface.chunks(("xyz",))), [0.5, 99.5],
+                                             n) for k in (0, 1)], axis=1)
+
+
+def _placed(box: np.ndarray | None, grid: GridParams, p: ReconstructParams) -> GridSpec:
+    """:func:`place_grid` on the surface's percentile ``box`` ``(2, 2)`` (None: the centre is pinned)."""
     n = lattice_ratio(grid, p)
     v, s = p.voxel_size_m, grid.cell_size_m
     rows, cols = grid.rows, grid.cols
     if grid.centre_xy is not None:
         centre = np.asarray(grid.centre_xy, np.float64)
     else:
-        lo, hi = np.percentile(xyz[:, :2], [0.5, 99.5], axis=0)
+        lo, hi = box
         centre = (lo + hi) / 2.0
         if grid.extent == "grow":
             need = np.ceil((hi - lo + 2 * _GROW_MARGIN_M) / s).astype(np.int64)  # cells along x, y
@@ -196,7 +208,7 @@ class Columns:
 
 
 def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.ndarray, np.ndarray]],
-                     p: ReconstructParams) -> Columns:
+                     p: ReconstructParams, *, whole_columns: bool = False) -> Columns:
     """The cell-centre columns of observed voxels (see the module doc and :class:`Columns`).
 
     ``occupied``: a voxel of the cell-centre column in the obstacle band lies behind a surface
@@ -205,6 +217,10 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
     ``obstacle_min_height_m`` and ``hidden_free_max_height_m`` was observed in front of a surface
     (positive TSDF): the space low above the floor there was seen empty, so the cell is no unseen
     inside of furniture.
+
+    The chunks of ``voxels`` may split a column: its voxels are gathered across them. ``whole_columns``: each chunk
+    holds every voxel of the lattice columns it touches (a fusion tile's voxels), so the solid tops are found chunk
+    by chunk (the same ones: :func:`solid_tops` looks only along a column), memory bounded by a chunk.
     """
     v = p.voxel_size_m
     n = int(round(grid.cell_size_m / v))
@@ -225,7 +241,7 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
     solid_lo = np.full(cells, levels, dtype=np.int64)  # level index, ``levels`` = none
     solid_hi = np.full(cells, -1, dtype=np.int64)
     top_cells = np.zeros(cells, dtype=bool)
-    keys, values = [], []
+    keys, values, found = [], [], []
     for lattice, tsdf in voxels:
         centre = ((lattice[:, 0] - k0[0]) % n == 0) & ((lattice[:, 1] - k0[1]) % n == 0)
         lat, t = lattice[centre], tsdf[centre]
@@ -243,10 +259,15 @@ def column_occupancy(grid: GridSpec, floor_z: float, voxels: Iterable[tuple[np.n
         near = inside & (level >= lo) & (level <= hi)
         keys.append(cell[near] * levels + (level[near] - lo))
         values.append(t[near])
+        if whole_columns:
+            found.append(solid_tops(keys.pop(), values.pop(), levels, first=max_gap + 1, last=levels - 2,
+                                    max_gap=max_gap))
     behind_surface = solid_hi >= 0
     if keys:
-        tops, slabs = solid_tops(np.concatenate(keys), np.concatenate(values), levels, first=max_gap + 1,
-                                 last=levels - 2, max_gap=max_gap)
+        found.append(solid_tops(np.concatenate(keys), np.concatenate(values), levels, first=max_gap + 1,
+                                last=levels - 2, max_gap=max_gap))
+    if found:
+        tops, slabs = (np.concatenate([f[k] for f in found]) for k in (0, 1))
         tops = np.concatenate([tops, board_slabs(slabs, levels, grid)])
         top_cell, top_level = tops // levels, tops % levels - 1  # the solid lies just below the voxel
         np.minimum.at(solid_lo, top_cell, top_level)
@@ -330,129 +351,17 @@ def board_slabs(slabs: np.ndarray, levels: int, grid: GridSpec) -> np.ndarray:
     return slabs[keep]
 
 
-def surface_occupancy(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.ndarray, p: ReconstructParams
-                      ) -> np.ndarray:
-    """``(rows, cols)`` bool: cells holding ``surface_min_points`` surface points of the band, moved half a cell in.
-
-    Normals point out of solids (toward the cameras), so a point moved by half a cell against its
-    normal lies in a cell whose centre is inside the solid: the same rasterisation as the column
-    test, for surfaces whose voxels were thinned out by fusion (chair legs, thin panels). A face
-    passing a few millimetres outside a cell centre sends a stray point or two into that cell;
-    ``surface_min_points`` keeps those out.
-    """
-    z_rel = xyz[:, 2] - floor_z
-    band = (z_rel >= p.obstacle_min_height_m) & (z_rel <= p.obstacle_max_height_m)
-    moved = xyz[band, :2] - 0.5 * grid.cell_size_m * normals[band, :2]
-    rc = grid.world_to_cell(moved)
-    rc = rc[grid.inside(rc)]
-    counts = np.bincount(rc[:, 0] * grid.cols + rc[:, 1], minlength=grid.rows * grid.cols)
-    return (counts >= p.surface_min_points).reshape(grid.rows, grid.cols)
-
-
-def in_front_of_faces(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.ndarray, candidates: np.ndarray,
-                      solid_z: np.ndarray, p: ReconstructParams) -> np.ndarray:
-    """``(rows, cols)`` bool: ``candidates`` whose centre lies in front of the vertical faces passing by it.
-
-    The column and surface tests read voxel signs, which fusion blurs by a few millimetres near
-    faces (grazing views, views past convex corners); a face passing just outside a cell centre then
-    occupies the cell. The extracted surface is sharper (interpolated zero crossings): for each
-    candidate, the side-facing surface points of the band within 0.4 cell of its centre (xy) vote
-    with their signed distance to the centre along their normals; a positive median (the centre is
-    in front) clears it — provided the voting faces span the heights where the column saw solid
-    (``solid_z`` from :class:`Columns`: a seat under a backrest keeps its cell). Cells with an
-    upward- or downward-facing point over the centre (a top) keep their evidence, as do cells with
-    fewer than five nearby points (inside thick solids). Candidates go in blocks (bounded memory).
-
-    Every point within the radius votes, not the nearest few: a face's points stack in columns at
-    one xy, so a cap on the neighbour count would cut through points tied in distance, and which of
-    them are kept would depend on the order of ``xyz`` (open3d's hash-map order, which changes from
-    run to run). The result is a function of the point set alone.
-    """
-    out = np.zeros((grid.rows, grid.cols), dtype=bool)
-    z_rel = xyz[:, 2] - floor_z
-    band = (z_rel >= p.obstacle_min_height_m) & (z_rel <= p.obstacle_max_height_m)
-    side = band & (np.abs(normals[:, 2]) < _FACE_NZ)
-    flat = band & (np.abs(normals[:, 2]) >= _FLAT_NZ)
-    if not candidates.any() or side.sum() < _FACE_MIN_POINTS:
-        return out
-    pts = xyz[side, :2].astype(np.float64)
-    pts_z = z_rel[side]
-    nxy = normals[side, :2].astype(np.float64)
-    nxy /= np.linalg.norm(nxy, axis=1, keepdims=True)
-    side_tree = cKDTree(pts)
-    flat_tree = cKDTree(xyz[flat, :2].astype(np.float64)) if flat.any() else None
-    radius = _FACE_RADIUS_CELLS * grid.cell_size_m
-    all_rc = np.argwhere(candidates)
-    all_centres = grid.cell_to_world(all_rc)
-    most = int(side_tree.query_ball_point(all_centres, radius, return_length=True).max())
-    if most < _FACE_MIN_POINTS:
-        return out
-    k = most + 1  # one column more than any disc holds, so none is cut (checked below)
-    block = max(1, _FACE_BLOCK_ENTRIES // k)
-    for start in range(0, len(all_rc), block):
-        rc, centres = all_rc[start : start + block], all_centres[start : start + block]
-        dist, idx = side_tree.query(centres, k=k, distance_upper_bound=radius)
-        while np.isfinite(dist[:, -1]).any():  # the disc count and the k-nearest bound disagreed by a rounding
-            k *= 2
-            dist, idx = side_tree.query(centres, k=k, distance_upper_bound=radius)
-        near = np.isfinite(dist)
-        j = np.where(near, idx, 0)
-        signed = np.where(near, np.einsum("nkd,nkd->nk", centres[:, None, :] - pts[j], nxy[j]), np.nan)
-        face_z = np.where(near, pts_z[j], np.nan)
-        enough = near.sum(axis=1) >= _FACE_MIN_POINTS
-        if not enough.any():
-            continue
-        median = np.full(len(rc), np.nan)
-        median[enough] = np.nanmedian(signed[enough], axis=1)
-        front = enough & (median > 0)
-        # Solid seen in the column must lie within the heights of the voting faces (one voxel of slack).
-        solid = solid_z[rc[:, 0], rc[:, 1]]
-        z_lo = np.full(len(rc), np.inf)
-        z_hi = np.full(len(rc), -np.inf)
-        z_lo[enough] = np.nanmin(face_z[enough], axis=1)
-        z_hi[enough] = np.nanmax(face_z[enough], axis=1)
-        spanned = (solid[:, 0] >= z_lo - p.voxel_size_m) & (solid[:, 1] <= z_hi + p.voxel_size_m)
-        front &= ~np.isfinite(solid[:, 0]) | spanned
-        if flat_tree is not None:
-            flat_dist, _ = flat_tree.query(centres, k=1, distance_upper_bound=_FLAT_RADIUS_M)
-            front &= ~np.isfinite(flat_dist)
-        out[rc[front, 0], rc[front, 1]] = True
-    return out
-
-
-def top_surface(grid: GridSpec, floor_z: float, xyz: np.ndarray, colors: np.ndarray, p: ReconstructParams
-                ) -> tuple[np.ndarray, np.ndarray, int]:
-    """Height ``(rows, cols)`` float32 (NaN unknown), colour ``(rows, cols, 3)`` uint8, points outside.
-
-    The highest point of each cell (up to ``height_max_m`` above the floor) wins.
-    """
-    rc = grid.world_to_cell(xyz[:, :2])
-    inside = grid.inside(rc)
-    z = xyz[:, 2].astype(np.float64) - floor_z
-    keep = inside & (z <= p.height_max_m)
-    flat = rc[keep, 0] * grid.cols + rc[keep, 1]
-    zk, ck = z[keep], colors[keep]
-    order = np.lexsort((ck[:, 2], ck[:, 1], ck[:, 0], zk, flat))  # ties broken by colour: deterministic
-    flat, zk, ck = flat[order], zk[order], ck[order]
-    last = np.r_[flat[1:] != flat[:-1], True] if flat.size else np.zeros(0, bool)
-    height = np.full(grid.rows * grid.cols, np.nan, np.float32)
-    color = np.zeros((grid.rows * grid.cols, 3), np.uint8)
-    height[flat[last]] = zk[last]
-    color[flat[last]] = ck[last]
-    return height.reshape(grid.rows, grid.cols), color.reshape(grid.rows, grid.cols, 3), int((~inside).sum())
-
-
-def placed_grid(xyz: np.ndarray, T_world_camera: dict[int, np.ndarray], grid_params: GridParams,
+def placed_grid(surface: Surface, T_world_camera: dict[int, np.ndarray], grid_params: GridParams,
                 p: ReconstructParams, *, source: str = "frames") -> GridSpec:
     """The grid every floor of one reconstruction shares (:func:`place_grid`), checked to hold every camera.
 
-    ``xyz`` ``(N,3)`` surface points; ``T_world_camera``: frame index -> pose used. Raises
+    ``surface``: the surface points; ``T_world_camera``: frame index -> pose used. Raises
     :class:`StageError` for an empty scene and :class:`InputDataError` naming the first camera outside the grid.
     """
-    if xyz.shape[0] == 0:
+    if surface.count == 0:
         raise StageError(f"{source}: the fused volume has no surface (empty scene, or depth never observed "
                          f"{p.min_weight:g}+ times at the same place: reconstruct.min_weight)")
-    grid = place_grid(xyz, grid_params, p)
+    grid = _placed(None if grid_params.centre_xy is not None else surface_box(surface), grid_params, p)
     cam_idx = np.array(sorted(T_world_camera), dtype=np.int64)
     cam = np.stack([T_world_camera[i][:3, 3] for i in cam_idx])
     cam_rc = grid.world_to_cell(cam[:, :2])
@@ -470,14 +379,16 @@ def placed_grid(xyz: np.ndarray, T_world_camera: dict[int, np.ndarray], grid_par
     return grid
 
 
-def floor_grids(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray,
-                voxels: Iterable[tuple[np.ndarray, np.ndarray]], p: ReconstructParams, *, floor_points: int = 0,
-                source: str = "frames", floor_name: str | None = None, void: np.ndarray | None = None) -> Grids:
+def floor_grids(grid: GridSpec, floor_z: float, surface: Surface, voxels: Iterable[tuple[np.ndarray, np.ndarray]],
+                p: ReconstructParams, *, band: tuple[float, float] | None = None, whole_columns: bool = False,
+                floor_points: int = 0, source: str = "frames", floor_name: str | None = None,
+                void: np.ndarray | None = None) -> Grids:
     """All grids of one floor at world height ``floor_z`` on ``grid``.
 
-    ``xyz``/``normals``/``colors``: the surface points of the floor's band (:func:`pipeline.recon.store.floor_bands`;
-    all of them for a single floor); ``voxels``: :func:`pipeline.recon.tsdf.iter_voxels` (the columns read
-    only the heights near this floor). Raises :class:`StageError` when more than ``max_outside_fraction`` of the
+    ``surface``: the surface points, of which the floor's ``band`` ``(lo, hi)`` of world heights
+    (:func:`pipeline.recon.store.floor_bands`; None: all of them, a single floor) is read a chunk at a time;
+    ``voxels``: :func:`pipeline.recon.tsdf.iter_voxels` (the columns read only the heights near this floor;
+    ``whole_columns``: see :func:`column_occupancy`). Raises :class:`StageError` when more than ``max_outside_fraction`` of the
     surface falls outside the grid or no free floor cell was seen (``floor_name`` names the floor of a building).
     ``floor_points``: the surface points the floor height rests on (a figure of ``stats``).
     ``void``: ``(rows, cols)`` bool, cells where the floor has no floor: the stairwell over a flight from the floor
@@ -488,14 +399,20 @@ def floor_grids(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.nda
     """
     where = f"{source}: {floor_name}" if floor_name else source
     inferable = np.ones((grid.rows, grid.cols), bool) if void is None else ~void
-    columns = column_occupancy(grid, floor_z, voxels, p)
+    columns = column_occupancy(grid, floor_z, voxels, p, whole_columns=whole_columns)
     floor_seen, low_air = columns.floor_seen, columns.low_air
-    occupied = columns.occupied | surface_occupancy(grid, floor_z, xyz, normals, p)
-    height, color, outside = top_surface(grid, floor_z, xyz, colors, p)
-    outside_fraction = outside / xyz.shape[0]
+    counts = np.zeros(grid.rows * grid.cols, np.int64)
+    top, n_points = TopSurface(grid, floor_z, p), 0
+    for xyz, normals, colors in band_chunks(surface, band):
+        counts += surface_counts(grid, floor_z, xyz, normals, p)
+        top.add(xyz, colors)
+        n_points += len(xyz)
+    occupied = columns.occupied | (counts >= p.surface_min_points).reshape(grid.rows, grid.cols)
+    height, color, outside = top.result()
+    outside_fraction = outside / n_points
     if outside_fraction > p.max_outside_fraction:
         raise StageError(
-            f"{where}: {outside} of {xyz.shape[0]} surface points ({outside_fraction:.1%}) fall outside the "
+            f"{where}: {outside} of {n_points} surface points ({outside_fraction:.1%}) fall outside the "
             f"{grid.rows}x{grid.cols} grid at {grid.cell_size_m} m (expected at most "
             f"{p.max_outside_fraction:.1%}: enlarge grid.rows/cols or grid.cell_size_m)"
         )
@@ -506,7 +423,7 @@ def floor_grids(grid: GridSpec, floor_z: float, xyz: np.ndarray, normals: np.nda
                           p.building_closing_m, p.fill_enclosed_max_m2) & ~low_air & inferable
     occupied |= hidden
     # Last, so that no rule above fills a cell an observed face passes in front of.
-    cleared = in_front_of_faces(grid, floor_z, xyz, normals, occupied, columns.solid_z, p)
+    cleared = faces_cleared(grid, floor_z, surface, band, occupied, columns.solid_z, p)
     occupied &= ~cleared
     free = floor_seen & ~occupied
     occupancy = np.full(occupied.shape, UNKNOWN, np.uint8)

@@ -26,6 +26,7 @@ from scipy.spatial import cKDTree
 from pipeline.config import ReconstructParams
 from pipeline.geometry import GridSpec
 from pipeline.recon.store import Floor, Landing, StairLink
+from pipeline.recon.surface import Surface
 
 MAX_STEP_M = 0.25  # the highest riser a flight may have (building codes: about 0.2 m)
 MAX_GAP_M = 0.3  # walkable surface this close (along x and y) joins: a tread seen only in patches, 0.28 m deep
@@ -66,16 +67,31 @@ class Flight:
         return binary_fill_holes(binary_closing(seen, structure=np.ones((2 * r + 1, 2 * r + 1), bool)))[r:-r, r:-r]
 
 
-def find_flights(xyz: np.ndarray, normals: np.ndarray, floors: list[Floor], grid: GridSpec, p: ReconstructParams
-                 ) -> list[Flight]:
-    """The flights joining each pair of consecutive ``floors`` (lowest first), on the floors' shared ``grid``;
-    ``xyz``/``normals`` ``(N,3)`` surface points."""
-    up = normals[:, 2] > _UP_COS
-    rc = grid.world_to_cell(xyz[up, :2].astype(np.float64))
-    inside = grid.inside(rc)
-    rc, z = rc[inside], xyz[up, 2][inside].astype(np.float64)
-    return [Flight(a, a + 1, **f) for a in range(len(floors) - 1)
-            for f in _flights(rc, z, floors[a].floor_z_m, floors[a + 1].floor_z_m, grid, p.floor_tolerance_m)]
+def find_flights(surface: Surface, floors: list[Floor], grid: GridSpec, p: ReconstructParams) -> list[Flight]:
+    """The flights joining each pair of consecutive ``floors`` (lowest first), on the floors' shared ``grid``.
+
+    ``surface`` is read a chunk at a time: what is kept of it are the floors' cells (masks) and the candidates of
+    a climb, the upward-facing points strictly between two floors."""
+    shape, tol = (grid.rows, grid.cols), p.floor_tolerance_m
+    heights = [f.floor_z_m for f in floors]
+    on_floor = [np.zeros(shape, bool) for _ in floors]
+    between: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in floors[1:]]
+    for xyz, normals in surface.chunks(("xyz", "normals")):
+        up = normals[:, 2] > _UP_COS
+        rc = grid.world_to_cell(xyz[up, :2].astype(np.float64))
+        inside = grid.inside(rc)
+        rc, z = rc[inside], xyz[up, 2][inside].astype(np.float64)
+        for k, z_k in enumerate(heights):
+            on_floor[k] |= _mask(rc[np.abs(z - z_k) <= tol], shape)
+        for a, (z_lo, z_hi) in enumerate(zip(heights, heights[1:])):
+            mid = (z > z_lo + tol) & (z < z_hi - tol)
+            between[a].append((rc[mid], z[mid]))
+    out = []
+    for a, (z_lo, z_hi) in enumerate(zip(heights, heights[1:])):
+        rc = np.concatenate([r for r, _ in between[a]]) if between[a] else np.zeros((0, 2), np.int64)
+        z = np.concatenate([h for _, h in between[a]]) if between[a] else np.zeros(0)
+        out += [Flight(a, a + 1, **f) for f in _flights(on_floor[a], on_floor[a + 1], rc, z, z_lo, z_hi, grid)]
+    return out
 
 
 def stair_links(flights: list[Flight], floors: list[Floor], grid: GridSpec, navigable: list[np.ndarray]
@@ -86,10 +102,10 @@ def stair_links(flights: list[Flight], floors: list[Floor], grid: GridSpec, navi
             for i, f in enumerate(flights)]
 
 
-def find_stairs(xyz: np.ndarray, normals: np.ndarray, floors: list[Floor], grid: GridSpec,
-                navigable: list[np.ndarray], p: ReconstructParams) -> list[StairLink]:
+def find_stairs(surface: Surface, floors: list[Floor], grid: GridSpec, navigable: list[np.ndarray],
+                p: ReconstructParams) -> list[StairLink]:
     """:func:`find_flights` as :func:`stair_links`."""
-    return stair_links(find_flights(xyz, normals, floors, grid, p), floors, grid, navigable)
+    return stair_links(find_flights(surface, floors, grid, p), floors, grid, navigable)
 
 
 def unlinked_warnings(floors: list[Floor], links: list[StairLink]) -> list[str]:
@@ -101,16 +117,15 @@ def unlinked_warnings(floors: list[Floor], links: list[StairLink]) -> list[str]:
             for lo, hi in zip(floors, floors[1:]) if (lo.id, hi.id) not in joined]
 
 
-def _flights(rc: np.ndarray, z: np.ndarray, z_lo: float, z_hi: float, grid: GridSpec, tol: float) -> list[dict]:
+def _flights(lower: np.ndarray, upper: np.ndarray, rc: np.ndarray, z: np.ndarray, z_lo: float, z_hi: float,
+             grid: GridSpec) -> list[dict]:
     """Connected climbs from the floor at ``z_lo`` to the floor at ``z_hi``: dicts of node cells and heights and
-    the landing cells on either floor."""
+    the landing cells on either floor. ``lower``/``upper``: ``(rows, cols)`` bool, the cells of walkable surface on
+    either floor; ``rc`` ``(M,2)``/``z`` ``(M,)``: the walkable points strictly between them."""
     shape = (grid.rows, grid.cols)
-    lower = _mask(rc[np.abs(z - z_lo) <= tol], shape)
-    upper = _mask(rc[np.abs(z - z_hi) <= tol], shape)
-    mid = (z > z_lo + tol) & (z < z_hi - tol)
-    if not mid.any() or not lower.any() or not upper.any():
+    if not len(z) or not lower.any() or not upper.any():
         return []
-    cells, heights = _nodes(rc[mid], z[mid] - z_lo)
+    cells, heights = _nodes(rc, z - z_lo)
     n = len(cells)
     graph = _step_graph(cells, heights, grid.cell_size_m)
     comp = connected_components(graph, directed=False)[1]

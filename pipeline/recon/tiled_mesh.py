@@ -28,6 +28,7 @@ from pipeline.recon.store import canonical_point_order
 _SLAB_M = 1.0  # slab width along x (at least a voxel: a triangle spans at most one)
 _VERTEX = np.dtype([("xyz", "<f8", (3,)), ("normal", "<f8", (3,)), ("rgb", "u1", (3,))])
 _FACE = np.dtype([("n", "u1"), ("index", "<u4", (3,))])
+_GATHER = 1 << 18  # triangles gathered at once when a tile's part is spilled
 
 
 def ply_header(n_vertices: int, n_faces: int | None) -> bytes:
@@ -70,18 +71,31 @@ def spill_part(vertices: np.ndarray, colors: np.ndarray, triangles: np.ndarray, 
     if not len(mine) and not len(triangles):
         return None
     mine = mine[canonical_point_order(mine[:, :3], mine[:, 3:])]
-    tri_rows = rows[triangles]
-    first_x = tri_rows[:, :, 0].min(axis=1) if len(triangles) else np.zeros(0)
+    tri_x = vertices[triangles, 0] if len(triangles) else np.zeros((0, 3))
+    first_x = tri_x.min(axis=1)
     order = np.argsort(first_x, kind="stable")
     part = SpilledPart(stem.with_suffix(".owned.npy"), stem.with_suffix(".rows.npy"), stem.with_suffix(".x.npy"),
                        stem.with_suffix(".owned_x.npy"),
                        (float(min(mine[:, 0].min(initial=np.inf), first_x.min(initial=np.inf))),
-                        float(max(mine[:, 0].max(initial=-np.inf), tri_rows[:, :, 0].max(initial=-np.inf)))))
+                        float(max(mine[:, 0].max(initial=-np.inf), tri_x.max(initial=-np.inf)))))
+    del tri_x
     np.save(part.owned, mine)
     np.save(part.owned_x, np.ascontiguousarray(mine[:, 0]))
-    np.save(part.rows, tri_rows[order])
+    _save_gathered(part.rows, rows, triangles[order])
     np.save(part.first_x, first_x[order])
     return part
+
+
+def _save_gathered(path: Path, rows: np.ndarray, index: np.ndarray) -> None:
+    """``np.save(path, rows[index])`` (``rows`` ``(n, 6)`` float64, ``index`` ``(m, 3)``) without holding
+    ``rows[index]``, the largest array of a tile's extraction (144 bytes a triangle): gathered and written
+    :data:`_GATHER` triangles at a time."""
+    header = {"descr": np.lib.format.dtype_to_descr(np.dtype("<f8")), "fortran_order": False,
+              "shape": (len(index), 3, rows.shape[1])}
+    with open(path, "wb") as f:
+        np.lib.format.write_array_header_1_0(f, header)
+        for s in range(0, len(index), _GATHER):
+            f.write(np.ascontiguousarray(rows[index[s : s + _GATHER]], "<f8").tobytes())
 
 
 def _slab(arrays: list[Path], keys: list[Path | np.ndarray], lo: float, hi: float) -> np.ndarray | None:
@@ -102,8 +116,34 @@ def _slab(arrays: list[Path], keys: list[Path | np.ndarray], lo: float, hi: floa
     return np.concatenate(parts) if parts else None
 
 
+def _row_hash(rows: np.ndarray) -> np.ndarray:
+    """``(k,)`` uint64: a hash of the bits of each float64 row ``(k, 6)`` (each word mixed in, then scrambled)."""
+    bits = np.ascontiguousarray(rows, np.float64).view(np.uint64)
+    h = np.full(len(rows), 0x9E3779B97F4A7C15, np.uint64)
+    for j in range(bits.shape[1]):
+        h = (h ^ bits[:, j]) * np.uint64(0xBF58476D1CE4E5B9)
+        h ^= h >> np.uint64(31)
+    return h
+
+
 def _ranks(table: np.ndarray, base: int, rows: np.ndarray, where: str) -> np.ndarray:
-    """Global index of each of ``rows`` ``(k, 6)`` in ``table`` (unique canonical rows, the first at ``base``)."""
+    """Global index of each of ``rows`` ``(k, 6)`` in ``table`` (unique canonical rows, the first at ``base``).
+
+    Looked up by a hash of the row's bits, each match checked row for row; should two rows share a hash, the exact
+    (and slower) lexicographic search answers instead."""
+    if len(table) and len(rows):
+        th = _row_hash(table)
+        order = np.argsort(th, kind="stable")
+        sorted_h = th[order]
+        qh = _row_hash(rows)
+        at = order[np.minimum(np.searchsorted(sorted_h, qh), len(table) - 1)]
+        if np.array_equal(table[at], rows):
+            return base + at
+    return _ranks_by_sort(table, base, rows, where)
+
+
+def _ranks_by_sort(table: np.ndarray, base: int, rows: np.ndarray, where: str) -> np.ndarray:
+    """:func:`_ranks` by one lexicographic sort of the table and the rows together."""
     keys = np.concatenate([table, rows])
     flag = np.r_[np.zeros(len(table)), np.ones(len(rows))]
     order = np.lexsort((flag, *keys.T[::-1]))
@@ -157,8 +197,10 @@ def write_tiled_mesh(path: Path, parts: list[SpilledPart], workdir: Path) -> dic
                 tri = tri[np.lexsort((tri[:, 2], tri[:, 1], tri[:, 0]))]
             if len(cur_v):
                 verts = np.concatenate([prev_v, cur_v, next_v])
-                local = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts[:, :3]),
-                                                  o3d.utility.Vector3iVector(np.concatenate([prev_t, tri]) - prev_base))
+                # contiguous float64 / int32: open3d copies those at once, anything else an element at a time
+                local = o3d.geometry.TriangleMesh(
+                    o3d.utility.Vector3dVector(np.ascontiguousarray(verts[:, :3])),
+                    o3d.utility.Vector3iVector((np.concatenate([prev_t, tri]) - prev_base).astype(np.int32)))
                 local.compute_vertex_normals()
                 normals = np.asarray(local.vertex_normals)[len(prev_v): len(prev_v) + len(cur_v)]
                 vf.write(vertex_records(cur_v[:, :3], normals, cur_v[:, 3:]).tobytes())

@@ -39,10 +39,10 @@ from pipeline.geometry import Intrinsics, invert_pose
 from pipeline.prefetch import prefetched
 from pipeline.recon import tsdf
 from pipeline.recon.keyframes import KeyframeRule, KeyframeSelector
+from pipeline.recon.surface import Surface
 from pipeline.recon.tiled_mesh import SpilledPart, spill_part, write_tiled_mesh
 
 o3c = o3d.core
-_VOXELS_PER_READ = 1 << 21  # voxels handed to the grids at once from a tile's spill file
 _TILE_INITIAL_BLOCKS = 256  # a tile volume's first allocation (the hash map grows on demand)
 
 
@@ -137,9 +137,7 @@ class TiledFusion:
     T_world_camera: dict[int, np.ndarray] = field(default_factory=dict)
     not_keyframes: dict[int, np.ndarray] = field(default_factory=dict)
     keyframe_reasons: dict[str, int] = field(default_factory=dict)
-    xyz: np.ndarray | None = None  # (N,3) float32, canonical order (tsdf.extract_points)
-    normals: np.ndarray | None = None
-    colors: np.ndarray | None = None
+    surface: Surface | None = None  # the surface points, each tile's spilled under workdir
     mesh_parts: list[SpilledPart] = field(default_factory=list)  # each tile's mesh, spilled (written by write_mesh)
     n_triangles: int = 0
     voxel_files: list[Path] = field(default_factory=list)
@@ -155,12 +153,11 @@ class TiledFusion:
 
     def voxels(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         """The observed voxels (weight >= ``occupancy_min_weight``) as :func:`pipeline.recon.tsdf.iter_voxels`
-        yields them, tile by tile from the spill files, a bounded number at a time."""
+        yields them, a tile's at a time from the spill files: every voxel of a lattice column comes in one chunk
+        (a tile owns whole block columns), so the grids read them with ``whole_columns``."""
         for path in self.voxel_files:
             with np.load(path) as spill:
-                lattice, values = spill["lattice"], spill["tsdf"]
-            for s in range(0, len(values), _VOXELS_PER_READ):
-                yield lattice[s : s + _VOXELS_PER_READ], values[s : s + _VOXELS_PER_READ]
+                yield spill["lattice"], spill["tsdf"]
 
 
 def _frame_plan(store: FrameStore, p: ReconstructParams, intr: Intrinsics, wanted: np.ndarray, fusion: TiledFusion
@@ -247,6 +244,7 @@ def _extract(volume: o3d.t.geometry.VoxelBlockGrid, layout: TileLayout, tile: tu
     xyz, normals, colors = tsdf.extract_points(volume, p)
     keep = layout.owns(tile, xyz[:, :2])
     points = (xyz[keep], normals[keep], colors[keep])
+    del xyz, normals, colors
 
     mesh = tsdf.extract_mesh(volume, p)
     v = np.asarray(mesh.vertices)
@@ -256,11 +254,12 @@ def _extract(volume: o3d.t.geometry.VoxelBlockGrid, layout: TileLayout, tile: tu
         tri = tri[layout.owns(tile, v[tri].mean(axis=1)[:, :2])]
     owned = layout.owns(tile, v[:, :2]) if len(v) else np.zeros(0, bool)
     mesh_part = spill_part(v, c, tri, owned, workdir / f"mesh_{tile[0]}_{tile[1]}")
-    del mesh
+    n_triangles = len(tri)
+    del mesh, v, c, tri, owned  # the legacy mesh and the views into it: freed before the voxels are read
 
     lo, hi = layout.block_range(tile, margin=0)
     lattices, values = [], []
-    for lattice, t in tsdf.iter_voxels(volume, p, min_weight=p.occupancy_min_weight):
+    for lattice, t in tsdf.iter_voxels(volume, p, min_weight=p.occupancy_min_weight, blocks_per_chunk=256):
         block_xy = np.floor_divide(lattice[:, :2], p.block_resolution)
         own = ((block_xy >= lo) & (block_xy <= hi)).all(axis=1)
         lattices.append(lattice[own])
@@ -269,7 +268,7 @@ def _extract(volume: o3d.t.geometry.VoxelBlockGrid, layout: TileLayout, tile: tu
               np.concatenate(values) if values else np.zeros(0, np.float32))
     keys = volume.hashmap().key_tensor()[volume.hashmap().active_buf_indices().to(o3c.int64)].numpy()
     n_blocks = int(((keys[:, :2] >= lo) & (keys[:, :2] <= hi)).all(axis=1).sum())
-    return points, mesh_part, voxels, n_blocks, len(tri)
+    return points, mesh_part, voxels, n_blocks, n_triangles
 
 
 def fuse_tiled(store: FrameStore, p: ReconstructParams, tile_m: float, workdir: Path, *,
@@ -296,9 +295,9 @@ def fuse_tiled(store: FrameStore, p: ReconstructParams, tile_m: float, workdir: 
     if layout.n_tiles == 1:
         return None
     fusion = TiledFusion(layout, Path(workdir))
+    fusion.surface = Surface(layout.owner, fusion.workdir)
     to_fuse = _frame_plan(store, p, intr, wanted, fusion)
     seen = np.full(store.n_frames, -1, np.int8)
-    points = []
     tiles = layout.tiles()
     for tile in (progress(iter(tiles), len(tiles)) if progress else tiles):
         lo, hi = layout.block_range(tile, margin=1)
@@ -315,7 +314,7 @@ def fuse_tiled(store: FrameStore, p: ReconstructParams, tile_m: float, workdir: 
         del volume
         fusion.n_blocks += n_blocks
         fusion.n_triangles += n_triangles
-        points.append(tile_points)
+        fusion.surface.add(tile, *tile_points)
         if mesh_part is not None:
             fusion.mesh_parts.append(mesh_part)
         if len(values):
@@ -327,17 +326,7 @@ def fuse_tiled(store: FrameStore, p: ReconstructParams, tile_m: float, workdir: 
     fusion.frames_fused = fused.tolist()
     fusion.T_world_camera = {int(i): poses[i] for i in fused}
     tsdf.check_empty_frames(store, p, fusion)
-    fusion.xyz, fusion.normals, fusion.colors = _canonical_points(points)
     return fusion
-
-
-def _canonical_points(parts: list[tuple[np.ndarray, ...]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    from pipeline.recon.store import canonical_point_order
-
-    xyz, normals, colors = (np.concatenate([part[k] for part in parts]) if parts else np.zeros((0, 3), np.float32)
-                            for k in range(3))
-    order = canonical_point_order(xyz, normals, colors)
-    return xyz[order], normals[order], colors[order].astype(np.uint8)
 
 
 def spill_dir(next_to: Path) -> tempfile.TemporaryDirectory:

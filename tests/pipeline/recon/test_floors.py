@@ -13,6 +13,7 @@ from pipeline.recon import Recon
 from pipeline.recon.build import reconstruct
 from pipeline.recon.floors import camera_levels, find_floors, surface_peaks
 from pipeline.recon.store import floor_bands
+from pipeline.recon.surface import Surface
 from tests.fixtures.real_data import TUM_RPY, raised_copy
 
 FLAT = 0.5  # heights of the synthetic floors below: 0.5 and 3.5 m
@@ -56,7 +57,7 @@ def test_camera_heights_cluster_per_floor_and_stair_frames_belong_to_none():
 def test_two_floors_with_their_ceilings_are_found_from_surface_and_cameras():
     rng = np.random.default_rng(1)
     xyz, normals = two_storeys(rng)
-    found = find_floors(xyz, normals, cameras(rng), ReconstructParams())
+    found = find_floors(Surface.of(xyz, normals), cameras(rng), ReconstructParams())
     assert [round(f.floor_z_m, 2) for f in found.floors] == [FLAT, FLAT + 3.0]
     assert [f.ceiling_z_m for f in found.floors] == pytest.approx([FLAT + 2.7, FLAT + 5.7], abs=0.01)
     assert [f.source for f in found.floors] == ["surface", "surface"]
@@ -65,14 +66,14 @@ def test_two_floors_with_their_ceilings_are_found_from_surface_and_cameras():
     assert found.warnings == []
     (lo0, hi0), (lo1, hi1) = floor_bands(found.floors)
     assert lo0 == -np.inf and hi0 == pytest.approx(FLAT + 3.0 - 0.15, abs=0.01) and hi1 == np.inf
-    peaks = dict(surface_peaks(xyz[normals[:, 2] > 0.9, 2], xyz[normals[:, 2] > 0.9, :2]))
+    peaks = dict(surface_peaks(Surface.of(xyz, normals)))
     assert max(peaks.values()) > 20  # the floors' areas (6 x 4 m)
 
 
 def test_a_camera_level_without_floor_surface_takes_the_other_floors_camera_height_with_a_warning():
     rng = np.random.default_rng(2)
     xyz, normals = two_storeys(rng, upper_floor=False, ceilings=False)
-    found = find_floors(xyz, normals, cameras(rng), ReconstructParams())
+    found = find_floors(Surface.of(xyz, normals), cameras(rng), ReconstructParams())
     assert [f.source for f in found.floors] == ["surface", "cameras"]
     assert found.floors[1].floor_z_m == pytest.approx(FLAT + 3.0, abs=0.05)
     assert len(found.warnings) == 1 and "no floor surface under the cameras at 4.80 m" in found.warnings[0]
@@ -82,7 +83,7 @@ def test_a_camera_level_without_floor_surface_takes_the_other_floors_camera_heig
 def test_a_floor_seen_but_never_walked_is_reported():
     rng = np.random.default_rng(3)
     xyz, normals = two_storeys(rng)
-    found = find_floors(xyz, normals, FLAT + 1.3 + rng.normal(0, 0.05, 100), ReconstructParams())
+    found = find_floors(Surface.of(xyz, normals), FLAT + 1.3 + rng.normal(0, 0.05, 100), ReconstructParams())
     assert len(found.floors) == 1 and found.floors[0].floor_z_m == pytest.approx(FLAT, abs=0.01)
     assert any("looks like a floor no camera stood on" in w and "3.50 m" in w for w in found.warnings)
 
@@ -91,18 +92,18 @@ def test_no_floor_under_any_camera_level_is_an_error_naming_the_key():
     rng = np.random.default_rng(4)
     wall = np.c_[rng.uniform(0, 4, 500), np.zeros(500), rng.uniform(0, 6, 500)]
     with pytest.raises(StageError, match="no floor found under any of the 2 camera levels.*reconstruct.floors"):
-        find_floors(wall, np.tile([0.0, 1.0, 0.0], (500, 1)), cameras(rng), ReconstructParams())
+        find_floors(Surface.of(wall, np.tile([0.0, 1.0, 0.0], (500, 1))), cameras(rng), ReconstructParams())
 
 
 def test_pinned_floors_are_checked_against_the_surface():
     rng = np.random.default_rng(5)
     xyz, normals = two_storeys(rng)
     pinned = ReconstructParams(floors=[{"floor_z_m": FLAT, "name": "ground floor"}, {"floor_z_m": FLAT + 3.0}])
-    found = find_floors(xyz, normals, cameras(rng), pinned)
+    found = find_floors(Surface.of(xyz, normals), cameras(rng), pinned)
     assert [(f.name, f.source) for f in found.floors] == [("ground floor", "pinned"), ("floor 1", "pinned")]
     wrong = ReconstructParams(floors=[{"floor_z_m": FLAT}, {"floor_z_m": FLAT + 2.2}])
     with pytest.raises(ConfigError) as err:
-        find_floors(xyz, normals, cameras(rng), wrong)
+        find_floors(Surface.of(xyz, normals), cameras(rng), wrong)
     line = str(err.value)
     assert "\n" not in line and line.startswith("reconstruct.floors[1].floor_z_m: no floor at 2.70 m")
     assert "3.50 m" in line  # where floors are

@@ -7,8 +7,8 @@ from pipeline.config import GridParams, ReconstructParams
 from pipeline.errors import ConfigError, StageError
 from pipeline.geometry import GridSpec
 from pipeline.recon.floors import estimate_floor
-from pipeline.recon.grids import (column_occupancy, enclosed_unknown, floor_grids, in_front_of_faces, lattice_ratio,
-                                   navigable_mask, place_grid, surface_occupancy)
+from pipeline.recon.grids import column_occupancy, enclosed_unknown, floor_grids, lattice_ratio, navigable_mask, place_grid
+from pipeline.recon.surface import Surface
 
 
 def _plane(rng, n, z, x=(0, 4), y=(0, 3)):
@@ -25,7 +25,7 @@ def test_floor_is_lowest_strong_horizontal_peak_not_the_biggest_or_an_outlier():
     nw = np.tile([0.0, 1.0, 0.0], (3000, 1))
     xyz = np.concatenate([floor, table, speck, wall])
     normals = np.concatenate([nf, nt, ns, nw])
-    z, count = estimate_floor(xyz, normals, camera_z=np.full(5, 1.2))
+    z, count = estimate_floor(Surface.of(xyz, normals), camera_z=np.full(5, 1.2))
     assert abs(z - 0.317) < 0.005
     assert count > 3000
 
@@ -34,7 +34,7 @@ def test_no_floor_under_the_cameras_is_a_stage_error():
     rng = np.random.default_rng(1)
     wall = np.c_[rng.uniform(0, 4, 500), np.zeros(500), rng.uniform(0, 2, 500)]
     with pytest.raises(StageError, match="no floor found.*reconstruct.floor_z_m"):
-        estimate_floor(wall, np.tile([0.0, 1.0, 0.0], (500, 1)), camera_z=np.ones(3))
+        estimate_floor(Surface.of(wall, np.tile([0.0, 1.0, 0.0], (500, 1))), camera_z=np.ones(3))
 
 
 def test_grid_is_centred_on_the_surface_and_cell_centres_fall_on_the_voxel_lattice():
@@ -97,7 +97,7 @@ def test_an_empty_scene_is_a_stage_error_not_an_empty_map():
 
     empty = np.zeros((0, 3), np.float32)
     with pytest.raises(StageError, match="frames.zarr: the fused volume has no surface"):
-        placed_grid(empty, {0: np.eye(4)}, GridParams(), ReconstructParams(), source="frames.zarr")
+        placed_grid(Surface.of(empty, empty), {0: np.eye(4)}, GridParams(), ReconstructParams(), source="frames.zarr")
 
 
 def test_furniture_against_an_unseen_outer_wall_is_filled_but_an_unentered_room_is_not():
@@ -176,49 +176,6 @@ def test_a_thin_top_seen_only_from_above_occupies_its_cell_but_a_face_beside_the
     assert not column_occupancy(grid, 0.0, [air_below], p).occupied.any()
 
 
-def test_surface_points_need_several_to_occupy_a_cell():
-    grid = GridSpec(4, 4, 0.05, (0.0, 0.2))
-    p = ReconstructParams()
-    # A face at x = 0.078 m, normal +x, inside toward -x: moved half a cell in, points land in
-    # cell column 1 (x 0.05-0.10); two stray points of a face at x = 0.128 land in column 2.
-    face = np.c_[np.full(5, 0.078), np.linspace(0.06, 0.14, 5), np.full(5, 0.5)]
-    stray = np.array([[0.128, 0.11, 0.5], [0.128, 0.11, 0.7]])
-    xyz = np.vstack([face, stray])
-    normals = np.tile([1.0, 0.0, 0.0], (len(xyz), 1))
-    occ = surface_occupancy(grid, 0.0, xyz, normals, p)
-    assert p.surface_min_points == 3
-    assert occ[:, 1].sum() >= 1 and not occ[:, 2].any()
-    assert surface_occupancy(grid, 0.0, xyz, normals, p.model_copy(update={"surface_min_points": 1}))[:, 2].any()
-
-
-def _face(x, y, z_lo, z_hi, normal=(1.0, 0.0, 0.0)):
-    """Surface points of a vertical face at ``x`` (lattice-spaced over y +- 1 cm and heights), with their normal."""
-    ys, zs = np.meshgrid(y + np.array([-0.01, 0.0, 0.01]), np.arange(z_lo, z_hi + 1e-9, 0.025))
-    xyz = np.c_[np.full(ys.size, x), ys.ravel(), zs.ravel()]
-    return xyz, np.tile(normal, (len(xyz), 1))
-
-
-def test_a_face_passing_just_outside_a_cell_centre_clears_the_cell_unless_solid_was_seen_elsewhere_in_it():
-    grid = GridSpec(4, 4, 0.05, (0.0, 0.2))  # cell (r, c) centre: x = 0.025 + 0.05 c, y = 0.175 - 0.05 r
-    p = ReconstructParams()
-    faces = [
-        _face(0.070, 0.125, 0.1, 1.5),   # cell (1, 1): solid at x < 0.070, the centre 5 mm in front
-        _face(0.130, 0.125, 0.1, 1.5),   # cell (1, 2): solid at x < 0.130, the centre 5 mm inside
-        _face(0.070, 0.075, 0.45, 0.6),  # cell (2, 1): a backrest face above a seat seen solid below it
-        _face(0.120, 0.075, 0.1, 1.5),   # cell (2, 2): in front of a face, but a top lies over the centre
-        (np.array([[0.125, 0.075, 0.7]]), np.array([[0.0, 0.0, 1.0]])),
-    ]
-    xyz = np.vstack([f[0] for f in faces])
-    normals = np.vstack([f[1] for f in faces])
-    candidates = np.zeros((4, 4), bool)
-    candidates[1:3, 1:3] = True
-    solid_z = np.full((4, 4, 2), np.nan, np.float32)
-    solid_z[1, 1] = (0.2, 1.4)  # spurious solid along the face's whole height
-    solid_z[2, 1] = (0.1, 0.4)  # the seat, below the backrest's face
-    cleared = in_front_of_faces(grid, 0.0, xyz, normals, candidates, solid_z, p)
-    assert np.argwhere(cleared).tolist() == [[1, 1]]
-
-
 def test_an_unseen_board_between_seen_air_is_solid_where_it_spans_a_patch():
     grid = GridSpec(20, 20, 0.05, (0.0, 1.0))  # cell (r, c) centre: lattice (2c + 1, 39 - 2r)
     p = ReconstructParams()
@@ -242,26 +199,6 @@ def test_an_unseen_board_between_seen_air_is_solid_where_it_spans_a_patch():
     low = {k: 1.0 for k in (*range(20, 24), 26, 27, 28)}  # the gap at levels 24-25 instead of 28-29
     rows = [columns([(r, c) for c in range(2, 14)], board if r % 2 else low) for r in range(2, 14)]
     assert not column_occupancy(grid, 0.0, rows, p).occupied.any()
-
-
-def test_every_face_point_in_reach_votes_so_the_order_of_the_points_does_not_matter():
-    # A convex corner's edge: 70 side points stacked at one xy, 1 cm from the centre of cell (1, 1), all
-    # at exactly the same distance. 36 on the face the centre lies in front of (+6 mm), 34 on the other
-    # (-10 mm): the median of all of them is positive. A cap on the neighbour count would keep some of
-    # the tied points and drop others by their position in the array (open3d's hash-map order).
-    grid = GridSpec(4, 4, 0.05, (0.0, 0.2))
-    centre = grid.cell_to_world(np.array([[1, 1]]))[0]
-    n = 70
-    xyz = np.c_[np.full(n, centre[0] + 0.01), np.full(n, centre[1]), np.linspace(0.15, 1.45, n)]
-    normals = np.where((np.arange(n) < 36)[:, None], [-0.6, 0.8, 0.0], [1.0, 0.0, 0.0])
-    candidates = np.zeros((4, 4), bool)
-    candidates[1, 1] = True
-    solid_z = np.full((4, 4, 2), np.nan, np.float32)
-    rng = np.random.default_rng(0)
-    for _ in range(12):
-        perm = rng.permutation(n)
-        cleared = in_front_of_faces(grid, 0.0, xyz[perm], normals[perm], candidates, solid_z, ReconstructParams())
-        assert np.argwhere(cleared).tolist() == [[1, 1]]
 
 
 def test_a_large_floor_grows_the_grid_in_whole_tiles_and_one_that_fits_keeps_it():
@@ -294,7 +231,7 @@ def _ringed_hole(void: bool):
     lattice, tsdf = np.concatenate([v[0] for v in voxels]), np.concatenate([v[1] for v in voxels])
     xyz = np.c_[np.random.default_rng(0).uniform(0.05, 0.95, (200, 2)), np.zeros(200)]
     normals = np.tile([0.0, 0.0, 1.0], (200, 1))
-    return floor_grids(grid, 0.0, xyz, normals, np.zeros((200, 3)), [(lattice, tsdf)], ReconstructParams(),
+    return floor_grids(grid, 0.0, Surface.of(xyz, normals), [(lattice, tsdf)], ReconstructParams(),
                        void=inside if void else None), ring, inside
 
 

@@ -7,6 +7,7 @@ import pytest
 from pipeline.config import ReconstructParams
 from pipeline.geometry import GridSpec
 from pipeline.recon.stairs import Flight, find_stairs, unlinked_warnings
+from pipeline.recon.surface import Surface
 from pipeline.recon.store import Floor
 from tests.fixtures.recon_scenes import STOREY_M
 
@@ -80,7 +81,7 @@ def test_a_ramp_is_a_link_and_a_table_is_not():
     rng = np.random.default_rng(0)
     xyz, normals = _building(rng, ramp=True)
     nav = [np.ones((GRID.rows, GRID.cols), bool)] * 2
-    (link,) = find_stairs(xyz, normals, FLOORS, GRID, nav, ReconstructParams())
+    (link,) = find_stairs(Surface.of(xyz, normals), FLOORS, GRID, nav, ReconstructParams())
     assert link.kind == "ramp" and link.rise_m == 3.0
     # its ends within floor_tolerance_m (0.05 m: 0.3 m of run) of a floor are that floor
     assert link.run_m == pytest.approx(18.0 - 0.6, abs=0.15)
@@ -92,7 +93,7 @@ def test_floors_without_a_climb_between_them_are_reported():
     rng = np.random.default_rng(1)
     xyz, normals = _building(rng, ramp=False)
     nav = [np.ones((GRID.rows, GRID.cols), bool)] * 2
-    links = find_stairs(xyz, normals, FLOORS, GRID, nav, ReconstructParams())
+    links = find_stairs(Surface.of(xyz, normals), FLOORS, GRID, nav, ReconstructParams())
     assert links == []
     (line,) = unlinked_warnings(FLOORS, links)
     assert line.startswith("no stairs or ramp joins floor 0 (0.00 m) and floor 1 (3.00 m)")

@@ -27,3 +27,23 @@ def test_a_triangle_vertex_no_tile_owns_is_refused():
     stray = np.array([[0.0, 0, 0, 0.1, 0.1, 0.2]])
     with pytest.raises(StageError, match="mesh.ply: a triangle's vertex is owned by no tile"):
         tiled_mesh._ranks(table, 0, stray, "mesh.ply")
+
+
+def test_rows_found_by_hash_are_those_the_exact_search_finds_and_a_shared_hash_falls_back(monkeypatch):
+    rng = np.random.default_rng(0)
+    table = np.unique(np.round(rng.uniform(0, 1, (5000, 6)), 2), axis=0)
+    rows = table[rng.integers(0, len(table), 20000)]
+    want = tiled_mesh._ranks_by_sort(table, 7, rows, "mesh.ply")
+    assert np.array_equal(tiled_mesh._ranks(table, 7, rows, "mesh.ply"), want)
+    monkeypatch.setattr(tiled_mesh, "_row_hash", lambda r: np.zeros(len(r), np.uint64))  # every row collides
+    assert np.array_equal(tiled_mesh._ranks(table, 7, rows, "mesh.ply"), want)
+
+
+def test_a_parts_triangle_rows_are_saved_as_np_save_writes_them_gathered_a_block_at_a_time(tmp_path, monkeypatch):
+    rng = np.random.default_rng(1)
+    rows, index = rng.random((500, 6)), rng.integers(0, 500, (1000, 3))
+    monkeypatch.setattr(tiled_mesh, "_GATHER", 64)  # many blocks and a partial last one
+    for k, idx in enumerate((index, index[:0])):
+        tiled_mesh._save_gathered(tmp_path / f"ours{k}.npy", rows, idx)
+        np.save(tmp_path / f"numpy{k}.npy", rows[idx])
+        assert (tmp_path / f"ours{k}.npy").read_bytes() == (tmp_path / f"numpy{k}.npy").read_bytes()

@@ -90,3 +90,25 @@ def test_a_frame_reaching_past_its_predicted_footprint_is_refused_by_name(frames
     with pytest.raises(StageError, match=r"frame 4 touches TSDF blocks outside the footprint its pose predicts"):
         tiles._fuse_tile(store, p, intr, layout, (0, 0), np.arange(store.n_frames), footprints, fusion,
                          np.full(store.n_frames, -1, np.int8))
+
+
+def test_a_two_storey_house_in_tiles_gives_the_floors_stairs_and_bytes_of_one_volume(house, tmp_path):
+    """Everything after fusion streams over the tiles' spilled points (floors, grid placement, each floor's band,
+    stairs, points file): a building built in 4 m tiles is byte for byte the one-volume build."""
+    whole, recon, _ = house
+    frames = recon.path.parent / "frames.zarr"
+    out = tmp_path / "tiled"
+    out.mkdir()
+    tiled = reconstruct(frames, out / "recon.zarr", out / "mesh.ply", out / "points.ply", ReconstructParams(),
+                        GridParams(rows=160, cols=200), tile_m=4.0)
+    assert tiled["tiles"]["fused"] >= 4 and len(whole["floors"]) == 2 and whole["stairs"]
+    for key in ("floors", "floor_evidence", "stairs", "floor_stats", "grid_origin_xy", "grid_shape", "points",
+                "cells_free", "cells_occupied", "cells_cleared_in_front_of_faces", "cells_occupied_by_tops"):
+        assert tiled[key] == whole[key], key
+    assert (out / "points.ply").read_bytes() == recon.points_path.read_bytes()
+    assert (out / "mesh.ply").read_bytes() == recon.mesh_path.read_bytes()
+    a, b = zarr.open_group(str(recon.path), mode="r"), zarr.open_group(str(out / "recon.zarr"), mode="r")
+    for group in ("", "floors/1"):
+        for key in a[group or "/"].array_keys() if group else a.array_keys():
+            np.testing.assert_array_equal(b[f"{group}/{key}" if group else key][...],
+                                          a[f"{group}/{key}" if group else key][...], err_msg=f"{group}/{key}")
