@@ -304,11 +304,20 @@ class _Accumulator:
 
     def state(self) -> "FusionState":
         """A copy of the content (keys ascending), e.g. one chunk's partial to fold elsewhere."""
-        keys, slots = self.store.observed()
-        s = torch.from_numpy(slots).to(self.device)
+        return self.rows(*self.store.observed())
+
+    def observed(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(keys, slots)`` of every key holding rows, keys ascending (for :meth:`rows`)."""
+        return self.store.observed()
+
+    def rows(self, keys: np.ndarray, slots: np.ndarray) -> "FusionState":
+        """A copy of the rows of ``slots`` (keys ``keys``, as :meth:`observed` pairs them): a part of :meth:`state`
+        (e.g. one spatial tile's, :mod:`pipeline.maps.spill`) without a copy of the whole."""
+        s = torch.from_numpy(np.asarray(slots, np.int64)).to(self.device)
         top = self._top()
-        return FusionState(keys=keys, sum=self.store.sum[s].cpu(), weight=self.store.weight[s].cpu(),
-                           count=self.store.count[s].cpu(), top=None if top is None else top[s].cpu())
+        return FusionState(keys=np.asarray(keys, np.int64), sum=self.store.sum[s].cpu(),
+                           weight=self.store.weight[s].cpu(), count=self.store.count[s].cpu(),
+                           top=None if top is None else top[s].cpu())
 
     def merge(self, part: "FusionState") -> None:
         """Fold ``part`` (another accumulator's :meth:`state` on the same lattice) into this one."""
@@ -338,6 +347,11 @@ class _Accumulator:
     def _top(self) -> torch.Tensor | None:
         """Per-slot top level (top-down accumulators), else None."""
         return None
+
+    @property
+    def keeps_top(self) -> bool:
+        """Whether the states hold each key's top level (a top-down accumulator's)."""
+        return self._top() is not None
 
 
 @dataclass

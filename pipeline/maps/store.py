@@ -60,7 +60,7 @@ from pipeline.errors import ArtifactError, MissingInputError
 from pipeline.geometry import GridSpec
 from pipeline.maps.scoring import chunked_scores
 from pipeline.recon.store import Floor
-from pipeline.store import ArtifactAttrs, AttrsModel, GridAttrs, compressor, new_group
+from pipeline.store import ArtifactAttrs, AttrsModel, GridAttrs
 
 if TYPE_CHECKING:  # zarr is imported where a map is read or written: building a stage config needs none
     import zarr
@@ -218,12 +218,16 @@ ARRAY_DIMS: dict[str, dict[str, tuple[tuple[str, ...], dict]]] = {
 }
 
 
+def tile_index(cell: np.ndarray, grid: GridSpec, tile_cells: int) -> np.ndarray:
+    """Spatial tile ``(row // tile_cells) * tiles_per_row + col // tile_cells`` of each flat ``cell`` id."""
+    row, col = np.divmod(np.asarray(cell, np.int64), grid.cols)
+    return (row // tile_cells) * -(-grid.cols // tile_cells) + col // tile_cells
+
+
 def tile_order(cell: np.ndarray, grid: GridSpec, tile_cells: int) -> tuple[np.ndarray, np.ndarray]:
     """Permutation putting flat ``cell`` ids in tile-major order, and the ``(T+1,)`` tile offsets."""
-    row, col = np.divmod(np.asarray(cell, np.int64), grid.cols)
-    tiles_per_row = -(-grid.cols // tile_cells)
-    n_tiles = (-(-grid.rows // tile_cells)) * tiles_per_row
-    tile = (row // tile_cells) * tiles_per_row + col // tile_cells
+    n_tiles = (-(-grid.rows // tile_cells)) * -(-grid.cols // tile_cells)
+    tile = tile_index(cell, grid, tile_cells)
     order = np.lexsort((cell, tile))
     start = np.searchsorted(tile[order], np.arange(n_tiles + 1), side="left").astype(np.int64)
     return order, start
@@ -259,65 +263,31 @@ def write_map(
     map (a single floor's). ``floors`` (recon's records) of more than one floor with ``upper`` (one
     :class:`FloorLayer` per floor above the first) write a building (version 2, the module doc); otherwise the
     store is version 1 exactly as before floors existed."""
+    from pipeline.maps.writer import LayerShape, create_map
+
+    def shape(cells: MapCells, voxels: MapVoxels | None, **kw) -> LayerShape:
+        features = np.asarray(cells.features)
+        return LayerShape(kw.pop("grid"), kw.pop("lattice"), len(cells.cell),
+                          int(features.shape[1]) if features.ndim == 2 else 0,
+                          None if voxels is None else len(voxels), **kw)
+
     building = floors is not None and len(floors) > 1
-    if building and [f.id for f in floors[1:]] != [layer.floor.id for layer in upper]:
-        raise ValueError(f"{path}: floors {[f.id for f in floors]} need one upper layer per floor above the first, "
-                         f"got {[layer.floor.id for layer in upper]}")
-    extra = {}
-    if building:
-        extra = {"format_version": BUILDING_FORMAT_VERSION, "floors": [f.model_dump(mode="json") for f in floors]}
-    n_voxels = 0 if voxels is None else len(voxels)
-    g = new_group(path, MapAttrs.checked(
-        {**attrs, "grid": grid.to_attrs(), "lattice": lattice.to_attrs(), "tile_cells": tile_cells,
-         "n_cells": len(cells.cell), "n_voxels": n_voxels,
-         "units": {"features": "unit L2 norm", "weight": "sum of point weights", "distance": "metres"}, **extra}, path))
-    _write_layer(g, grid, cells, voxels, tile_cells)
-    for layer in upper if building else ():
-        sub = g.require_group(FLOOR_GROUP).create_group(str(layer.floor.id))
-        floor_attrs = FloorMapAttrs.model_validate(
-            {"grid": layer.grid.to_attrs(), "lattice": layer.lattice.to_attrs(), "n_cells": len(layer.cells.cell),
-             "n_voxels": 0 if layer.voxels is None else len(layer.voxels), **layer.figures})
-        sub.attrs.update(floor_attrs.model_dump(mode="json", exclude_none=True))
-        _write_layer(sub, layer.grid, layer.cells, layer.voxels, tile_cells)
-    return g
-
-
-def _write_layer(g: zarr.Group, grid: GridSpec, cells: MapCells, voxels: MapVoxels | None, tile_cells: int) -> None:
-    """One floor's ``top/`` (and ``voxels/``) in group ``g``."""
-    features = np.asarray(cells.features)
-    dim = int(features.shape[1]) if features.ndim == 2 else 0
-    order, start = tile_order(cells.cell, grid, tile_cells)
-    n = len(order)
-    chunk = max(tile_cells * tile_cells, 1)
-    c_f = compressor(3, shuffle="shuffle")
-    top = g.create_group("top")
-    idx = np.full(grid.rows * grid.cols, -1, dtype=np.int32)
-    idx[cells.cell[order]] = np.arange(n, dtype=np.int32)
-
-    def arr(group, name, data, chunks):
-        dims, meaning = ARRAY_DIMS[group.basename][name]
-        a = group.create_array(name, shape=data.shape, chunks=chunks, dtype=data.dtype, compressors=c_f,
-                               dimension_names=dims)
-        a.attrs.update(meaning)
-        if data.size:
-            a[...] = data
-        return a
-
-    arr(top, "cell", cells.cell[order].astype(np.int32), (chunk,))
-    arr(top, "features", features[order].astype(np.float16), (chunk, max(dim, 1)))
-    arr(top, "weight", cells.weight[order].astype(np.float32), (chunk,))
-    arr(top, "count", cells.count[order].astype(np.int32), (chunk,))
-    arr(top, "level", cells.level[order].astype(np.int16), (chunk,))
-    arr(top, "tile_start", start, (len(start),))
-    arr(top, "index", idx.reshape(grid.rows, grid.cols), (tile_cells, tile_cells))
-    if voxels is not None:
-        vx = g.create_group("voxels")
-        key = np.asarray(voxels.key).astype(np.int16)
-        o = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
-        arr(vx, "key", key[o], (chunk, 3))
-        arr(vx, "features", np.asarray(voxels.features)[o].astype(np.float16), (chunk, max(dim, 1)))
-        arr(vx, "weight", np.asarray(voxels.weight)[o].astype(np.float32), (chunk,))
-        arr(vx, "count", np.asarray(voxels.count)[o].astype(np.int32), (chunk,))
+    layers = [(cells, voxels, shape(cells, voxels, grid=grid, lattice=lattice))]
+    layers += [(layer.cells, layer.voxels, shape(layer.cells, layer.voxels, grid=layer.grid, lattice=layer.lattice,
+                                                 floor=layer.floor, figures=layer.figures))
+               for layer in (upper if building else ())]
+    writers = create_map(path, attrs, [s for _, _, s in layers], tile_cells=tile_cells, floors=floors)
+    for writer, (layer_cells, layer_voxels, layer_shape) in zip(writers, layers):
+        order, _ = tile_order(layer_cells.cell, layer_shape.grid, tile_cells)
+        writer.add_cells(layer_cells.cell[order], np.asarray(layer_cells.features)[order], layer_cells.weight[order],
+                         layer_cells.count[order], layer_cells.level[order])
+        if layer_voxels is not None:
+            key = np.asarray(layer_voxels.key).astype(np.int16)
+            o = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
+            writer.add_voxels(key[o], np.asarray(layer_voxels.features)[o], np.asarray(layer_voxels.weight)[o],
+                              np.asarray(layer_voxels.count)[o])
+        writer.close()
+    return writers[0].g
 
 
 class SemanticMap:
