@@ -268,6 +268,7 @@ def build_map(
         if cache is not None:
             cache.commit(key, p.chunk_frames, digests[:complete], *fold_counts)
             cache = None
+        spilled = sum(part.nbytes for floor_parts in parts for part in floor_parts)
         layers, fills, summary = _plan(p, recon, frames_path, folds, lattices, log)
         full_attrs = {**attrs, "encoder": identity, "weighting": {"sigma_m": kind.weight_sigma_m(p)},
                       "frames": {"n_frames": fs.n_frames, "fused": fused_frames, "keyframes_only": p.keyframes_only},
@@ -287,7 +288,8 @@ def build_map(
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     frames_reused = min(reused * p.chunk_frames, fs.n_frames)
-    return {**summary, "frames_fused": fused_frames, "frames_skipped": fs.n_frames - fused_frames,
+    return {**summary, "spilled_mb": round(spilled / 2**20, 1),  # the chunk states (and a reused fold) on disk
+            "frames_fused": fused_frames, "frames_skipped": fs.n_frames - fused_frames,
             "keyframes_only": p.keyframes_only, "chunks": len(chunks), "chunks_reused": reused,
             "frames_reused": frames_reused, "frames_processed": fs.n_frames - frames_reused,
             "encoder": identity["name"], "diagnostic_encoder": bool(identity.get("diagnostic", False))}

@@ -153,6 +153,11 @@ class TileRows:
             self.columns[c] = (np.memmap(path, dtype=dtype, mode="r", shape=shape) if self.rows
                                else np.zeros(shape, dtype))
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of every column on disk."""
+        return sum(int(a.nbytes) for a in self.columns.values())
+
     def fits(self, layout: TileLayout) -> bool:
         """Whether these rows were cut by ``layout``'s tiles."""
         return self.grid_shape == (layout.grid.rows, layout.grid.cols) and self.tile_cells == layout.tile_cells
