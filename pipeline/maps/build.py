@@ -152,6 +152,7 @@ def fuse_chunk(job: MapJob, chunk: tuple[int, int, int], *, fuse: bool = True) -
                 acc.add(pts, dense, point_weights(pts.dist_m, sigma))
                 pixels += pts.n_fused
             fused_frames += int(ok.sum())
+            del dense, pts  # a block's features (630 MB for 16 LSeg-sized frames) are gone before the next is encoded
     parts = None
     if fuse and accs is not None:
         parts = [f"chunk{index:05d}.floor{k}" for k in range(len(accs))]
