@@ -156,19 +156,23 @@ class _SlotStore:
             fresh = torch.arange(self.used, need, device=self.device)
             self.slot_of[new_keys] = fresh.to(torch.int32)
             self.keys[fresh] = new_keys
+            for rows in (self.sum, self.weight, self.count):  # grown rows are unwritten until given out (_grow)
+                rows[self.used : need] = 0
             self.used = need
             slot = self.slot_of[keys]
         return slot.long()
 
     def _grow(self, need: int) -> None:
+        """Double the capacity until ``need`` slots fit. Only the slots in use are copied; the others are left
+        unwritten (:meth:`slots` zeroes them as it gives them out), so the memory a store holds is its used rows,
+        not its capacity (and at a growth, the old rows and their copy: not the old and a whole zeroed new one)."""
         cap = self.sum.shape[0]
         while cap < need:
             cap *= 2
         for name in ("sum", "weight", "count", "keys"):
             old = getattr(self, name)
-            fill = -1 if name == "keys" else 0
-            new = torch.full((cap,) + tuple(old.shape[1:]), fill, dtype=old.dtype, device=self.device)
-            new[: old.shape[0]] = old
+            new = torch.empty((cap,) + tuple(old.shape[1:]), dtype=old.dtype, device=self.device)
+            new[: self.used] = old[: self.used]
             setattr(self, name, new)
 
     def add(self, target: torch.Tensor, features: torch.Tensor, weights: np.ndarray | None,
