@@ -48,10 +48,10 @@ reader of one region reads only the chunks of its tiles; a query reads ``top/fea
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from pydantic import ValidationError
@@ -61,9 +61,6 @@ from pipeline.geometry import GridSpec
 from pipeline.maps.scoring import chunked_scores
 from pipeline.recon.store import Floor
 from pipeline.store import ArtifactAttrs, AttrsModel, GridAttrs
-
-if TYPE_CHECKING:  # zarr is imported where a map is read or written: building a stage config needs none
-    import zarr
 
 FORMAT_VERSION = 1  # one floor (every store before floors existed)
 BUILDING_FORMAT_VERSION = 2  # several floors: attrs.floors and a floors/ group
@@ -110,7 +107,7 @@ class Lattice:
 
 @dataclass
 class MapCells:
-    """The top-down map as stored in ``top/`` (any row order; :func:`write_map` sorts tile-major)."""
+    """The top-down map as stored in ``top/`` (any row order; :func:`~pipeline.maps.writer.write_map` sorts tile-major)."""
 
     cell: np.ndarray  # (N,) int64 flat row * cols + col
     features: np.ndarray  # (N,D) float16/float32, L2-normalised weighted means
@@ -231,63 +228,6 @@ def tile_order(cell: np.ndarray, grid: GridSpec, tile_cells: int) -> tuple[np.nd
     order = np.lexsort((cell, tile))
     start = np.searchsorted(tile[order], np.arange(n_tiles + 1), side="left").astype(np.int64)
     return order, start
-
-
-@dataclass
-class FloorLayer:
-    """One upper floor's map in a building's store (``floors/<id>/``): as the root's arguments of :func:`write_map`
-    for floor 0, plus the floor's figures (``points_fused``, ``cells_observed``, ``cells_filled``)."""
-
-    floor: Floor
-    grid: GridSpec
-    lattice: Lattice
-    cells: MapCells
-    voxels: MapVoxels | None = None
-    figures: dict[str, Any] = field(default_factory=dict)
-
-
-def write_map(
-    path: Path,
-    attrs: dict,
-    grid: GridSpec,
-    lattice: Lattice,
-    cells: MapCells,
-    *,
-    tile_cells: int,
-    voxels: MapVoxels | None = None,
-    floors: list[Floor] | None = None,
-    upper: list[FloorLayer] = (),
-) -> zarr.Group:
-    """Write a map store at ``path`` (must not exist). ``attrs`` = ``artifact_attrs(...)`` + extras, checked
-    against :class:`MapAttrs` before anything is written. ``grid``, ``lattice``, ``cells``, ``voxels``: floor 0's
-    map (a single floor's). ``floors`` (recon's records) of more than one floor with ``upper`` (one
-    :class:`FloorLayer` per floor above the first) write a building (version 2, the module doc); otherwise the
-    store is version 1 exactly as before floors existed."""
-    from pipeline.maps.writer import LayerShape, create_map
-
-    def shape(cells: MapCells, voxels: MapVoxels | None, **kw) -> LayerShape:
-        features = np.asarray(cells.features)
-        return LayerShape(kw.pop("grid"), kw.pop("lattice"), len(cells.cell),
-                          int(features.shape[1]) if features.ndim == 2 else 0,
-                          None if voxels is None else len(voxels), **kw)
-
-    building = floors is not None and len(floors) > 1
-    layers = [(cells, voxels, shape(cells, voxels, grid=grid, lattice=lattice))]
-    layers += [(layer.cells, layer.voxels, shape(layer.cells, layer.voxels, grid=layer.grid, lattice=layer.lattice,
-                                                 floor=layer.floor, figures=layer.figures))
-               for layer in (upper if building else ())]
-    writers = create_map(path, attrs, [s for _, _, s in layers], tile_cells=tile_cells, floors=floors)
-    for writer, (layer_cells, layer_voxels, layer_shape) in zip(writers, layers):
-        order, _ = tile_order(layer_cells.cell, layer_shape.grid, tile_cells)
-        writer.add_cells(layer_cells.cell[order], np.asarray(layer_cells.features)[order], layer_cells.weight[order],
-                         layer_cells.count[order], layer_cells.level[order])
-        if layer_voxels is not None:
-            key = np.asarray(layer_voxels.key).astype(np.int16)
-            o = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
-            writer.add_voxels(key[o], np.asarray(layer_voxels.features)[o], np.asarray(layer_voxels.weight)[o],
-                              np.asarray(layer_voxels.count)[o])
-        writer.close()
-    return writers[0].g
 
 
 class SemanticMap:

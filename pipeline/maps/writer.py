@@ -6,8 +6,8 @@ returns one :class:`LayerWriter` per floor. A writer takes the floor's top-down 
 voxel rows in key order, in blocks of any size, and writes them to zarr a whole chunk at a time: the chunks hold
 the same values as an array written in one piece, so the store's bytes do not depend on the blocks. Memory: one
 block and less than one chunk per array, plus the ``(rows, cols)`` int32 index (written last). A build that
-folds its map one spatial tile at a time (:mod:`pipeline.maps.tilefold`) streams it here; ``store.write_map``
-writes a map held in memory through the same writers.
+folds its map one spatial tile at a time (:mod:`pipeline.maps.tilefold`) streams it here; :func:`write_map`
+writes a map held in memory (tests, benchmarks) through the same writers.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 
 from pipeline.geometry import GridSpec
 from pipeline.maps.store import (ARRAY_DIMS, BUILDING_FORMAT_VERSION, FLOOR_GROUP, FloorMapAttrs, Lattice, MapAttrs,
-                                 tile_index)
+                                 MapCells, MapVoxels, tile_index, tile_order)
 from pipeline.recon.store import Floor
 from pipeline.store import compressor, new_group
 
@@ -179,3 +179,58 @@ class LayerWriter:
         grid = self.shape.grid
         self._array(top, "index", (grid.rows, grid.cols), (self.tile_cells, self.tile_cells),
                     np.int32)[...] = self.index.reshape(grid.rows, grid.cols)
+
+
+@dataclass
+class FloorLayer:
+    """One upper floor's map in a building's store (``floors/<id>/``): as the root's arguments of :func:`write_map`
+    for floor 0, plus the floor's figures (``points_fused``, ``cells_observed``, ``cells_filled``)."""
+
+    floor: Floor
+    grid: GridSpec
+    lattice: Lattice
+    cells: MapCells
+    voxels: MapVoxels | None = None
+    figures: dict[str, Any] = field(default_factory=dict)
+
+
+def write_map(
+    path: Path,
+    attrs: dict,
+    grid: GridSpec,
+    lattice: Lattice,
+    cells: MapCells,
+    *,
+    tile_cells: int,
+    voxels: MapVoxels | None = None,
+    floors: list[Floor] | None = None,
+    upper: list[FloorLayer] = (),
+) -> zarr.Group:
+    """Write a map store at ``path`` (must not exist). ``attrs`` = ``artifact_attrs(...)`` + extras, checked
+    against :class:`MapAttrs` before anything is written. ``grid``, ``lattice``, ``cells``, ``voxels``: floor 0's
+    map (a single floor's). ``floors`` (recon's records) of more than one floor with ``upper`` (one
+    :class:`FloorLayer` per floor above the first) write a building (version 2, the module doc); otherwise the
+    store is version 1 exactly as before floors existed."""
+    def shape(cells: MapCells, voxels: MapVoxels | None, **kw) -> LayerShape:
+        features = np.asarray(cells.features)
+        return LayerShape(kw.pop("grid"), kw.pop("lattice"), len(cells.cell),
+                          int(features.shape[1]) if features.ndim == 2 else 0,
+                          None if voxels is None else len(voxels), **kw)
+
+    building = floors is not None and len(floors) > 1
+    layers = [(cells, voxels, shape(cells, voxels, grid=grid, lattice=lattice))]
+    layers += [(layer.cells, layer.voxels, shape(layer.cells, layer.voxels, grid=layer.grid, lattice=layer.lattice,
+                                                 floor=layer.floor, figures=layer.figures))
+               for layer in (upper if building else ())]
+    writers = create_map(path, attrs, [s for _, _, s in layers], tile_cells=tile_cells, floors=floors)
+    for writer, (layer_cells, layer_voxels, layer_shape) in zip(writers, layers):
+        order, _ = tile_order(layer_cells.cell, layer_shape.grid, tile_cells)
+        writer.add_cells(layer_cells.cell[order], np.asarray(layer_cells.features)[order], layer_cells.weight[order],
+                         layer_cells.count[order], layer_cells.level[order])
+        if layer_voxels is not None:
+            key = np.asarray(layer_voxels.key).astype(np.int16)
+            o = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
+            writer.add_voxels(key[o], np.asarray(layer_voxels.features)[o], np.asarray(layer_voxels.weight)[o],
+                              np.asarray(layer_voxels.count)[o])
+        writer.close()
+    return writers[0].g

@@ -13,9 +13,9 @@ from pipeline.maps.fill import fill_unseen
 from pipeline.maps.fusion import BlockPoints, FusedCells, FusedVoxels, TopDownAccumulator, VoxelAccumulator
 from pipeline.maps.incremental import FoldWriter, load_fold
 from pipeline.maps.spill import TileLayout, spill
-from pipeline.maps.store import FORMAT_VERSION, Lattice, SemanticMap, write_map
+from pipeline.maps.store import FORMAT_VERSION, Lattice, SemanticMap
 from pipeline.maps.tilefold import fold_floor, plan_fill, tile_runs, write_floor
-from pipeline.maps.writer import LayerShape, create_map
+from pipeline.maps.writer import LayerShape, create_map, write_map
 from pipeline.store import artifact_attrs
 
 GRID = GridSpec(rows=27, cols=30, cell_size_m=0.25, origin_xy=(0.0, 6.75))
