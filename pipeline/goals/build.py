@@ -41,8 +41,9 @@ from pipeline.goals.schema import (Feedback, GoalEntry, GoalsDocument, ObjectEnt
 from pipeline.goals.store import write_goals
 from pipeline.recon import OCCUPIED, UNKNOWN, Recon
 from pipeline.nav.actions import RoutePlanner, RouteSettings
-from pipeline.nav.region import (OWN_DILATION_CELLS, SIGHT_LEVELS, SIGHT_METHOD, MeshSight, group_region,
-                                    recorded_camera_height)
+from pipeline.nav.region import (OWN_DILATION_CELLS, SIGHT_LEVELS, SIGHT_METHOD, group_region,
+                                 recorded_camera_height, sight_window)
+from pipeline.nav.sight import WindowedSight
 from pipeline.scene_gt import GTScene
 
 GOAL_TYPES = ("big", "small", "ambiguous")
@@ -139,6 +140,8 @@ def build_goals(objset: ObjectSet, grid: GridSpec, walls: np.ndarray, *, planner
         drafts.append(GoalDraft(id=g[0], name=identities[g[0]].name, type=t, cls=o.cls, room_id=o.room,
                                 room_name=info.name if info else None, members=g))
     ensure_unique([d.name for d in drafts], "goal name")
+    _prepare_regions([d.members for d in drafts], by_key, goal_region, object_index if building is None else None,
+                     keys, building)
     if building is None:
         ctx = FeedbackContext(objects=by_key, identities=identities, rooms=rooms, goals=drafts, grid=grid,
                               walls=np.asarray(walls, dtype=bool), object_index=object_index, object_keys=keys,
@@ -158,12 +161,15 @@ def build_goals(objset: ObjectSet, grid: GridSpec, walls: np.ndarray, *, planner
         object_index = [indexes[f] for f in sorted(indexes)]
     goals = []
     landmarks = {}
+    planners = list({id(c.planner): c.planner for c in contexts.values() if hasattr(c.planner, "forget")}.values())
     for d in drafts:
         ctx = contexts[by_key[d.members[0]].floor if building is not None else 0]
         fb = {name: kind().generate(d, ctx) for name, kind in sorted(FEEDBACK_KINDS.items())}
         goals.append(GoalEntry(id=d.id, name=d.name, type=d.type, room=d.room_name, room_id=d.room_id,
                                objects=list(d.members), feedback=Feedback(**fb)))
         landmarks[d.id] = find_landmarks(d, ctx)
+        for p in planners:  # the goal's fields (a floor's grid each): memory for one goal's at a time
+            p.forget(d.id)
     doc = GoalsDocument(
         scene=objset.scene,
         rooms={r.id: RoomEntry(type=r.type, owners=list(r.owners), name=r.name) for r in rooms.values()},
@@ -184,6 +190,19 @@ def build_goals(objset: ObjectSet, grid: GridSpec, walls: np.ndarray, *, planner
     kept = {g.id: landmarks.get(g.id) or _landmarks_for(
         g, contexts[by_key[g.objects[0]].floor if building is not None else 0]) for g in edited.goals}
     return GoalsResult(edited, kept, object_index, edited=True)
+
+
+def _prepare_regions(groups: list[tuple[str, ...]], by_key: dict, goal_region, object_index, keys: list[str],
+                     building: Building | None) -> None:
+    """Tell a ``goal_region`` that can read ahead (:meth:`GoalRegions.prepare`) every goal group it will be asked
+    for, per floor in a building: it reads the mesh around them all at once."""
+    if building is None:
+        if hasattr(goal_region, "prepare"):
+            goal_region.prepare(groups, object_index, keys)
+        return
+    for f, part in building.floors.items():
+        if hasattr(part.goal_region, "prepare"):
+            part.goal_region.prepare([g for g in groups if by_key[g[0]].floor == f], part.object_index, keys)
 
 
 def _landmarks_for(goal: GoalEntry, ctx: FeedbackContext) -> list[dict]:
@@ -281,7 +300,9 @@ class GoalRegions:
     """The goal regions of one scene, each computed once: ``regions(members, object_index, keys)`` -> ``(rows, cols)``
     bool region of a same_goal group (:func:`pipeline.nav.region.group_region`: navigable cells within
     ``success_m`` of a member's footprint that see its mass centre, line of sight by ray casting
-    ``recon_mesh.ply`` from the recording's median camera height; the mesh is read on first use).
+    ``recon_mesh.ply`` from the recording's median camera height). The mesh is read a window around each member
+    (:class:`pipeline.nav.sight.WindowedSight`), so memory follows the goals, not the floor's area; :meth:`prepare`
+    reads the windows of every group about to be asked in one pass over the file.
 
     The goals stage plans procedural feedback into these regions and stores them in ``goals.zarr``; the routes
     stage and the evaluator read them from there, so a region is never computed twice."""
@@ -290,11 +311,11 @@ class GoalRegions:
         self.recon, self.success_m, self.floor = recon, success_m, floor
         self.objects = {o.key: o for o in objset.objects}
         self._regions: dict[tuple[str, ...], np.ndarray] = {}
-        self._sight: MeshSight | None = None
+        self._sight: WindowedSight | None = None
         self._camera_height_m = 0.0
 
     @property
-    def sight(self) -> MeshSight:
+    def sight(self) -> WindowedSight:
         if self._sight is None:
             r = self.recon
             fg = r.floor(self.floor)
@@ -303,9 +324,20 @@ class GoalRegions:
                 on = r.floor_of_z(poses[:, 2, 3]) == self.floor
                 poses = poses[on] if on.any() else poses
             self._camera_height_m = recorded_camera_height(poses, fg.floor_z)
-            self._sight = MeshSight.from_mesh(r.mesh_path, floor_z=fg.floor_z, camera_height_m=self._camera_height_m,
-                                              grid=fg.grid)
+            self._sight = WindowedSight(r.mesh_path, floor_z=fg.floor_z, camera_height_m=self._camera_height_m,
+                                        grid=fg.grid)
         return self._sight
+
+    def prepare(self, groups, object_index: np.ndarray, keys) -> None:
+        """Read the mesh around every member of ``groups`` (same_goal groups of object keys) at once."""
+        keys = list(keys)
+        grid = self.recon.floor(self.floor).grid if self.floor else self.recon.grid
+        boxes = [sight_window(object_index == keys.index(k) + 1, grid, self.objects[k].mass_center,
+                              success_m=self.success_m)
+                 for members in groups if tuple(members) not in self._regions for k in members]
+        boxes = [b for b in boxes if b is not None]
+        if boxes:
+            self.sight.prepare(boxes)
 
     def __call__(self, members, object_index: np.ndarray, keys) -> np.ndarray:
         members = tuple(members)
@@ -385,6 +417,9 @@ def build_scene_goals(frames: FrameStore, recon: Recon, out_path: Path, attrs: d
     keys = [o.key for o in objset.objects]
     floor_of = {o.key: o.floor for o in objset.objects}
     indexes = res.object_index if isinstance(res.object_index, list) else [res.object_index]
+    if res.edited:  # the user's goals may be other groups than the generated ones: read around them too
+        _prepare_regions([tuple(g.objects) for g in res.document.goals], objset.by_key(), regions, indexes[0], keys,
+                         building)
     region_of = (lambda g: regions(g.objects, res.object_index, keys)) if building is None else (
         lambda g: building.floors[floor_of[g.objects[0]]].goal_region(
             g.objects, indexes[floor_of[g.objects[0]]], keys))

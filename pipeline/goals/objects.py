@@ -128,13 +128,11 @@ def rasterize_polygons(polys: list[np.ndarray], grid: GridSpec, values: list[int
         x0, y1 = grid.origin_xy
         rows = (y1 - poly[:, 1]) / grid.cell_size_m - 0.5
         cols = (poly[:, 0] - x0) / grid.cell_size_m - 0.5
-        rr, cc = skimage.draw.polygon(rows, cols, shape=out.shape)
-        layer = np.zeros(out.shape, dtype=bool)
-        layer[rr, cc] = True
+        rr, cc = skimage.draw.polygon(rows, cols, shape=out.shape)  # the cells of the polygon's box only
+        out[rr, cc] = v
         rc = grid.world_to_cell(polygon_centroid(poly))
         if grid.inside(rc):
-            layer[rc[0], rc[1]] = True
-        out[layer] = v
+            out[rc[0], rc[1]] = v
     return out
 
 

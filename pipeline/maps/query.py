@@ -40,6 +40,7 @@ product plus the connected components. Scoring is numpy: with an encoder whose t
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -384,12 +385,16 @@ def _wrap(a: float) -> float:
 
 # ----------------------------------------------------------------------------- API for the CLI / evaluator
 
-_CACHE: dict[tuple, MapQuery] = {}
+#: the open queries, least recently used first; at most :data:`CACHE_SIZE` are kept (each holds its map's
+#: features, so a long-lived process that queries many scenes, the workbench's server or an evaluation's report
+#: drawing each scene's queries, would otherwise keep every map it ever opened)
+_CACHE: OrderedDict[tuple, MapQuery] = OrderedDict()
+CACHE_SIZE = 8  # a scene's two maps on up to four floors
 
 
 def open_query(map_path: str | Path, params, *, recon_path: str | Path | None = None,
                frames_path: str | Path | None = None, floor: int = 0) -> MapQuery:
-    """A cached :class:`MapQuery` for floor ``floor`` of a map store (``params`` = the whole
+    """A cached :class:`MapQuery` (the :data:`CACHE_SIZE` most recently used are kept) for floor ``floor`` of a map store (``params`` = the whole
     :class:`~pipeline.config.Params`; ``floor`` an index, lowest first, 0 for a single-floor scene).
 
     The text encoder is built from ``params.encoders`` by the NAME recorded in the map (so it always
@@ -404,6 +409,7 @@ def open_query(map_path: str | Path, params, *, recon_path: str | Path | None = 
 
     key = (str(map_path), str(recon_path), str(frames_path), id(params), floor)
     if key in _CACHE:
+        _CACHE.move_to_end(key)
         return _CACHE[key]
     smap = SemanticMap(map_path, floor)
     navigable = color = None
@@ -431,6 +437,8 @@ def open_query(map_path: str | Path, params, *, recon_path: str | Path | None = 
     mq = MapQuery(smap, encoder, params.query, navigable=navigable, gt=None if gt is None else gt_floor(gt, smap.floor),
                   color=color)
     _CACHE[key] = mq
+    while len(_CACHE) > CACHE_SIZE:
+        _CACHE.popitem(last=False)
     return mq
 
 

@@ -22,10 +22,11 @@ from scipy import ndimage
 from pipeline.config import TaskParams
 from pipeline.geometry import GridSpec
 from pipeline.nav.codes import ACTION_NAMES, FORWARD, LEFT, RIGHT, STOP  # noqa: F401 (re-exported)
-from pipeline.nav.fmm import (GeodesicPath, geodesic_field, planning_mask, segment_free, shortest_path,
-                              target_region)
+from pipeline.nav.fmm import (GeodesicPath, geodesic_field, joined_parts, mask_parts, planning_mask, segment_free,
+                              shortest_path, target_region)
 
 DEEP_CELLS = 2  # a walk finishes this many cells inside its aim when a few more steps get it there
+ENTRY_CELLS = 10  # a pose off its goal's field joins it at a finite cell at most this many cells away (per axis)
 _LETTER = {FORWARD: "f", LEFT: "l", RIGHT: "r"}
 
 
@@ -296,6 +297,7 @@ class RoutePlanner:
         self.plan_mask = planning_mask(self.navigable, grid, self.settings.clearance_m)
         self._fields: dict[object, np.ndarray] = {}
         self._goals: dict[object, np.ndarray] = {}  # cells a route must end in, per (key, region)
+        self._labels: dict[str, np.ndarray] = {}  # each mask's 4-connected parts (what a field can reach)
         self.raise_failures = False  # True: a route found but not drivable raises instead of returning None
 
     def goal_mask(self, goal_xy: np.ndarray) -> np.ndarray:
@@ -317,6 +319,40 @@ class RoutePlanner:
             target = target_region(mask, object_mask, self.grid, radius)
             self._fields[ck] = geodesic_field(mask, target, self.grid)
         return self._fields[ck]
+
+    def reach(self, object_mask: np.ndarray, mask_kind: str = "clear", *, region: bool = False) -> np.ndarray:
+        """``(rows, cols)`` bool: where :meth:`field` of the same goal is finite, without marching it
+        (:func:`pipeline.nav.fmm.reachable`, on the mask's parts found once)."""
+        labels, joined = self._joined(object_mask, mask_kind, region)
+        return joined[labels]
+
+    def _joined(self, object_mask: np.ndarray, mask_kind: str, region: bool) -> tuple[np.ndarray, np.ndarray]:
+        """``(labels, joined)``: the mask's 4-connected parts ``(rows, cols)`` int32 (0 off the mask) and which of
+        them the goal's field reaches ``(parts + 1,)`` bool."""
+        mask = self.plan_mask if mask_kind == "clear" else self.navigable
+        if mask_kind not in self._labels:
+            self._labels[mask_kind] = mask_parts(mask)
+        labels = self._labels[mask_kind]
+        target = target_region(mask, object_mask, self.grid, 0.0 if region else self.settings.stop_radius_m)
+        return labels, joined_parts(labels, target)
+
+    def _reaches_near(self, object_mask: np.ndarray, mask_kind: str, region: bool, rc) -> bool:
+        """Whether the goal's field is finite anywhere a route from cell ``rc`` may enter it (within
+        :data:`ENTRY_CELLS`): when not, :meth:`route` needs no field on that mask."""
+        labels, joined = self._joined(object_mask, mask_kind, region)
+        r, c = int(rc[0]), int(rc[1])
+        return bool(joined[labels[max(r - ENTRY_CELLS, 0): r + ENTRY_CELLS + 1,
+                                  max(c - ENTRY_CELLS, 0): c + ENTRY_CELLS + 1]].any())
+
+    def forget(self, owner: object) -> None:
+        """Drop the cached fields and goal cells of key ``owner`` and of the keys ``(owner, ...)`` (a goal's aims):
+        a caller done with a goal keeps memory to the goals still to plan, each field being a whole floor's grid."""
+        def owned(key: object) -> bool:
+            return key == owner or (isinstance(key, tuple) and len(key) > 0 and key[0] == owner)
+
+        for cache in (self._fields, self._goals):
+            for ck in [ck for ck in cache if owned(ck[0])]:
+                del cache[ck]
 
     def route_into(self, pose_xy_yaw, cells: np.ndarray, *, key: object = None, face_xy=None,
                    end_mask: np.ndarray | None = None) -> Route | None:
@@ -345,6 +381,9 @@ class RoutePlanner:
             return None
         failure = None
         for mask_kind in ("clear", "navigable"):
+            if (key, mask_kind, bool(region)) not in self._fields and \
+                    not self._reaches_near(object_mask, mask_kind, region, rc):
+                continue  # the field would be infinite wherever this pose can join it: not worth marching
             fld = self.field(key, object_mask, mask_kind, region=region)
             mask = self.plan_mask if mask_kind == "clear" else self.navigable
             entry = start
@@ -386,7 +425,12 @@ class RoutePlanner:
         if ck not in self._goals:
             radius = 0.0 if region else self.settings.stop_radius_m
             aim = target_region(self.navigable, object_mask, self.grid, radius)
-            deep = ndimage.binary_erosion(aim, iterations=DEEP_CELLS)
+            deep = np.zeros_like(aim)
+            if aim.any():  # eroded on the aim's box and a border (outside it, erosion leaves nothing)
+                rr, cc = np.nonzero(aim)
+                win = (slice(max(int(rr.min()) - DEEP_CELLS - 1, 0), int(rr.max()) + DEEP_CELLS + 2),
+                       slice(max(int(cc.min()) - DEEP_CELLS - 1, 0), int(cc.max()) + DEEP_CELLS + 2))
+                deep[win] = ndimage.binary_erosion(aim[win], iterations=DEEP_CELLS)
             self._goals[ck] = (aim, deep if deep.any() else aim)
         return self._goals[ck]
 
@@ -402,7 +446,7 @@ class RoutePlanner:
         x0, y1 = self.grid.origin_xy
         return np.array([(y1 - xy[1]) / self.grid.cell_size_m - 0.5, (xy[0] - x0) / self.grid.cell_size_m - 0.5])
 
-    def _nearest_finite(self, fld: np.ndarray, rc: np.ndarray, start_xy: np.ndarray, radius_cells: int = 10
+    def _nearest_finite(self, fld: np.ndarray, rc: np.ndarray, start_xy: np.ndarray, radius_cells: int = ENTRY_CELLS
                         ) -> np.ndarray | None:
         r0, c0 = int(rc[0]), int(rc[1])
         rs = slice(max(r0 - radius_cells, 0), r0 + radius_cells + 1)

@@ -38,10 +38,21 @@ def target_region(plan_mask: np.ndarray, object_mask: np.ndarray, grid: GridSpec
                   ) -> np.ndarray:
     """Plannable cells whose centre is within ``stop_radius_m`` of the object's footprint cells."""
     obj = np.asarray(object_mask, dtype=bool)
+    plan_mask = np.asarray(plan_mask, dtype=bool)
     if not obj.any():
         return np.zeros_like(plan_mask, dtype=bool)
-    dist = ndimage.distance_transform_edt(~obj) * grid.cell_size_m
-    return plan_mask & (dist <= stop_radius_m)
+    if stop_radius_m <= 0:  # the footprint's own cells (distance 0): no distance transform
+        return plan_mask & obj if stop_radius_m == 0 else np.zeros_like(plan_mask, dtype=bool)
+    # the distance transform on the footprint's box grown past the radius: every cell within it lies there, and
+    # the nearest footprint cell of each is in it, so the distances are the whole grid's
+    pad = int(np.ceil(stop_radius_m / grid.cell_size_m)) + 1
+    rr, cc = np.nonzero(obj)
+    win = (slice(max(int(rr.min()) - pad, 0), int(rr.max()) + pad + 1),
+           slice(max(int(cc.min()) - pad, 0), int(cc.max()) + pad + 1))
+    out = np.zeros_like(plan_mask, dtype=bool)
+    dist = ndimage.distance_transform_edt(~obj[win]) * grid.cell_size_m
+    out[win] = plan_mask[win] & (dist <= stop_radius_m)
+    return out
 
 
 def geodesic_field(plan_mask: np.ndarray, target: np.ndarray, grid: GridSpec) -> np.ndarray:
@@ -64,6 +75,27 @@ def geodesic_field(plan_mask: np.ndarray, target: np.ndarray, grid: GridSpec) ->
     field[target] = 0.0
     field[~plan_mask] = np.inf
     return field
+
+
+def reachable(plan_mask: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """``(rows, cols)`` bool: the cells :func:`geodesic_field` leaves finite, found without marching — the cells of
+    ``plan_mask`` joined to a cell of ``target & plan_mask`` by steps between 4-neighbours in ``plan_mask`` (the fast
+    marching stencil's neighbours; a target that touches no other free cell reaches only itself, as there)."""
+    labels = mask_parts(plan_mask)
+    return joined_parts(labels, target)[labels]
+
+
+def mask_parts(plan_mask: np.ndarray) -> np.ndarray:
+    """``(rows, cols)`` int32: the 4-connected parts of ``plan_mask`` numbered from 1 (0 off the mask)."""
+    return ndimage.label(np.asarray(plan_mask, dtype=bool))[0]
+
+
+def joined_parts(labels: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """``(parts + 1,)`` bool: the parts of :func:`mask_parts` ``labels`` holding a cell of ``target`` (never 0)."""
+    joined = np.zeros(int(labels.max(initial=0)) + 1, bool)
+    joined[labels[np.asarray(target, dtype=bool)]] = True
+    joined[0] = False
+    return joined
 
 
 def descend(field: np.ndarray, start_rc: tuple[int, int], max_steps: int | None = None) -> np.ndarray:

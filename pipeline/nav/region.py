@@ -135,20 +135,35 @@ def goal_region(navigable: np.ndarray, object_mask: np.ndarray, grid: GridSpec, 
     if not obj.any():
         return out
     # distance transform on the object's bounding box grown by the success distance (not the whole grid)
-    pad = int(np.ceil(success_m / grid.cell_size_m)) + 1
-    rr, cc = np.nonzero(obj)
-    r0, r1 = max(int(rr.min()) - pad, 0), min(int(rr.max()) + pad + 1, nav.shape[0])
-    c0, c1 = max(int(cc.min()) - pad, 0), min(int(cc.max()) + pad + 1, nav.shape[1])
-    win = (slice(r0, r1), slice(c0, c1))
+    win = _window(obj, region_pad_cells(grid, success_m))
     near = nav[win] & (ndimage.distance_transform_edt(~obj[win]) * grid.cell_size_m <= success_m + 1e-9)
     cr, cc2 = np.nonzero(near)
     if not len(cr):
         return out
-    cells = np.stack([cr + r0, cc2 + c0], axis=1)
+    cells = np.stack([cr + win[0].start, cc2 + win[1].start], axis=1)
     seen = np.asarray(sight(grid.cell_to_world(cells), np.asarray(center_xy, np.float64), z_levels, own_cells(obj)),
                       bool)
     out[cells[seen, 0], cells[seen, 1]] = True
     return out
+
+
+def region_pad_cells(grid: GridSpec, success_m: float) -> int:
+    """Cells a goal region reaches beyond its object's footprint (its bounding box grown by this holds it)."""
+    return int(np.ceil(success_m / grid.cell_size_m)) + 1
+
+
+def sight_window(object_mask: np.ndarray, grid: GridSpec, center_xy, *, success_m: float = 1.5
+                 ) -> tuple[float, float, float, float] | None:
+    """``(x0, y0, x1, y1)`` world metres holding every line-of-sight ray :func:`goal_region` casts for the object:
+    the centres of the cells within :func:`region_pad_cells` of its footprint's bounding box, and its mass centre
+    ``center_xy``. None when the mask is empty."""
+    obj = np.asarray(object_mask, bool)
+    if not obj.any():
+        return None
+    win = _window(obj, region_pad_cells(grid, success_m))
+    corners = grid.cell_to_world(np.array([[win[0].start, win[1].start], [win[0].stop - 1, win[1].stop - 1]]))
+    pts = np.vstack([corners, np.asarray(center_xy, np.float64).reshape(1, 2)])
+    return (*map(float, pts.min(axis=0)), *map(float, pts.max(axis=0)))
 
 
 def route_target(region: np.ndarray, object_mask: np.ndarray, grid: GridSpec, *, stop_radius_m: float,

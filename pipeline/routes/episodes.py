@@ -94,69 +94,77 @@ def make_episodes(navigable: np.ndarray, grid: GridSpec, goals: list[GoalTarget]
     A goal without ``region`` falls back to the cells within ``task.stop_radius_m`` of its footprint
     (no line-of-sight test; kept for callers without a reconstruction mesh)."""
     task = TaskParams() if task is None else task
-    success_m = task.success_m
     planner = RoutePlanner(navigable, grid, RouteSettings.from_config(task))
-    settings = planner.settings
     planner.raise_failures = True  # an undrivable route is reported as rejected, with its reason
     out = EpisodeSet()
     for gi, goal in enumerate(progress(goals, description="episodes")):
-        rng = np.random.default_rng([seed, gi])
-        if goal.region is not None:
-            if not goal.region.any():
-                out.unreachable.append({"goal": goal.id, "reason": f"empty goal region: no navigable cell within "
-                                        f"{success_m} m of the object sees its mass centre"})
-                continue
-            # aim inside the region first (route_aims: the route target, narrower margins, the region
-            # itself); an aim a start cannot reach, or whose replay fails, gives way to the next
-            aims = [((goal.id, name), mask) for name, mask in
-                    route_aims(goal.region, goal.object_mask, grid, stop_radius_m=settings.stop_radius_m)]
-            fld = planner.field((goal.id, "region"), goal.region, "navigable", region=True)  # l: to the region
-            fld_clear = planner.field((goal.id, "region"), goal.region, "clear", region=True)
-        else:
-            aims = [(goal.id, goal.object_mask)]
-            fld = planner.field(goal.id, goal.object_mask, "navigable")
-            fld_clear = planner.field(goal.id, goal.object_mask, "clear")
-        as_region = goal.region is not None
-        if not np.isfinite(fld_clear).any() or not (fld_clear == 0).any():
-            out.unreachable.append({"goal": goal.id, "reason": "no cell with clearance in the goal region"})
-            continue
-        # starts that reach the goal with clearance (robust to drive), l (navigable mask) >= min_geodesic_m
-        both = np.where(np.isfinite(fld_clear), fld, np.inf)
-        starts = sample_starts(both, planner.plan_mask, grid, episodes_per_goal, min_geodesic_m, rng,
-                               settings.turn_deg)
-        if not starts:
-            out.unreachable.append({"goal": goal.id,
-                                    "reason": f"no navigable start at least {min_geodesic_m} m away (geodesic)"})
-            continue
-        for j, start in enumerate(starts):
-            eid = f"{goal.id}/{j}"
-            rc = grid.world_to_cell(np.asarray(start[:2]))
-            reference_m = float(fld[rc[0], rc[1]])  # FMM on the navigable mask: the shortest length l
-            ep, why = None, "no route from the start"
-            for key, aim in aims:
-                try:
-                    route = planner.route(start, aim, key=key, face_xy=goal.face_xy, region=as_region,
-                                          end_mask=goal.region)  # the walk finishes inside the region
-                except ValueError as err:  # descent or action budget failure: report, never keep
-                    why = str(err)
-                    continue
-                if route is None:
-                    continue
-                res = replay(route.actions, start, navigable, grid, goal.footprints, step_m=settings.step_m,
-                             turn_deg=settings.turn_deg, success_m=success_m, region=goal.region,
-                             face_xy=goal.face_xy if as_region else None, hfov_deg=task.hfov_deg)
-                ep = Episode(eid, goal.id, start, reference_m, route.path.polyline_xy, route.path.length_m,
-                             route.actions, route_text(route.parts), len(route.parts), res.distance_to_goal_m,
-                             res.success, res.collisions)
-                if res.success:
-                    break
-                why = ("replay failed: " +
-                       (f"{res.collisions} collisions" if res.collisions else
-                        f"ends {res.distance_to_goal_m:.2f} m away" if res.distance_to_goal_m > success_m else
-                        "ends outside the goal region (no line of sight)" if not res.in_region else
-                        "ends not facing the goal"))
-            if ep is not None and ep.verified:
-                out.episodes.append(ep)
-            else:
-                out.rejected.append({"episode": eid, "reason": why})
+        _goal_episodes(planner, goal, np.random.default_rng([seed, gi]), out, navigable=navigable, grid=grid,
+                       episodes_per_goal=episodes_per_goal, min_geodesic_m=min_geodesic_m, task=task)
+        planner.forget(goal.id)  # its fields: memory for one goal's at a time, not every goal's
     return out
+
+
+def _goal_episodes(planner: RoutePlanner, goal: GoalTarget, rng: np.random.Generator, out: EpisodeSet, *,
+                   navigable: np.ndarray, grid: GridSpec, episodes_per_goal: int, min_geodesic_m: float,
+                   task: TaskParams) -> None:
+    """:func:`make_episodes`' work for one goal: its episodes, rejections or unreachability added to ``out``."""
+    settings, success_m = planner.settings, task.success_m
+    if goal.region is not None:
+        if not goal.region.any():
+            out.unreachable.append({"goal": goal.id, "reason": f"empty goal region: no navigable cell within "
+                                    f"{success_m} m of the object sees its mass centre"})
+            return
+        # aim inside the region first (route_aims: the route target, narrower margins, the region
+        # itself); an aim a start cannot reach, or whose replay fails, gives way to the next
+        aims = [((goal.id, name), mask) for name, mask in
+                route_aims(goal.region, goal.object_mask, grid, stop_radius_m=settings.stop_radius_m)]
+        fld = planner.field((goal.id, "region"), goal.region, "navigable", region=True)  # l: to the region
+        reach_clear = planner.reach(goal.region, "clear", region=True)  # where its field on the clearance mask is finite
+    else:
+        aims = [(goal.id, goal.object_mask)]
+        fld = planner.field(goal.id, goal.object_mask, "navigable")
+        reach_clear = planner.reach(goal.object_mask, "clear")
+    as_region = goal.region is not None
+    if not reach_clear.any():  # no target cell on the clearance mask (those would be reached, at 0)
+        out.unreachable.append({"goal": goal.id, "reason": "no cell with clearance in the goal region"})
+        return
+    # starts that reach the goal with clearance (robust to drive), l (navigable mask) >= min_geodesic_m
+    both = np.where(reach_clear, fld, np.inf)
+    starts = sample_starts(both, planner.plan_mask, grid, episodes_per_goal, min_geodesic_m, rng,
+                           settings.turn_deg)
+    if not starts:
+        out.unreachable.append({"goal": goal.id,
+                                "reason": f"no navigable start at least {min_geodesic_m} m away (geodesic)"})
+        return
+    for j, start in enumerate(starts):
+        eid = f"{goal.id}/{j}"
+        rc = grid.world_to_cell(np.asarray(start[:2]))
+        reference_m = float(fld[rc[0], rc[1]])  # FMM on the navigable mask: the shortest length l
+        ep, why = None, "no route from the start"
+        for key, aim in aims:
+            try:
+                route = planner.route(start, aim, key=key, face_xy=goal.face_xy, region=as_region,
+                                      end_mask=goal.region)  # the walk finishes inside the region
+            except ValueError as err:  # descent or action budget failure: report, never keep
+                why = str(err)
+                continue
+            if route is None:
+                continue
+            res = replay(route.actions, start, navigable, grid, goal.footprints, step_m=settings.step_m,
+                         turn_deg=settings.turn_deg, success_m=success_m, region=goal.region,
+                         face_xy=goal.face_xy if as_region else None, hfov_deg=task.hfov_deg)
+            ep = Episode(eid, goal.id, start, reference_m, route.path.polyline_xy, route.path.length_m,
+                         route.actions, route_text(route.parts), len(route.parts), res.distance_to_goal_m,
+                         res.success, res.collisions)
+            if res.success:
+                break
+            why = ("replay failed: " +
+                   (f"{res.collisions} collisions" if res.collisions else
+                    f"ends {res.distance_to_goal_m:.2f} m away" if res.distance_to_goal_m > success_m else
+                    "ends outside the goal region (no line of sight)" if not res.in_region else
+                    "ends not facing the goal"))
+        if ep is not None and ep.verified:
+            out.episodes.append(ep)
+        else:
+            out.rejected.append({"episode": eid, "reason": why})
+

@@ -62,6 +62,8 @@ def building_episodes(building: BuildingPlanner, targets: dict[int, list[GoalTar
                         out.episodes.append(ep)
                     else:
                         out.rejected.append({"episode": eid, "reason": why})
+            for planner in building.planners.values():  # the goal's fields on every floor: done with
+                planner.forget(goal.id)
     return out
 
 

@@ -106,3 +106,55 @@ def test_spread_ambiguous_takes_big_classes_first_one_group_per_class_in_turn():
     out = spread_ambiguous(pool, cls_of, {"cup": 2, "chair": 3, "lamp": 3})
     assert out == [("chair_0",), ("lamp_0",), ("chair_1",), ("lamp_1",), ("chair_2",), ("lamp_2",), ("cup_0",),
                    ("cup_1",)]
+
+
+def test_goal_regions_read_a_window_per_object_are_the_whole_meshs(tmp_path, monkeypatch):
+    """The house's mesh cut into small triangles and written canonically (as reconstruct writes it): the goals stage
+    reads a window of it around each goal object, in one pass, and writes the store the whole mesh gives."""
+    import open3d as o3d
+
+    import pipeline.goals.build as goals_build
+    from pipeline.nav.region import MeshSight
+    from pipeline.nav.sight import WindowedSight
+    from pipeline.recon.store import write_mesh
+
+    frames, recon = write_house_artifacts(tmp_path, start_xy=(2.5, 1.8), start_yaw=0.4)
+    mesh = o3d.io.read_triangle_mesh(str(tmp_path / "recon_mesh.ply"))
+    while np.ptp(np.asarray(mesh.vertices)[np.asarray(mesh.triangles)], axis=1).max() > 0.4:
+        mesh = mesh.subdivide_midpoint(1)
+    mesh.vertex_colors = o3d.utility.Vector3dVector(np.full((len(mesh.vertices), 3), 0.5))
+    write_mesh(tmp_path / "recon_mesh.ply", mesh)
+    frames, recon = FrameStore(frames), Recon(recon)
+    windowed: list[WindowedSight] = []
+
+    class Spy(WindowedSight):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            windowed.append(self)
+
+    monkeypatch.setattr(goals_build, "WindowedSight", Spy)
+    _build(tmp_path, frames, recon, "windowed.zarr")
+
+    class Whole:  # the whole mesh in one ray-casting scene, as before windows
+        def __init__(self, mesh_path, *, floor_z, camera_height_m, grid, tolerance_m=0.15):
+            self.sight = MeshSight.from_mesh(mesh_path, floor_z=floor_z, camera_height_m=camera_height_m, grid=grid,
+                                             tolerance_m=tolerance_m)
+            self.tolerance = self.sight.tolerance
+
+        def prepare(self, boxes):
+            pass
+
+        def __call__(self, *args, **kwargs):
+            return self.sight(*args, **kwargs)
+
+    monkeypatch.setattr(goals_build, "WindowedSight", Whole)
+    _build(tmp_path, frames, recon, "whole.zarr")
+    a, b = Goals(tmp_path / "windowed.zarr"), Goals(tmp_path / "whole.zarr")
+    assert a.attrs == b.attrs and len(a.goals) == 10
+    for name in ("object_index", "region_cells", "region_offset"):
+        np.testing.assert_array_equal(a.group[name][...], b.group[name][...])
+    assert sum(a.goal_region(g.id).any() for g in a.goals) >= 8
+    (sight,) = windowed
+    assert sight.reads == 1 and len(sight.windows) == sum(len(g.object_keys) for g in a.goals)
+    held = max(len(w.triangles) for w in sight.windows)
+    assert held < 0.6 * len(mesh.triangles)  # each window holds part of the house

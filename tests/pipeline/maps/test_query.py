@@ -210,3 +210,20 @@ def test_the_first_query_reads_fp16_chunks_and_later_ones_one_fp32_copy(map_path
     assert (first.wins == again.wins).all() and first.wins.sum() == 50
     np.testing.assert_allclose(first.heatmap, again.heatmap, rtol=1e-6)
     np.testing.assert_allclose(q.scores("table"), q._f32 @ q.text_features(["table"])[0], rtol=1e-6)
+
+
+def test_open_queries_are_cached_up_to_a_bound(map_path):
+    """An evaluation opens each scene's maps once and many scenes in one process: the cache keeps the most recently
+    used queries only (each holds its map's features), and a repeated open returns the cached one."""
+    from pipeline.config import Params
+    from pipeline.maps import query
+
+    query._CACHE.clear()
+    params = [Params.model_validate({"scenes": {}, "encoders": {"oracle": {"dim": 64}}})
+              for _ in range(query.CACHE_SIZE + 3)]
+    opened = [query.open_query(map_path, p) for p in params]
+    assert len(query._CACHE) == query.CACHE_SIZE
+    assert query.open_query(map_path, params[-1]) is opened[-1]  # kept: the same object
+    assert query.open_query(map_path, params[0]) is not opened[0]  # dropped long ago: opened afresh
+    assert np.array_equal(query.open_query(map_path, params[0]).query("chair").wins, opened[0].query("chair").wins)
+    query._CACHE.clear()

@@ -69,3 +69,51 @@ def test_route_settings_come_from_the_task_params():
     d = TaskParams()  # the default planner is the params' default (clearance 0.1, not a second default)
     assert RoutePlanner(np.ones((4, 4), bool), GridSpec(4, 4, 0.05, (0.0, 0.2))).settings == RouteSettings(
         d.step_m, d.turn_deg, d.clearance_m, d.stop_radius_m) == RouteSettings.from_config()
+
+
+def test_a_pose_the_goal_cannot_reach_gets_no_route_and_marches_no_field():
+    nav, grid = corridor_grid()
+    nav = nav.copy()
+    pocket = grid.world_to_cell(np.array([5.5, 4.8]))
+    nav[pocket[0] + 30: pocket[0] + 33, :] = False  # a wall across the north arm, 1.5 m south of the goal
+    planner = RoutePlanner(nav, grid)
+    goal = planner.goal_mask(np.array([5.5, 4.8]))
+    assert planner.route((0.3, 0.5, 0.0), goal, key="g") is None
+    assert not planner._fields  # neither mask's field was marched: the start's part never reaches the goal
+    assert not planner.reach(goal, "clear")[grid.world_to_cell(np.array([0.3, 0.5]))[0]].any()
+    # a reachable pose: the same route as a planner that marches first
+    route = planner.route((5.5, 4.9, 0.0), goal, key="g")
+    fresh = RoutePlanner(nav, grid)
+    fresh.field("g", goal, "clear")
+    np.testing.assert_array_equal(route.actions, fresh.route((5.5, 4.9, 0.0), goal, key="g").actions)
+    np.testing.assert_array_equal(planner.reach(goal, "clear"), np.isfinite(planner.field("g", goal, "clear")))
+
+
+def test_forget_drops_one_goals_fields_and_keeps_the_others():
+    nav, grid = corridor_grid()
+    planner = RoutePlanner(nav, grid)
+    a, b = planner.goal_mask(np.array([5.5, 4.8])), planner.goal_mask(np.array([1.0, 0.5]))
+    for key, mask in (("a", a), (("a", "target"), a), ("b", b), (("stair", "a"), b)):
+        planner.route((3.0, 0.5, 0.0), mask, key=key)
+    planner.forget("a")
+    assert {ck[0] for ck in planner._fields} == {"b", ("stair", "a")}
+    assert {ck[0] for ck in planner._goals} == {"b", ("stair", "a")}
+
+
+def test_goal_cells_eroded_on_their_box_are_the_whole_grids():
+    from scipy import ndimage
+
+    from pipeline.nav.actions import DEEP_CELLS
+    from pipeline.nav.fmm import target_region
+
+    nav, grid = corridor_grid()
+    planner = RoutePlanner(nav, grid)
+    for xy, region in (((5.5, 4.8), False), ((0.1, 0.5), True), ((3.0, 0.6), False), ((5.9, 0.1), True)):
+        rc = grid.world_to_cell(np.array(xy))
+        mask = np.zeros_like(nav)
+        mask[max(rc[0] - 6, 0): rc[0] + 6, max(rc[1] - 6, 0): rc[1] + 6] = True
+        aim, deep = planner.goal_cells(xy, mask, region=region)
+        want = target_region(nav, mask, grid, 0.0 if region else planner.settings.stop_radius_m)
+        eroded = ndimage.binary_erosion(want, iterations=DEEP_CELLS)
+        np.testing.assert_array_equal(aim, want)
+        np.testing.assert_array_equal(deep, eroded if eroded.any() else want)

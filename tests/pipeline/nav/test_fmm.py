@@ -40,3 +40,46 @@ def test_enclosed_target_reaches_only_itself():
     goal[4, 4] = True
     fld = geodesic_field(nav, goal, grid)
     assert fld[4, 4] == 0 and np.isinf(np.delete(fld.ravel(), 44)).all()
+
+
+def _random_masks(n: int, seed: int):
+    """``(grid, mask, target)`` triples: random free masks (some opened into rooms, some speckled, with
+    diagonal-only contacts) and targets of a few small boxes, some off the mask."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(seed)
+    for trial in range(n):
+        shape = tuple(int(v) for v in rng.integers(5, 50, 2))
+        grid = GridSpec(shape[0], shape[1], 0.05, (0.0, 5.0))
+        mask = rng.random(shape) < rng.uniform(0.3, 0.9)
+        if trial % 3 == 0:
+            mask = ndimage.binary_opening(mask)
+        target = np.zeros(shape, bool)
+        for _ in range(int(rng.integers(1, 5))):
+            r, c = int(rng.integers(0, shape[0])), int(rng.integers(0, shape[1]))
+            target[r: r + int(rng.integers(1, 4)), c: c + int(rng.integers(1, 4))] = True
+        yield grid, mask, target
+
+
+def test_reachable_is_where_the_marched_field_is_finite():
+    from pipeline.nav.fmm import reachable
+
+    for grid, mask, target in _random_masks(100, seed=4):
+        np.testing.assert_array_equal(reachable(mask, target), np.isfinite(geodesic_field(mask, target, grid)))
+    # pockets joined only diagonally are apart, as for the marching stencil
+    mask = np.zeros((6, 6), bool)
+    mask[1, 1] = mask[2, 2] = True
+    target = np.zeros_like(mask)
+    target[1, 1] = True
+    assert reachable(mask, target).tolist() == np.isfinite(geodesic_field(mask, target, GridSpec(6, 6, 0.05, (0, 1)))
+                                                            ).tolist()
+    assert not reachable(mask, target)[2, 2]
+
+
+def test_target_region_on_the_footprints_box_is_the_whole_grids():
+    from scipy import ndimage
+
+    for grid, mask, target in _random_masks(40, seed=5):
+        for radius in (0.0, 0.05, 0.12, 0.5, 3.0):
+            whole = mask & (ndimage.distance_transform_edt(~target) * grid.cell_size_m <= radius)
+            np.testing.assert_array_equal(target_region(mask, target, grid, radius), whole)
