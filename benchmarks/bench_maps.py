@@ -251,7 +251,8 @@ def bench_query(observed_fraction: float, repeats: int):
     from pipeline.config import QueryParams
     from pipeline.encoders.oracle import OracleEncoder
     from pipeline.maps.query import MapQuery
-    from pipeline.maps.store import MapCells, SemanticMap, write_map
+    from pipeline.maps.store import MapCells, SemanticMap
+    from pipeline.maps.writer import write_map
     from pipeline.store import artifact_attrs
 
     lat = lattice()

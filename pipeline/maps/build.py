@@ -23,7 +23,7 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Iterable
+from typing import Callable, Iterable
 
 import numpy as np
 
@@ -35,12 +35,7 @@ from pipeline.frames import FrameStore
 from pipeline.prefetch import prefetched
 from pipeline.store import DIGEST_ALGO, new_digest, update_array
 
-if TYPE_CHECKING:
-    from pipeline.maps.fusion import FusionState
-
-
-
-FOLD_FORMAT = 2  # bump when the chunk digests or the fold's content change meaning
+FOLD_FORMAT = 3  # bump when the chunk digests or the fold's content change meaning
 
 
 @dataclass(frozen=True)
@@ -52,16 +47,17 @@ class MapJob:
     recon_path: Path
     runtime: RunParams
     reads_rgb: bool  # the encoder reads the colour images (else they are neither decoded nor digested)
+    scratch: Path | None = None  # where chunk tasks leave their states, split by tile (pipeline.maps.spill)
 
 
 @dataclass
 class ChunkResult:
-    """One chunk of frames: the digest of what it read and, unless it was only digested, its partial states (one
-    per floor, lowest first)."""
+    """One chunk of frames: the digest of what it read and, unless it was only digested, the names of its partial
+    states in the job's scratch folder (one per floor, lowest first; :class:`~pipeline.maps.spill.TileRows`)."""
 
     index: int
     digest: str
-    states: "list[FusionState] | None" = None
+    parts: list[str] | None = None
     frames_fused: int = 0
     pixels: int = 0
 
@@ -108,14 +104,16 @@ def _open_inputs(frames_path: Path, recon_path: Path, p: MapsParams):
 def fuse_chunk(job: MapJob, chunk: tuple[int, int, int], *, fuse: bool = True) -> ChunkResult:
     """The unit of work of a map stage: frames ``[start, stop)`` of ``chunk = (index, start, stop)`` streamed in
     blocks of ``maps.block_frames``, encoded once and fused into a fresh accumulator per floor (each floor takes
-    the points of its height band); returns their states and the digest of what the chunk read (colour if the
-    encoder reads it, depth, instance masks, recon's poses and fused flags). ``fuse=False`` only reads and digests
-    (checking a stored fold, :mod:`pipeline.maps.incremental`)."""
+    the points of its height band); writes their states split by tile to ``job.scratch``
+    (:func:`~pipeline.maps.spill.spill`) and returns their names with the digest of what the chunk read (colour
+    if the encoder reads it, depth, instance masks, recon's poses and fused flags). ``fuse=False`` only reads and
+    digests (checking a stored fold, :mod:`pipeline.maps.incremental`)."""
     import torch
 
     from pipeline.encoders import build_encoder
     from pipeline.encoders.base import resolve_device
     from pipeline.maps.fusion import TopDownAccumulator, VoxelAccumulator, locate_block, point_weights
+    from pipeline.maps.spill import TileLayout, spill
 
     index, start, stop = chunk
     kind, p = job.config.kind, job.config.maps
@@ -154,8 +152,14 @@ def fuse_chunk(job: MapJob, chunk: tuple[int, int, int], *, fuse: bool = True) -
                 acc.add(pts, dense, point_weights(pts.dist_m, sigma))
                 pixels += pts.n_fused
             fused_frames += int(ok.sum())
-    states = None if not fuse or accs is None else [acc.state() for acc in accs]
-    return ChunkResult(index, f"{DIGEST_ALGO}:{digest.hexdigest()}", states, fused_frames, pixels)
+            del dense, pts  # a block's features (630 MB for 16 LSeg-sized frames) are gone before the next is encoded
+    parts = None
+    if fuse and accs is not None:
+        parts = [f"chunk{index:05d}.floor{k}" for k in range(len(accs))]
+        for k, lattice in enumerate(lattices):
+            spill(accs[k], TileLayout(lattice.grid, p.tile_cells), job.scratch, parts[k])
+            accs[k] = None  # freed before the next floor's rows are gathered
+    return ChunkResult(index, f"{DIGEST_ALGO}:{digest.hexdigest()}", parts, fused_frames, pixels)
 
 
 def build_map(
@@ -175,131 +179,155 @@ def build_map(
     """Fuse every frame into a new map store at ``out_path``; returns the summary figures.
 
     The frames are cut into fixed chunks of ``maps.chunk_frames`` (by frame index, whatever runs them); each
-    chunk is fused by :func:`fuse_chunk` into its own accumulator and the chunks' states are folded in chunk
-    order, so the map is the same float for float however many workers ran the chunks. ``map_ordered(fn, items)``
-    must yield ``fn(item)`` in item order; the stages pass the runner's ``StageContext.map_ordered`` (tasks on
-    every dask worker); default: one chunk after the other, here. Memory: the fold plus the few chunk states in
-    flight, each bounded by the map (observed cells / voxels), never by the number of frames.
+    chunk is fused by :func:`fuse_chunk` into its own accumulator, which it leaves split by spatial tile in a
+    scratch folder beside ``out_path``; then each floor is folded one tile at a time, the chunks' rows of the tile
+    in chunk order (:mod:`pipeline.maps.tilefold`), so the map is the same float for float however many workers
+    ran the chunks, and streamed into the store. ``map_ordered(fn, items)`` must yield ``fn(item)`` in item
+    order; the stages pass the runner's ``StageContext.map_ordered`` (tasks on every dask worker); default: one
+    chunk after the other, here. Memory: the chunks in flight (each bounded by the cells / voxels its frames saw)
+    and one tile, never the floor's area nor the number of frames. Disk: the chunks' fp32 sums, until the map is
+    written. On any error neither the store nor the scratch folder is left behind.
 
-    With ``fold_path``, the fold after the last complete chunk is kept there (:mod:`pipeline.maps.incremental`),
-    keyed by ``fold_key`` (what else the map depends on: the stage's params and code digests) with the lattice,
-    the encoder's identity and the devices. When the frames grow, the stored chunks are re-read and digested and,
-    if each matches, only the frames after them are fused.
+    With ``fold_path``, the fold of the complete chunks is kept there (:mod:`pipeline.maps.incremental`), keyed
+    by ``fold_key`` (what else the map depends on: the stage's params and code digests) with the lattice, the
+    encoder's identity and the devices. When the frames grow, the stored chunks are re-read and digested and, if
+    each matches, only the frames after them are fused.
     """
+    import shutil
+
     import torch
 
     from pipeline.encoders import build_encoder
     from pipeline.encoders.base import resolve_device
-    from pipeline.maps.fusion import TopDownAccumulator, VoxelAccumulator
-    from pipeline.maps.incremental import Fold, load_fold, save_fold
-    from pipeline.maps.store import write_map
+    from pipeline.maps.incremental import FoldWriter, load_fold
+    from pipeline.maps.spill import TileLayout, TileRows
+    from pipeline.maps.tilefold import fold_floor, write_floor
+    from pipeline.maps.writer import create_map
 
     kind, p, runtime = config.kind, config.maps, runtime or RunParams()
     fs, recon, _, _, lattices, _ = _open_inputs(frames_path, recon_path, p)
     encoder = build_encoder(config.encoders, config.encoder, runtime=runtime)
     identity, reads_rgb, encoder_device = encoder.identity(), encoder.reads_rgb, str(encoder.device)
     del encoder  # each chunk task builds its own
-    job = MapJob(config, Path(frames_path), Path(recon_path), runtime, reads_rgb)
+    out_path = Path(out_path)
+    scratch = out_path.with_name(f".{out_path.name}.scratch")
+    job = MapJob(config, Path(frames_path), Path(recon_path), runtime, reads_rgb, scratch)
     run = map_ordered or (lambda fn, items: map(fn, items))
     chunks = chunk_ranges(fs.n_frames, p.chunk_frames)
     complete = fs.n_frames // p.chunk_frames
     device = resolve_device(runtime.fusion_device, "run.fusion_device")
-    folds = [(VoxelAccumulator if kind.fuses_voxels else TopDownAccumulator)(lattice, identity["dim"], device=device)
-             for lattice in lattices]
+    layouts = [TileLayout(lattice.grid, p.tile_cells) for lattice in lattices]
     key = digest_value({"format": FOLD_FORMAT, **(fold_key or {}), "encoder": identity, "lattice": lattices[0].to_attrs(),
                         "grid": [recon.grid.rows, recon.grid.cols, recon.grid.cell_size_m, list(recon.grid.origin_xy)],
                         "intrinsics": fs.meta.intrinsics.to_dict(), "ground_truth": digest_value(fs.meta.ground_truth),
                         "devices": [encoder_device, device], "encoder_batch": runtime.encoder_batch_size,
-                        "torch": torch.__version__,
+                        "torch": torch.__version__, "tile_cells": p.tile_cells,
                         **({"floors": [[lat.to_attrs(), lat.grid.to_attrs()] for lat in lattices[1:]]}
                            if len(lattices) > 1 else {})})
     digests: list[str] = []
     fused_frames = pixels = reused = 0
-    stored = load_fold(fold_path, key, p.chunk_frames) if fold_path is not None else None
-    if stored is not None and 0 < len(stored.chunks) <= complete and len(stored.states) == len(folds):
+    parts: list[list[TileRows]] = [[] for _ in lattices]  # per floor, in chunk order
+    stored = load_fold(fold_path, key, p.chunk_frames, layouts) if fold_path is not None else None
+    if stored is not None and 0 < len(stored.chunks) <= complete:
         checks = run(functools.partial(fuse_chunk, job, fuse=False), chunks[: len(stored.chunks)])
         try:
             changed = next((c for c, d in zip(checks, stored.chunks) if c.digest != d), None)  # the first mismatch
         finally:
             getattr(checks, "close", lambda: None)()
         if changed is None:
-            for fold, state in zip(folds, stored.states):
-                fold.merge(state)
+            for floor_parts, state in zip(parts, stored.states):
+                floor_parts.append(state)
             digests, fused_frames, pixels, reused = list(stored.chunks), stored.frames_fused, stored.pixels, len(stored.chunks)
             log(f"reusing the fold of frames 0-{stored.frames - 1} ({fold_path.name}); fusing {fs.n_frames - stored.frames}")
         else:
             log(f"frames or poses of chunk {changed.index} (frames {chunks[changed.index][1]}-"
                 f"{chunks[changed.index][2] - 1}) changed since {fold_path.name} was kept: fusing every frame")
-        del stored
-    results = run(functools.partial(fuse_chunk, job), chunks[reused:])
-    if progress is not None:
-        results = progress(results, len(chunks) - reused, "fusing")
-    for chunk in results:
-        for fold, state in zip(folds, chunk.states or ()):
-            fold.merge(state)
-        fused_frames, pixels = fused_frames + chunk.frames_fused, pixels + chunk.pixels
-        digests.append(chunk.digest)
-        if fold_path is not None and chunk.index == complete - 1:  # the last complete chunk: keep the fold
-            save_fold(fold_path, Fold(key, p.chunk_frames, digests, [fold.state() for fold in folds], fused_frames,
-                                      pixels))
-        del chunk
-    states = [fold.state() for fold in folds]
-    del folds
-    maps = [_floor_map(kind, p, recon, k, lattice, state) for k, (lattice, state) in enumerate(zip(lattices, states))]
-    if sum(len(m.cells.cell) for m in maps) == 0:
-        raise StageError(f"{frames_path}: no pixel fell inside the grid and height band; nothing to map "
-                         f"(check maps.depth_* / maps.*_height_m and the recon grid)")
-    building = len(maps) > 1
-    warnings = [f"floor {m.floor.id} ({m.floor.name}, {m.floor.floor_z_m:.2f} m): no pixel fell in its height "
-                "band; its map is empty" for m in maps if building and not len(m.cells.cell)]
-    for line in warnings:
-        log(f"warning: {line}")
-    first = maps[0]
-    sigma = kind.weight_sigma_m(p)
-    write_map(out_path, {**attrs, "encoder": identity, "weighting": {"sigma_m": sigma},
-                         "frames": {"n_frames": fs.n_frames, "fused": fused_frames, "keyframes_only": p.keyframes_only},
-                         "points_fused": first.figures["points_fused"], "pixels_in_band": int(pixels),
-                         "cells_observed": first.figures["cells_observed"],
-                         "cells_filled": first.figures["cells_filled"], "fill_radius_m": p.fill_radius_m},
-              first.grid, first.lattice, first.cells, tile_cells=p.tile_cells, voxels=first.voxels,
-              floors=list(recon.floors), upper=maps[1:])
+    cache = None
+    created = False
+    try:
+        scratch.mkdir(parents=True, exist_ok=True)
+        results = run(functools.partial(fuse_chunk, job), chunks[reused:])
+        if progress is not None:
+            results = progress(results, len(chunks) - reused, "fusing")
+        for chunk in results:
+            for floor_parts, name in zip(parts, chunk.parts or ()):
+                floor_parts.append(TileRows(scratch, name))
+            fused_frames, pixels = fused_frames + chunk.frames_fused, pixels + chunk.pixels
+            digests.append(chunk.digest)
+            if chunk.index == complete - 1:
+                fold_counts = (fused_frames, pixels)  # what the fold of the complete chunks holds
+        if fold_path is not None and complete > reused:  # new complete chunks: keep the fold of all of them
+            cache = FoldWriter(fold_path, layouts, identity["dim"], top=not kind.fuses_voxels)
+        folds = []
+        for k, (lattice, layout) in enumerate(zip(lattices, layouts)):
+            # the parts of the complete chunks: the stored fold's (one part) and those fused now
+            cache_after = (1 if reused else 0) + complete - reused
+            folds.append(fold_floor(parts[k], lattice, layout, identity["dim"], scratch, f"floor{k}",
+                                    voxels=kind.fuses_voxels, keep_voxels=kind.fuses_voxels and p.cfmap_voxels,
+                                    device=device, cache=None if cache is None else cache.floors[k],
+                                    cache_after=cache_after))
+        if cache is not None:
+            cache.commit(key, p.chunk_frames, digests[:complete], *fold_counts)
+            cache = None
+        spilled = sum(part.nbytes for floor_parts in parts for part in floor_parts)
+        layers, fills, summary = _plan(p, recon, frames_path, folds, lattices, log)
+        full_attrs = {**attrs, "encoder": identity, "weighting": {"sigma_m": kind.weight_sigma_m(p)},
+                      "frames": {"n_frames": fs.n_frames, "fused": fused_frames, "keyframes_only": p.keyframes_only},
+                      "points_fused": folds[0].points, "pixels_in_band": int(pixels),
+                      "cells_observed": folds[0].cells_observed, "cells_filled": len(fills[0]),
+                      "fill_radius_m": p.fill_radius_m}
+        writers = create_map(out_path, full_attrs, layers, tile_cells=p.tile_cells, floors=list(recon.floors))
+        created = True
+        for writer, fold, fill in zip(writers, folds, fills):
+            write_floor(writer, fold, fill)
+    except BaseException:
+        if cache is not None:
+            cache.abort()
+        if created:
+            shutil.rmtree(out_path, ignore_errors=True)  # never a half-written store
+        raise
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
     frames_reused = min(reused * p.chunk_frames, fs.n_frames)
-    n_cells = sum(len(m.cells.cell) for m in maps)
-    return {"frames_fused": fused_frames, "frames_skipped": fs.n_frames - fused_frames, "keyframes_only": p.keyframes_only,
-            "cells": n_cells,
-            "cells_filled": sum(m.figures["cells_filled"] for m in maps),
-            "voxels": sum(0 if m.voxels is None else len(m.voxels) for m in maps),
-            "points_fused": sum(state.points for state in states), "chunks": len(chunks), "chunks_reused": reused,
+    return {**summary, "spilled_mb": round(spilled / 2**20, 1),  # the chunk states (and a reused fold) on disk
+            "frames_fused": fused_frames, "frames_skipped": fs.n_frames - fused_frames,
+            "keyframes_only": p.keyframes_only, "chunks": len(chunks), "chunks_reused": reused,
             "frames_reused": frames_reused, "frames_processed": fs.n_frames - frames_reused,
-            "encoder": identity["name"], "diagnostic_encoder": bool(identity.get("diagnostic", False)),
-            "observed_area_m2": round(sum(len(m.cells.cell) * m.grid.cell_size_m**2 for m in maps), 3),
-            **({"floors": [{"id": m.floor.id, "name": m.floor.name, "cells": int(len(m.cells.cell)),
-                            "voxels": 0 if m.voxels is None else len(m.voxels), **m.figures,
-                            "observed_area_m2": round(len(m.cells.cell) * m.grid.cell_size_m**2, 3)} for m in maps]}
-               if building else {}),
-            **({"warnings": warnings} if warnings else {})}
+            "encoder": identity["name"], "diagnostic_encoder": bool(identity.get("diagnostic", False))}
 
 
-def _floor_map(kind, p: MapsParams, recon, k: int, lattice, state: "FusionState"):
-    """Floor ``k``'s map from its fold ``state``: the top-down cells (unseen tops filled within
-    ``maps.fill_radius_m`` where that floor's recon grid is not free) and, for a cfmap that stores them, the
-    voxels; a :class:`~pipeline.maps.store.FloorLayer` (``figures``: points_fused, cells_observed, cells_filled)."""
-    from pipeline.maps.fill import fill_unseen
-    from pipeline.maps.fusion import FusedCells, FusedVoxels
-    from pipeline.maps.store import FloorLayer
+def _plan(p: MapsParams, recon, frames_path: Path, folds: list, lattices: list, log: Callable[[str], None]):
+    """Each floor's :class:`~pipeline.maps.writer.LayerShape` and :class:`~pipeline.maps.tilefold.FillPlan` (unseen
+    tops filled within ``maps.fill_radius_m`` where that floor's recon grid is not free) and the map's summary
+    figures; an error when no floor holds a cell, a warning per empty floor of a building."""
+    from pipeline.maps.tilefold import plan_fill
+    from pipeline.maps.writer import LayerShape
     from pipeline.recon import FREE
 
-    voxels = None
-    if kind.fuses_voxels:
-        voxels = FusedVoxels.from_state(state, lattice)
-        cells = voxels.top_down()
-        if not p.cfmap_voxels:
-            voxels = None
-    else:
-        cells = FusedCells.from_state(state)
-    n_seen = len(cells.cell)
-    occupancy = recon.occupancy if k == 0 else recon.floor(k).occupancy
-    cells, n_filled = fill_unseen(cells, lattice.grid, occupancy != FREE, p.fill_radius_m)
-    return FloorLayer(recon.floors[k], lattice.grid, lattice, cells.to_store(),
-                      None if voxels is None else voxels.to_store(lattice.grid),
-                      {"points_fused": state.points, "cells_observed": n_seen, "cells_filled": n_filled})
+    fills = []
+    for k, fold in enumerate(folds):
+        occupancy = recon.occupancy if k == 0 else recon.floor(k).occupancy
+        fills.append(plan_fill(fold, occupancy != FREE, p.fill_radius_m))
+    n_cells = [fold.cells_observed + len(fill) for fold, fill in zip(folds, fills)]
+    if sum(n_cells) == 0:
+        raise StageError(f"{frames_path}: no pixel fell inside the grid and height band; nothing to map "
+                         f"(check maps.depth_* / maps.*_height_m and the recon grid)")
+    building = len(folds) > 1
+    floors = list(recon.floors)
+    warnings = [f"floor {f.id} ({f.name}, {f.floor_z_m:.2f} m): no pixel fell in its height band; its map is empty"
+                for f, n in zip(floors, n_cells) if building and not n]
+    for line in warnings:
+        log(f"warning: {line}")
+    layers, per_floor = [], []
+    for k, (fold, fill, lattice) in enumerate(zip(folds, fills, lattices)):
+        figures = {"points_fused": fold.points, "cells_observed": fold.cells_observed, "cells_filled": len(fill)}
+        n_voxels = None if fold.voxels is None else fold.voxels.rows
+        layers.append(LayerShape(lattice.grid, lattice, n_cells[k], int(fold.cells.columns["features"].shape[1]),
+                                 n_voxels, floor=floors[k], figures=figures))
+        per_floor.append({"id": floors[k].id, "name": floors[k].name, "cells": n_cells[k], "voxels": n_voxels or 0,
+                          **figures, "observed_area_m2": round(n_cells[k] * lattice.grid.cell_size_m**2, 3)})
+    summary = {"cells": sum(n_cells), "cells_filled": sum(len(fill) for fill in fills),
+               "voxels": sum(f["voxels"] for f in per_floor), "points_fused": sum(fold.points for fold in folds),
+               "observed_area_m2": round(sum(n * lat.grid.cell_size_m**2 for n, lat in zip(n_cells, lattices)), 3),
+               **({"floors": per_floor} if building else {}), **({"warnings": warnings} if warnings else {})}
+    return layers, fills, summary

@@ -156,19 +156,23 @@ class _SlotStore:
             fresh = torch.arange(self.used, need, device=self.device)
             self.slot_of[new_keys] = fresh.to(torch.int32)
             self.keys[fresh] = new_keys
+            for rows in (self.sum, self.weight, self.count):  # grown rows are unwritten until given out (_grow)
+                rows[self.used : need] = 0
             self.used = need
             slot = self.slot_of[keys]
         return slot.long()
 
     def _grow(self, need: int) -> None:
+        """Double the capacity until ``need`` slots fit. Only the slots in use are copied; the others are left
+        unwritten (:meth:`slots` zeroes them as it gives them out), so the memory a store holds is its used rows,
+        not its capacity (and at a growth, the old rows and their copy: not the old and a whole zeroed new one)."""
         cap = self.sum.shape[0]
         while cap < need:
             cap *= 2
         for name in ("sum", "weight", "count", "keys"):
             old = getattr(self, name)
-            fill = -1 if name == "keys" else 0
-            new = torch.full((cap,) + tuple(old.shape[1:]), fill, dtype=old.dtype, device=self.device)
-            new[: old.shape[0]] = old
+            new = torch.empty((cap,) + tuple(old.shape[1:]), dtype=old.dtype, device=self.device)
+            new[: self.used] = old[: self.used]
             setattr(self, name, new)
 
     def add(self, target: torch.Tensor, features: torch.Tensor, weights: np.ndarray | None,
@@ -304,11 +308,20 @@ class _Accumulator:
 
     def state(self) -> "FusionState":
         """A copy of the content (keys ascending), e.g. one chunk's partial to fold elsewhere."""
-        keys, slots = self.store.observed()
-        s = torch.from_numpy(slots).to(self.device)
+        return self.rows(*self.store.observed())
+
+    def observed(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(keys, slots)`` of every key holding rows, keys ascending (for :meth:`rows`)."""
+        return self.store.observed()
+
+    def rows(self, keys: np.ndarray, slots: np.ndarray) -> "FusionState":
+        """A copy of the rows of ``slots`` (keys ``keys``, as :meth:`observed` pairs them): a part of :meth:`state`
+        (e.g. one spatial tile's, :mod:`pipeline.maps.spill`) without a copy of the whole."""
+        s = torch.from_numpy(np.asarray(slots, np.int64)).to(self.device)
         top = self._top()
-        return FusionState(keys=keys, sum=self.store.sum[s].cpu(), weight=self.store.weight[s].cpu(),
-                           count=self.store.count[s].cpu(), top=None if top is None else top[s].cpu())
+        return FusionState(keys=np.asarray(keys, np.int64), sum=self.store.sum[s].cpu(),
+                           weight=self.store.weight[s].cpu(), count=self.store.count[s].cpu(),
+                           top=None if top is None else top[s].cpu())
 
     def merge(self, part: "FusionState") -> None:
         """Fold ``part`` (another accumulator's :meth:`state` on the same lattice) into this one."""
@@ -338,6 +351,11 @@ class _Accumulator:
     def _top(self) -> torch.Tensor | None:
         """Per-slot top level (top-down accumulators), else None."""
         return None
+
+    @property
+    def keeps_top(self) -> bool:
+        """Whether the states hold each key's top level (a top-down accumulator's)."""
+        return self._top() is not None
 
 
 @dataclass

@@ -12,13 +12,14 @@ recomputed.
 
 Not an artifact: never hashed, published or tracked (``zipon verify`` ignores it); deleting it costs one
 full rebuild, nothing else. It is as big as the map's accumulators (fp32 sums): ``run.map_fold_cache``
-turns it off. Layout::
+turns it off. It is written one spatial tile at a time while the build folds its tiles
+(:mod:`pipeline.maps.tilefold`), beside the old one, and replaces it only when complete. Layout::
 
     data/artifacts/<scene>/.<stage>.fold/
       meta.json        {"format", "key", "chunk_frames", "chunks": [digest of chunk 0, ...],
-                        "frames_fused", "pixels"}
-      keys.npy sum.npy weight.npy count.npy [top.npy]    the FusionState (vlmap: top levels too) of floor 0
-      floor<k>.keys.npy ...                              of floor k >= 1 of a building (meta "floors": their count)
+                        "frames_fused", "pixels", "floors"}
+      floor<k>.json floor<k>.tiles.npy floor<k>.<column>.bin     floor k's FusionState (keys, sum, weight,
+                                                                 count[, top]) split by tile (pipeline.maps.spill)
 """
 
 from __future__ import annotations
@@ -29,13 +30,9 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-import torch
+from pipeline.maps.spill import TileLayout, TileRows, TileRowsWriter, state_columns
 
-from pipeline.maps.fusion import FusionState
-
-FORMAT = 1
-_ARRAYS = ("keys", "sum", "weight", "count", "top")
+FORMAT = 2
 
 
 @dataclass
@@ -45,7 +42,7 @@ class Fold:
     key: str  # digest of everything but the frames (params, code, lattice, encoder, devices)
     chunk_frames: int
     chunks: list[str]  # digest of each chunk's frames and poses, in order
-    states: list[FusionState]  # one per floor, lowest first
+    states: list[TileRows]  # one per floor, lowest first: its FusionState split by tile
     frames_fused: int  # frames of those chunks that recon fused (the rest are skipped)
     pixels: int  # feature pixels that fell in the grid and height band
 
@@ -55,58 +52,54 @@ class Fold:
         return len(self.chunks) * self.chunk_frames
 
 
-def load_fold(path: Path, key: str, chunk_frames: int) -> Fold | None:
-    """The fold stored at ``path`` if it was made with ``key`` and ``chunk_frames``; None when there is none, it
-    is of another build or it cannot be read (a cache: never an error)."""
+def load_fold(path: Path, key: str, chunk_frames: int, layouts: list[TileLayout]) -> Fold | None:
+    """The fold stored at ``path`` if it was made with ``key`` and ``chunk_frames``, one state per floor of
+    ``layouts`` cut in its tiles; None when there is none, it is of another build or it cannot be read (a cache:
+    never an error). The states are memory maps: nothing is read until a tile is folded."""
     try:
         meta = json.loads((path / "meta.json").read_text())
         if meta.get("format") != FORMAT or meta.get("key") != key or meta.get("chunk_frames") != chunk_frames:
             return None
-        entries = meta["entries"] if isinstance(meta["entries"], list) else [meta["entries"]]
-        states = [_load_state(path, _prefix(k), n) for k, n in enumerate(entries)]
-        if any(state is None for state in states) or len(states) != meta.get("floors", 1):
+        if meta.get("floors") != len(layouts):
+            return None
+        states = [TileRows(path, _floor(k)) for k in range(len(layouts))]
+        if not all(state.fits(layout) for state, layout in zip(states, layouts)):
             return None
         return Fold(key, chunk_frames, list(meta["chunks"]), states, int(meta["frames_fused"]), int(meta["pixels"]))
     except (OSError, ValueError, KeyError, TypeError):
         return None
 
 
-def _prefix(floor: int) -> str:
-    """File name prefix of floor ``floor``'s arrays (none for floor 0: a single floor's fold as before floors)."""
-    return "" if floor == 0 else f"floor{floor}."
+def _floor(k: int) -> str:
+    return f"floor{k}"
 
 
-def _load_state(path: Path, prefix: str, entries: int) -> FusionState | None:
-    """One floor's stored state, None when its arrays disagree with the meta."""
-    # mapped copy-on-write, not read: a stage standing in line for its turn to fuse (pipeline.engine.runner's
-    # ordered_tasks) holds none of it; pages are read when the fold is merged
-    arrays = {name: np.load(path / f"{prefix}{name}.npy", mmap_mode="c") for name in _ARRAYS
-              if (path / f"{prefix}{name}.npy").exists()}
-    n = len(arrays["keys"])
-    if any(len(a) != n for a in arrays.values()) or n != entries:
-        return None
-    return FusionState(keys=arrays["keys"], sum=torch.from_numpy(arrays["sum"]),
-                       weight=torch.from_numpy(arrays["weight"]), count=torch.from_numpy(arrays["count"]),
-                       top=torch.from_numpy(arrays["top"]) if "top" in arrays else None)
+class FoldWriter:
+    """The next fold of ``path``, one writer per floor (``floors[k]``: :meth:`TileRowsWriter.append` floor k's
+    tiles in order, as :func:`~pipeline.maps.spill.write_state` does), written in a folder beside it;
+    :meth:`commit` replaces the stored fold, so a crash leaves the old fold or none (never a half-written one
+    that loads). The caller holds the stage's lock, so temporary folds left by a crashed run are removed here."""
 
+    def __init__(self, path: Path, layouts: list[TileLayout], dim: int, *, top: bool):
+        for stale in path.parent.glob(f"{path.name}.tmp-*"):
+            shutil.rmtree(stale, ignore_errors=True)
+        self.path = path
+        self.tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
+        self.tmp.mkdir(parents=True)
+        self.floors = [TileRowsWriter(self.tmp, _floor(k), layout, state_columns(dim, top))
+                       for k, layout in enumerate(layouts)]
 
-def save_fold(path: Path, fold: Fold) -> None:
-    """Write ``fold`` at ``path``, replacing what is there; written beside and renamed, so a crash leaves the
-    old fold or none (never a half-written one that loads). The caller holds the stage's lock, so temporary
-    folds left by a crashed run are removed here."""
-    for stale in path.parent.glob(f"{path.name}.tmp-*"):
-        shutil.rmtree(stale, ignore_errors=True)
-    tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
-    tmp.mkdir(parents=True)
-    for k, s in enumerate(fold.states):
-        arrays = {"keys": s.keys, "sum": s.sum, "weight": s.weight, "count": s.count, "top": s.top}
-        for name, a in arrays.items():
-            if a is not None:
-                np.save(tmp / f"{_prefix(k)}{name}.npy", a.numpy() if isinstance(a, torch.Tensor) else a)
-    entries = [int(len(s.keys)) for s in fold.states]
-    meta = {"format": FORMAT, "key": fold.key, "chunk_frames": fold.chunk_frames, "chunks": fold.chunks,
-            "entries": entries[0] if len(entries) == 1 else entries, "frames_fused": fold.frames_fused,
-            "pixels": fold.pixels, **({"floors": len(entries)} if len(entries) > 1 else {})}
-    (tmp / "meta.json").write_text(json.dumps(meta, indent=1))
-    shutil.rmtree(path, ignore_errors=True)
-    os.replace(tmp, path)
+    def commit(self, key: str, chunk_frames: int, chunks: list[str], frames_fused: int, pixels: int) -> None:
+        for writer in self.floors:
+            writer.close()
+        meta = {"format": FORMAT, "key": key, "chunk_frames": chunk_frames, "chunks": chunks,
+                "frames_fused": frames_fused, "pixels": pixels, "floors": len(self.floors)}
+        (self.tmp / "meta.json").write_text(json.dumps(meta, indent=1))
+        shutil.rmtree(self.path, ignore_errors=True)
+        os.replace(self.tmp, self.path)
+
+    def abort(self) -> None:
+        """Drop what was written (the stored fold stays)."""
+        for writer in self.floors:
+            writer.abort()
+        shutil.rmtree(self.tmp, ignore_errors=True)

@@ -48,10 +48,10 @@ reader of one region reads only the chunks of its tiles; a query reads ``top/fea
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from pydantic import ValidationError
@@ -60,10 +60,7 @@ from pipeline.errors import ArtifactError, MissingInputError
 from pipeline.geometry import GridSpec
 from pipeline.maps.scoring import chunked_scores
 from pipeline.recon.store import Floor
-from pipeline.store import ArtifactAttrs, AttrsModel, GridAttrs, compressor, new_group
-
-if TYPE_CHECKING:  # zarr is imported where a map is read or written: building a stage config needs none
-    import zarr
+from pipeline.store import ArtifactAttrs, AttrsModel, GridAttrs
 
 FORMAT_VERSION = 1  # one floor (every store before floors existed)
 BUILDING_FORMAT_VERSION = 2  # several floors: attrs.floors and a floors/ group
@@ -110,7 +107,7 @@ class Lattice:
 
 @dataclass
 class MapCells:
-    """The top-down map as stored in ``top/`` (any row order; :func:`write_map` sorts tile-major)."""
+    """The top-down map as stored in ``top/`` (any row order; :func:`~pipeline.maps.writer.write_map` sorts tile-major)."""
 
     cell: np.ndarray  # (N,) int64 flat row * cols + col
     features: np.ndarray  # (N,D) float16/float32, L2-normalised weighted means
@@ -218,106 +215,19 @@ ARRAY_DIMS: dict[str, dict[str, tuple[tuple[str, ...], dict]]] = {
 }
 
 
+def tile_index(cell: np.ndarray, grid: GridSpec, tile_cells: int) -> np.ndarray:
+    """Spatial tile ``(row // tile_cells) * tiles_per_row + col // tile_cells`` of each flat ``cell`` id."""
+    row, col = np.divmod(np.asarray(cell, np.int64), grid.cols)
+    return (row // tile_cells) * -(-grid.cols // tile_cells) + col // tile_cells
+
+
 def tile_order(cell: np.ndarray, grid: GridSpec, tile_cells: int) -> tuple[np.ndarray, np.ndarray]:
     """Permutation putting flat ``cell`` ids in tile-major order, and the ``(T+1,)`` tile offsets."""
-    row, col = np.divmod(np.asarray(cell, np.int64), grid.cols)
-    tiles_per_row = -(-grid.cols // tile_cells)
-    n_tiles = (-(-grid.rows // tile_cells)) * tiles_per_row
-    tile = (row // tile_cells) * tiles_per_row + col // tile_cells
+    n_tiles = (-(-grid.rows // tile_cells)) * -(-grid.cols // tile_cells)
+    tile = tile_index(cell, grid, tile_cells)
     order = np.lexsort((cell, tile))
     start = np.searchsorted(tile[order], np.arange(n_tiles + 1), side="left").astype(np.int64)
     return order, start
-
-
-@dataclass
-class FloorLayer:
-    """One upper floor's map in a building's store (``floors/<id>/``): as the root's arguments of :func:`write_map`
-    for floor 0, plus the floor's figures (``points_fused``, ``cells_observed``, ``cells_filled``)."""
-
-    floor: Floor
-    grid: GridSpec
-    lattice: Lattice
-    cells: MapCells
-    voxels: MapVoxels | None = None
-    figures: dict[str, Any] = field(default_factory=dict)
-
-
-def write_map(
-    path: Path,
-    attrs: dict,
-    grid: GridSpec,
-    lattice: Lattice,
-    cells: MapCells,
-    *,
-    tile_cells: int,
-    voxels: MapVoxels | None = None,
-    floors: list[Floor] | None = None,
-    upper: list[FloorLayer] = (),
-) -> zarr.Group:
-    """Write a map store at ``path`` (must not exist). ``attrs`` = ``artifact_attrs(...)`` + extras, checked
-    against :class:`MapAttrs` before anything is written. ``grid``, ``lattice``, ``cells``, ``voxels``: floor 0's
-    map (a single floor's). ``floors`` (recon's records) of more than one floor with ``upper`` (one
-    :class:`FloorLayer` per floor above the first) write a building (version 2, the module doc); otherwise the
-    store is version 1 exactly as before floors existed."""
-    building = floors is not None and len(floors) > 1
-    if building and [f.id for f in floors[1:]] != [layer.floor.id for layer in upper]:
-        raise ValueError(f"{path}: floors {[f.id for f in floors]} need one upper layer per floor above the first, "
-                         f"got {[layer.floor.id for layer in upper]}")
-    extra = {}
-    if building:
-        extra = {"format_version": BUILDING_FORMAT_VERSION, "floors": [f.model_dump(mode="json") for f in floors]}
-    n_voxels = 0 if voxels is None else len(voxels)
-    g = new_group(path, MapAttrs.checked(
-        {**attrs, "grid": grid.to_attrs(), "lattice": lattice.to_attrs(), "tile_cells": tile_cells,
-         "n_cells": len(cells.cell), "n_voxels": n_voxels,
-         "units": {"features": "unit L2 norm", "weight": "sum of point weights", "distance": "metres"}, **extra}, path))
-    _write_layer(g, grid, cells, voxels, tile_cells)
-    for layer in upper if building else ():
-        sub = g.require_group(FLOOR_GROUP).create_group(str(layer.floor.id))
-        floor_attrs = FloorMapAttrs.model_validate(
-            {"grid": layer.grid.to_attrs(), "lattice": layer.lattice.to_attrs(), "n_cells": len(layer.cells.cell),
-             "n_voxels": 0 if layer.voxels is None else len(layer.voxels), **layer.figures})
-        sub.attrs.update(floor_attrs.model_dump(mode="json", exclude_none=True))
-        _write_layer(sub, layer.grid, layer.cells, layer.voxels, tile_cells)
-    return g
-
-
-def _write_layer(g: zarr.Group, grid: GridSpec, cells: MapCells, voxels: MapVoxels | None, tile_cells: int) -> None:
-    """One floor's ``top/`` (and ``voxels/``) in group ``g``."""
-    features = np.asarray(cells.features)
-    dim = int(features.shape[1]) if features.ndim == 2 else 0
-    order, start = tile_order(cells.cell, grid, tile_cells)
-    n = len(order)
-    chunk = max(tile_cells * tile_cells, 1)
-    c_f = compressor(3, shuffle="shuffle")
-    top = g.create_group("top")
-    idx = np.full(grid.rows * grid.cols, -1, dtype=np.int32)
-    idx[cells.cell[order]] = np.arange(n, dtype=np.int32)
-
-    def arr(group, name, data, chunks):
-        dims, meaning = ARRAY_DIMS[group.basename][name]
-        a = group.create_array(name, shape=data.shape, chunks=chunks, dtype=data.dtype, compressors=c_f,
-                               dimension_names=dims)
-        a.attrs.update(meaning)
-        if data.size:
-            a[...] = data
-        return a
-
-    arr(top, "cell", cells.cell[order].astype(np.int32), (chunk,))
-    arr(top, "features", features[order].astype(np.float16), (chunk, max(dim, 1)))
-    arr(top, "weight", cells.weight[order].astype(np.float32), (chunk,))
-    arr(top, "count", cells.count[order].astype(np.int32), (chunk,))
-    arr(top, "level", cells.level[order].astype(np.int16), (chunk,))
-    arr(top, "tile_start", start, (len(start),))
-    arr(top, "index", idx.reshape(grid.rows, grid.cols), (tile_cells, tile_cells))
-    if voxels is not None:
-        vx = g.create_group("voxels")
-        key = np.asarray(voxels.key).astype(np.int16)
-        o = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
-        arr(vx, "key", key[o], (chunk, 3))
-        arr(vx, "features", np.asarray(voxels.features)[o].astype(np.float16), (chunk, max(dim, 1)))
-        arr(vx, "weight", np.asarray(voxels.weight)[o].astype(np.float32), (chunk,))
-        arr(vx, "count", np.asarray(voxels.count)[o].astype(np.int32), (chunk,))
 
 
 class SemanticMap:

@@ -9,7 +9,8 @@ from pipeline.geometry import GridSpec
 from pipeline.maps.fusion import BlockPoints, VoxelAccumulator
 from pipeline.maps.levels import LevelScorer
 from pipeline.maps.scoring import chunked_scores
-from pipeline.maps.store import FORMAT_VERSION, Lattice, SemanticMap, write_map
+from pipeline.maps.store import FORMAT_VERSION, Lattice, SemanticMap
+from pipeline.maps.writer import write_map
 from pipeline.store import artifact_attrs
 
 GRID = GridSpec(rows=4, cols=4, cell_size_m=1.0, origin_xy=(0.0, 4.0))

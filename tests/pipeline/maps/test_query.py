@@ -13,7 +13,8 @@ from pipeline.errors import ArtifactError, InputDataError, LineageError
 from pipeline.geometry import GridSpec
 from pipeline.maps.query import MapQuery, parse_pose
 from pipeline.maps.render import render_map_pca, render_query
-from pipeline.maps.store import FORMAT_VERSION, Lattice, MapCells, MapVoxels, SemanticMap, write_map
+from pipeline.maps.store import FORMAT_VERSION, Lattice, MapCells, MapVoxels, SemanticMap
+from pipeline.maps.writer import write_map
 from pipeline.store import artifact_attrs
 
 GRID = GridSpec(rows=40, cols=40, cell_size_m=0.1, origin_xy=(0.0, 4.0))

@@ -10,7 +10,8 @@ import zarr
 from pipeline.errors import ArtifactError, MissingInputError
 from pipeline.geometry import GridSpec
 from pipeline.maps.fusion import BlockPoints, TopDownAccumulator, VoxelAccumulator
-from pipeline.maps.store import FORMAT_VERSION, Lattice, MapAttrs, MapVoxels, SemanticMap, tile_order, write_map
+from pipeline.maps.store import FORMAT_VERSION, Lattice, MapAttrs, MapVoxels, SemanticMap, tile_order
+from pipeline.maps.writer import write_map
 from pipeline.store import artifact_attrs
 
 GRID = GridSpec(rows=10, cols=12, cell_size_m=0.5, origin_xy=(0.0, 5.0))
