@@ -349,27 +349,39 @@ def scene_pictures(ws, params, scene: str, folder: Path) -> list[dict]:
         if gt is not None:
             from pipeline.sim.topdown import render_scene_png
 
-            add(render_scene_png(gt, folder / "plan.png"), "ground-truth floor plan")
+            plans = gt.all_floors
+            for k, floor in enumerate(plans):  # a building's ground truth: one plan per floor
+                add(render_scene_png(gt, folder / ("plan.png" if len(plans) == 1 else f"plan_floor{k}.png"), floor=k),
+                    "ground-truth floor plan" + (f" of {floor.name}" if len(plans) > 1 else ""))
     if not (art["recon"].exists() and art["goals"].exists()):
         return out
     from pipeline.goals.render import render_goals
+    from pipeline.recon import Recon
 
-    add(render_goals(art["recon"], art["goals"], None, "goals", folder / "goals.png"),
-        "goals (numbered; names in the legend) and landmark links")
-    if art["routes"].exists():
-        add(render_goals(art["recon"], art["goals"], art["routes"], "routes", folder / "routes.png"),
-            "verified routes from their start poses")
+    floors = Recon(art["recon"]).floors
+    for k, floor in enumerate(floors):  # a building: each floor's goals and route legs on its own map
+        tag, on = (f"_floor{k}", f" on {floor.name}") if len(floors) > 1 else ("", "")
+        add(render_goals(art["recon"], art["goals"], None, "goals", folder / f"goals{tag}.png", floor=k),
+            f"goals{on} (numbered; names in the legend) and landmark links")
+        if art["routes"].exists():
+            add(render_goals(art["recon"], art["goals"], art["routes"], "routes", folder / f"routes{tag}.png",
+                             floor=k), f"verified routes{on} from their start poses")
     from pipeline.goals.store import Goals
     from pipeline.maps.query import open_query
     from pipeline.maps.render import render_query
 
     goals = Goals(art["goals"])
-    classes = list(dict.fromkeys(goals.objects[g.object_keys[0]].cls for g in goals.goals))[:2]
-    for which, cls in zip(("vlmap", "cfmap"), classes or []):
+    # the first two goal classes, each queried on the floor of its first goal
+    asked: dict[str, int] = {}
+    for g in goals.goals:
+        asked.setdefault(goals.objects[g.object_keys[0]].cls, g.floor)
+    for which, (cls, k) in zip(("vlmap", "cfmap"), list(asked.items())[:2]):
         if art[which].exists():
-            result = open_query(art[which], params, recon_path=art["recon"], frames_path=art["frames"]).query(cls)
-            add(render_query(result, folder / f"query_{which}_{cls.replace(' ', '_')}.png"),
-                f"{which} query '{cls}': heatmap and candidates")
+            result = open_query(art[which], params, recon_path=art["recon"], frames_path=art["frames"],
+                                floor=k).query(cls)
+            tag, on = (f"_floor{k}", f" on {floors[k].name}") if len(floors) > 1 else ("", "")
+            add(render_query(result, folder / f"query_{which}_{cls.replace(' ', '_')}{tag}.png"),
+                f"{which} query '{cls}'{on}: heatmap and candidates")
     return out
 
 
@@ -392,7 +404,8 @@ def episode_browser(ws, scene: str, out_dir: Path, setting: str, methods: list[s
 
     folder = Path(out_dir) / "scenes" / scene
     pngs = render_episodes(ws.artifact("recon", scene), ws.artifact("goals", scene),
-                           [(e["goal"], e["log"]["poses"], method_color(e["method"])) for e in chosen],
+                           [(e["goal"], e["log"]["poses"], method_color(e["method"]), e["log"].get("floors"))
+                            for e in chosen],
                            [folder / f"episode_{e['method']}.png" for e in chosen])
     return [{"src": f"{scene}/{p.name}", "method": method_name(e["method"]), "color": method_color(e["method"]),
              "goal": e["goal"], "episode": e["episode"], "success": e["success"], "end": e["end"],

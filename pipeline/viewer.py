@@ -107,7 +107,7 @@ def write_recording(ws, params, scene: str, out: str | Path, *, episode: str | N
         if ep_log is not None:
             if goals is not None:
                 _log_goals(rec, rr, "world/episode/goal", goals, [goals.goal(ep_log["goal"])], floor_zs)
-            summary.update(_log_episode(rec, rr, ep_log, floor_z))
+            summary.update(_log_episode(rec, rr, ep_log, floor_zs))
         rec.flush()
         rec.disconnect()
         tmp.replace(out)
@@ -334,12 +334,17 @@ def find_episode(eval_dir: Path, scene: str, episode: str, *, method=None, feedb
                          + f"; episodes in the log: {sorted(set(seen))}", path=path, field="--episode")
 
 
-def _log_episode(rec, rr, ep: dict, floor_z: float) -> dict:
-    """Replay an evaluated episode step by step (timeline ``step``) with its dialogue as text logs."""
+def _log_episode(rec, rr, ep: dict, floor_zs: list[float]) -> dict:
+    """Replay an evaluated episode step by step (timeline ``step``) with its dialogue as text logs; in a building
+    each pose stands on its floor (the log's ``floors``; ``floor_zs`` the world z of each floor)."""
     log = ep["log"]
     poses = np.asarray(log["poses"], np.float64).reshape(-1, 3)
-    z = floor_z + 0.1
-    xyz = np.column_stack([poses[:, :2], np.full(len(poses), z)])
+    on = np.asarray(log.get("floors") or np.zeros(len(poses), int), int)
+    if len(on) != len(poses) or on.min() < 0 or on.max() >= len(floor_zs):
+        raise InputDataError(f"episode {ep.get('episode')}: {len(on)} floors (ids {sorted(set(on.tolist()))}) for "
+                             f"{len(poses)} poses", field="log.floors",
+                             expected=f"one floor id of 0..{len(floor_zs) - 1} per pose")
+    xyz = np.column_stack([poses[:, :2], np.asarray(floor_zs)[on] + 0.1])
     title = (f"{ep['method']} / {ep['feedback']} / seed {ep['seed']}: episode {ep['episode']} -> goal {ep['goal']} "
              f"({'success' if ep['success'] else 'failure'}, {ep['end']})")
     rec.set_time("step", sequence=0)

@@ -21,7 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.errors import ConfigError
+from pipeline.errors import ConfigError, InputDataError
 from pipeline.geometry import GridSpec
 from pipeline.goals.store import Goals
 from pipeline.routes.store import Routes
@@ -112,34 +112,82 @@ def render_goals(recon_path, goals_path, routes_path, what: str, out_png, *, cro
     return write_png(Path(out_png), add_legend(img, legend + extra, title="goals"))
 
 
-def render_episodes(recon_path, goals_path, runs: list[tuple[str, list, str]], out_pngs: list) -> list[Path]:
-    """One picture per evaluated run ``(goal id, poses [[x, y, yaw], ...], '#rrggbb' colour)``: the goal filled,
-    the walked path in the colour, its start (circle) and end (square). The base map is drawn once."""
+def render_episodes(recon_path, goals_path, runs: list[tuple], out_pngs: list) -> list[Path]:
+    """One picture per evaluated run ``(goal id, poses [[x, y, yaw], ...], '#rrggbb' colour[, floors])``: the goal
+    filled, the walked path in the colour, its start (circle) and end (square). The base maps are drawn once.
+
+    In a building, ``floors`` (the episode log's ``floors``: the floor of each pose) splits the path by floor: the
+    picture has one panel per floor the run stood on (and the goal's floor), side by side in the order first
+    reached, each that floor's map with metre axes, its stairs, the path's stretches on it and the goal where it is.
+    """
     from pipeline.recon import Recon
 
     recon = Recon(recon_path)
     goals = Goals(goals_path)
-    grid = recon.grid
-    base, box = _base(recon, goals, True)
+    building = len(recon.floors) > 1
+    bases: dict[int, tuple] = {}
     written = []
-    for (goal_id, poses, hex_colour), out_png in zip(runs, out_pngs):
-        img = base.copy()
+    for run, out_png in zip(runs, out_pngs):
+        goal_id, poses, hex_colour = run[:3]
         col = tuple(int(hex_colour[i:i + 2], 16) for i in (1, 3, 5))
         goal = goals.goal(goal_id)
-        for fp in goal.footprints:
-            cv2.fillPoly(img, [_px(grid, fp)], (255, 215, 0))
-            cv2.polylines(img, [_px(grid, fp)], True, (0, 0, 0), 2, cv2.LINE_AA)
         xy = np.asarray(poses, np.float64).reshape(-1, 3)[:, :2]
-        pts = _px(grid, xy)
-        cv2.polylines(img, [pts], False, col, 3, cv2.LINE_AA)
-        s, e = (tuple(int(v) for v in pts[0]), tuple(int(v) for v in pts[-1]))
-        cv2.circle(img, s, 6, col, -1, cv2.LINE_AA)
-        cv2.circle(img, s, 6, (0, 0, 0), 1, cv2.LINE_AA)
-        cv2.rectangle(img, (e[0] - 5, e[1] - 5), (e[0] + 5, e[1] + 5), (0, 0, 0), -1)
-        out = _finish(img, box, grid, f"{goal.name}: {len(xy) - 1} steps", True)
-        out = add_legend(out, [((255, 215, 0), "goal"), (col, "path (circle = start)"), ((0, 0, 0), "end")])
-        written.append(write_png(Path(out_png), out))
+        on = np.zeros(len(xy), int) if not building or len(run) < 4 or run[3] is None else np.asarray(run[3], int)
+        if len(on) != len(xy) or on.min() < 0 or on.max() >= len(recon.floors):
+            raise InputDataError(f"episode of goal {goal_id}: {len(on)} floors (ids {sorted(set(on.tolist()))}) for "
+                                 f"{len(xy)} poses", field="log.floors",
+                                 expected=f"one floor id of 0..{len(recon.floors) - 1} per pose")
+        shown = list(dict.fromkeys([int(f) for f in on] + [goal.floor if building else 0]))
+        panels = []
+        for f in shown:
+            level = recon.floor(f)
+            if f not in bases:
+                bases[f] = _base(level, goals, True, f)
+            img, box = bases[f][0].copy(), bases[f][1]
+            grid = level.grid
+            if not building or goal.floor == f:
+                for fp in goal.footprints:
+                    cv2.fillPoly(img, [_px(grid, fp)], (255, 215, 0))
+                    cv2.polylines(img, [_px(grid, fp)], True, (0, 0, 0), 2, cv2.LINE_AA)
+            if building:
+                _stairs(img, recon, f, grid)
+            for stretch in _stretches(on == f):
+                cv2.polylines(img, [_px(grid, xy[stretch])], False, col, 3, cv2.LINE_AA)
+            pts = _px(grid, xy)
+            if on[0] == f:
+                s = tuple(int(v) for v in pts[0])
+                cv2.circle(img, s, 6, col, -1, cv2.LINE_AA)
+                cv2.circle(img, s, 6, (0, 0, 0), 1, cv2.LINE_AA)
+            if on[-1] == f:
+                e = tuple(int(v) for v in pts[-1])
+                cv2.rectangle(img, (e[0] - 5, e[1] - 5), (e[0] + 5, e[1] + 5), (0, 0, 0), -1)
+            title = f"{goal.name}: {len(xy) - 1} steps"
+            if building:
+                title = f"{level.floor.name} ({level.floor_z:.2f} m)" + (f" - {title}" if f == shown[0] else "")
+            panels.append(_finish(img, box, grid, title, True, axes=building))
+        out = _side_by_side(panels)
+        legend = [((255, 215, 0), "goal"), (col, "path (circle = start)"), ((0, 0, 0), "end")]
+        if building and recon.stairs:
+            legend.append((STAIR_COLOUR, "stairs: up at a foot, down at a head"))
+        written.append(write_png(Path(out_png), add_legend(out, legend)))
     return written
+
+
+def _stretches(mask: np.ndarray) -> list[slice]:
+    """The runs of consecutive True in ``mask`` as slices (a path's stretches on one floor)."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
+    return [slice(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
+
+
+def _side_by_side(panels: list[np.ndarray], gap: int = 12) -> np.ndarray:
+    """Panels left to right on white, top-aligned, ``gap`` pixels apart."""
+    if len(panels) == 1:
+        return panels[0]
+    h = max(p.shape[0] for p in panels)
+    cols = []
+    for k, p in enumerate(panels):
+        cols.append(np.pad(p, ((0, h - p.shape[0]), (0 if k == 0 else gap, 0), (0, 0)), constant_values=255))
+    return np.ascontiguousarray(np.concatenate(cols, axis=1))
 
 
 def _base(recon, goals: Goals, crop: bool, floor: int = 0) -> tuple[np.ndarray, tuple[int, int, int, int]]:

@@ -233,6 +233,12 @@ def test_a_building_runs_cross_floor_episodes_and_reports_them_apart(tiny_house,
     assert any(ev[1] == "stairs" for ev in walked["events"])
     html = (tmp_path / "report.html").read_text()
     assert "(cross floor, " in html and "(same floor, " in html
+    # the scene's page draws each floor on its own: plans, goals and routes per floor, queries on their goal's floor
+    pictures = {p.name for p in (tmp_path / "scenes" / "house").glob("*.png")}
+    assert {f"{what}_floor{k}.png" for what in ("plan", "goals", "routes") for k in (0, 1)} <= pictures
+    assert not {"plan.png", "goals.png", "routes.png"} & pictures
+    page = (tmp_path / "scenes" / "house.html").read_text()
+    assert "verified routes on floor 1" in page and "ground-truth floor plan of " in page
     from zipon.cli.common import print_eval
 
     print_eval(res, tmp_path)  # what zipon eval and zipon demo print

@@ -173,3 +173,56 @@ def test_a_buildings_goals_and_routes_stand_on_their_floors(built_house, tmp_pat
         assert len(strip) == len(e.path_xy)
         assert sorted({round(z - 0.05, 2) for z in strip[:, 2]}) == sorted({round(floor_z[f], 2) for f in e.floors})
         assert strip[0, 2] == pytest.approx(floor_z[e.start_floor] + 0.05)
+
+
+def _house_episode_log(ws, folder, floors_of=None) -> dict:
+    """An evaluation log of the house holding one cross-floor route walked as an episode (its poses and the floor of
+    each, as the evaluator logs a building's episode); ``floors_of(floors)`` may spoil the floors."""
+    from pipeline.routes.store import Routes
+
+    route = next(e for e in Routes(ws.artifact("routes", "house")).episodes if len(e.floors) > 1)
+    poses, floors = [], []
+    for f, xy in route.legs():
+        poses += [[float(x), float(y), 0.0] for x, y in xy]
+        floors += [int(f)] * len(xy)
+    rec = {"episode": route.id, "method": "orion", "feedback": "mixed", "seed": 0, "goal": route.goal_id,
+           "success": True, "end": "success",
+           "log": {"poses": poses, "floors": floors_of(floors) if floors_of else floors, "instruction": "find it",
+                   "dialogue": []}}
+    (folder / "episodes").mkdir(parents=True)
+    with gzip.open(folder / "episodes" / "house.episodes.jsonl.gz", "wt") as f:
+        f.write(json.dumps(rec) + "\n")
+    return rec
+
+
+def test_a_buildings_episode_is_replayed_on_the_floor_of_each_step(built_house, tmp_path):
+    import numpy as np
+    import rerun as rr
+
+    from pipeline.recon import Recon
+    from pipeline.viewer import write_recording
+
+    ws, params = built_house
+    ep = _house_episode_log(ws, tmp_path / "eval")
+    rrd = tmp_path / "house.rrd"
+    write_recording(ws, params, "house", rrd, max_frames=2, episode=ep["episode"], eval_dir=tmp_path / "eval")
+    floor_z = [f.floor_z_m for f in Recon(ws.artifact("recon", "house")).floors]
+    zs = []
+    for chunk in rr.chunk.RrdReader(rrd).stream():
+        if chunk.entity_path == "/world/episode/robot":
+            batch = chunk.to_record_batch()
+            zs += [p[0][2] for p in batch.column("Points3D:positions").to_pylist() if p]
+    assert len(zs) == len(ep["log"]["poses"])
+    assert np.allclose(zs, np.asarray(floor_z)[ep["log"]["floors"]] + 0.1, atol=1e-4)
+
+
+def test_an_episode_log_whose_floors_do_not_fit_the_scene_is_refused(built_house, tmp_path, capsys):
+    ws, _ = built_house
+    ep = _house_episode_log(ws, tmp_path / "eval", floors_of=lambda floors: [7] * len(floors))
+    rrd = tmp_path / "bad.rrd"
+    capsys.readouterr()
+    assert cli(ws, "view", "house", "--out", str(rrd), "--episode", ep["episode"], "--eval", str(tmp_path / "eval"),
+               "--max-frames", "2") == 1
+    err = capsys.readouterr().err
+    assert "log.floors" in err and "one floor id of 0..1 per pose" in err and ep["episode"] in err
+    assert not rrd.exists()

@@ -74,3 +74,56 @@ def test_a_floor_the_scene_lacks_is_refused(pictures, tmp_path):
     with pytest.raises(ConfigError, match=r"--floor 2: house has 2 floors \(0\.\.1\)"):
         render_goals(art["recon"], art["goals"], None, "goals", tmp_path / "x.png", floor=2)
     assert not (tmp_path / "x.png").exists()
+
+
+def _walked(route) -> tuple[list, list]:
+    """A cross-floor route's path as an evaluated episode logs it: poses ``[x, y, yaw]`` and the floor of each."""
+    poses, floors = [], []
+    for f, xy in route.legs():
+        poses += [[float(x), float(y), 0.0] for x, y in xy]
+        floors += [int(f)] * len(xy)
+    return poses, floors
+
+
+def test_a_cross_floor_episode_is_drawn_floor_by_floor(pictures, tmp_path):
+    from pipeline.goals.render import render_episodes
+    from pipeline.recon import Recon
+
+    art, _ = pictures
+    routes, goals = Routes(art["routes"]), Goals(art["goals"])
+    route = next(e for e in routes.episodes if len(e.floors) > 1)
+    poses, floors = _walked(route)
+    colour = "#e6289b"
+    one, both = render_episodes(art["recon"], art["goals"], [(route.goal_id, poses, colour),
+                                                               (route.goal_id, poses, colour, floors)],
+                                [tmp_path / "flat.png", tmp_path / "floors.png"])
+    img = cv2.imread(str(both))[..., ::-1]
+    panels = [Recon(art["recon"]).floor(f) for f in dict.fromkeys(floors)]
+    # one panel per floor walked, side by side: the picture is wider than one floor's, the path on each
+    assert len(panels) == 2 and img.shape[1] > cv2.imread(str(one)).shape[1] * 1.5
+    path_cols = np.flatnonzero(np.all(img == (0xe6, 0x28, 0x9b), axis=-1).any(axis=0))
+    half = img.shape[1] // 2
+    assert (path_cols < half).sum() >= 20 and (path_cols >= half).sum() >= 20
+    # the goal only on its own floor's panel (the second: the walk ends there), the stairs on both
+    gold = np.flatnonzero(np.all(img == (255, 215, 0), axis=-1).any(axis=0))
+    body = gold[gold < img.shape[1] - 1]
+    assert goals.goal(route.goal_id).floor == floors[-1] != floors[0]
+    assert (body >= half).sum() > 10 and (body[body < half] > 200).sum() == 0  # left panel: legend swatch only
+    stair = np.flatnonzero(np.all(img == STAIR_COLOUR, axis=-1).any(axis=0))
+    assert (stair < half).any() and (stair >= half).any()
+
+
+def test_an_episode_with_a_floor_the_scene_lacks_is_refused(pictures, tmp_path):
+    from pipeline.errors import InputDataError
+    from pipeline.goals.render import render_episodes
+
+    art, _ = pictures
+    route = next(e for e in Routes(art["routes"]).episodes if len(e.floors) > 1)
+    poses, floors = _walked(route)
+    with pytest.raises(InputDataError, match=r"log\.floors.*one floor id of 0\.\.1 per pose"):
+        render_episodes(art["recon"], art["goals"], [(route.goal_id, poses, "#000000", [3] * len(poses))],
+                        [tmp_path / "x.png"])
+    with pytest.raises(InputDataError, match=rf"{len(poses) - 1} floors .* for {len(poses)} poses"):
+        render_episodes(art["recon"], art["goals"], [(route.goal_id, poses, "#000000", floors[:-1])],
+                        [tmp_path / "x.png"])
+    assert not (tmp_path / "x.png").exists()
