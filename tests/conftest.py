@@ -9,6 +9,14 @@ os.environ.setdefault("DVC_NO_ANALYTICS", "1")
 REPO = Path(__file__).resolve().parent.parent
 
 
+def pytest_configure(config):
+    """Under pytest-xdist, the tests that share a long build run on one worker (:mod:`tests.xdist_groups`)."""
+    if config.pluginmanager.hasplugin("xdist"):
+        from tests.xdist_groups import SharedBuilds
+
+        config.pluginmanager.register(SharedBuilds(), "zipon-shared-builds")
+
+
 @pytest.fixture
 def workspace(tmp_path):
     """A fresh workspace (params.yaml, data/, manifests/) in a temp dir."""
