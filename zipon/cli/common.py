@@ -23,7 +23,7 @@ app = typer.Typer(
     "and the orion_eval evaluator.\n\nStart with `zipon demo`; `zipon COMMAND --help` shows examples.",
 )
 console = Console(stderr=True)
-out = Console()
+out = Console(soft_wrap=True)  # stdout: what a command prints (paths, JSON) is never broken across lines
 
 
 @dataclass
