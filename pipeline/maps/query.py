@@ -489,8 +489,9 @@ CACHE_SIZE = 8  # a scene's two maps on up to four floors
 
 def open_query(map_path: str | Path, params, *, recon_path: str | Path | None = None,
                frames_path: str | Path | None = None, floor: int = 0) -> MapQuery:
-    """A cached :class:`MapQuery` (the :data:`CACHE_SIZE` most recently used are kept) for floor ``floor`` of a map store (``params`` = the whole
-    :class:`~pipeline.config.Params`; ``floor`` an index, lowest first, 0 for a single-floor scene).
+    """A cached :class:`MapQuery` (the :data:`CACHE_SIZE` most recently used are kept) for floor ``floor`` of a map
+    store (``params`` = the whole :class:`~pipeline.config.Params`; ``floor`` an index, lowest first, 0 for a
+    single-floor scene).
 
     The text encoder is built from ``params.encoders`` by the NAME recorded in the map (so it always
     matches the map's feature space; a different version or weights file is an ArtifactError): its

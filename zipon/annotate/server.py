@@ -69,9 +69,9 @@ class Workbench:
         return self._views[name]
 
     def warm(self) -> None:
-        """Read the first scene's summary and what its layers share (:meth:`SceneView.warm`) and import what a save imports (torch and open3d, through the
-        stage runner's thread limits), so the first page and the first save do not wait for them. ``zipon
-        annotate`` runs it in a thread while the server starts."""
+        """Read the first scene's summary and what its layers share (:meth:`SceneView.warm`) and import what a save
+        imports (torch and open3d, through the stage runner's thread limits), so the first page and the first save
+        do not wait for them. ``zipon annotate`` runs it in a thread while the server starts."""
         from pipeline.engine.process import limit_native_threads
 
         ds = self.dataset()
