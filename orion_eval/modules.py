@@ -41,6 +41,7 @@ from scipy import ndimage
 from scipy.spatial.distance import cdist
 
 from orion_eval.memory import MemoryMaps
+from orion_eval.nav import points_round
 from pipeline.nav.actions import FORWARD, LEFT, RIGHT, wrap_angle
 from pipeline.scene import MAP_NAMES
 
@@ -50,6 +51,9 @@ MERGE_M = 0.6
 WATCH_STEPS = 4
 #: a walk to a stair blocked on the way is planned again from where it stopped at most this many times
 CLIMB_REPLANS = 3
+#: metres from a landmark's centre to the points its other sides are looked at from (:meth:`Modules.sides_of`): a goal
+#: "next to" it (footprints within goals.landmark_radius_m) is in reach of the view from there
+SIDE_M = 1.5
 
 
 def new_memory(ctx) -> MemoryMaps:
@@ -367,6 +371,11 @@ class Modules:
         if new or not self._explored_mask()[tuple(cg.world_to_cell(np.asarray(self.pose[:2])))]:
             self._mark_explored()  # a spin remembered here covers its place again after the exploration restarted
         return {s: self._triples(seen[s]) for s in obj_strs}
+
+    def sides_of(self, xy, start, radius: float = SIDE_M) -> list[np.ndarray]:
+        """Points to look at the object at ``xy`` from on its other sides than ``start``'s, on the agent's floor
+        (:func:`orion_eval.nav.points_round`)."""
+        return points_round(self.here.navigable, self.ctx.grid, xy, start, radius)
 
     def restart_exploration(self) -> None:
         """Forget which places the exploration has covered (not what each spin saw there): the next search starts

@@ -25,6 +25,24 @@ RECOVER_ACTIONS = 16  # a stranded agent gets back into the clearance band in at
 RECOVER_TRIES = 8  # band poses (nearest first, in actions) a route is tried from
 
 
+def points_round(navigable: np.ndarray, grid: GridSpec, xy, start, radius: float, n: int = 4) -> list[np.ndarray]:
+    """Points round ``xy`` on its other sides than ``start``'s: ``n - 1`` bearings a ``1/n`` turn apart, going round
+    from ``start``'s bearing, each the point ``radius`` from ``xy`` on that bearing, else half a step to either side
+    of it, whose cell of the full-grid ``navigable`` mask is navigable (a bearing with none is left out)."""
+    c = np.asarray(xy, np.float64)
+    a0 = float(np.arctan2(*(np.asarray(start, np.float64)[:2] - c)[::-1]))
+    out = []
+    for k in range(1, n):
+        for half in (0.0, 0.5, -0.5):
+            a = a0 + 2 * np.pi * (k + half) / n
+            p = c + radius * np.array([np.cos(a), np.sin(a)])
+            rc = grid.world_to_cell(p)
+            if grid.inside(rc) and navigable[rc[0], rc[1]]:
+                out.append(p)
+                break
+    return out
+
+
 class NavPlanner:
     """FMM routes on the cropped navigable grid; masks in and out are on the FULL grid."""
 

@@ -118,6 +118,7 @@ class SearchState:
     hint_floor: int | None = None  # the floor the user's last hint points to (a building), None: the agent's own
     one_prompt: bool = False  # the detector holds one prompt (CoW's CLIP saliency): the description replaces the name
     target: tuple = ()  # what the exploration last searched for (ModularAgent.explore_for)
+    around: list = field(default_factory=list)  # [a landmark's place, the points of its sides still to look from]
 
     @property
     def queries(self) -> list[str]:
@@ -298,18 +299,30 @@ class ModularAgent(Agent):
 
     def look_at_focus(self, m, st: SearchState) -> None:
         """Walk to the hinted place and look around for the query there (once per hint); when that spin sees
-        nothing, on to the next hinted place (:attr:`SearchState.spin_then`)."""
+        nothing, on to the next hinted place (:attr:`SearchState.spin_then`). At a landmark found by exploring, a spin
+        that shows nothing of the goal is followed by one from each of the landmark's other sides (:attr:`SearchState.
+        around`, :meth:`~orion_eval.modules.Modules.sides_of`), until the goal is seen: the exploration that restarts
+        from the landmark (:meth:`explore_for`) covers its neighbourhood first, the floor its one spin could not see."""
         while st.spin_at is not None and not st.spotted:
             target, st.spin_at, st.spin_then = st.spin_at, st.spin_then, None
             here = np.asarray(m.pose[:2])
             elsewhere = st.hint_floor is not None and st.hint_floor != m.floor
             if elsewhere or float(np.hypot(*(target - here))) > self.params.eval.reject_radius_m:
                 m.goto_point(target, floor=st.hint_floor)
-            seen = m.look_around_for(st.queries)
-            # the described detections first among equals, then what is seen as the name only
-            found = [t[0] for q in st.queries for t in seen[q]] + st.spotted
-            described = {t[0] for t in seen[st.queries[0]]} if st.description else set()
-            st.spotted = self.ranked(m, st, list(dict.fromkeys(found)), described)
+            self.look_here(m, st)
+            sides = st.around[1] if st.around and np.allclose(st.around[0], target) else []
+            skip = self.skip(m, st, set())
+            while sides and all(skip(i) for i in st.spotted):
+                m.goto_point(sides.pop(0))
+                self.look_here(m, st)
+
+    def look_here(self, m, st: SearchState) -> None:
+        """Look around where the agent stands: what it sees of the query becomes :attr:`SearchState.spotted`, the
+        described detections first among equals, then what is seen as the name only."""
+        seen = m.look_around_for(st.queries)
+        found = [t[0] for q in st.queries for t in seen[q]]
+        described = {t[0] for t in seen[st.queries[0]]} if st.description else set()
+        st.spotted = self.ranked(m, st, list(dict.fromkeys(found)), described)
 
     # ------------------------------------------------------------------ the user's reply
     def update(self, m, st: SearchState, fb: ParsedFeedback, oid: int, goal_name: str) -> None:
@@ -366,6 +379,8 @@ class ModularAgent(Agent):
                         st.spin_then = at
                     else:
                         st.spin_at = at
+                    if not self.map_name() and self.modules.explore:
+                        st.around = [at, m.sides_of(at, here)]  # a landmark found by exploring: its sides too
 
     def pass_over_sighted(self, m, st: SearchState, phrases: list[str], oid: int) -> None:
         """Without a map a landmark is located by a sighting, and a sighting is the instance that happened to be

@@ -491,3 +491,57 @@ def test_the_exploration_starts_over_when_its_target_changes(ctx):
     m.search_objects = lambda *a, **k: None
     cow.find_landmarks(m, st, ["the sofa"], ["the sofa"])
     assert st.landmarks["the sofa"] is None and st.target == ("red chair made of wood",)
+
+
+def test_cow_looks_for_the_goal_from_the_sides_of_a_landmark_it_found(ctx):
+    """A landmark CoW found by exploring is looked around at, and when that spin shows nothing of the goal, from the
+    landmark's other sides in turn until the goal is seen (the floor one spin from one side could not see); a method
+    that places the landmark on its map (ORION) looks around at it once, as before."""
+    goal, run, cow = episode(ctx, "cow")
+    m = run.modules
+    m.detector = "saliency"
+    g = ctx.grid
+    here = np.asarray(m.pose[:2], np.float64)
+    mark = np.asarray(goal.mass_center[:2], np.float64)  # the landmark stands where this scene's goal does
+
+    def cells(xy):
+        rc = g.world_to_cell(np.asarray(xy, np.float64))
+        return np.asarray([rc[0] * g.cols + rc[1]], np.int64)
+
+    bed = m.register(mark, cells(mark), "detect")
+    sides = m.sides_of(mark, here)
+    assert sides, "the tiny scene's goal has navigable floor round it"
+    hidden = sides[-1]  # the goal stands on the landmark's last side: seen only from there
+    target = m.register(mark + 0.8 * (hidden - mark) / np.linalg.norm(hidden - mark), cells(hidden), "detect")
+    spins, saw = [], []
+
+    def look(strs):
+        spins.append(np.asarray(m.pose[:2], np.float64))
+        seen = float(np.hypot(*(spins[-1] - hidden))) <= ctx.params.eval.goto_stop_radius_m + 0.3
+        saw.append(seen)
+        return {s: [(bed, 1.0, 0.0)] if s == "the bed" else [(target, 1.0, 0.0)] if seen and s != "the bed" else []
+                for s in strs}
+
+    m.look_around_for = look
+    st = cow.state(goal.name)
+    wrong = m.register(here + 0.1, cells(here), "detect")
+    cow.update(m, st, ParsedFeedback(landmarks=["the bed"]), wrong, goal.name)
+    assert st.landmark_ids["the bed"] == [bed] and np.allclose(st.spin_at, mark)
+    assert np.allclose(st.around[0], mark) and len(st.around[1]) == len(sides)
+    cow.look_at_focus(m, st)
+    assert st.spotted == [target]
+    # the spin that found the landmark and the one at it saw nothing of the goal; the looks from its sides went on
+    # until one did, and stopped there
+    assert len(spins) >= 3 and saw[:2] == [False, False] and saw[-1] and not any(saw[2:-1])
+    assert all(float(np.hypot(*(p - mark))) <= m_side_reach(ctx) for p in spins[2:])  # every look was round it
+
+    run_o, orion, st_o, _ = orion_told_landmark(ctx)
+    assert st_o.around == [] and st_o.spin_at is not None  # the map's landmark: one look around at it
+
+
+def m_side_reach(ctx) -> float:
+    """How far from a landmark's centre a look from its side can be taken: the side's point (SIDE_M) and the distance
+    a walk to a point stops short of it (eval.goto_stop_radius_m), plus a step of slack."""
+    from orion_eval.modules import SIDE_M
+
+    return SIDE_M + ctx.params.eval.goto_stop_radius_m + ctx.step_m

@@ -372,3 +372,29 @@ def test_an_exploration_restarted_starts_over_from_where_the_agent_stands(tiny_s
     assert here.any() and (first & ~here).any() and not (here & ~both).any()
     assert m.frontier() is not None
 
+
+
+def test_the_sides_of_an_object_are_navigable_points_round_it_away_from_the_agent(tiny_scene):
+    """sides_of gives the points a landmark's other sides are looked at from: navigable, SIDE_M from its centre, none
+    on the side the agent comes from, a quarter turn apart going round it."""
+    from orion_eval.modules import SIDE_M
+    from orion_eval.nav import points_round
+
+    ctx, goal, run = _run(tiny_scene)
+    m = run.modules
+    mark = np.asarray(goal.mass_center[:2], np.float64)
+    here = np.asarray(m.pose[:2], np.float64)
+    sides = m.sides_of(mark, here)
+    assert 1 <= len(sides) <= 3
+    g, nav = ctx.grid, m.here.navigable
+    start = math.atan2(*(here - mark)[::-1])
+    for p in sides:
+        rc = g.world_to_cell(p)
+        assert nav[rc[0], rc[1]] and math.isclose(float(np.hypot(*(p - mark))), SIDE_M)
+        off = abs((math.atan2(*(p - mark)[::-1]) - start + math.pi) % (2 * math.pi) - math.pi)
+        assert off >= math.pi / 4 - 1e-9  # never on the agent's own side
+    # on a floor with nothing navigable there is no side to look from; an open floor has all three
+    assert points_round(np.zeros_like(nav), g, mark, here, SIDE_M) == []
+    open_floor = points_round(np.ones_like(nav), g, mark, here, SIDE_M)
+    bearings = [math.degrees(math.atan2(*(p - mark)[::-1]) - start) % 360 for p in open_floor]
+    assert np.allclose(bearings, [90, 180, 270])
