@@ -533,13 +533,24 @@ def test_cow_looks_for_the_goal_from_the_sides_of_a_landmark_it_found(ctx):
     # the spin that found the landmark and the one at it saw nothing of the goal; the looks from its sides went on
     # until one did, and stopped there
     assert len(spins) >= 3 and saw[:2] == [False, False] and saw[-1] and not any(saw[2:-1])
-    assert all(float(np.hypot(*(p - mark))) <= m_side_reach(ctx) for p in spins[2:])  # every look was round it
+    assert all(float(np.hypot(*(p - mark))) <= side_reach(ctx) for p in spins[2:])  # every look was round it
+
+    # a goal seen by the spin at the landmark is tried at once: no side is walked to
+    _, run2, cow2 = episode(ctx, "cow")
+    m2 = run2.modules
+    target2 = m2.register(m.objects[target].center_xy, m.objects[target].cells, "detect")
+    looks = []
+    m2.look_around_for = lambda strs: looks.append(m2.pose) or {s: [(target2, 1.0, 0.0)] for s in strs}
+    st2 = cow2.state(goal.name)
+    st2.spin_at, st2.around = mark, [mark, list(sides)]
+    cow2.look_at_focus(m2, st2)
+    assert st2.spotted == [target2] and len(looks) == 1 and len(st2.around[1]) == len(sides)
 
     run_o, orion, st_o, _ = orion_told_landmark(ctx)
     assert st_o.around == [] and st_o.spin_at is not None  # the map's landmark: one look around at it
 
 
-def m_side_reach(ctx) -> float:
+def side_reach(ctx) -> float:
     """How far from a landmark's centre a look from its side can be taken: the side's point (SIDE_M) and the distance
     a walk to a point stops short of it (eval.goto_stop_radius_m), plus a step of slack."""
     from orion_eval.modules import SIDE_M
