@@ -19,9 +19,10 @@ that column ever lands above level ``k``.
   sum, a weight, a count and the top level; when a higher level appears, the cell restarts.
   Memory: one int32 slot per grid cell + ``(observed cells, D)`` fp32.
 - :class:`VoxelAccumulator` (cfmap) keeps every level: ``(observed voxels, D)`` fp32 sums behind
-  an int32 slot lattice (rows x cols x levels, 4 bytes per voxel; a hash is not needed at these
-  sizes and a direct index is faster). :meth:`VoxelAccumulator.top_down` projects it with the
-  same rule, so the cfmap's top-down equals a TopDownAccumulator fed the same points.
+  an int32 slot lattice (rows x cols x levels) allocated by squares where keys are written
+  (:class:`~pipeline.maps.segments.TilePagedIndex`: 4 bytes per voxel of the squares a chunk reaches,
+  not of the floor). :meth:`VoxelAccumulator.top_down` projects it with the same rule, so the
+  cfmap's top-down equals a TopDownAccumulator fed the same points.
 
 Both grow their feature sums by segments, never copied (:mod:`pipeline.maps.segments`: memory bounded
 by the observed cells/voxels, never by the number of frames) and add a whole block with one sparse one-hot x dense product over the
@@ -50,7 +51,7 @@ import torch
 
 from pipeline.encoders.base import DenseFeatures, PaletteFeatures
 from pipeline.geometry import GridSpec, Intrinsics, backproject
-from pipeline.maps.segments import SegmentedRows
+from pipeline.maps.segments import SegmentedRows, TilePagedIndex
 from pipeline.maps.store import Lattice, MapCells, MapVoxels
 
 
@@ -136,9 +137,11 @@ class _SlotStore:
     """Growable ``(capacity, D)`` fp32 sums (in segments, :mod:`pipeline.maps.segments`) + weights + counts; slot 0
     is a scratch row."""
 
-    def __init__(self, dim: int, n_keys: int, device: torch.device, capacity: int = 4096):
+    def __init__(self, dim: int, n_keys: int, device: torch.device, capacity: int = 4096,
+                 slot_of: TilePagedIndex | None = None):
         self.dim, self.device = dim, device
-        self.slot_of = torch.full((n_keys,), -1, dtype=torch.int32, device=device)
+        # each key's slot (-1: none yet); a voxel lattice's is paged (TilePagedIndex), a grid's is one tensor
+        self.slot_of = torch.full((n_keys,), -1, dtype=torch.int32, device=device) if slot_of is None else slot_of
         self.keys = torch.full((capacity,), -1, dtype=torch.int64, device=device)
         self.sum = SegmentedRows(dim, device, capacity)
         self.sum.zero_range_(0, 1)
@@ -287,10 +290,11 @@ def _flat_features(features: torch.Tensor, device: torch.device) -> torch.Tensor
 class _Accumulator:
     """Shared streaming part of the accumulators: a slot store over ``n_keys`` keys and the block loop."""
 
-    def __init__(self, lattice: Lattice, dim: int, n_keys: int, device: str | torch.device):
+    def __init__(self, lattice: Lattice, dim: int, n_keys: int, device: str | torch.device,
+                 slot_of: TilePagedIndex | None = None):
         self.lattice, self.dim = lattice, dim
         self.device = torch.device(device)
-        self.store = _SlotStore(dim, n_keys, self.device)
+        self.store = _SlotStore(dim, n_keys, self.device, slot_of=slot_of)
         self.points_fused = 0
 
     def add(self, points: BlockPoints, features: "torch.Tensor | DenseFeatures", weights: np.ndarray | None = None
@@ -434,7 +438,9 @@ class VoxelAccumulator(_Accumulator):
     """Sparse 3-D voxel feature map on the lattice (every level kept; ConceptFusion-style)."""
 
     def __init__(self, lattice: Lattice, dim: int, *, device: str | torch.device = "cpu"):
-        super().__init__(lattice, dim, lattice.cells * lattice.levels, device)
+        grid = lattice.grid
+        super().__init__(lattice, dim, lattice.cells * lattice.levels, device,
+                         slot_of=TilePagedIndex(grid.rows, grid.cols, lattice.levels, device))
 
     def _slots(self, cell: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
         self.points_fused += len(cell)

@@ -17,7 +17,7 @@ from typing import Iterator
 
 import torch
 
-SEGMENT_ROWS = 1 << 15  # rows of one segment: 64 MB at 512 features
+SEGMENT_ROWS = 1 << 16  # rows of one segment: 128 MB at 512 features (its pages are taken as rows are written)
 
 
 class SegmentedRows:
@@ -42,15 +42,22 @@ class SegmentedRows:
         while self.capacity < rows:
             self.segments.append(torch.empty((1 << self.shift, self.dim), dtype=torch.float32, device=self.device))
 
-    def _split(self, slots: torch.Tensor) -> Iterator[tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]]:
+    def _split(self, slots: torch.Tensor) -> Iterator[tuple[torch.Tensor, torch.Tensor | slice | None, torch.Tensor]]:
         """``(segment, positions in slots or None for all of them, rows within the segment)`` per segment that
-        ``slots`` ``(n,)`` int64 reach, in segment order; positions keep their order in ``slots``."""
+        ``slots`` ``(n,)`` int64 reach, in segment order; positions keep their order in ``slots`` (a slice when
+        ``slots`` ascend, as a block's touched slots do: then no row is copied to be added)."""
         if not len(slots):
             return
         seg = slots >> self.shift
         lo, hi = int(seg.min()), int(seg.max())
         if lo == hi:
             yield self.segments[lo], None, slots - (lo << self.shift)
+            return
+        if bool((seg[1:] >= seg[:-1]).all()):
+            bounds = torch.searchsorted(seg, torch.arange(lo, hi + 2, device=seg.device)).tolist()
+            for s, start, stop in zip(range(lo, hi + 1), bounds, bounds[1:]):
+                if start < stop:
+                    yield self.segments[s], slice(start, stop), slots[start:stop] - (s << self.shift)
             return
         for s in torch.unique(seg).tolist():
             pos = torch.nonzero(seg == s).squeeze(1)
@@ -82,3 +89,53 @@ class SegmentedRows:
                 out = torch.empty((len(slots), self.dim), dtype=torch.float32, device=self.device)
             out[pos] = segment[local]
         return torch.empty((0, self.dim), dtype=torch.float32, device=self.device) if out is None else out
+
+
+PAGE_CELLS = 64  # edge (cells) of the squares a TilePagedIndex allocates: 16 kB a square and height level
+
+
+class TilePagedIndex:
+    """An int32 entry per key of a voxel lattice (``level * rows * cols + row * cols + col`` on ``grid``), -1 until
+    written; the memory of a square of :data:`PAGE_CELLS` cells at one level is taken when a key in it is first
+    written. A voxel accumulator's slot of each key (:mod:`pipeline.maps.fusion`): a whole lattice of int32 is 4
+    bytes per cell and level of the floor (200 MB on a 100 m x 60 m office at 5 cm and 21 levels) where a chunk of
+    frames reaches a part of it. Indexed like a tensor by ``(n,)`` int64 keys (get and set; repeated keys in a
+    set keep one of their values, as tensor indexing does)."""
+
+    dtype = torch.int32
+
+    def __init__(self, rows: int, cols: int, levels: int, device: torch.device):
+        self.cols, self.cells, self.device = cols, rows * cols, torch.device(device)
+        self.per_row = -(-cols // PAGE_CELLS)
+        self.squares = -(-rows // PAGE_CELLS) * self.per_row
+        self.page_of = torch.full((levels * self.squares,), -1, dtype=torch.int64, device=self.device)
+        self.pages = 0
+        self.entries = torch.empty(0, dtype=torch.int32, device=self.device)  # page p: [p * PAGE_CELLS^2, ...)
+
+    def _page_and_offset(self, keys: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        level, cell = keys // self.cells, keys % self.cells
+        row, col = cell // self.cols, cell % self.cols
+        square = level * self.squares + (row // PAGE_CELLS) * self.per_row + col // PAGE_CELLS
+        return square, (row % PAGE_CELLS) * PAGE_CELLS + col % PAGE_CELLS
+
+    def __getitem__(self, keys: torch.Tensor) -> torch.Tensor:
+        square, offset = self._page_and_offset(keys)
+        page = self.page_of[square]
+        out = torch.full(keys.shape, -1, dtype=torch.int32, device=self.device)
+        held = torch.nonzero(page >= 0).squeeze(1)
+        out[held] = self.entries[page[held] * PAGE_CELLS**2 + offset[held]]
+        return out
+
+    def __setitem__(self, keys: torch.Tensor, values: torch.Tensor) -> None:
+        square, offset = self._page_and_offset(keys)
+        new = torch.unique(square[self.page_of[square] < 0])
+        if len(new):
+            need = (self.pages + len(new)) * PAGE_CELLS**2
+            if need > len(self.entries):  # grown by doubling: the copy is of the pages in use (kB per square)
+                grown = torch.empty(max(need, 2 * len(self.entries)), dtype=torch.int32, device=self.device)
+                grown[: len(self.entries)] = self.entries
+                self.entries = grown
+            self.entries[self.pages * PAGE_CELLS**2 : need] = -1
+            self.page_of[new] = torch.arange(self.pages, self.pages + len(new), device=self.device)
+            self.pages += len(new)
+        self.entries[self.page_of[square] * PAGE_CELLS**2 + offset] = values.to(torch.int32)

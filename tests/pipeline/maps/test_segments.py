@@ -1,4 +1,5 @@
-"""The segmented sums of an accumulator: the same bytes as one tensor, and growth that copies nothing."""
+"""An accumulator's storage: sums in segments (the same bytes as one tensor, growth that copies nothing) and the
+voxel slot index paged by squares (the entries of one tensor, memory by the squares written)."""
 
 import numpy as np
 import pytest
@@ -7,7 +8,7 @@ import torch
 from pipeline.encoders.base import PaletteFeatures
 from pipeline.geometry import GridSpec
 from pipeline.maps.fusion import BlockPoints, TopDownAccumulator, VoxelAccumulator
-from pipeline.maps.segments import SegmentedRows
+from pipeline.maps.segments import PAGE_CELLS, SegmentedRows, TilePagedIndex
 from pipeline.maps.store import Lattice
 
 LAT = Lattice(GridSpec(rows=30, cols=40, cell_size_m=0.5, origin_xy=(0.0, 15.0)), 0.0, 0.0, 2.0, 0.5)  # 4 levels
@@ -88,3 +89,32 @@ def test_accumulators_in_small_segments_hold_the_same_bytes(acc_cls, monkeypatch
     for name in ("sum", "weight", "count", "top"):
         a, b = getattr(one, name), getattr(many, name)
         assert (a is None and b is None) or torch.equal(a, b), name
+
+
+def test_the_paged_index_reads_back_what_one_tensor_would():
+    rows, cols, levels = 150, 70, 3  # squares of 64: 3 x 2 per level, the last row and column narrower
+    index = TilePagedIndex(rows, cols, levels, torch.device("cpu"))
+    plain = torch.full((rows * cols * levels,), -1, dtype=torch.int32)
+    rng = np.random.default_rng(5)
+    for _ in range(6):
+        keys = torch.from_numpy(rng.choice(rows * cols * levels, 400, replace=False))
+        values = torch.from_numpy(rng.integers(0, 1 << 30, 400))
+        index[keys] = values
+        plain[keys] = values.to(torch.int32)
+        probe = torch.from_numpy(rng.integers(0, rows * cols * levels, 2000))  # written or not, repeats
+        assert torch.equal(index[probe], plain[probe])
+    assert index.pages == 3 * 3 * 2  # every square of every level written by now
+    corner = torch.tensor([rows * cols - 1, rows * cols * levels - 1])  # the last cell, at levels 0 and 2
+    assert index[corner].tolist() == plain[corner].tolist()
+
+
+def test_the_paged_index_takes_memory_for_the_squares_written_not_the_lattice():
+    rows, cols, levels = 1200, 2000, 21  # a 100 m x 60 m office at 5 cm: 200 MB as one int32 tensor
+    index = TilePagedIndex(rows, cols, levels, torch.device("cpu"))
+    row, col = np.meshgrid(np.arange(300, 400), np.arange(500, 560), indexing="ij")  # 5 m x 3 m seen
+    keys = torch.from_numpy(np.concatenate([lvl * rows * cols + (row * cols + col).ravel() for lvl in (0, 4, 9)]))
+    index[keys] = torch.arange(len(keys))
+    assert torch.equal(index[keys], torch.arange(len(keys), dtype=torch.int32))
+    assert index.pages == 3 * 3 * 2  # levels x square rows (256-319, 320-383, 384-447) x columns (448-511, 512-575)
+    assert index.entries.numel() * 4 <= 2 * index.pages * PAGE_CELLS**2 * 4 < 2 * 2**20  # under 2 MB, not 200
+    assert index[torch.tensor([0, rows * cols * levels - 1])].tolist() == [-1, -1]
