@@ -278,16 +278,21 @@ def _extract(volume: o3d.t.geometry.VoxelBlockGrid, layout: TileLayout, tile: tu
     points = (xyz[keep], normals[keep], colors[keep])
     del xyz, normals, colors
 
-    mesh = tsdf.extract_mesh(volume, p)
-    v = np.asarray(mesh.vertices)
-    c = np.asarray(mesh.vertex_colors) if mesh.has_vertex_colors() else np.zeros((len(v), 3))
-    tri = np.asarray(mesh.triangles)
+    # open3d's tensor mesh, read as the legacy mesh of tsdf.extract_mesh holds it (float32 widened to float64),
+    # without the element-by-element conversion to a legacy mesh
+    mesh = volume.extract_triangle_mesh(weight_threshold=p.min_weight)
+    v = mesh.vertex.positions.numpy().astype(np.float64) if "positions" in mesh.vertex else np.zeros((0, 3))
+    c = mesh.vertex.colors.numpy().astype(np.float64) if "colors" in mesh.vertex else np.zeros((len(v), 3))
+    tri = mesh.triangle.indices.numpy() if "indices" in mesh.triangle else np.zeros((0, 3), np.int64)
+    del mesh
     if len(tri):
-        tri = tri[layout.owns(tile, v[tri].mean(axis=1)[:, :2])]
+        xy = [v[tri[:, k], :2] for k in range(3)]
+        tri = tri[layout.owns(tile, (xy[0] + xy[1] + xy[2]) / 3)]  # by centroid (the sum in np.mean's order)
+        del xy
     owned = layout.owns(tile, v[:, :2]) if len(v) else np.zeros(0, bool)
     mesh_part = spill_part(v, c, tri, owned, workdir / f"mesh_{tile[0]}_{tile[1]}")
     n_triangles = len(tri)
-    del mesh, v, c, tri, owned  # the legacy mesh and the views into it: freed before the voxels are read
+    del v, c, tri, owned  # freed before the voxels are read
 
     lo, hi = layout.block_range(tile, margin=0)
     lattices, values = [], []
