@@ -214,10 +214,8 @@ def tile_share(touched: dict[int, np.ndarray], frames: np.ndarray, lo: np.ndarra
     for i in frames:
         xy = touched[i][:, :2]
         inside = ((xy >= lo) & (xy <= hi)).all(axis=1)
-        if inside.all():
-            share[int(i)] = touched[i]
-        elif inside.any():
-            share[int(i)] = touched[i][inside]
+        if inside.any():  # (a frame with depth may touch no block at all: open3d samples every 4th pixel)
+            share[int(i)] = touched[i] if inside.all() else touched[i][inside]
     return share
 
 

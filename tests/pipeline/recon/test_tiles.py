@@ -129,6 +129,10 @@ def test_a_volume_holds_the_blocks_before_a_frame_plus_the_frames_keys():
              9: np.array([[0, 0, 0]], np.int32)}  # 4 held + 1 key
     assert tiles.volume_capacity(share) == 5
     assert tiles.volume_capacity({}) == 1
+    # a tile's share keeps the blocks within its range, and no frame that has none there (or none at all)
+    touched = {**share, 11: np.zeros((0, 3), np.int32)}
+    kept = tiles.tile_share(touched, np.array([3, 7, 9, 11]), np.array([1, 0]), np.array([2, 0]))
+    assert sorted(kept) == [3, 7] and kept[3].tolist() == [[1, 0, 0]] and kept[7].tolist() == [[1, 0, 0], [2, 0, 0]]
 
 
 def test_ownership_boundaries_lie_half_a_voxel_before_a_tiles_first_voxel():
