@@ -3,10 +3,12 @@
 The hashed TSDF volume holds every block of the observed surface's truncation band: on a 60 m x 40 m office
 that is gigabytes. Here the xy plane is cut into square tiles of whole TSDF blocks (:class:`TileLayout`), and the
 frames are fused one tile at a time, each tile into its own ``VoxelBlockGrid`` holding the tile's blocks and a
-one-block margin around them: a frame is read for every tile its view can reach (its frustum to
-``depth_max_m + sdf_trunc_m``, from the pose alone), and only the blocks of that tile (and margin) are
-integrated. The tile's surface points, mesh triangles and observed voxels are then extracted, its voxels spilled
-to a temporary file (the grids read them once the floors are known), and the volume freed.
+one-block margin around them. One pass over the frames' depth finds the blocks each frame touches
+(:func:`_frame_plan`); a frame is then read for every tile it has blocks in (the tiles its frustum to
+``depth_max_m + sdf_trunc_m`` can reach, from the pose alone, are searched) and integrates only those blocks, into
+a volume allocated once at the size the tile's frames need (:func:`volume_capacity`: open3d's growth copies every
+block). The tile's surface points, mesh triangles and observed voxels are then extracted, its voxels spilled to a
+temporary file (the grids read them once the floors are known), and the volume freed.
 
 Exactness: a voxel's TSDF, weight and colour depend only on the frames whose blocks include it, in frame order,
 so a block fused in a tile's volume holds the same bits as in one volume of the whole scene. Extraction looks at
