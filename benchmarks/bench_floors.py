@@ -81,7 +81,7 @@ def main() -> None:
     ap.add_argument("--workdir", type=Path, default=None, help="where outputs go (default: a temporary folder)")
     ap.add_argument("--one", type=Path, default=None, help=argparse.SUPPRESS)  # a worker: one store, this process
     args = ap.parse_args()
-    workdir = args.workdir or Path(tempfile.mkdtemp(prefix="bench_floors_"))
+    workdir = (args.workdir or Path(tempfile.mkdtemp(prefix="bench_floors_"))).resolve()  # its workers run in ROOT
     workdir.mkdir(parents=True, exist_ok=True)
     if args.one is not None:
         one_scene(args.one, workdir)

@@ -32,7 +32,8 @@ from pipeline.frames import FrameStore
 from pipeline.geometry import GridSpec, camera_yaw
 from pipeline.goals.feedback import FEEDBACK_KINDS, FeedbackContext, GoalDraft
 from pipeline.goals.feedback.landmark import find_landmarks
-from pipeline.goals.floors import Building, FloorParts, floor_object_index, floors_of_objects, walkable_start
+from pipeline.goals.floors import (START_SNAP_MIN_M, Building, FloorParts, blind_radius_m, floor_object_index,
+                                   floors_of_objects, walkable_start)
 from pipeline.goals.naming import assign_rooms, ensure_unique, personalize, same_goal_groups
 from pipeline.goals.navchat import check_navchat_coverage, import_navchat, navchat_frame
 from pipeline.goals.objects import ObjectSet, objects_from_file, objects_from_gt, rasterize_polygons
@@ -369,6 +370,19 @@ def start_pose(frames: FrameStore) -> tuple[float, float, float] | None:
     return float(T[0, 3]), float(T[1, 3]), float(camera_yaw(T))
 
 
+def start_snap_m(frames: FrameStore, recon: Recon, building: Building | None) -> float:
+    """How far the recording's start may move onto the navigable grid (:func:`walkable_start`): the first camera's
+    blind radius on its floor plus a cell (:func:`blind_radius_m`: a camera 1.25 m up with a 74 degree vertical
+    field first sees the floor 1.7 m ahead), at least :data:`START_SNAP_MIN_M`."""
+    poses = frames.poses()
+    ok = np.flatnonzero(np.isfinite(poses).all(axis=(1, 2)))
+    if not ok.size:
+        return START_SNAP_MIN_M
+    floor_z = recon.floor_z if building is None else recon.floors[building.start_floor].floor_z_m
+    blind = blind_radius_m(poses[ok[0]], frames.intrinsics, floor_z) + recon.grid.cell_size_m
+    return max(START_SNAP_MIN_M, blind) if np.isfinite(blind) else START_SNAP_MIN_M
+
+
 def build_scene_goals(frames: FrameStore, recon: Recon, out_path: Path, attrs: dict, *, scene: str, goals: GoalsParams,
                       task: TaskParams, root: Path, log: Callable[[str], None] = print) -> dict:
     """The goals of ``scene`` and their goal regions written to a new ``goals.zarr`` at ``out_path`` (``attrs``: its
@@ -408,7 +422,7 @@ def build_scene_goals(frames: FrameStore, recon: Recon, out_path: Path, attrs: d
         objects_path = root / p.objects_files[scene] if objset.source == "file" else frames.path
         building, regions = scene_building(recon, objset, gt, settings, task.success_m, frames, objects_path)
         start_nav = building.planner.planners[building.start_floor].navigable
-    pose0, moved = walkable_start(pose0, start_nav, grid)
+    pose0, moved = walkable_start(pose0, start_nav, grid, max_m=start_snap_m(frames, recon, building))
     if moved:
         log(f"the recording's start lies on a cell not seen as floor; procedural feedback starts {moved:.2f} m away, "
             "on the nearest navigable cell")

@@ -14,7 +14,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from pipeline.geometry import GridSpec
+from pipeline.geometry import GridSpec, Intrinsics
 from pipeline.goals.objects import ObjectSet, rasterize_polygons
 
 
@@ -47,6 +47,21 @@ def floor_object_index(objset: ObjectSet, floor: int, grid: GridSpec) -> np.ndar
     local = rasterize_polygons([np.asarray(objset.objects[i].footprint) for i in on], grid)
     lookup = np.concatenate([[0], np.asarray(on, np.int64) + 1]).astype(np.int32)
     return lookup[local]
+
+
+START_SNAP_MIN_M = 1.0  # a start pose moves at least this far onto the navigable grid, whatever the camera
+
+
+def blind_radius_m(T_world_camera: np.ndarray, intrinsics: Intrinsics, floor_z: float) -> float:
+    """How far from its feet a camera at ``T_world_camera`` (OpenCV axes, world z up) first sees the floor at
+    ``floor_z``: along its image's lowest row, through the centre column, where that ray meets the floor (inf when
+    the ray does not look down). A pose on a cell never seen as floor is at most this far from one that was."""
+    ray = np.array([0.0, (intrinsics.height - intrinsics.cy) / intrinsics.fy, 1.0])
+    d = np.asarray(T_world_camera, np.float64)[:3, :3] @ ray
+    height = float(T_world_camera[2, 3]) - floor_z
+    if d[2] >= 0 or height <= 0:
+        return float("inf")
+    return height * float(np.hypot(d[0], d[1])) / float(-d[2])
 
 
 def walkable_start(pose: tuple[float, float, float] | None, navigable: np.ndarray, grid: GridSpec,

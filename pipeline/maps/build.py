@@ -322,7 +322,7 @@ def _plan(p: MapsParams, recon, frames_path: Path, folds: list, lattices: list, 
     for k, (fold, fill, lattice) in enumerate(zip(folds, fills, lattices)):
         figures = {"points_fused": fold.points, "cells_observed": fold.cells_observed, "cells_filled": len(fill)}
         n_voxels = None if fold.voxels is None else fold.voxels.rows
-        layers.append(LayerShape(lattice.grid, lattice, n_cells[k], int(fold.cells.columns["features"].shape[1]),
+        layers.append(LayerShape(lattice.grid, lattice, n_cells[k], fold.cells.columns["features"][1][0],
                                  n_voxels, floor=floors[k], figures=figures))
         per_floor.append({"id": floors[k].id, "name": floors[k].name, "cells": n_cells[k], "voxels": n_voxels or 0,
                           **figures, "observed_area_m2": round(n_cells[k] * lattice.grid.cell_size_m**2, 3)})

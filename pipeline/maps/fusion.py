@@ -19,12 +19,13 @@ that column ever lands above level ``k``.
   sum, a weight, a count and the top level; when a higher level appears, the cell restarts.
   Memory: one int32 slot per grid cell + ``(observed cells, D)`` fp32.
 - :class:`VoxelAccumulator` (cfmap) keeps every level: ``(observed voxels, D)`` fp32 sums behind
-  an int32 slot lattice (rows x cols x levels, 4 bytes per voxel; a hash is not needed at these
-  sizes and a direct index is faster). :meth:`VoxelAccumulator.top_down` projects it with the
-  same rule, so the cfmap's top-down equals a TopDownAccumulator fed the same points.
+  an int32 slot lattice (rows x cols x levels) allocated by squares where keys are written
+  (:class:`~pipeline.maps.segments.TilePagedIndex`: 4 bytes per voxel of the squares a chunk reaches,
+  not of the floor). :meth:`VoxelAccumulator.top_down` projects it with the same rule, so the
+  cfmap's top-down equals a TopDownAccumulator fed the same points.
 
-Both grow their feature storage by doubling (memory bounded by the observed cells/voxels, never
-by the number of frames) and add a whole block with one sparse one-hot x dense product over the
+Both grow their feature sums by segments, never copied (:mod:`pipeline.maps.segments`: memory bounded
+by the observed cells/voxels, never by the number of frames) and add a whole block with one sparse one-hot x dense product over the
 slots the block touches (pixels that are not fused are empty rows), so no Python loop runs over
 pixels or points. Means are taken as ``sum / weight`` before normalising (ConceptFusion weights
 reach 1e-15 at 5 m). Features whose cells take rows of a small table
@@ -50,6 +51,7 @@ import torch
 
 from pipeline.encoders.base import DenseFeatures, PaletteFeatures
 from pipeline.geometry import GridSpec, Intrinsics, backproject
+from pipeline.maps.segments import SegmentedRows, TilePagedIndex
 from pipeline.maps.store import Lattice, MapCells, MapVoxels
 
 
@@ -132,13 +134,17 @@ def point_weights(dist_m: np.ndarray, sigma_m: float | None) -> np.ndarray | Non
 
 
 class _SlotStore:
-    """Growable ``(capacity, D)`` fp32 sums + weights + counts; slot 0 is a scratch row."""
+    """Growable ``(capacity, D)`` fp32 sums (in segments, :mod:`pipeline.maps.segments`) + weights + counts; slot 0
+    is a scratch row."""
 
-    def __init__(self, dim: int, n_keys: int, device: torch.device, capacity: int = 4096):
+    def __init__(self, dim: int, n_keys: int, device: torch.device, capacity: int = 4096,
+                 slot_of: TilePagedIndex | None = None):
         self.dim, self.device = dim, device
-        self.slot_of = torch.full((n_keys,), -1, dtype=torch.int32, device=device)
+        # each key's slot (-1: none yet); a voxel lattice's is paged (TilePagedIndex), a grid's is one tensor
+        self.slot_of = torch.full((n_keys,), -1, dtype=torch.int32, device=device) if slot_of is None else slot_of
         self.keys = torch.full((capacity,), -1, dtype=torch.int64, device=device)
-        self.sum = torch.zeros((capacity, dim), dtype=torch.float32, device=device)
+        self.sum = SegmentedRows(dim, device, capacity)
+        self.sum.zero_range_(0, 1)
         self.weight = torch.zeros(capacity, dtype=torch.float64, device=device)
         self.count = torch.zeros(capacity, dtype=torch.int64, device=device)
         self.used = 1  # slot 0 collects pixels that are not fused
@@ -151,25 +157,31 @@ class _SlotStore:
         if len(missing):
             new_keys = _distinct(keys[missing], self.slot_of)  # only keys never seen: few after the first blocks
             need = self.used + len(new_keys)
-            if need > self.sum.shape[0]:
+            if need > self.capacity:
                 self._grow(need)
             fresh = torch.arange(self.used, need, device=self.device)
             self.slot_of[new_keys] = fresh.to(torch.int32)
             self.keys[fresh] = new_keys
-            for rows in (self.sum, self.weight, self.count):  # grown rows are unwritten until given out (_grow)
+            self.sum.zero_range_(self.used, need)  # grown rows are unwritten until given out (_grow)
+            for rows in (self.weight, self.count):
                 rows[self.used : need] = 0
             self.used = need
             slot = self.slot_of[keys]
         return slot.long()
 
+    @property
+    def capacity(self) -> int:
+        return self.keys.shape[0]
+
     def _grow(self, need: int) -> None:
-        """Double the capacity until ``need`` slots fit. Only the slots in use are copied; the others are left
-        unwritten (:meth:`slots` zeroes them as it gives them out), so the memory a store holds is its used rows,
-        not its capacity (and at a growth, the old rows and their copy: not the old and a whole zeroed new one)."""
-        cap = self.sum.shape[0]
+        """Double the capacity until ``need`` slots fit. The sums grow by segments, nothing copied; of the small
+        columns only the slots in use are copied. Rows past the used ones are left unwritten (:meth:`slots` zeroes
+        them as it gives them out), so the memory a store holds is its used rows, not its capacity."""
+        cap = self.capacity
         while cap < need:
             cap *= 2
-        for name in ("sum", "weight", "count", "keys"):
+        self.sum.reserve(cap)
+        for name in ("weight", "count", "keys"):
             old = getattr(self, name)
             new = torch.empty((cap,) + tuple(old.shape[1:]), dtype=old.dtype, device=self.device)
             new[: self.used] = old[: self.used]
@@ -212,7 +224,7 @@ class _SlotStore:
                 warnings.simplefilter("ignore", UserWarning)
                 onehot = torch.sparse_csr_tensor(crow, local, w, size=(len(target), k))
                 rows = torch.mm(onehot.t(), features, out=self._buffer(k))
-            self.sum.index_add_(0, touched, rows)
+            self.sum.index_add_(touched, rows)
         else:
             n_rows = features.shape[0]
             pair, inverse = torch.unique(local * n_rows + index[keep], sorted=True, return_inverse=True)
@@ -220,7 +232,7 @@ class _SlotStore:
             pair_weight.index_add_(0, inverse, w.double())
             rows = torch.index_select(features, 0, pair % n_rows, out=self._buffer(len(pair)))
             rows.mul_(pair_weight.float()[:, None])
-            self.sum.index_add_(0, touched[pair // n_rows], rows)
+            self.sum.index_add_(touched[pair // n_rows], rows)
         counts = torch.bincount(local, minlength=k)
         self.weight[touched] += counts if weights is None else torch.bincount(local, weights=w.double(), minlength=k)
         self.count[touched] += counts
@@ -233,8 +245,8 @@ class _SlotStore:
 
     def _scratch_index(self) -> torch.Tensor:
         """An int64 scratch array over the slots (grown with them)."""
-        if getattr(self, "_pos", None) is None or self._pos.shape[0] < self.sum.shape[0]:
-            self._pos = torch.full((self.sum.shape[0],), -1, dtype=torch.int64, device=self.device)
+        if getattr(self, "_pos", None) is None or self._pos.shape[0] < self.capacity:
+            self._pos = torch.full((self.capacity,), -1, dtype=torch.int64, device=self.device)
         return self._pos
 
     def observed(self) -> tuple[np.ndarray, np.ndarray]:
@@ -278,10 +290,11 @@ def _flat_features(features: torch.Tensor, device: torch.device) -> torch.Tensor
 class _Accumulator:
     """Shared streaming part of the accumulators: a slot store over ``n_keys`` keys and the block loop."""
 
-    def __init__(self, lattice: Lattice, dim: int, n_keys: int, device: str | torch.device):
+    def __init__(self, lattice: Lattice, dim: int, n_keys: int, device: str | torch.device,
+                 slot_of: TilePagedIndex | None = None):
         self.lattice, self.dim = lattice, dim
         self.device = torch.device(device)
-        self.store = _SlotStore(dim, n_keys, self.device)
+        self.store = _SlotStore(dim, n_keys, self.device, slot_of=slot_of)
         self.points_fused = 0
 
     def add(self, points: BlockPoints, features: "torch.Tensor | DenseFeatures", weights: np.ndarray | None = None
@@ -319,7 +332,7 @@ class _Accumulator:
         (e.g. one spatial tile's, :mod:`pipeline.maps.spill`) without a copy of the whole."""
         s = torch.from_numpy(np.asarray(slots, np.int64)).to(self.device)
         top = self._top()
-        return FusionState(keys=np.asarray(keys, np.int64), sum=self.store.sum[s].cpu(),
+        return FusionState(keys=np.asarray(keys, np.int64), sum=self.store.sum.gather(s).cpu(),
                            weight=self.store.weight[s].cpu(), count=self.store.count[s].cpu(),
                            top=None if top is None else top[s].cpu())
 
@@ -338,13 +351,13 @@ class _Accumulator:
             ptop = part.top.to(dev)
             restart = ptop > top[slot]
             r = slot[restart]
-            self.store.sum[r] = 0
+            self.store.sum.zero_(r)
             self.store.weight[r] = 0
             self.store.count[r] = 0
             top[r] = ptop[restart]
             rows = torch.nonzero(ptop == top[slot]).squeeze(1)
             slot = slot[rows]
-        self.store.sum.index_add_(0, slot, part.sum.to(dev)[rows])
+        self.store.sum.index_add_(slot, part.sum.to(dev)[rows])
         self.store.weight.index_add_(0, slot, part.weight.to(dev)[rows])
         self.store.count.index_add_(0, slot, part.count.to(dev)[rows])
 
@@ -389,15 +402,15 @@ class TopDownAccumulator(_Accumulator):
 
     def __init__(self, lattice: Lattice, dim: int, *, device: str | torch.device = "cpu"):
         super().__init__(lattice, dim, lattice.cells, device)
-        self.top = torch.full((self.store.sum.shape[0],), -1, dtype=torch.int64, device=self.device)
+        self.top = torch.full((self.store.capacity,), -1, dtype=torch.int64, device=self.device)
 
     def _top(self) -> torch.Tensor:
         return self.top
 
     def _grown_top(self) -> torch.Tensor:
         """``top`` grown to the store's capacity (new slots -1: no level yet)."""
-        if self.top.shape[0] < self.store.sum.shape[0]:
-            grown = torch.full((self.store.sum.shape[0],), -1, dtype=torch.int64, device=self.device)
+        if self.top.shape[0] < self.store.capacity:
+            grown = torch.full((self.store.capacity,), -1, dtype=torch.int64, device=self.device)
             grown[: self.top.shape[0]] = self.top
             self.top = grown
         return self.top
@@ -409,7 +422,7 @@ class TopDownAccumulator(_Accumulator):
         n = self.store.used
         block_top = torch.full((n,), -1, dtype=torch.int64, device=dev).scatter_reduce_(0, slot, level, "amax")
         restart = torch.nonzero(block_top > self.top[:n]).squeeze(1)
-        self.store.sum[restart] = 0
+        self.store.sum.zero_(restart)
         self.store.weight[restart] = 0
         self.store.count[restart] = 0
         self.top[restart] = block_top[restart]
@@ -425,7 +438,9 @@ class VoxelAccumulator(_Accumulator):
     """Sparse 3-D voxel feature map on the lattice (every level kept; ConceptFusion-style)."""
 
     def __init__(self, lattice: Lattice, dim: int, *, device: str | torch.device = "cpu"):
-        super().__init__(lattice, dim, lattice.cells * lattice.levels, device)
+        grid = lattice.grid
+        super().__init__(lattice, dim, lattice.cells * lattice.levels, device,
+                         slot_of=TilePagedIndex(grid.rows, grid.cols, lattice.levels, device))
 
     def _slots(self, cell: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
         self.points_fused += len(cell)

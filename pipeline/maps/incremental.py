@@ -55,7 +55,7 @@ class Fold:
 def load_fold(path: Path, key: str, chunk_frames: int, layouts: list[TileLayout]) -> Fold | None:
     """The fold stored at ``path`` if it was made with ``key`` and ``chunk_frames``, one state per floor of
     ``layouts`` cut in its tiles; None when there is none, it is of another build or it cannot be read (a cache:
-    never an error). The states are memory maps: nothing is read until a tile is folded."""
+    never an error). Nothing is read until a tile is folded."""
     try:
         meta = json.loads((path / "meta.json").read_text())
         if meta.get("format") != FORMAT or meta.get("key") != key or meta.get("chunk_frames") != chunk_frames:

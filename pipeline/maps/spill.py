@@ -132,8 +132,13 @@ class TileRowsWriter:
 
 
 class TileRows:
-    """A finished set of rows on disk (the module doc), read one tile or one span of tiles at a time through
-    memory maps (pages are read when used, and dropped by the system under pressure)."""
+    """A finished set of rows on disk (the module doc), read one tile, one span of tiles or some rows at a time.
+
+    Every read copies the rows it asks for into memory; no file stays mapped. Pages a process touches through a map
+    count in its resident memory until the map is closed (the system drops them only under pressure), so maps held
+    open over a build's spilled chunks made its peak grow with everything it had read: the chunks' sums, then the
+    folded map (:mod:`pipeline.maps.tilefold`). Read this way, the files' pages stay in the page cache, not in the
+    process."""
 
     def __init__(self, folder: Path, name: str):
         self.folder, self.name = Path(folder), name
@@ -144,19 +149,21 @@ class TileRows:
         self.tiles = np.load(self.folder / f"{name}.tiles.npy")
         if len(self.tiles) < 1 or int(self.tiles[-1]) != self.rows:
             raise ValueError(f"{self.folder / name}: tile offsets end at {self.tiles[-1:]}, expected {self.rows} rows")
-        self.columns: dict[str, np.ndarray] = {}
+        self.columns: dict[str, tuple[np.dtype, tuple[int, ...]]] = {}  # column: (dtype, shape of a row)
         for c, (dtype, tail) in meta["columns"].items():
-            path = self.folder / f"{name}.{c}.bin"
+            path = self._path(c)
             shape = (self.rows,) + tuple(tail)
             if path.stat().st_size != int(np.prod(shape)) * np.dtype(dtype).itemsize:
                 raise ValueError(f"{path}: {path.stat().st_size} bytes, expected {shape} {dtype}")
-            self.columns[c] = (np.memmap(path, dtype=dtype, mode="r", shape=shape) if self.rows
-                               else np.zeros(shape, dtype))
+            self.columns[c] = (np.dtype(dtype), tuple(tail))
+
+    def _path(self, column: str) -> Path:
+        return self.folder / f"{self.name}.{column}.bin"
 
     @property
     def nbytes(self) -> int:
         """Bytes of every column on disk."""
-        return sum(int(a.nbytes) for a in self.columns.values())
+        return sum(self.rows * dtype.itemsize * int(np.prod(tail)) for dtype, tail in self.columns.values())
 
     def fits(self, layout: TileLayout) -> bool:
         """Whether these rows were cut by ``layout``'s tiles."""
@@ -166,20 +173,37 @@ class TileRows:
         """``(T,)`` bool: tiles holding rows."""
         return np.diff(self.tiles) > 0
 
+    def read(self, column: str, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """Rows ``[start, stop)`` of ``column`` (default: all of them), read into a new array."""
+        dtype, tail = self.columns[column]
+        stop = self.rows if stop is None else stop
+        per_row = int(np.prod(tail))
+        with open(self._path(column), "rb") as f:
+            f.seek(start * per_row * dtype.itemsize)
+            data = np.fromfile(f, dtype=dtype, count=(stop - start) * per_row)
+        return data.reshape((stop - start,) + tail)
+
+    def take(self, column: str, rows: np.ndarray) -> np.ndarray:
+        """Rows ``rows`` (any order, repeats allowed) of ``column``, read into a new array through a map that is
+        closed before returning."""
+        dtype, tail = self.columns[column]
+        rows = np.asarray(rows, np.int64)
+        if not len(rows):
+            return np.zeros((0,) + tail, dtype)
+        mapped = np.memmap(self._path(column), dtype=dtype, mode="r", shape=(self.rows,) + tail)
+        return mapped[rows]  # a copy; the map is closed as its last reference goes
+
     def span(self, first: int, stop: int | None = None) -> dict[str, np.ndarray]:
-        """Every column's rows of tiles ``[first, stop)`` (default: tile ``first`` alone), as read-only maps."""
+        """Every column's rows of tiles ``[first, stop)`` (default: tile ``first`` alone), read into memory."""
         s, e = int(self.tiles[first]), int(self.tiles[first + 1 if stop is None else stop])
-        return {c: a[s:e] for c, a in self.columns.items()}
+        return {c: self.read(c, s, e) for c in self.columns}
 
     def state(self, first: int, stop: int | None = None) -> FusionState:
-        """The rows of tiles ``[first, stop)`` (default: tile ``first``) of a spilled :class:`FusionState`, copied
-        from the maps."""
+        """The rows of tiles ``[first, stop)`` (default: tile ``first``) of a spilled :class:`FusionState`."""
         rows = self.span(first, stop)
         top = rows.get("top")
-        return FusionState(keys=np.array(rows["keys"]), sum=torch.from_numpy(np.array(rows["sum"])),
-                           weight=torch.from_numpy(np.array(rows["weight"])),
-                           count=torch.from_numpy(np.array(rows["count"])),
-                           top=None if top is None else torch.from_numpy(np.array(top)))
+        return FusionState(keys=rows["keys"], sum=torch.from_numpy(rows["sum"]), weight=torch.from_numpy(rows["weight"]),
+                           count=torch.from_numpy(rows["count"]), top=None if top is None else torch.from_numpy(top))
 
 
 def state_columns(dim: int, top: bool) -> dict[str, tuple[str, tuple[int, ...]]]:

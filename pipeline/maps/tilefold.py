@@ -139,7 +139,7 @@ def _global(state, layout: TileLayout, first: int, stop: int):
 def plan_fill(fold: FloorFold, fillable: np.ndarray, radius_m: float) -> FillPlan:
     """The cells :func:`write_floor` fills (:func:`~pipeline.maps.fill.fill_targets`), from the observed cells
     alone (an int64 per cell: no feature is read)."""
-    cell = np.asarray(fold.cells.columns["cell"])
+    cell = fold.cells.read("cell")
     new_cell, source = fill_targets(cell, fold.layout.grid, fillable, radius_m)
     by_tile = np.lexsort((new_cell, fold.layout.tile_of(new_cell)))
     order = np.argsort(cell)
@@ -152,7 +152,6 @@ def write_floor(writer: LayerWriter, fold: FloorFold, fill: FillPlan) -> None:
     layout, cells = fold.layout, fold.cells
     fill_tile = layout.tile_of(fill.new_cell)
     fill_start = np.searchsorted(fill_tile, np.arange(layout.n_tiles + 1))
-    feats, levels = cells.columns["features"], cells.columns["level"]
     has_rows = cells.nonempty() | (np.diff(fill_start) > 0)
     for t in np.flatnonzero(has_rows):
         own = cells.span(int(t))
@@ -160,17 +159,17 @@ def write_floor(writer: LayerWriter, fold: FloorFold, fill: FillPlan) -> None:
         n_new = len(src)
         cell = np.concatenate([own["cell"], fill.new_cell[fill_start[t] : fill_start[t + 1]]])
         order = np.argsort(cell, kind="stable")
-        writer.add_cells(cell[order], np.concatenate([own["features"], feats[src]])[order],
+        writer.add_cells(cell[order], np.concatenate([own["features"], cells.take("features", src)])[order],
                          np.concatenate([own["weight"], np.zeros(n_new, np.float32)])[order],
                          np.concatenate([own["count"], np.zeros(n_new, np.int32)])[order],
-                         np.concatenate([own["level"], levels[src]])[order])
+                         np.concatenate([own["level"], cells.take("level", src)])[order])
     if fold.voxels is not None:
         vox, per_row = fold.voxels, layout.tiles_per_row
         for first in range(0, layout.n_tiles, per_row):
-            band = vox.span(first, first + per_row)
-            key = np.asarray(band["key"])
+            start, stop = int(vox.tiles[first]), int(vox.tiles[min(first + per_row, layout.n_tiles)])
+            key = vox.read("key", start, stop)  # the band's keys; its features are read a block at a time
             order = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
             for s in range(0, len(order), WRITE_ROWS):
                 o = order[s : s + WRITE_ROWS]
-                writer.add_voxels(key[o], band["features"][o], band["weight"][o], band["count"][o])
+                writer.add_voxels(key[o], *(vox.take(c, start + o) for c in ("features", "weight", "count")))
     writer.close()

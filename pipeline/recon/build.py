@@ -68,7 +68,7 @@ def _reconstruct(frames_path: Path, recon_path: Path, mesh_path: Path, points_pa
             f"(at most {tiled.peak_blocks} of {tiled.n_blocks} TSDF blocks held at once)")
     else:
         mesh = tsdf.extract_mesh(fusion.volume, p)
-        surface = Surface.of(*tsdf.extract_points(fusion.volume, p))
+        surface = Surface.of(*tsdf.extract_points(fusion.volume, p, canonical=False))  # Surface sorts them
         voxels = lambda: tsdf.iter_voxels(fusion.volume, p, min_weight=p.occupancy_min_weight)  # noqa: E731
         n_triangles = len(mesh.triangles)
     if n_triangles == 0 or surface.count == 0:

@@ -145,7 +145,7 @@ def surface_peaks(surface: Surface) -> list[tuple[float, float]]:
     smooth = gaussian_filter1d(hist, sigma=2)
     peaks, _ = find_peaks(smooth, distance=round(_PEAK_SEPARATION_M / _FLOOR_BIN_M), height=_FLOOR_MIN_POINTS / 10)
     centres = [lo + (k + 0.5) * _FLOOR_BIN_M for k in peaks]
-    cells = [np.zeros((0, 2), np.int64) for _ in centres]
+    cells = [np.zeros(0, np.int64) for _ in centres]  # each cell (i, j) as one int64: i * 2^32 + (j mod 2^32)
     for xyz, normals in surface.chunks(("xyz", "normals")):
         top = xyz[normals[:, 2] > _UP_COS]
         z = top[:, 2].astype(np.float64)
@@ -153,7 +153,7 @@ def surface_peaks(surface: Surface) -> list[tuple[float, float]]:
             near = np.abs(z - centre) <= 2 * _FLOOR_BIN_M
             if near.any():
                 new = np.floor(top[near, :2].astype(np.float64) / _AREA_CELL_M).astype(np.int64)
-                cells[k] = np.unique(np.concatenate([cells[k], new]), axis=0)
+                cells[k] = np.union1d(cells[k], (new[:, 0] << 32) | (new[:, 1] & 0xFFFFFFFF))
     return [(round(float(c), 3), round(len(seen) * _AREA_CELL_M**2, 2)) for c, seen in zip(centres, cells)]
 
 

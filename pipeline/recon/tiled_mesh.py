@@ -2,7 +2,7 @@
 for the whole mesh, with memory bounded by a slab.
 
 Each tile spills its part of the mesh (:func:`spill_part`): the vertices it owns (by position,
-:meth:`pipeline.recon.tiles.TileLayout.owner`) in canonical order, and its triangles with the rows (position,
+:meth:`pipeline.recon.tiles.TileLayout.owner`) sorted by x, and its triangles with the rows (position,
 colour) of their vertices, some owned by a neighbour. :func:`write_tiled_mesh` then walks the scene in slabs along
 x. ``canonical_mesh`` orders vertices by x first, so the vertices of a slab, gathered from every tile, sorted and
 merged as it does, are the next run of the whole mesh's vertices; a triangle goes with the slab of its first
@@ -55,7 +55,7 @@ def vertex_records(xyz: np.ndarray, normals: np.ndarray, colors01: np.ndarray) -
 class SpilledPart:
     """One tile's mesh part on disk (:func:`spill_part`) and the x range its owned vertices and triangles span."""
 
-    owned: Path  # (n, 6) float64 rows (x, y, z, r, g, b), canonical order
+    owned: Path  # (n, 6) float64 rows (x, y, z, r, g, b), sorted by x
     rows: Path  # (m, 3, 6) float64: each triangle's vertex rows
     first_x: Path  # (m,) float64: each triangle's smallest vertex x, ascending (rows in that order)
     owned_x: Path  # (n,) float64: the owned vertices' x (ascending)
@@ -70,7 +70,7 @@ def spill_part(vertices: np.ndarray, colors: np.ndarray, triangles: np.ndarray, 
     mine = rows[owned]
     if not len(mine) and not len(triangles):
         return None
-    mine = mine[canonical_point_order(mine[:, :3], mine[:, 3:])]
+    mine = mine[np.argsort(mine[:, 0], kind="stable")]  # by x: the writer sorts each slab's rows from every tile
     tri_x = vertices[triangles, 0] if len(triangles) else np.zeros((0, 3))
     first_x = tri_x.min(axis=1)
     order = np.argsort(first_x, kind="stable")

@@ -3,10 +3,12 @@
 The hashed TSDF volume holds every block of the observed surface's truncation band: on a 60 m x 40 m office
 that is gigabytes. Here the xy plane is cut into square tiles of whole TSDF blocks (:class:`TileLayout`), and the
 frames are fused one tile at a time, each tile into its own ``VoxelBlockGrid`` holding the tile's blocks and a
-one-block margin around them: a frame is read for every tile its view can reach (its frustum to
-``depth_max_m + sdf_trunc_m``, from the pose alone), and only the blocks of that tile (and margin) are
-integrated. The tile's surface points, mesh triangles and observed voxels are then extracted, its voxels spilled
-to a temporary file (the grids read them once the floors are known), and the volume freed.
+one-block margin around them. One pass over the frames' depth finds the blocks each frame touches
+(:func:`_frame_plan`); a frame is then read for every tile it has blocks in (the tiles its frustum to
+``depth_max_m + sdf_trunc_m`` can reach, from the pose alone, are searched) and integrates only those blocks, into
+a volume allocated once at the size the tile's frames need (:func:`volume_capacity`: open3d's growth copies every
+block). The tile's surface points, mesh triangles and observed voxels are then extracted, its voxels spilled to a
+temporary file (the grids read them once the floors are known), and the volume freed.
 
 Exactness: a voxel's TSDF, weight and colour depend only on the frames whose blocks include it, in frame order,
 so a block fused in a tile's volume holds the same bits as in one volume of the whole scene. Extraction looks at
@@ -160,15 +162,22 @@ class TiledFusion:
                 yield spill["lattice"], spill["tsdf"]
 
 
-def _frame_plan(store: FrameStore, p: ReconstructParams, intr: Intrinsics, wanted: np.ndarray, fusion: TiledFusion
-                ) -> np.ndarray:
-    """Which frames are fused (all wanted frames, or the keyframes among those with depth), filling the frame
-    bookkeeping of ``fusion`` as :func:`pipeline.recon.tsdf.fuse` does. Returns ``(N,)`` bool of frames to fuse
-    (frames with no depth are found, and dropped, while the tiles read them)."""
-    fuse = wanted.copy()
-    if not p.keyframes:
-        return fuse
-    selector = KeyframeSelector(KeyframeRule.from_params(p), intr)
+def _frame_plan(store: FrameStore, p: ReconstructParams, intr: Intrinsics, wanted: np.ndarray,
+                footprints: np.ndarray, fusion: TiledFusion) -> dict[int, np.ndarray]:
+    """The frames to fuse and the TSDF blocks each touches, from one reading of their depth.
+
+    Every wanted frame with valid depth is fused (with ``reconstruct.keyframes``: the keyframes among them, the
+    others recorded in ``fusion.not_keyframes``), frames without depth are recorded in ``fusion.empty_frames``.
+    Returns store index -> ``(B, 3)`` int32 block coordinates the frame's integration touches (open3d's
+    ``compute_unique_block_coordinates``: every pixel's ray within ``sdf_trunc_m`` of its depth), in frame order.
+    They depend on the frame alone, so each tile integrates its share of them without reading the frame's depth
+    again to find them. Raises :class:`StageError` naming a frame whose blocks leave its ``footprints`` (the tiles
+    it was planned for)."""
+    selector = KeyframeSelector(KeyframeRule.from_params(p), intr) if p.keyframes else None
+    touch = tsdf.new_volume(p, block_count=1)  # only its frustum hash map is used
+    K = o3c.Tensor(intr.K, o3c.float64)
+    trunc_mult = p.sdf_trunc_m / p.voxel_size_m
+    touched: dict[int, np.ndarray] = {}
     idx = np.flatnonzero(wanted)
     for block in store.iter_blocks(p.block_frames, start=int(idx.min()), stop=int(idx.max()) + 1, rgb=False):
         depth = tsdf.prepare_depth(block.depth_mm, p)
@@ -180,58 +189,81 @@ def _frame_plan(store: FrameStore, p: ReconstructParams, intr: Intrinsics, wante
             T = block.T_world_camera[j].astype(np.float64)
             if not has_depth[j]:
                 fusion.empty_frames.append(i)
-                fuse[i] = False
-            elif not selector.offer(depth[j], np.eye(4) @ T):
+                continue
+            if selector is not None and not selector.offer(depth[j], np.eye(4) @ T):
                 fusion.not_keyframes[i] = np.eye(4) @ T
-                fuse[i] = False
-    fusion.keyframe_reasons = dict(selector.reasons)
-    return fuse
-
-
-def _fuse_tile(store: FrameStore, p: ReconstructParams, intr: Intrinsics, layout: TileLayout, tile: tuple[int, int],
-               frames: np.ndarray, footprints: np.ndarray, fusion: TiledFusion, seen: np.ndarray
-               ) -> o3d.t.geometry.VoxelBlockGrid:
-    """One tile's volume: ``frames`` (sorted store indices) fused into the tile's blocks and margin.
-
-    ``seen`` ``(N,)`` int8: -1 unread, 0 no valid depth, 1 depth (filled as frames are read)."""
-    # a tile's volume starts small and grows with what it holds: allocating (and zeroing) the whole-scene default
-    # for every tile cost more than fusing a small room's tiles
-    volume = tsdf.new_volume(p, block_count=_TILE_INITIAL_BLOCKS)
-    lo, hi = layout.block_range(tile, margin=1)
-    K = o3c.Tensor(intr.K, o3c.float64)
-    K_integrate = o3c.Tensor(tsdf.integration_K(intr))
-    trunc_mult = p.sdf_trunc_m / p.voxel_size_m
-    chunk = store.block_frames
-    groups = np.unique(frames // chunk)
-    wanted = np.zeros(store.n_frames, bool)
-    wanted[frames] = True
-
-    def blocks():
-        for g in groups:
-            yield tsdf.prepare_block(store.read(int(g * chunk), int(min((g + 1) * chunk, store.n_frames))), p)
-
-    for block in prefetched(blocks(), name="recon-read"):
-        for j in range(len(block.depth_mm)):
-            i = block.start + j
-            if not wanted[i]:
                 continue
-            seen[i] = int(block.has_depth[j])
-            if not block.has_depth[j]:
-                continue
-            depth = o3d.t.geometry.Image(o3c.Tensor.from_numpy(np.ascontiguousarray(block.depth_mm[j])))
-            extrinsic = o3c.Tensor(invert_pose(block.T_world_camera[j]), o3c.float64)
-            coords = volume.compute_unique_block_coordinates(depth, K, extrinsic, 1000.0, p.depth_max_m, trunc_mult)
-            xy = coords.numpy()[:, :2]
+            image = o3d.t.geometry.Image(o3c.Tensor.from_numpy(np.ascontiguousarray(depth[j])))
+            extrinsic = o3c.Tensor(invert_pose(T), o3c.float64)
+            coords = touch.compute_unique_block_coordinates(image, K, extrinsic, 1000.0, p.depth_max_m,
+                                                            trunc_mult).numpy()
+            xy = coords[:, :2]
             if len(xy) and ((xy < footprints[i, 0]).any() or (xy > footprints[i, 1]).any()):
                 raise StageError(f"{store.path}: frame {i} touches TSDF blocks outside the footprint its pose "
                                  f"predicts (blocks {xy.min(axis=0)}..{xy.max(axis=0)}, predicted "
                                  f"{footprints[i, 0]}..{footprints[i, 1]}): fuse it untiled (run.recon_tile_m: 0)")
-            inside = np.flatnonzero(((xy >= lo) & (xy <= hi)).all(axis=1))
-            if inside.size == 0:
+            touched[i] = coords
+    if selector is not None:
+        fusion.keyframe_reasons = dict(selector.reasons)
+    return touched
+
+
+def tile_share(touched: dict[int, np.ndarray], frames: np.ndarray, lo: np.ndarray, hi: np.ndarray
+               ) -> dict[int, np.ndarray]:
+    """Of each of ``frames`` (sorted store indices, keys of ``touched``), the blocks with x, y within ``lo..hi``
+    (inclusive); frames with none are left out."""
+    share = {}
+    for i in frames:
+        xy = touched[i][:, :2]
+        inside = ((xy >= lo) & (xy <= hi)).all(axis=1)
+        if inside.any():  # (a frame with depth may touch no block at all: open3d samples every 4th pixel)
+            share[int(i)] = touched[i] if inside.all() else touched[i][inside]
+    return share
+
+
+def volume_capacity(share: dict[int, np.ndarray]) -> int:
+    """The block count an empty volume needs so that integrating ``share`` (block coordinates per frame, fused in
+    frame order) never grows it.
+
+    open3d grows a full hash map by rehashing, which gathers and re-inserts every block's voxels (tens of
+    microseconds a block: most of fusion's time on a large floor when a tile's volume doubled from a small start);
+    it grows when its size plus the keys handed to one ``integrate`` would pass its capacity, new or not. So the
+    capacity is the largest of (blocks held before a frame + that frame's blocks).
+    """
+    parts = [share[i] for i in sorted(share)]
+    if not parts:
+        return 1
+    _, first = np.unique(np.concatenate(parts), axis=0, return_index=True)
+    frame_of = np.repeat(np.arange(len(parts)), [len(c) for c in parts])
+    held_before = np.concatenate([[0], np.cumsum(np.bincount(frame_of[first], minlength=len(parts)))[:-1]])
+    return int((held_before + np.array([len(c) for c in parts])).max())
+
+
+def _fuse_tile(store: FrameStore, p: ReconstructParams, intr: Intrinsics, share: dict[int, np.ndarray]
+               ) -> o3d.t.geometry.VoxelBlockGrid:
+    """One tile's volume: each frame of ``share`` (store index -> its blocks in the tile and margin,
+    :func:`tile_share`) integrated into those blocks, in frame order, into a volume sized never to grow
+    (:func:`volume_capacity`: it holds the tile's blocks, not the whole scene's default)."""
+    volume = tsdf.new_volume(p, block_count=volume_capacity(share))
+    K_integrate = o3c.Tensor(tsdf.integration_K(intr))
+    trunc_mult = p.sdf_trunc_m / p.voxel_size_m
+    chunk = store.block_frames
+    frames = np.array(sorted(share), dtype=np.int64)
+
+    def blocks():
+        for g in np.unique(frames // chunk):
+            yield tsdf.prepare_block(store.read(int(g * chunk), int(min((g + 1) * chunk, store.n_frames))), p)
+
+    for block in prefetched(blocks(), name="recon-read"):
+        for j in range(len(block.depth_mm)):
+            coords = share.get(block.start + j)
+            if coords is None:
                 continue
+            depth = o3d.t.geometry.Image(o3c.Tensor.from_numpy(np.ascontiguousarray(block.depth_mm[j])))
             color = o3d.t.geometry.Image(o3c.Tensor.from_numpy(np.ascontiguousarray(block.rgb[j])))
-            mine = coords if inside.size == len(xy) else coords[o3c.Tensor(inside.astype(np.int64))]
-            volume.integrate(mine, depth, color, K_integrate, extrinsic, 1000.0, p.depth_max_m, trunc_mult)
+            extrinsic = o3c.Tensor(invert_pose(block.T_world_camera[j]), o3c.float64)
+            volume.integrate(o3c.Tensor.from_numpy(np.ascontiguousarray(coords)), depth, color, K_integrate,
+                             extrinsic, 1000.0, p.depth_max_m, trunc_mult)
     return volume
 
 
@@ -241,21 +273,26 @@ def _extract(volume: o3d.t.geometry.VoxelBlockGrid, layout: TileLayout, tile: tu
     """The tile's own points (xyz, normals, colours), its mesh part spilled under ``workdir``
     (:func:`pipeline.recon.tiled_mesh.spill_part`), the observed voxels of its own blocks (lattice, tsdf), its own
     block and triangle counts."""
-    xyz, normals, colors = tsdf.extract_points(volume, p)
+    xyz, normals, colors = tsdf.extract_points(volume, p, canonical=False)  # Surface.add sorts what is kept
     keep = layout.owns(tile, xyz[:, :2])
     points = (xyz[keep], normals[keep], colors[keep])
     del xyz, normals, colors
 
-    mesh = tsdf.extract_mesh(volume, p)
-    v = np.asarray(mesh.vertices)
-    c = np.asarray(mesh.vertex_colors) if mesh.has_vertex_colors() else np.zeros((len(v), 3))
-    tri = np.asarray(mesh.triangles)
+    # open3d's tensor mesh, read as the legacy mesh of tsdf.extract_mesh holds it (float32 widened to float64),
+    # without the element-by-element conversion to a legacy mesh
+    mesh = volume.extract_triangle_mesh(weight_threshold=p.min_weight)
+    v = mesh.vertex.positions.numpy().astype(np.float64) if "positions" in mesh.vertex else np.zeros((0, 3))
+    c = mesh.vertex.colors.numpy().astype(np.float64) if "colors" in mesh.vertex else np.zeros((len(v), 3))
+    tri = mesh.triangle.indices.numpy() if "indices" in mesh.triangle else np.zeros((0, 3), np.int64)
+    del mesh
     if len(tri):
-        tri = tri[layout.owns(tile, v[tri].mean(axis=1)[:, :2])]
+        xy = [v[tri[:, k], :2] for k in range(3)]
+        tri = tri[layout.owns(tile, (xy[0] + xy[1] + xy[2]) / 3)]  # by centroid (the sum in np.mean's order)
+        del xy
     owned = layout.owns(tile, v[:, :2]) if len(v) else np.zeros(0, bool)
     mesh_part = spill_part(v, c, tri, owned, workdir / f"mesh_{tile[0]}_{tile[1]}")
     n_triangles = len(tri)
-    del mesh, v, c, tri, owned  # the legacy mesh and the views into it: freed before the voxels are read
+    del v, c, tri, owned  # freed before the voxels are read
 
     lo, hi = layout.block_range(tile, margin=0)
     lattices, values = [], []
@@ -296,17 +333,17 @@ def fuse_tiled(store: FrameStore, p: ReconstructParams, tile_m: float, workdir: 
         return None
     fusion = TiledFusion(layout, Path(workdir))
     fusion.surface = Surface(layout.owner, fusion.workdir)
-    to_fuse = _frame_plan(store, p, intr, wanted, fusion)
-    seen = np.full(store.n_frames, -1, np.int8)
+    touched = _frame_plan(store, p, intr, wanted, footprints, fusion)
+    to_fuse = np.zeros(store.n_frames, bool)
+    to_fuse[list(touched)] = True
     tiles = layout.tiles()
     for tile in (progress(iter(tiles), len(tiles)) if progress else tiles):
         lo, hi = layout.block_range(tile, margin=1)
         reach = to_fuse & (footprints[:, 1] >= lo).all(axis=1) & (footprints[:, 0] <= hi).all(axis=1)
-        if not reach.any():
+        share = tile_share(touched, np.flatnonzero(reach), lo, hi)
+        if not share:  # the frames that might reach it did not
             continue
-        volume = _fuse_tile(store, p, intr, layout, tile, np.flatnonzero(reach), footprints, fusion, seen)
-        if volume.hashmap().size() == 0:  # the frames that might reach it did not
-            continue
+        volume = _fuse_tile(store, p, intr, share)
         fusion.peak_blocks = max(fusion.peak_blocks, int(volume.hashmap().size()))
         fusion.tiles_fused += 1
         tile_points, mesh_part, (lattice, values), n_blocks, n_triangles = _extract(volume, layout, tile, p,
@@ -321,8 +358,7 @@ def fuse_tiled(store: FrameStore, p: ReconstructParams, tile_m: float, workdir: 
             path = fusion.workdir / f"voxels_{tile[0]}_{tile[1]}.npz"
             np.savez(path, lattice=lattice, tsdf=values)
             fusion.voxel_files.append(path)
-    fused = np.flatnonzero(to_fuse & (seen == 1))
-    fusion.empty_frames = sorted(fusion.empty_frames + np.flatnonzero(to_fuse & (seen == 0)).tolist())
+    fused = np.flatnonzero(to_fuse)
     fusion.frames_fused = fused.tolist()
     fusion.T_world_camera = {int(i): poses[i] for i in fused}
     tsdf.check_empty_frames(store, p, fusion)

@@ -240,11 +240,13 @@ def extract_mesh(volume: o3d.t.geometry.VoxelBlockGrid, p: ReconstructParams) ->
     return volume.extract_triangle_mesh(weight_threshold=p.min_weight).to_legacy()
 
 
-def extract_points(volume: o3d.t.geometry.VoxelBlockGrid, p: ReconstructParams
+def extract_points(volume: o3d.t.geometry.VoxelBlockGrid, p: ReconstructParams, *, canonical: bool = True
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Surface points: positions ``(N,3)`` float32 m, unit normals ``(N,3)`` float32, colours ``(N,3)`` uint8.
 
-    In canonical order (:func:`pipeline.recon.store.canonical_point_order`), not open3d's hash-map order.
+    In canonical order (:func:`pipeline.recon.store.canonical_point_order`), not open3d's hash-map order;
+    ``canonical=False`` leaves them in open3d's order for a caller that sorts what it keeps
+    (:meth:`pipeline.recon.surface.Surface.add` does).
     """
     pcd = volume.extract_point_cloud(weight_threshold=p.min_weight)
     if "positions" not in pcd.point or pcd.point.positions.shape[0] == 0:
@@ -257,6 +259,8 @@ def extract_points(volume: o3d.t.geometry.VoxelBlockGrid, p: ReconstructParams
     colors = pcd.point.colors.numpy() if "colors" in pcd.point else np.zeros_like(xyz)
     scale = 255.0 if colors.size and colors.max() <= 1.0 + 1e-6 else 1.0
     colors = np.clip(np.round(colors * scale), 0, 255).astype(np.uint8)
+    if not canonical:
+        return xyz, normals, colors
     order = canonical_point_order(xyz, normals, colors)
     return xyz[order], normals[order], colors[order]
 
@@ -270,20 +274,23 @@ def iter_voxels(volume: o3d.t.geometry.VoxelBlockGrid, p: ReconstructParams, *, 
     the same in every run (the hash map's own order is not).
     """
     hashmap = volume.hashmap()
-    active = hashmap.active_buf_indices().to(o3c.int64)
-    block_xyz = hashmap.key_tensor()[active].numpy()
-    active = o3c.Tensor(active.numpy()[np.lexsort(block_xyz.T[::-1])].astype(np.int32))
-    tsdf_all = volume.attribute("tsdf").reshape((-1,))
-    weight_all = volume.attribute("weight").reshape((-1,))
-    n = active.shape[0]
-    for s in range(0, n, blocks_per_chunk):
+    active = hashmap.active_buf_indices().to(o3c.int64).numpy()
+    keys = hashmap.key_tensor().numpy()[active]
+    order = np.lexsort(keys.T[::-1])
+    active, keys = active[order], keys[order].astype(np.int32)
+    r = p.block_resolution
+    # the voxel buffers as numpy views (no copy): row = buffer index, column = voxel (x fastest, then y, then z),
+    # read with numpy's row gathers (open3d's own indexing copies element by element, several times slower)
+    tsdf_all = volume.attribute("tsdf").numpy().reshape(-1, r**3)
+    weight_all = volume.attribute("weight").numpy().reshape(-1, r**3)
+    z, y, x = np.meshgrid(np.arange(r), np.arange(r), np.arange(r), indexing="ij")
+    offset = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1).astype(np.int32)  # lattice offset of each voxel
+    threshold = p.min_weight if min_weight is None else min_weight
+    for s in range(0, len(active), blocks_per_chunk):
         buf = active[s : s + blocks_per_chunk]
-        xyz, idx = volume.voxel_coordinates_and_flattened_indices(buf)
-        idx = idx.reshape((-1,))
-        weight = weight_all[idx].numpy()
-        keep = weight >= (p.min_weight if min_weight is None else min_weight)
+        keep = weight_all[buf] >= threshold
         if not keep.any():
             continue
-        tsdf = tsdf_all[idx].numpy()[keep]
-        lattice = np.round(xyz.numpy()[keep] / p.voxel_size_m).astype(np.int32)
-        yield lattice, tsdf.astype(np.float32)
+        block, voxel = np.nonzero(keep)
+        lattice = keys[s + block] * np.int32(r) + offset[voxel]
+        yield lattice, tsdf_all[buf[block], voxel].astype(np.float32)

@@ -324,8 +324,9 @@ def _stair_halls(tour: _FloorTour, floor: int, stairs: list[GTStair]) -> list[in
 
 
 def _plan_building(gt: GTScene, radius_m: float, min_actions: int) -> tuple[np.ndarray, list[str]]:
-    """Up through every floor, touring each as an apartment is toured (rounds of further viewpoints) until it has
-    its share of ``min_actions`` (:func:`_floor_shares`), then back down to floor 0."""
+    """Up through every floor, touring each as an apartment is toured, in whole rounds of further viewpoints, until
+    it has its share of ``min_actions`` (:func:`_floor_shares`), then back down to floor 0. A round is never cut
+    short: a room left at one viewpoint while the others got two is what a floor's grid misses most."""
     floors = gt.all_floors
     tours = [_FloorTour(gt.floor_view(f.id), radius_m) for f in floors]
     by_lower = {s.lower: s for s in gt.stairs}
@@ -357,10 +358,8 @@ def _plan_building(gt: GTScene, radius_m: float, min_actions: int) -> tuple[np.n
         queue = [(k, v) for k in range(n_rooms) for v in range(1 + ahead[k])
                  if not (f == 0 and k == start_room and v == 0) and v < len(tour.views[k])]
         level = 0
-        while queue:  # the apartment's rounds (plan_actions); a later round stops where the floor has its share
+        while queue:  # the apartment's rounds (plan_actions), each one whole
             tour.visit_next(walker, queue, visited)
-            if level > 0 and len(walker.states) - arrived >= shares[f]:
-                break
             if not queue and len(walker.states) - arrived < shares[f]:
                 level += 1
                 queue = [(k, level + ahead[k]) for k in range(n_rooms) if len(tour.views[k]) > level + ahead[k]]

@@ -41,3 +41,23 @@ def test_a_start_on_an_unseen_cell_moves_to_the_nearest_navigable_cell_within_a_
     assert walkable_start((0.2, 1.0, 0.7), nav, GRID) == ((0.2, 1.0, 0.7), 0.0)  # 1.3 m away: stays
     assert walkable_start((2.0, 1.0, 0.7), nav, GRID) == ((2.0, 1.0, 0.7), 0.0)  # already navigable
     assert walkable_start(None, nav, GRID) == (None, 0.0)
+
+
+def test_the_start_may_move_as_far_as_the_first_camera_is_blind_to_the_floor():
+    """A camera 1.25 m up looking level, 240 rows at fy 160 (a 74 degree vertical field), first sees the floor
+    1.25 / tan(36.9 deg) = 1.67 m ahead: an office's start 1.3 m from the nearest seen floor moves with that bound
+    (it stayed with the old fixed metre, and the office's goals had no procedural feedback)."""
+    from pipeline.geometry import Intrinsics, camera_pose_from_base
+    from pipeline.goals.floors import blind_radius_m
+
+    intr = Intrinsics(160.0, 160.0, 160.0, 120.0, 320, 240)
+    level = camera_pose_from_base(0.4, 1.0, 0.3, 1.25)
+    assert blind_radius_m(level, intr, 0.0) == pytest.approx(1.25 / 0.75, rel=1e-6)
+    assert blind_radius_m(level, intr, 3.0) == float("inf")  # under the floor named: no sight of it
+    up = level.copy()
+    up[:3, :3] = up[:3, :3] @ np.array([[1, 0, 0], [0, -1, 0], [0, 0, -1.0]])  # upside down: the bottom row looks up
+    assert blind_radius_m(up, intr, 0.0) == float("inf")
+    nav = np.zeros((GRID.rows, GRID.cols), bool)
+    nav[:, 30:] = True
+    pose, moved = walkable_start((0.2, 1.0, 0.7), nav, GRID, max_m=blind_radius_m(level, intr, 0.0))
+    assert moved == pytest.approx(1.325, abs=0.03) and nav[tuple(GRID.world_to_cell(np.array(pose[:2])))]

@@ -169,6 +169,27 @@ def test_the_walk_enters_each_hall_end_and_splits_its_actions_by_floor_area(hous
             free_space(house.floor_view(g.id), p.robot_radius_m).navigable.sum() for g in house.floors)
 
 
+@pytest.mark.parametrize("frames", [240, 480])
+def test_each_floor_is_toured_in_whole_rounds(house, frames):
+    """A floor's tour never stops mid-round, as an apartment's does not: every room of a floor is looked from as
+    many viewpoints as the others (a room with fewer viewpoints has them all; the stair hall one more, its dead
+    end), so no room is left seen from one spot while its neighbours got two."""
+    from collections import Counter
+
+    from pipeline.sim.trajectory import _FloorTour
+
+    walk = SimulatedRecording("house_t", SimulateParams(frames=frames), gt=house)
+    seen = Counter(walk.visited)
+    for f in house.floors:
+        tour = _FloorTour(house.floor_view(f.id), SimulateParams().robot_radius_m)
+        rooms = tour.gt.rooms
+        hall = [r.type == "hallway" for r in rooms]
+        rounds = max(seen[r.id] - h for r, h in zip(rooms, hall))
+        assert rounds >= 1
+        for r, h, views in zip(rooms, hall, tour.views):
+            assert seen[r.id] == min(rounds + h, len(views)), (f.id, r.id, seen[r.id], rounds)
+
+
 def test_three_stories_switch_back():
     gt = generate_scene("house_t", SimulateParams(), BuildingParams(kind="house", stories=3))
     assert [f.id for f in gt.floors] == [0, 1, 2] and [(s.lower, s.upper) for s in gt.stairs] == [(0, 1), (1, 2)]
