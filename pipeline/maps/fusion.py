@@ -25,8 +25,8 @@ that column ever lands above level ``k``.
   cfmap's top-down equals a TopDownAccumulator fed the same points.
 
 Both grow their feature sums by segments, never copied (:mod:`pipeline.maps.segments`: memory bounded
-by the observed cells/voxels, never by the number of frames) and add a whole block with one sparse one-hot x dense product over the
-slots the block touches (pixels that are not fused are empty rows), so no Python loop runs over
+by the observed cells/voxels, never by the number of frames) and add a whole block with one sparse one-hot x
+dense product over the slots the block touches (pixels that are not fused are empty rows), so no Python loop runs over
 pixels or points. Means are taken as ``sum / weight`` before normalising (ConceptFusion weights
 reach 1e-15 at 5 m). Features whose cells take rows of a small table
 (:class:`~pipeline.encoders.base.PaletteFeatures`: the oracle) are added in factored form: point

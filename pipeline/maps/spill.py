@@ -202,8 +202,8 @@ class TileRows:
         """The rows of tiles ``[first, stop)`` (default: tile ``first``) of a spilled :class:`FusionState`."""
         rows = self.span(first, stop)
         top = rows.get("top")
-        return FusionState(keys=rows["keys"], sum=torch.from_numpy(rows["sum"]), weight=torch.from_numpy(rows["weight"]),
-                           count=torch.from_numpy(rows["count"]), top=None if top is None else torch.from_numpy(top))
+        return FusionState(keys=rows["keys"], sum=torch.from_numpy(rows["sum"]),
+                           weight=torch.from_numpy(rows["weight"]), count=torch.from_numpy(rows["count"]), top=None if top is None else torch.from_numpy(top))
 
 
 def state_columns(dim: int, top: bool) -> dict[str, tuple[str, tuple[int, ...]]]:
