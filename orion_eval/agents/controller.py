@@ -29,12 +29,12 @@ searches for and where, through the same rules for every method:
   watching for both; each landmark once per episode) and the goal is searched near them: map candidates
   ranked by distance to the landmarks, and, without a map, what the spin spotted of the goal, else a
   detector's spin at the landmark instance nearest the other hints (with a map too: the map says where the
-  landmark is, the detector looks for the goal around it; without a map, when that spin shows nothing, a spin
-  from each of the landmark's other sides in turn: :meth:`ModularAgent.look_at_focus`); a method with a map and no
-  detector, which cannot look around, tries the name's candidates next to a landmark first, then walks to the landmark itself and asks there
-  (the goal is next to it), then the other candidates (:meth:`ModularAgent.next_to_landmarks`); without a map, a
-  landmark instance the user said "No" next to, naming the same landmark again, is passed over and the landmark
-  looked for again (:meth:`ModularAgent.pass_over_sighted`: a sighting is only the instance that was in view);
+  landmark is, the detector looks for the goal around it; without a map, when that spin shows nothing, a spin from each
+  of the landmark's other sides in turn: :meth:`ModularAgent.look_at_focus`); a method with a map and no detector, which
+  cannot look around, tries the name's candidates next to a landmark first, then walks to the landmark itself and asks
+  there (the goal is next to it), then the other candidates (:meth:`ModularAgent.next_to_landmarks`); without a map, a
+  landmark instance the user said "No" next to, naming the same landmark again, is passed over and the landmark looked
+  for again (:meth:`ModularAgent.pass_over_sighted`: a sighting is only the instance that was in view);
 - *procedural* (a route, or "It is about 4 meters to your left."): the route is walked to its end (the
   point is walked to) and the goal is searched there: map candidates nearest the end first, a
   detector's spin there first;

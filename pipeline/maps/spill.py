@@ -203,7 +203,8 @@ class TileRows:
         rows = self.span(first, stop)
         top = rows.get("top")
         return FusionState(keys=rows["keys"], sum=torch.from_numpy(rows["sum"]),
-                           weight=torch.from_numpy(rows["weight"]), count=torch.from_numpy(rows["count"]), top=None if top is None else torch.from_numpy(top))
+                           weight=torch.from_numpy(rows["weight"]), count=torch.from_numpy(rows["count"]),
+                           top=None if top is None else torch.from_numpy(top))
 
 
 def state_columns(dim: int, top: bool) -> dict[str, tuple[str, tuple[int, ...]]]:

@@ -68,9 +68,9 @@ def fold_floor(parts: list[TileRows], lattice: Lattice, layout: TileLayout, dim:
                voxels: bool, keep_voxels: bool, device: str, cache: TileRowsWriter | None = None,
                cache_after: int = 0, run_rows: int | None = None) -> FloorFold:
     """Fold ``parts`` (one floor's spilled chunk states, in chunk order; ``voxels``: they are voxel states) one run
-    of tiles at a time (:func:`tile_runs`, runs of ``run_rows`` rows at most, default :data:`FOLD_ROWS`) and write the finished tiles to ``scratch`` as ``<name>.cells`` (and
-    ``<name>.voxels`` when ``keep_voxels``). With ``cache``, the fold of ``parts[:cache_after]`` is appended to it
-    too (the fold cache, :mod:`pipeline.maps.incremental`)."""
+    of tiles at a time (:func:`tile_runs`, runs of ``run_rows`` rows at most, default :data:`FOLD_ROWS`) and write the
+    finished tiles to ``scratch`` as ``<name>.cells`` (and ``<name>.voxels`` when ``keep_voxels``). With ``cache``, the
+    fold of ``parts[:cache_after]`` is appended to it too (the fold cache, :mod:`pipeline.maps.incremental`)."""
     for part in parts:
         if not part.fits(layout):
             raise ValueError(f"{part.folder / part.name}: cut in other tiles than {layout}")
