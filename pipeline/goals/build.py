@@ -291,9 +291,8 @@ def scene_building(recon: Recon, objset: ObjectSet, gt: GTScene | None, settings
                                                                                       fg.grid.cell_size_m))))
             walls = (fg.occupancy == OCCUPIED) & ~near_obj
         parts[f] = FloorParts(fg.grid, walls, index, planner.planners[f], GoalRegions(recon, objset, success_m, f))
-    poses = frames.poses()
-    ok = np.flatnonzero(np.isfinite(poses).all(axis=(1, 2)))
-    start_floor = int(recon.floor_of_z(poses[ok[0], 2, 3])) if ok.size else 0
+    T0 = first_camera(frames)
+    start_floor = int(recon.floor_of_z(T0[2, 3])) if T0 is not None else 0
     return Building(parts, planner, start_floor), parts[0].goal_region
 
 
@@ -360,26 +359,29 @@ class GoalRegions:
                  "own_dilation_cells": OWN_DILATION_CELLS})
 
 
-def start_pose(frames: FrameStore) -> tuple[float, float, float] | None:
-    """``(x_m, y_m, yaw_rad)`` of the recording's first camera with a finite pose, or None."""
+def first_camera(frames: FrameStore) -> np.ndarray | None:
+    """``T_world_camera`` (4, 4) of the recording's first camera with a finite pose, or None."""
     poses = frames.poses()
     ok = np.flatnonzero(np.isfinite(poses).all(axis=(1, 2)))
-    if not ok.size:
-        return None
-    T = poses[ok[0]]
-    return float(T[0, 3]), float(T[1, 3]), float(camera_yaw(T))
+    return poses[ok[0]] if ok.size else None
 
 
-def start_snap_m(frames: FrameStore, recon: Recon, building: Building | None) -> float:
+def start_pose(frames: FrameStore, T: np.ndarray | None = None) -> tuple[float, float, float] | None:
+    """``(x_m, y_m, yaw_rad)`` of the recording's first camera with a finite pose (``T`` when the caller has it,
+    :func:`first_camera`), or None."""
+    T = first_camera(frames) if T is None else T
+    return None if T is None else (float(T[0, 3]), float(T[1, 3]), float(camera_yaw(T)))
+
+
+def start_snap_m(T: np.ndarray | None, frames: FrameStore, recon: Recon, building: Building | None) -> float:
     """How far the recording's start may move onto the navigable grid (:func:`walkable_start`): the first camera's
     blind radius on its floor plus a cell (:func:`blind_radius_m`: a camera 1.25 m up with a 74 degree vertical
-    field first sees the floor 1.7 m ahead), at least :data:`START_SNAP_MIN_M`."""
-    poses = frames.poses()
-    ok = np.flatnonzero(np.isfinite(poses).all(axis=(1, 2)))
-    if not ok.size:
+    field first sees the floor 1.7 m ahead), at least :data:`START_SNAP_MIN_M`. ``T``: the first camera
+    (:func:`first_camera`)."""
+    if T is None:
         return START_SNAP_MIN_M
     floor_z = recon.floor_z if building is None else recon.floors[building.start_floor].floor_z_m
-    blind = blind_radius_m(poses[ok[0]], frames.intrinsics, floor_z) + recon.grid.cell_size_m
+    blind = blind_radius_m(T, frames.intrinsics, floor_z) + recon.grid.cell_size_m
     return max(START_SNAP_MIN_M, blind) if np.isfinite(blind) else START_SNAP_MIN_M
 
 
@@ -414,7 +416,8 @@ def build_scene_goals(frames: FrameStore, recon: Recon, out_path: Path, attrs: d
     planner = RoutePlanner(recon.navigable, grid, settings)
     object_index = rasterize_polygons([np.asarray(o.footprint) for o in objset.objects], grid)
     walls = wall_grid(objset, recon, gt, object_index)
-    pose0 = start_pose(frames)
+    T0 = first_camera(frames)
+    pose0 = start_pose(frames, T0)
     regions = GoalRegions(recon, objset, task.success_m)
     building = None
     start_nav = recon.navigable
@@ -422,7 +425,7 @@ def build_scene_goals(frames: FrameStore, recon: Recon, out_path: Path, attrs: d
         objects_path = root / p.objects_files[scene] if objset.source == "file" else frames.path
         building, regions = scene_building(recon, objset, gt, settings, task.success_m, frames, objects_path)
         start_nav = building.planner.planners[building.start_floor].navigable
-    pose0, moved = walkable_start(pose0, start_nav, grid, max_m=start_snap_m(frames, recon, building))
+    pose0, moved = walkable_start(pose0, start_nav, grid, max_m=start_snap_m(T0, frames, recon, building))
     if moved:
         log(f"the recording's start lies on a cell not seen as floor; procedural feedback starts {moved:.2f} m away, "
             "on the nearest navigable cell")
