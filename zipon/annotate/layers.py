@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from pipeline.errors import InputDataError
+from pipeline.recon.store import OCCUPIED, UNKNOWN
 from pipeline.region import Window
 
 LAYERS = ("color", "height", "occupancy", "navigable", "rooms")
@@ -87,7 +88,7 @@ def _tile_rgba(tile, name: str, top_m: float, rooms) -> np.ndarray:
     rgba = np.zeros((*shape, 4), np.uint8)
     if name == "color":
         rgba[..., :3] = tile.color
-        known = tile.occupancy > 0
+        known = tile.occupancy != UNKNOWN
     elif name == "height":
         height = tile.height
         v = np.clip(np.nan_to_num(height) / max(top_m, 1e-6), 0, 1)
@@ -95,11 +96,11 @@ def _tile_rgba(tile, name: str, top_m: float, rooms) -> np.ndarray:
         known = np.isfinite(height)
     elif name == "occupancy":
         occ = tile.occupancy
-        rgba[..., :3] = np.where((occ == 2)[..., None], [40, 40, 40], [235, 235, 235])
-        known = occ > 0
+        rgba[..., :3] = np.where((occ == OCCUPIED)[..., None], [40, 40, 40], [235, 235, 235])
+        known = occ != UNKNOWN
     elif name == "navigable":
         rgba[..., :3] = np.where(tile.navigable[..., None], [120, 200, 120], [200, 200, 200])
-        known = tile.occupancy > 0
+        known = tile.occupancy != UNKNOWN
     else:  # rooms: each room outline filled in its own colour
         from pipeline.goals.objects import rasterize_polygons
 
