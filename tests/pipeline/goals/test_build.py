@@ -158,3 +158,14 @@ def test_goal_regions_read_a_window_per_object_are_the_whole_meshs(tmp_path, mon
     assert sight.reads == 1 and len(sight.windows) == sum(len(g.object_keys) for g in a.goals)
     held = max(len(w.triangles) for w in sight.windows)
     assert held < 0.6 * len(mesh.triangles)  # each window holds part of the house
+
+
+def test_a_start_too_far_from_seen_floor_is_said_in_the_log_and_its_goals_get_no_procedural_feedback(tmp_path):
+    frames, recon = write_house_artifacts(tmp_path, start_xy=(-6.0, -6.0), start_yaw=0.4)  # far outside the house
+    lines = []
+    summary = build_scene_goals(FrameStore(frames), Recon(recon), tmp_path / "goals.zarr",
+                                artifact_attrs(ARTIFACT, FORMAT_VERSION, "goals", "test"), scene="house",
+                                goals=GoalsParams(), task=TaskParams(), root=tmp_path, log=lines.append)
+    assert summary["goals"] > 0 and summary["with_procedural"] == 0
+    assert any("the recording's start lies more than" in m and "its goals get no procedural feedback" in m
+               for m in lines), lines
