@@ -35,10 +35,15 @@ REGION_HELP = ("X0 Y0 X1 Y1: only this box, world metres (x east, y north; see t
                "render); reads only the stored tiles it meets")
 
 
+def _region_given(region) -> bool:
+    """Whether ``--region`` was given (typer hands an unset tuple option as None or as Nones)."""
+    return region is not None and not all(v is None for v in region)
+
+
 def _region_option(sc, region, floors: list[int], option: str = "--region"):
     """``region`` (four numbers or None) as a :class:`~pipeline.region.Region`, checked against the grid of each of
     ``floors`` (an error naming ``option`` when it is empty, inverted or misses a floor's grid)."""
-    if region is None or all(v is None for v in region):
+    if not _region_given(region):
         return None
     from pipeline.region import parse_region, region_window
 
@@ -88,7 +93,7 @@ def render(
     if floor is not None and what not in (*PER_FLOOR, "plan"):
         raise ConfigError(f"--floor {floor}: --what {what} is drawn for the whole scene; --floor applies to "
                           f"{', '.join(PER_FLOOR)}, plan")
-    wants_region = region is not None and not all(v is None for v in region)
+    wants_region = _region_given(region)
     if wants_region and what not in REGIONAL:
         raise ConfigError(f"--region: --what {what} is drawn whole; --region applies to {', '.join(REGIONAL)}")
     sc = open_scene(scene)
