@@ -8,6 +8,7 @@ doorway above ``DOOR_HEIGHT_M`` so depth stays valid upward.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -147,8 +148,12 @@ def _place_doors(rng: np.random.Generator, leaves: list[Rect], labels: list[str]
             chosen += [c for c in range(len(candidates)) if c != chosen[0] and rng.random() < extra_door_p]
         for c in chosen:
             i, j, lo, hi = candidates[c]
-            # a doorway keeps 0.25 m of wall either side: on a 1.4-1.55 m shared wall it narrows (not below 0.9 m)
-            width = min(round(float(rng.uniform(0.9, 1.05)), 2), round(hi - lo - 0.5, 2))
+            # a doorway keeps 0.25 m of wall either side: on a 1.4-1.55 m shared wall it narrows (not below 0.9 m),
+            # to the centimetre below what is left (rounded up, the door would not fit: 1.409 m leaves 0.909, not 0.91)
+            room = hi - lo - 0.5
+            width = min(round(float(rng.uniform(0.9, 1.05)), 2), round(room, 2))
+            if width > room:
+                width = math.floor(room * 100.0) / 100.0
             start = round(float(rng.uniform(lo + 0.25, hi - 0.25 - width)), 2)
             doors.append(Door(axis, at, start, start + width, (i, j), k))
     return doors
