@@ -18,18 +18,18 @@ Streaming: the voxel arrays are read one block of ``chunk_rows`` rows at a time 
 chunks of ``tile_cells``² rows, 4,096 by default, so a block is one stored chunk), each block is scored (its float16
 features upcast once, the query and the background prompts each one product) and reduced into per-cell running
 best values. Memory is one block (8 MB of float32 at D = 512) plus four values per cell scored, never a value per
-voxel; the background scores are computed in the same pass at every query (nothing per voxel is cached: on a map
-too large to hold, that costs a product with the background prompts per block, about a third more time than the
-query's own product and the read). Blocks
-start at multiples of ``chunk_rows`` of the stored voxel rows, so every product has the shape it has over the whole
-array and the scores are the same bytes (:func:`~pipeline.maps.scoring.chunked_scores_each`); a cell whose voxels
-straddle two blocks keeps the earlier block's voxel on ties, as the whole-array argmax does.
+voxel. The background scores are computed in the same pass at every query (nothing per voxel is cached): on a map too
+large to hold, that is one more product per block, 18.7 s a call against 11.4 s without background prompts on the
+100 m x 60 m office (docs/buildings.md). Blocks start at multiples of ``chunk_rows`` of the stored voxel rows, so
+every product has the shape it has over the whole array and the scores are the same bytes
+(:func:`~pipeline.maps.scoring.chunked_scores_each`); a cell whose voxels straddle two blocks keeps the earlier
+block's voxel on ties, as the whole-array argmax does.
 
 Regions: ``voxels/`` rows ascend by (row, col, level), so a window's voxels lie in the rows of its band of grid rows;
-the first and last key of every block (read once, 12 bytes a block) tell which blocks can hold a cell of the window;
-of those, each block's keys (6 bytes a voxel) are read and its features (1 kB a voxel at D = 512) only when a key
-lies in the window. A narrow window (a few columns of a wide floor) thus reads the keys of its band of grid rows but
-the features of its own voxels' blocks only.
+the first and last key of every block (found by one pass over the keys, kept as 12 bytes a block) tell which blocks
+can hold a cell of the window; of those, each block's keys (6 bytes a voxel) are read and its features (1 kB a voxel
+at D = 512) only when a key lies in the window. A narrow window (a few columns of a wide floor) thus reads the keys
+of its band of grid rows but the features of its own voxels' blocks only.
 
 From the second call on, a map whose voxel features fit ``hold_mb`` (float16, as stored) keeps them and the keys in
 memory, and the per-voxel background max and logsumexp of one background set at a time (8 bytes a voxel, 1/128 of
@@ -82,8 +82,8 @@ class LevelScorer:
         return -(-self.n_voxels // self.chunk_rows)
 
     def block_bounds(self) -> np.ndarray:
-        """``(B,2,3)`` int16 first and last ``(row, col, level)`` key of each block (read once, a few blocks'
-        keys at a time)."""
+        """``(B,2,3)`` int16 first and last ``(row, col, level)`` key of each block (found once by a pass over the
+        keys, 64 blocks' at a time)."""
         if self._bounds is None:
             bounds = np.zeros((self.n_blocks, 2, 3), np.int16)
             step = 64 * self.chunk_rows
@@ -153,13 +153,12 @@ class LevelScorer:
         window = window or every
         if window == every:
             pos = self.map.index  # (rows, cols): a cell's row of top/* is its place in the outputs
-            blocks = np.arange(self.n_blocks)
+            blocks, n = np.arange(self.n_blocks), self.map.n_cells
         else:
             pos = self.map.index_in(window).astype(np.int64)
             obs = pos >= 0
             pos[obs] = np.searchsorted(np.sort(pos[obs]), pos[obs])  # the cell's place among the window's rows
-            blocks = self.blocks_in(window)
-        n = int((pos >= 0).sum()) if window != every else self.map.n_cells
+            blocks, n = self.blocks_in(window), int(obs.sum())
         if len(top_s) != n:
             raise ValueError(f"{self.map.path}: {len(top_s)} top-down scores for the {n} observed cells of {window}")
         best = _Best(n)
@@ -168,8 +167,8 @@ class LevelScorer:
         temp = np.float32(temperature)
         cached = self._background(bg, temp)
         for k in blocks:
-            s, e = self._rows(int(k))
-            key = self._held[0][s:e] if self._held is not None else self.key[s:e]
+            start, stop = self._rows(int(k))
+            key = self._held[0][start:stop] if self._held is not None else self.key[start:stop]
             r, c = key[:, 0].astype(np.int64), key[:, 1].astype(np.int64)
             inside = window.contains(r, c)
             at = np.full(len(key), -1, np.int64)
@@ -177,7 +176,7 @@ class LevelScorer:
             keep = at >= 0  # voxels of the window's observed cells
             if not keep.any():  # the keys tell: its features are not read
                 continue
-            feats = self._held[1][s:e] if self._held is not None else self.features[s:e]
+            feats = self._held[1][start:stop] if self._held is not None else self.features[start:stop]
             if bg is None:
                 s_v = chunked_scores_each(feats, [q], self.chunk_rows)[0][:, 0]
                 bmax_v = blse_v = np.full(len(key), -np.inf, np.float32)
@@ -188,7 +187,7 @@ class LevelScorer:
                     bmax_v, blse_v = _reduce_background(s_bg, temp)
                 else:
                     s_q = chunked_scores_each(feats, [q], self.chunk_rows)[0]
-                    bmax_v, blse_v = cached[0][s:e], cached[1][s:e]
+                    bmax_v, blse_v = cached[0][start:stop], cached[1][start:stop]
                 s_v = s_q[:, 0]
                 logit = s_v / temp - blse_v
             best.update(at[keep], logit[keep], s_v[keep], bmax_v[keep], blse_v[keep])
