@@ -92,7 +92,9 @@ class QueryParams(Section):
     hold_features_mb: float = Field(
         512, ge=0, description="from a map's second query on, its features are held in memory as float32 (twice "
         "this) when their stored float16 size is at most this, so a repeated query costs one product; a larger map "
-        "is read tile by tile for every query (memory: one tile's features); 0 = always read tile by tile, MB"
+        "is read tile by tile for every query (memory: one tile's features); with levels max a cfmap's voxel "
+        "features are held likewise (float16 as stored, if they fit this) or read block by block; 0 = always read "
+        "tile by tile, MB"
     )
     levels: Literal["top", "max"] = Field(
         "top", description="top: a cell is scored by its top-down feature (its highest level: a table hides the "

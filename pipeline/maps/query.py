@@ -27,7 +27,9 @@ text feature is the query's own, cosine > 0.99, is left out):
 Levels (``query.levels``): ``top`` scores each cell by its top-down feature (its highest height
 level); ``max`` scores each cell of a cfmap that stores voxels by its best level for the query
 (:class:`~pipeline.maps.levels.LevelScorer`), so a chair under a table top or a picture on a wall
-wins cells the top-down view gives to the table or the wall. A vlmap has one level per cell.
+wins cells the top-down view gives to the table or the wall; its voxels are read block by block (with a region,
+only the blocks that can hold its cells), so memory stays a block plus a few values per cell. A vlmap has one level
+per cell.
 
 Tiles and memory: the map's features are read one stored chunk at a time (whole spatial tiles' rows,
 :meth:`~pipeline.maps.store.SemanticMap.blocks`), each upcast and scored, so a query holds one chunk's features
@@ -305,7 +307,7 @@ class MapQuery:
         else:
             rows, cells, s, bg_max, bg_lse, keep = self._region_scores(q, window)
         if self.levels == "max":
-            s, bg_max, bg_lse = self._level_scores(q, keep, s, bg_max, bg_lse, rows)
+            s, bg_max, bg_lse = self._level_scores(q, keep, s, bg_max, bg_lse, None if rows is None else window)
         prob = 1.0 / (1.0 + np.exp(np.clip(bg_lse - s / self.temperature, -80, 80)))
         g = window.grid(self.grid)
         r, c = np.divmod(cells, self.grid.cols)
@@ -346,17 +348,12 @@ class MapQuery:
             bg_max = bg_lse = np.full(len(rows), -np.inf, np.float32)
         return rows, cells, both[:, -1], bg_max, bg_lse, keep
 
-    def _level_scores(self, q, keep, s, bg_max, bg_lse, rows):
-        """The cells' scores from their best height level (:class:`~pipeline.maps.levels.LevelScorer`); ``rows``:
-        the map rows ``s`` etc. hold (None: every row)."""
+    def _level_scores(self, q, keep, s, bg_max, bg_lse, window: Window | None):
+        """The cells' scores from their best height level (:class:`~pipeline.maps.levels.LevelScorer`, reading the
+        voxels block by block); ``window``: the region whose observed cells ``s`` etc. hold, in row order (its voxel
+        blocks only), None: every row of the floor."""
         bg = self._bg_feats[keep] if keep else None
-        if rows is None:
-            return self._level_scorer().cell_scores(q, bg, self.temperature, s, bg_max, bg_lse)
-        full = [np.full(self.map.n_cells, -np.inf, np.float32) for _ in range(3)]
-        for f, v in zip(full, (s, bg_max, bg_lse)):
-            f[rows] = v
-        s, bg_max, bg_lse = self._level_scorer().cell_scores(q, bg, self.temperature, *full)
-        return s[rows], bg_max[rows], bg_lse[rows]
+        return self._level_scorer().cell_scores(q, bg, self.temperature, s, bg_max, bg_lse, window=window)
 
     def _color(self, window: Window) -> np.ndarray | None:
         """``(rows, cols, 3)`` uint8 recon colour of ``window`` (read from recon's tiles when given so)."""
@@ -371,11 +368,12 @@ class MapQuery:
         return self.__dict__["_floor_color"]
 
     def _level_scorer(self):
-        """The map's :class:`~pipeline.maps.levels.LevelScorer` (voxel features read on first use)."""
+        """The map's :class:`~pipeline.maps.levels.LevelScorer` (voxel features read block by block at each query;
+        held from the second query on when they fit ``query.hold_features_mb``)."""
         if self._levels is None:
             from pipeline.maps.levels import LevelScorer
 
-            self._levels = LevelScorer(self.map)
+            self._levels = LevelScorer(self.map, hold_mb=self.params.hold_features_mb)
         return self._levels
 
     def _observed_box(self) -> tuple[int, int, int, int]:

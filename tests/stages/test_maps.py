@@ -148,6 +148,44 @@ def test_level_aware_scores_find_a_picture_on_a_wall(picture_room):
         assert wins(s, bmax, blse).sum() >= 0.5 * class_masks(gt, m.grid)[cls].sum()
 
 
+def test_level_scores_read_block_by_block_are_the_whole_array_s_on_a_built_cfmap(picture_room):
+    """The stage's cfmap scored one voxel block at a time gives the bytes the whole-array computation gives, for
+    the whole floor and for a region (whose answer is the floor's there); ``query.levels: max`` through MapQuery too."""
+    from pipeline.maps.levels import LevelScorer
+    from pipeline.maps.scoring import logsumexp
+    from pipeline.region import Region, region_window
+    from tests.fixtures.level_maps import whole_array_level_scores
+
+    tmp, frames, gt, params = picture_room
+    mq = open_query(tmp / "cfmap.zarr", params, recon_path=tmp / "recon.zarr", frames_path=frames)
+    m, T = mq.map, mq.temperature
+    assert len(m.voxels()) > 3 * 64
+    region = Region(1.5, 2.0, 3.5, 3.2)  # the picture and the wall beside it
+    win = region_window(m.grid, region)
+    idx = m.index_in(win)
+    rows = np.sort(idx[idx >= 0])
+    bg = mq.text_features(list(params.query.background))
+    inf = np.full(m.n_cells, -np.inf, np.float32)
+    for text, with_bg in (("picture", True), ("table", True), ("box", True), ("picture", False)):
+        q = mq.text_features([text])[0]
+        keep = bg[bg @ q <= 0.99] if with_bg else None
+        bs = m.dot(keep) if with_bg else None
+        top = (m.dot(q), bs.max(1), logsumexp(bs / np.float32(T), axis=1)) if with_bg else (m.dot(q), inf, inf)
+        for chunk_rows in (4096, 64):
+            want = whole_array_level_scores(m, q, keep, T, *top, chunk_rows=chunk_rows)
+            scorer = LevelScorer(m, chunk_rows=chunk_rows)
+            for got, w in zip(scorer.cell_scores(q, keep, T, *top), want):
+                np.testing.assert_array_equal(got, w)
+            for got, w in zip(scorer.cell_scores(q, keep, T, *(a[rows] for a in top), window=win), want):
+                np.testing.assert_array_equal(got, w[rows])
+    mq.params = params.query.model_copy(update={"levels": "max"})
+    mq.levels = "max"
+    floor, part = mq.query("picture"), mq.query("picture", region=region)
+    assert floor.levels == part.levels == "max" and part.wins.any()
+    np.testing.assert_allclose(part.heatmap, floor.heatmap[win.slices], rtol=0, atol=2e-6)
+    assert (part.wins == floor.wins[win.slices]).all()
+
+
 # ----------------------------------------------------------------------------- chunks, workers, appended frames
 
 @pytest.fixture(scope="module")

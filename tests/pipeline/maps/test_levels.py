@@ -8,7 +8,7 @@ from pipeline.errors import ArtifactError
 from pipeline.geometry import GridSpec
 from pipeline.maps.fusion import BlockPoints, VoxelAccumulator
 from pipeline.maps.levels import LevelScorer
-from pipeline.maps.scoring import chunked_scores
+from pipeline.maps.scoring import chunked_scores, logsumexp
 from pipeline.maps.store import FORMAT_VERSION, Lattice, SemanticMap
 from pipeline.maps.writer import write_map
 from pipeline.store import artifact_attrs
@@ -87,3 +87,177 @@ def test_fp16_products_match_fp32_and_features_stay_half(tmp_path):
     got = chunked_scores(f.astype(np.float16), text, chunk_rows=300)  # 4 chunks, the last one short
     np.testing.assert_allclose(got, f.astype(np.float16).astype(np.float32) @ text.T, atol=1e-6)
     assert got.dtype == np.float32 and got.shape == (1000, 3)
+
+
+# ----------------------------------------------------------------------------- block by block (a map of many blocks)
+
+
+@pytest.fixture(scope="module")
+def tiled_cfmap(tmp_path_factory):
+    from tests.fixtures.level_maps import write_tiled_cfmap
+
+    return write_tiled_cfmap(tmp_path_factory.mktemp("levels") / "cfmap.zarr")
+
+
+def _inputs(smap, text, background=("other", "floor", "wall")):
+    """The query feature, the background prompts in play (the query's own left out) and the top-down values."""
+    from tests.fixtures.level_maps import ENC as TENC
+
+    q = TENC.encode_text([text]).numpy()[0]
+    bg = TENC.encode_text(list(background)).numpy() if background else None
+    if bg is not None:
+        bg = bg[bg @ q <= 0.99]
+    top_s = smap.dot(q)
+    if bg is None or not len(bg):
+        inf = np.full(smap.n_cells, -np.inf, np.float32)
+        return q, bg, (top_s, inf, inf)
+    bs = smap.dot(bg)
+    return q, bg, (top_s, bs.max(axis=1), logsumexp(bs / np.float32(T), axis=1))
+
+
+@pytest.mark.parametrize("chunk_rows", [4096, 1024, 100])
+def test_streamed_scores_are_the_bytes_of_the_whole_array_computation(tiled_cfmap, chunk_rows):
+    from tests.fixtures.level_maps import HIDDEN_CHAIR, whole_array_level_scores
+
+    m = SemanticMap(tiled_cfmap)
+    scorer = LevelScorer(m, chunk_rows=chunk_rows)
+    assert scorer.n_blocks == -(-len(m.voxels()) // chunk_rows) and scorer.n_blocks >= 9
+    for text, background in (("chair", ("other", "floor", "wall")), ("bed", ("other", "floor", "wall")),
+                             ("floor", ("other", "floor", "wall")), ("table", ()), ("lamp", ("other",))):
+        q, bg, top = _inputs(m, text, background)
+        got = scorer.cell_scores(q, bg, T, *top)
+        want = whole_array_level_scores(m, q, bg, T, *top, chunk_rows=chunk_rows)
+        for a, b in zip(got, want):
+            assert a.dtype == np.float32
+            np.testing.assert_array_equal(a, b)
+    # the chair under the table wins its cells through its level; the top-down view gives them to the table
+    q, bg, top = _inputs(m, "chair")
+    s, _, blse = scorer.cell_scores(q, bg, T, *top)
+    hidden = m.index[HIDDEN_CHAIR].ravel()
+    hidden = hidden[hidden >= 0]
+    assert (_prob(s, blse)[hidden] > 0.5).mean() > 0.8 and (_prob(top[0], top[2])[hidden] < 0.5).all()
+
+
+def test_bed_ties_straddle_block_edges(tiled_cfmap):
+    """The bed's levels hold one feature per cell (equal logits): the fixture has cells whose tied voxels lie in two
+    blocks, so the byte-for-byte test above covers the ties the blocks split."""
+    m = SemanticMap(tiled_cfmap)
+    key = m.voxels().key.astype(np.int64)
+    flat = key[:, 0] * m.grid.cols + key[:, 1]
+    bed = np.zeros(m.grid.rows * m.grid.cols, bool)
+    bed[[r * m.grid.cols + c for r in range(90, 130) for c in range(20, 60)]] = True
+    edge = np.arange(100, len(flat), 100)  # chunk_rows 100: a block starts at each
+    assert (bed[flat[edge]] & (flat[edge] == flat[edge - 1])).sum() >= 3
+
+
+def test_the_best_voxel_per_cell_is_the_whole_array_s_across_any_blocks():
+    """Per cell the highest logit, the earliest voxel on ties, NaN last: whatever the blocks, as one lexsort."""
+    from pipeline.maps.levels import _Best
+
+    rng = np.random.default_rng(1)
+    n_cells, n = 50, 2000
+    cell = np.sort(rng.integers(0, n_cells, n))  # voxels in cell order, as stored
+    logit = rng.integers(0, 4, n).astype(np.float32)  # many ties
+    logit[rng.random(n) < 0.1] = np.nan
+    logit[cell == 7] = np.nan  # a cell of NaN only: its first voxel
+    value = np.arange(n, dtype=np.float32)  # tells which voxel was picked
+    order = np.lexsort((np.arange(n), -logit, cell))
+    first = np.r_[True, cell[order][1:] != cell[order][:-1]]
+    want = np.full(n_cells, -1.0, np.float32)
+    want[cell[order[first]]] = value[order[first]]
+    for edges in ([n], [13, 700, 701, n], sorted(set(rng.integers(1, n, 40)) | {n})):
+        best, s = _Best(n_cells), 0
+        for e in edges:
+            best.update(cell[s:e], logit[s:e], value[s:e], value[s:e], value[s:e])
+            s = e
+        got = np.where(best.has, best.s, -1.0)
+        np.testing.assert_array_equal(got, want)
+
+
+def test_a_region_reads_only_the_blocks_that_can_hold_it(tiled_cfmap, monkeypatch):
+    from pipeline.region import Window
+    from tests.fixtures.level_maps import whole_array_level_scores
+    from tests.fixtures.tiled_maps import chunk_reads, chunks_of
+
+    m = SemanticMap(tiled_cfmap)
+    chunk = m.group["voxels"]["features"].chunks[0]
+    key = m.voxels().key.astype(np.int64)
+    flat = key[:, 0] * m.grid.cols + key[:, 1]
+    q, bg, top = _inputs(m, "chair")
+    floor = whole_array_level_scores(m, q, bg, T, *top, chunk_rows=chunk)
+    # a box, a band of whole rows, one column (every block: each spans whole rows), the last cell, an unobserved box
+    for win in (Window(20, 40, 25, 45), Window(60, 70, 0, 230), Window(0, 150, 100, 101), Window(149, 150, 229, 230),
+                Window(0, 64, 150, 230)):
+        scorer = LevelScorer(m, chunk_rows=chunk)
+        idx = m.index_in(win)
+        rows = np.sort(idx[idx >= 0])
+        blocks = scorer.blocks_in(win)
+        # every block whose (row, col) key range meets the window, by brute force over the window's cells
+        r, c = np.mgrid[win.r0:win.r1, win.c0:win.c1]
+        cells = np.sort((r * m.grid.cols + c).ravel())
+        first, last = flat[::chunk], flat[np.minimum(np.arange(chunk, len(flat) + chunk, chunk), len(flat)) - 1]
+        meets = np.searchsorted(cells, first) < np.searchsorted(cells, last, side="right")
+        np.testing.assert_array_equal(blocks, np.flatnonzero(meets))
+        with chunk_reads(monkeypatch) as reads:
+            got = scorer.cell_scores(q, bg, T, *(a[rows] for a in top), window=win)
+        # the keys of those blocks, and the features of the blocks holding a voxel of the window's observed cells
+        keys = sorted(int(k.split("/")[3]) for k in reads.keys_read if k.startswith("voxels/key/"))
+        feats = sorted(int(k.split("/")[3]) for k in reads.keys_read if k.startswith("voxels/features/"))
+        holding = np.unique(np.flatnonzero(win.contains(key[:, 0], key[:, 1]) & (m.index[key[:, 0], key[:, 1]] >= 0))
+                            // chunk)
+        assert keys == list(blocks) and feats == list(holding)
+        n_blocks = chunks_of(tiled_cfmap, "voxels/features")
+        if win.shape[1] > 1:  # a box or a band: a few blocks (the column meets every block: each spans whole rows)
+            assert len(keys) <= n_blocks // 3
+        for a, b in zip(got, floor):
+            np.testing.assert_array_equal(a, b[rows])
+        if win == Window(0, 64, 150, 230):  # nothing observed there: no feature read, the outputs empty
+            assert not feats and len(rows) == 0 and all(len(a) == 0 for a in got)
+
+
+def test_a_window_s_scores_must_match_its_cells(tiled_cfmap):
+    from pipeline.region import Window
+
+    m = SemanticMap(tiled_cfmap)
+    q, bg, top = _inputs(m, "chair")
+    with pytest.raises(ValueError, match=r"399 top-down scores for the 400 observed cells of Window"):
+        LevelScorer(m).cell_scores(q, bg, T, *(a[:399] for a in top), window=Window(20, 40, 25, 45))
+
+
+def test_memory_is_a_block_not_the_voxels(tiled_cfmap):
+    """Scoring holds one block and a few values per cell; the voxels' features (float16) are far larger."""
+    import tracemalloc
+
+    m = SemanticMap(tiled_cfmap)
+    m.index  # noqa: B018 - the (rows, cols) index, read before measuring: a grid, not the voxels
+    q, bg, top = _inputs(m, "chair")
+    voxel_bytes = len(m.voxels()) * m.dim * 2
+    scorer = LevelScorer(m, chunk_rows=1024)
+    scorer.block_bounds()
+    tracemalloc.start()
+    scorer.cell_scores(q, bg, T, *top)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    print(f"peak {peak / 2**20:.2f} MB, voxel features {voxel_bytes / 2**20:.2f} MB, {m.n_cells} cells")
+    assert peak < voxel_bytes / 2  # the whole-array computation: more than twice voxel_bytes
+
+
+def test_features_are_held_from_the_second_call_when_they_fit(tiled_cfmap, monkeypatch):
+    from tests.fixtures.tiled_maps import chunk_reads
+
+    m = SemanticMap(tiled_cfmap)
+    q, bg, top = _inputs(m, "bed")
+    held, streamed = LevelScorer(m, chunk_rows=1024, hold_mb=64), LevelScorer(m, chunk_rows=1024, hold_mb=0.5)
+    first = held.cell_scores(q, bg, T, *top)
+    assert not held.held
+    for _ in range(2):
+        assert all((a == b).all() for a, b in zip(held.cell_scores(q, bg, T, *top), first))
+        assert all((a == b).all() for a, b in zip(streamed.cell_scores(q, bg, T, *top), first))
+    assert held.held and not streamed.held  # 0.5 MB: smaller than its features
+    with chunk_reads(monkeypatch) as reads:
+        held.cell_scores(q, bg, T, *top)
+    assert not reads  # keys and features held, the background of this set cached
+    other = held.cell_scores(q, bg[:1], T, *top)  # another background set: computed from the held features
+    want = streamed.cell_scores(q, bg[:1], T, *top)
+    assert all((a == b).all() for a, b in zip(other, want))
+    assert len(held._bg) == 1  # one background set at a time
