@@ -22,7 +22,7 @@ from scipy import ndimage
 from pipeline.config import TaskParams
 from pipeline.geometry import GridSpec
 from pipeline.nav.codes import ACTION_NAMES, FORWARD, LEFT, RIGHT, STOP  # noqa: F401 (re-exported)
-from pipeline.nav.fmm import (GeodesicPath, geodesic_field, joined_parts, mask_parts, planning_mask, segment_free,
+from pipeline.nav.fmm import (GeodesicPath, geodesic_field, joined_parts, mask_parts, one_segment_free, planning_mask,
                               shortest_path, target_region)
 
 DEEP_CELLS = 2  # a walk finishes this many cells inside its aim when a few more steps get it there
@@ -440,11 +440,11 @@ class RoutePlanner:
 
     def step_free(self, p: np.ndarray, q: np.ndarray) -> bool:
         """Is the straight move from world point ``p`` to ``q`` inside the navigable mask?"""
-        return bool(segment_free(self.navigable, self._crc(p), self._crc(q))[0])
-
-    def _crc(self, xy: np.ndarray) -> np.ndarray:
         x0, y1 = self.grid.origin_xy
-        return np.array([(y1 - xy[1]) / self.grid.cell_size_m - 0.5, (xy[0] - x0) / self.grid.cell_size_m - 0.5])
+        cs = self.grid.cell_size_m  # continuous (row, col), cell centres at integers
+        px, py, qx, qy = float(p[0]), float(p[1]), float(q[0]), float(q[1])
+        return one_segment_free(self.navigable, (y1 - py) / cs - 0.5, (px - x0) / cs - 0.5,
+                                (y1 - qy) / cs - 0.5, (qx - x0) / cs - 0.5)
 
     def _nearest_finite(self, fld: np.ndarray, rc: np.ndarray, start_xy: np.ndarray, radius_cells: int = ENTRY_CELLS
                         ) -> np.ndarray | None:

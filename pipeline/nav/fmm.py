@@ -20,7 +20,10 @@ from pipeline.geometry import GridSpec
 
 _NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
 _STEPS = np.linalg.norm(_NEIGHBOURS, axis=1)
+_STEP_LIST: list[float] = _STEPS.tolist()
+_MOVES: list[tuple[int, int]] = [(int(dr), int(dc)) for dr, dc in _NEIGHBOURS]
 _SAMPLES: dict[int, np.ndarray] = {}
+_SAMPLE_LISTS: dict[int, list[float]] = {}
 
 
 def planning_mask(navigable: np.ndarray, grid: GridSpec, clearance_m: float) -> np.ndarray:
@@ -114,24 +117,39 @@ def descend(field: np.ndarray, start_rc: tuple[int, int], max_steps: int | None 
     max_steps = max_steps or rows * cols
     flat = np.ascontiguousarray(field).ravel()
     offsets = _NEIGHBOURS[:, 0] * cols + _NEIGHBOURS[:, 1]
+    f = float(field[r, c])
     for _ in range(max_steps):
-        f = field[r, c]
         if f <= 0:
             return np.array(path)
         if 0 < r < rows - 1 and 0 < c < cols - 1:
-            vals = flat[r * cols + c + offsets]
+            vals = flat[r * cols + c + offsets].tolist()
         else:
             nb = _NEIGHBOURS + (r, c)
             ok = (nb[:, 0] >= 0) & (nb[:, 0] < rows) & (nb[:, 1] >= 0) & (nb[:, 1] < cols)
-            vals = np.full(8, np.inf)
-            vals[ok] = field[nb[ok, 0], nb[ok, 1]]
-        # slope = drop per unit length; prefer the steepest descent
-        k = int(np.argmax((f - vals) / _STEPS))
+            edge = np.full(8, np.inf)
+            edge[ok] = field[nb[ok, 0], nb[ok, 1]]
+            vals = edge.tolist()
+        k = _steepest(f, vals)
         if not (vals[k] < f):
             raise ValueError(f"descent stuck at cell {(r, c)} (field {f:.3f})")
-        r, c = r + int(_NEIGHBOURS[k, 0]), c + int(_NEIGHBOURS[k, 1])
+        r, c, f = r + _MOVES[k][0], c + _MOVES[k][1], vals[k]
         path.append((r, c))
     raise ValueError("descent did not reach the target")
+
+
+def _steepest(f: float, vals: list[float]) -> int:
+    """``argmax((f - vals) / step length)`` over the 8 neighbours (the first of equals; a NaN wins, as in numpy),
+    in plain floats: the same IEEE operations as the array expression, without its per-step overhead."""
+    best_k, best = 0, (f - vals[0]) / _STEP_LIST[0]
+    if best != best:
+        return 0
+    for k in range(1, 8):
+        slope = (f - vals[k]) / _STEP_LIST[k]
+        if slope != slope:
+            return k
+        if slope > best:
+            best_k, best = k, slope
+    return best_k
 
 
 def _samples(n: int) -> np.ndarray:
@@ -165,19 +183,93 @@ def segment_free(mask: np.ndarray, a_rc: np.ndarray, b_rc: np.ndarray) -> np.nda
     a = np.asarray(a_rc, dtype=np.float64).reshape(-1, 2)
     b = np.asarray(b_rc, dtype=np.float64).reshape(-1, 2)
     if len(a) == 1:  # one segment (an agent's step): the same samples in plain floats, no array overhead
-        return np.array([_one_segment_free(mask, *a[0].tolist(), *b[0].tolist())])
+        return np.array([one_segment_free(mask, *a[0].tolist(), *b[0].tolist())])
     return _segments_free(mask, a, b, _sample_count(a, b))
 
 
-def _one_segment_free(mask: np.ndarray, a0: float, a1: float, b0: float, b1: float) -> bool:
+def one_segment_free(mask: np.ndarray, a0: float, a1: float, b0: float, b1: float) -> bool:
+    """:func:`segment_free` of the one segment from continuous cell coordinates ``(a0, a1)`` to ``(b0, b1)`` (plain
+    floats: an agent's step, checked without array overhead)."""
     d0, d1 = b0 - a0, b1 - a1
     n = int(math.ceil(math.sqrt(d0 * d0 + d1 * d1) * 3)) + 2
     rows, cols = mask.shape
-    for t in _samples(n).tolist():
+    ts = _sample_list(n)
+    if _monotone(n):  # every sample lies in the box of the first and the last one's cells (see _first_blocked)
+        r0, c0 = math.floor(a0 + d0 * ts[0] + 0.5), math.floor(a1 + d1 * ts[0] + 0.5)
+        r1, c1 = math.floor(a0 + d0 * ts[-1] + 0.5), math.floor(a1 + d1 * ts[-1] + 0.5)
+        if (0 <= min(r0, r1) and max(r0, r1) < rows and 0 <= min(c0, c1) and max(c0, c1) < cols
+                and mask[min(r0, r1): max(r0, r1) + 1, min(c0, c1): max(c0, c1) + 1].all()):
+            return True
+    for t in ts:
         r, c = math.floor(a0 + d0 * t + 0.5), math.floor(a1 + d1 * t + 0.5)
         if not (0 <= r < rows and 0 <= c < cols and mask[r, c]):
             return False
     return True
+
+
+def _sample_list(n: int) -> list[float]:
+    """``_samples(n)`` as plain floats, computed once per ``n``."""
+    t = _SAMPLE_LISTS.get(n)
+    if t is None:
+        t = _SAMPLE_LISTS[n] = _samples(n).tolist()
+    return t
+
+
+def _first_blocked(mask: np.ndarray, a: np.ndarray, b: np.ndarray, n: int) -> int | None:
+    """The first ``i`` whose segment ``a[i] -> b[i]`` (``(N,2)``) :func:`_segments_free` finds blocked with ``n``
+    samples, or None — reading a fraction of the samples, with the same verdicts.
+
+    Along a segment each sample's row ``floor(a + (b - a) * t + 0.5)`` never decreases (or never increases) with
+    ``t``, and so does its column: the samples between two samples lie in the box of those two cells. So only every
+    ``stride``-th sample is computed (the same expression on the same ``t``, spaced about a cell apart on the
+    longest segment); the samples between two of them are computed only where that box holds a cell off
+    ``mask`` (a diagonal step past a corner) or spans more than two cells a side."""
+    t = _samples(n)
+    length = float(np.sqrt(((b - a) ** 2).sum(axis=1)).max(initial=0.0))
+    stride = max(1, int((n - 1) // max(length, 1.0)))
+    if stride < 4 or not _monotone(n):  # few samples to skip: the plain test
+        blocked = np.flatnonzero(~_segments_free(mask, a, b, n))
+        return int(blocked[0]) if blocked.size else None
+    ks = np.arange(0, n, stride)
+    if ks[-1] != n - 1:
+        ks = np.append(ks, n - 1)
+    rows, cols = mask.shape
+    idx = np.floor(a[:, None] + (b - a)[:, None] * t[ks][None, :, None] + 0.5).astype(np.int64)  # (N, m, 2)
+    r, c = idx[..., 0], idx[..., 1]
+    inside = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
+    rc_, cc_ = np.clip(r, 0, rows - 1), np.clip(c, 0, cols - 1)
+    free = inside & mask[rc_, cc_]
+    blocked = ~free.all(axis=1)
+    # consecutive samples both free: the box between them is their two cells and the two corner cells when it spans
+    # at most two cells a side; otherwise (a corner off the mask, or a wider box) the samples between are computed
+    r0, r1, c0, c1 = rc_[:, :-1], rc_[:, 1:], cc_[:, :-1], cc_[:, 1:]
+    moved = (r0 != r1) & (c0 != c1)
+    wide = (np.abs(r1 - r0) > 1) | (np.abs(c1 - c0) > 1)
+    check = free[:, :-1] & free[:, 1:] & (wide | (moved & ~(mask[r0, c1] & mask[r1, c0])))
+    check &= ~blocked[:, None]
+    seg, gap = np.nonzero(check)
+    if seg.size:  # the samples between, all such gaps at once (the last gap may be shorter: padded, not counted)
+        k = ks[gap][:, None] + np.arange(1, stride)[None, :]
+        real = k < ks[gap + 1][:, None]
+        tk = t[np.minimum(k, n - 1)]
+        pts = np.floor(a[seg][:, None] + (b - a)[seg][:, None] * tk[..., None] + 0.5).astype(np.int64)
+        pr, pc = pts[..., 0], pts[..., 1]
+        ok = (pr >= 0) & (pr < rows) & (pc >= 0) & (pc < cols)
+        ok &= mask[np.clip(pr, 0, rows - 1), np.clip(pc, 0, cols - 1)]
+        blocked[seg[~(ok | ~real).all(axis=1)]] = True
+    hit = np.flatnonzero(blocked)
+    return int(hit[0]) if hit.size else None
+
+
+_MONOTONE: dict[int, bool] = {}
+
+
+def _monotone(n: int) -> bool:
+    """Whether ``_samples(n)`` never decreases (what :func:`_first_blocked` relies on; numpy's linspace does)."""
+    ok = _MONOTONE.get(n)
+    if ok is None:
+        ok = _MONOTONE[n] = bool((np.diff(_samples(n)) >= 0).all())
+    return ok
 
 
 def shortcut(cells: np.ndarray, mask: np.ndarray, chunk: int = 32) -> np.ndarray:
@@ -198,10 +290,9 @@ def shortcut(cells: np.ndarray, mask: np.ndarray, chunk: int = 32) -> np.ndarray
         n = _sample_count(start, later)  # the batch's sampling, whatever run is tested
         first_blocked = None
         for s in range(0, len(later), chunk):
-            free = _segments_free(mask, start[s : s + chunk], later[s : s + chunk], n)
-            blocked = np.flatnonzero(~free)
-            if blocked.size:
-                first_blocked = s + int(blocked[0])
+            blocked = _first_blocked(mask, start[s : s + chunk], later[s : s + chunk], n)
+            if blocked is not None:
+                first_blocked = s + blocked
                 break
         # the first blocked index bounds the visible run along the path
         j = i + 1 + (first_blocked - 1 if first_blocked is not None else len(later) - 1)

@@ -19,7 +19,7 @@ import numpy as np
 
 from pipeline.geometry import GridSpec
 from pipeline.nav.actions import FORWARD, LEFT, RIGHT, STOP
-from pipeline.nav.fmm import segment_free
+from pipeline.nav.fmm import one_segment_free
 
 
 @dataclass(frozen=True)
@@ -62,9 +62,7 @@ def replay(actions: np.ndarray, start_xyyaw, navigable: np.ndarray, grid: GridSp
             yaw -= turn
         elif a == FORWARD:
             nx, ny = x + step_m * np.cos(yaw), y + step_m * np.sin(yaw)
-            a_rc = _continuous_rc(grid, x, y)
-            b_rc = _continuous_rc(grid, nx, ny)
-            if segment_free(nav, a_rc, b_rc)[0]:
+            if one_segment_free(nav, *_continuous_rc(grid, x, y), *_continuous_rc(grid, nx, ny)):
                 x, y = nx, ny
                 travelled += step_m
             else:
@@ -86,7 +84,7 @@ def replay(actions: np.ndarray, start_xyyaw, navigable: np.ndarray, grid: GridSp
                         bool(collisions == 0 and dist <= success_m and in_region and facing), in_region, facing)
 
 
-def _continuous_rc(grid: GridSpec, x: float, y: float) -> np.ndarray:
+def _continuous_rc(grid: GridSpec, x: float, y: float) -> tuple[float, float]:
     """World point -> continuous (row, col) with cell centres at integers (rounding gives the cell)."""
     x0, y1 = grid.origin_xy
-    return np.array([(y1 - y) / grid.cell_size_m - 0.5, (x - x0) / grid.cell_size_m - 0.5])
+    return (y1 - float(y)) / grid.cell_size_m - 0.5, (float(x) - x0) / grid.cell_size_m - 0.5
