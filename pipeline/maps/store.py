@@ -42,8 +42,9 @@ within it, the lattice above that floor's ``floor_z``. A single-floor store is w
 byte for byte as before floors existed; :class:`SemanticMap` reads it as one floor.
 
 Tile-major rows make each spatial tile one contiguous slice with the whole feature axis, so a
-reader of one region reads only the chunks of its tiles; a query reads ``top/features`` once
-(``(N,D)``, a few hundred MB at most) and keeps it in memory.
+reader of one region reads only the chunks of its tiles; a query reads ``top/features`` one stored chunk at a
+time (:meth:`SemanticMap.blocks`), and holds them only when they fit ``query.hold_features_mb``
+(:mod:`pipeline.maps.query`), as the level-aware scorer does a cfmap's ``voxels/`` (:mod:`pipeline.maps.levels`).
 """
 
 from __future__ import annotations
