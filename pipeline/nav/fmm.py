@@ -200,10 +200,13 @@ def one_segment_free(mask: np.ndarray, a0: float, a1: float, b0: float, b1: floa
         if (0 <= min(r0, r1) and max(r0, r1) < rows and 0 <= min(c0, c1) and max(c0, c1) < cols
                 and mask[min(r0, r1): max(r0, r1) + 1, min(c0, c1): max(c0, c1) + 1].all()):
             return True
+    last = None
     for t in ts:
-        r, c = math.floor(a0 + d0 * t + 0.5), math.floor(a1 + d1 * t + 0.5)
-        if not (0 <= r < rows and 0 <= c < cols and mask[r, c]):
-            return False
+        rc = (math.floor(a0 + d0 * t + 0.5), math.floor(a1 + d1 * t + 0.5))
+        if rc != last:  # samples in the cell just read: the same answer
+            if not (0 <= rc[0] < rows and 0 <= rc[1] < cols and mask[rc]):
+                return False
+            last = rc
     return True
 
 
