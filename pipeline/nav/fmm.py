@@ -74,7 +74,7 @@ def geodesic_field(plan_mask: np.ndarray, target: np.ndarray, grid: GridSpec) ->
     except ValueError:  # the target touches no free cell (an enclosed pocket): only itself is reachable
         out[target] = 0.0
         return out
-    field = np.ma.filled(dist, np.inf).astype(np.float64)
+    field = np.asarray(np.ma.filled(dist, np.inf), dtype=np.float64)  # our own array: not copied again
     field[target] = 0.0
     field[~plan_mask] = np.inf
     return field
