@@ -34,7 +34,9 @@ searches for and where, through the same rules for every method:
   cannot look around, tries the name's candidates next to a landmark first, then walks to the landmark itself and asks
   there (the goal is next to it), then the other candidates (:meth:`ModularAgent.next_to_landmarks`); without a map, a
   landmark instance the user said "No" next to, naming the same landmark again, is passed over and the landmark looked
-  for again (:meth:`ModularAgent.pass_over_sighted`: a sighting is only the instance that was in view);
+  for again (:meth:`ModularAgent.pass_over_sighted`: a sighting is only the instance that was in view), and so is one
+  the look around at it reads in another colour or material than the user said, as a described goal is checked
+  (:meth:`ModularAgent.landmark_passed`);
 - *procedural* (a route, or "It is about 4 meters to your left."): the route is walked to its end (the
   point is walked to) and the goal is searched there: map candidates nearest the end first, a
   detector's spin there first;
