@@ -8,7 +8,8 @@ One :class:`Modules` per episode, on top of the scene's shared :class:`~orion_ev
 - detection: ``detect_object(obj_str) -> [(obj_id, distance_m, angle_rad)]`` on the ego view
   ray-cast from the reconstructed mesh, with the agent's detector (:attr:`Modules.detector`: ORION's grounded
   one or CoW's CLIP saliency); ``double_check(obj_id) -> bool``; ``check_attributes(obj_id, name, description)``
-  (does the object in view have the described colour / material);
+  (does the object in view have the described colour / material), ``read_around`` (the same reading from the look
+  around just made);
 - exploration: ``search_object(obj_str) -> obj_id | None`` (spin first, then frontiers, the view ahead watched
   every :data:`WATCH_STEPS` forward steps on the way; ``search_objects`` for several things at once); a spin is
   remembered where it was made (no steps to repeat it there);
@@ -300,20 +301,23 @@ class Modules:
         return any(self._detects_at(obj_id, text) for text in sorted(self.objects[obj_id].texts) or [""])
 
     def _detects_at(self, obj_id: int, text: str, own: bool = False) -> bool:
-        """Whether the current ego view detects ``text`` at the object: a detection within 1 m of its centre or
-        on one of its cells. ``own``: and no other object of the episode is nearer that detection (a detection is
-        the nearest known object's: a chair beside the goal seen as "chair" is that chair's sighting)."""
-        e = self.objects[obj_id]
-        if e.floor != self.floor:
+        """Whether the current ego view detects ``text`` at the object (:meth:`_sights`)."""
+        if self.objects[obj_id].floor != self.floor:
             return False  # not on the floor the agent looks at
-        others = (np.array([o.center_xy for o in self.objects.values() if o.obj_id != obj_id and o.floor == e.floor]
-                           ).reshape(-1, 2) if own else np.empty((0, 2)))
-        for det in self.ctx.detect(self.pose, text, self.detector):
-            d = float(np.linalg.norm(det.center_xy - e.center_xy))
-            if (d <= 1.0 or np.isin(det.cells, e.cells).any()) and not (
-                    len(others) and float(np.min(np.hypot(*(others - det.center_xy).T))) < d):
-                return True
-        return False
+        return any(self._sights(obj_id, det.center_xy, det.cells, own)
+                   for det in self.ctx.detect(self.pose, text, self.detector))
+
+    def _sights(self, obj_id: int, center_xy: np.ndarray, cells: np.ndarray, own: bool, also: int = 0) -> bool:
+        """Whether a detection (its centre and cells) is a sighting of the object: within 1 m of its centre or on one
+        of its cells. ``own``: and no other object of the episode (but ``also``, the detection's own entry) is nearer
+        it (a detection is the nearest known object's: a chair beside the goal seen as "chair" is that chair's)."""
+        e = self.objects[obj_id]
+        others = (np.array([o.center_xy for o in self.objects.values()
+                            if o.obj_id not in (obj_id, also) and o.floor == e.floor]).reshape(-1, 2)
+                  if own else np.empty((0, 2)))
+        d = float(np.linalg.norm(np.asarray(center_xy) - e.center_xy))
+        return (d <= 1.0 or bool(np.isin(cells, e.cells).any())) and not (
+            len(others) and float(np.min(np.hypot(*(others - center_xy).T))) < d)
 
     def check_attributes(self, obj_id: int, name: str, description: str) -> bool | None:
         """Face the object and read it with the ego-view detector: True when the view detects ``description``
@@ -325,6 +329,22 @@ class Modules:
         if self._detects_at(obj_id, description, own=True):
             return True
         return False if self._detects_at(obj_id, name, own=True) else None
+
+    def read_around(self, obj_id: int, name: str, description: str) -> bool | None:
+        """The reading of :meth:`check_attributes` from the look around made where the agent stands (remembered: no
+        steps when it looked for both there, which :meth:`look_around_for` otherwise does): True when one of its
+        sightings of ``description`` is the object's, False when it saw the object as ``name`` only, None when it saw
+        neither there. Only the object's own sightings count."""
+        seen = self.look_around_for([description, name])
+        self.run.log_event("verify", description)
+
+        def sighted(text: str) -> bool:
+            return any(self._sights(obj_id, self.objects[i].center_xy, self.objects[i].cells, True, also=i)
+                       for i, _, _ in seen[text] if self.objects[i].floor == self.objects[obj_id].floor)
+
+        if sighted(description):
+            return True
+        return False if sighted(name) else None
 
     # ------------------------------------------------------------------ exploration
     def _explored_mask(self, floor: int | None = None) -> np.ndarray:

@@ -407,6 +407,16 @@ class SceneContext:
         :attr:`detector` exists; None otherwise."""
         return self._simulated_detector("saliency")
 
+    def object_phrase(self, text: str) -> str | None:
+        """The object a phrase names, without the colour and material it says ("the beige sink made of metal": "sink"),
+        as the detection's text model parses a prompt (:meth:`pipeline.encoders.perception_text.ClipTextSpace.parse`);
+        None when the phrase says no colour or material (nothing to check it by) or detection has no such parser."""
+        space = getattr(self.encoder, "space", None)
+        if space is None:
+            return None
+        q = space.parse(text)
+        return " ".join(q.class_names) if q.class_names and (q.colors or q.materials) else None
+
     def _simulated_detector(self, kind: str):
         space = getattr(self.encoder, "space", None)
         if space is None or self.scene.gt is None or self.renderer.boxes is None:

@@ -34,7 +34,9 @@ searches for and where, through the same rules for every method:
   cannot look around, tries the name's candidates next to a landmark first, then walks to the landmark itself and asks
   there (the goal is next to it), then the other candidates (:meth:`ModularAgent.next_to_landmarks`); without a map, a
   landmark instance the user said "No" next to, naming the same landmark again, is passed over and the landmark looked
-  for again (:meth:`ModularAgent.pass_over_sighted`: a sighting is only the instance that was in view);
+  for again (:meth:`ModularAgent.pass_over_sighted`: a sighting is only the instance that was in view), and so is one
+  the look around at it reads in another colour or material than the user said, as a described goal is checked
+  (:meth:`ModularAgent.landmark_passed`);
 - *procedural* (a route, or "It is about 4 meters to your left."): the route is walked to its end (the
   point is walked to) and the goal is searched there: map candidates nearest the end first, a
   detector's spin there first;
@@ -120,6 +122,7 @@ class SearchState:
     one_prompt: bool = False  # the detector holds one prompt (CoW's CLIP saliency): the description replaces the name
     target: tuple = ()  # what the exploration last searched for (ModularAgent.explore_for)
     around: list = field(default_factory=list)  # [a landmark's place, the points of its sides still to look from]
+    sighted: tuple | None = None  # (place, phrase, id) of the sighted landmark instance to check on arrival
 
     @property
     def queries(self) -> list[str]:
@@ -310,17 +313,21 @@ class ModularAgent(Agent):
             elsewhere = st.hint_floor is not None and st.hint_floor != m.floor
             if elsewhere or float(np.hypot(*(target - here))) > self.params.eval.reject_radius_m:
                 m.goto_point(target, floor=st.hint_floor)
-            self.look_here(m, st)
-            sides = st.around[1] if st.around and np.allclose(st.around[0], target) else []
+            check = self.landmark_check(m, st, target)
+            self.look_here(m, st, check[:2] if check else ())
             skip = self.skip(m, st, set())
+            if check and all(skip(i) for i in st.spotted) and self.landmark_passed(m, st, target, *check):
+                continue
+            sides = st.around[1] if st.around and np.allclose(st.around[0], target) else []
             while sides and all(skip(i) for i in st.spotted):
                 m.goto_point(sides.pop(0))
                 self.look_here(m, st)
 
-    def look_here(self, m, st: SearchState) -> None:
+    def look_here(self, m, st: SearchState, also: tuple = ()) -> None:
         """Look around where the agent stands: what it sees of the query becomes :attr:`SearchState.spotted`, the
-        described detections first among equals, then what is seen as the name only."""
-        seen = m.look_around_for(st.queries)
+        described detections first among equals, then what is seen as the name only. The same spin looks for
+        ``also`` (a landmark's phrase and object: :meth:`landmark_check`)."""
+        seen = m.look_around_for([*st.queries, *also])
         found = [t[0] for q in st.queries for t in seen[q]]
         described = {t[0] for t in seen[st.queries[0]]} if st.description else set()
         st.spotted = self.ranked(m, st, list(dict.fromkeys(found)), described)
@@ -370,18 +377,64 @@ class ModularAgent(Agent):
                 st.focus = (st.focus if routed else []) + hints
                 st.marks = [i for found in ids for i in found]
                 st.spotted = self.ranked(m, st, st.spotted)
-                if self.modules.detector:
-                    # look around at the landmark found nearest the other hints (unless the goal was seen); after
-                    # a route, first at its end (as the route alone would), then at the landmark
-                    here = np.asarray(m.pose[:2])
-                    at = np.asarray(min(hints[0], key=lambda p: (st.focus_distance(p), float(np.hypot(*(p - here))))),
-                                    np.float64)
-                    if routed and st.spin_at is not None:
-                        st.spin_then = at
-                    else:
-                        st.spin_at = at
-                    if not self.map_name() and self.modules.explore:
-                        st.around = [at, m.sides_of(at, here)]  # a landmark found by exploring: its sides too
+                first = next(p for p in fb.landmarks if st.landmarks.get(p) is not None)
+                self.aim_at_landmark(m, st, first, hints[0], ids[0], routed)
+
+    def aim_at_landmark(self, m, st: SearchState, phrase: str, places: np.ndarray, ids: list[int],
+                        routed: bool) -> None:
+        """A detector looks around at the instance of the landmark ``phrase`` (``places`` ``(K,2)`` of the objects
+        ``ids``) nearest the other hints (unless the goal was seen); after a route, first at its end (as the route
+        alone would), then at the landmark. Without a map the landmark was sighted: the instance is checked when the
+        agent looks around there (:meth:`landmark_passed`) and, with exploration, looked at from its other sides too."""
+        if not self.modules.detector:
+            return
+        here = np.asarray(m.pose[:2])
+        k = min(range(len(places)), key=lambda j: (st.focus_distance(places[j]), float(np.hypot(*(places[j] - here)))))
+        at = np.asarray(places[k], np.float64)
+        if routed and st.spin_at is not None:
+            st.spin_then = at
+        else:
+            st.spin_at = at
+        if not self.map_name():
+            st.sighted = (at, phrase, ids[k])
+            if self.modules.explore:
+                st.around = [at, m.sides_of(at, here)]  # a landmark found by exploring: its sides too
+
+    def landmark_check(self, m, st: SearchState, at: np.ndarray) -> tuple | None:
+        """``(phrase, object, id)`` when the look around at ``at`` is at the sighted landmark instance of
+        :attr:`SearchState.sighted` and the user's phrase says its colour or material ("the beige sink made of
+        metal": the object "sink"), so that spin also reads it; None otherwise."""
+        if st.sighted is None or not np.allclose(st.sighted[0], at):
+            return None
+        _, phrase, lid = st.sighted
+        st.sighted = None
+        name = m.ctx.object_phrase(phrase)
+        return (phrase, name, lid) if name else None
+
+    def landmark_passed(self, m, st: SearchState, at: np.ndarray, phrase: str, name: str, lid: int) -> bool:
+        """The look around at the sighted landmark instance ``lid`` showed nothing of the goal: check it is the one
+        the user named, as a described goal is checked (:meth:`~orion_eval.modules.Modules.read_around`): an instance
+        that spin saw as the landmark's object but not with the colour or material the user said (and this sink is
+        white) is passed over and the landmark looked for again, where a sighting is only the instance that happened to
+        be in view. True when it was passed over (the look around aims at the instance found next, if any)."""
+        if m.read_around(lid, name, phrase) is not False:
+            return False
+        st.passed.setdefault(phrase, set()).add(lid)
+        # its place is no longer a hint; the other instances sighted, if any, still are
+        kept = [pts[~np.all(np.isclose(pts, at), axis=1)] for pts in st.focus]
+        st.focus = [pts for pts in kept if len(pts)]
+        st.marks = [i for i in st.marks if i != lid]
+        st.around = []
+        left = [j for j in st.landmark_ids.get(phrase) or [] if j != lid]
+        st.landmark_ids[phrase] = left
+        st.landmarks[phrase] = self.places(m, left)
+        if not left:
+            self.find_landmarks(m, st, [phrase], [phrase])
+            if st.landmarks.get(phrase) is not None:
+                st.focus.append(st.landmarks[phrase])
+        if st.landmarks.get(phrase) is not None:
+            self.aim_at_landmark(m, st, phrase, st.landmarks[phrase], st.landmark_ids[phrase], routed=False)
+        return True
 
     def pass_over_sighted(self, m, st: SearchState, phrases: list[str], oid: int) -> None:
         """Without a map a landmark is located by a sighting, and a sighting is the instance that happened to be

@@ -290,7 +290,7 @@ def test_a_detector_reads_the_described_colour_off_the_object_in_view(tiny_scene
     assert ctx.detector is not None
 
     colours = ("red", "blue", "green", "white", "black", "yellow")
-    readings, neighbours = [], 0
+    readings, neighbours, spins_seen = [], 0, 0
     for gi in range(len([g for g in ctx.scene.goals.goals if ctx.scene.routes.for_goal(g.id)])):
         goal, run, agent = episode(ctx, "orion", gi)
         obj = ctx.scene.goals.objects[goal.object_keys[0]]
@@ -321,7 +321,13 @@ def test_a_detector_reads_the_described_colour_off_the_object_in_view(tiny_scene
                 assert m.check_attributes(oid, obj.cls, f"{own} {obj.cls}") is None
                 del m.objects[2]
                 neighbours += 1
-    assert any(r[0] for r in readings)
+        # the same reading from a look around there (read_around): its four views, not one facing the goal
+        m.look_around_for([obj.cls, f"{own} {obj.cls}", f"{other} {obj.cls}"])  # one spin for the three
+        around = [m.read_around(oid, obj.cls, f"{c} {obj.cls}") for c in (own, other)]  # remembered: no steps
+        # the grounded detector reads each object's own colour: the goal's own never reads wrong, another never right
+        assert around[0] is not False and around[1] is not True
+        spins_seen += around[0] is True
+    assert any(r[0] for r in readings) and spins_seen
     assert neighbours, "no sighting away from the registered centre: the neighbour rule was not exercised"
 
 
@@ -556,3 +562,63 @@ def side_reach(ctx) -> float:
     from orion_eval.modules import SIDE_M
 
     return SIDE_M + ctx.params.eval.goto_stop_radius_m + ctx.step_m
+
+
+
+
+def test_a_sighted_landmark_seen_in_another_colour_is_passed_over_and_looked_for_again(tiny_scene):
+    """CoW looks around at the landmark instance it sighted, and that spin also reads it by the colour and material
+    the user said ("the white bed made of wood"), as a described goal is checked: when it shows nothing of the goal
+    and saw that bed as a bed but not as the said one, the bed is passed over and the landmark looked for again (here
+    the spin finds the other bed, which becomes the place to look around at, read in turn); one that reads right, or
+    cannot be read, is kept (its sides looked from as before). A landmark named by its class alone has nothing to
+    check it by."""
+    ws, params = tiny_scene
+    simulated = params.model_copy(update={"eval": params.eval.model_copy(update={"detect_encoder": "simulated_lseg"})})
+    sim = SceneContext(Scene(ws, simulated, "tiny", STAGES, check=True))
+    phrase = "the white bed made of wood"
+    assert sim.object_phrase(phrase) == "bed"
+    assert sim.object_phrase("the bed") is None and sim.object_phrase("Alice's bed") is None
+    reach = sim.params.eval.goto_stop_radius_m + sim.step_m
+
+    def told(right: bool):
+        goal, run, cow = episode(sim, "cow")
+        m = run.modules
+        m.detector = "saliency"
+        here = np.asarray(m.pose[:2], np.float64)
+
+        def cell(xy):
+            rc = sim.grid.world_to_cell(np.asarray(xy, np.float64))
+            return np.asarray([rc[0] * sim.grid.cols + rc[1]], np.int64)
+
+        near, far = here + 0.3, here + np.array([1.5, 0.0])
+        first, other = m.register(near, cell(near), "detect"), m.register(far, cell(far), "detect")
+        spins = []
+        st = cow.state(goal.name)
+
+        def look(strs):
+            # from afar the first bed is taken for the said one; close, it reads as the said one only when ``right``;
+            # once it is passed over, the next spin finds the other bed, which reads right
+            spins.append(np.asarray(m.pose[:2], np.float64))
+            bed = other if first in st.passed.get(phrase, set()) else first
+            said = len(spins) == 1 or bed == other or right
+            return {s: [(bed, 1.0, 0.0)] if s == "bed" or (s == phrase and said) else [] for s in strs}
+
+        m.look_around_for = look
+        wrong = m.register(here - 0.4, cell(here - 0.4), "detect")
+        cow.update(m, st, ParsedFeedback(landmarks=[phrase]), wrong, goal.name)
+        assert st.landmark_ids[phrase] == [first] and st.sighted[1:] == (phrase, first)
+        cow.look_at_focus(m, st)
+        return st, spins, (first, other), (near, far)
+
+    st, spins, (first, other), (near, far) = told(right=False)
+    assert st.passed[phrase] == {first} and st.landmark_ids[phrase] == [other]
+    # the passed bed's place is no longer a hint, the other bed's is; the next look around was at that one
+    hints = np.vstack(st.focus)
+    assert not np.any(np.all(np.isclose(hints, near), axis=1)) and np.any(np.all(np.isclose(hints, far), axis=1))
+    # spins: the one that sighted the first bed, the one at it, the one that found the other, the one at that
+    assert len(spins) >= 4 and float(np.hypot(*(spins[3] - far))) <= reach
+    assert st.sighted is None  # read once, there
+    st, spins, (first, _), _ = told(right=True)
+    assert not st.passed.get(phrase) and st.landmark_ids[phrase] == [first]
+    assert all(float(np.hypot(*(p - near))) <= side_reach(sim) for p in spins[1:])  # it stayed round the first bed
