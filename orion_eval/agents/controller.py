@@ -419,16 +419,13 @@ class ModularAgent(Agent):
         be in view. True when it was passed over (the look around aims at the instance found next, if any)."""
         if m.read_around(lid, name, phrase) is not False:
             return False
-        st.passed.setdefault(phrase, set()).add(lid)
+        self.pass_over(m, st, phrase, {lid})
         # its place is no longer a hint; the other instances sighted, if any, still are
         kept = [pts[~np.all(np.isclose(pts, at), axis=1)] for pts in st.focus]
         st.focus = [pts for pts in kept if len(pts)]
         st.marks = [i for i in st.marks if i != lid]
         st.around = []
-        left = [j for j in st.landmark_ids.get(phrase) or [] if j != lid]
-        st.landmark_ids[phrase] = left
-        st.landmarks[phrase] = self.places(m, left)
-        if not left:
+        if st.landmarks.get(phrase) is None:
             self.find_landmarks(m, st, [phrase], [phrase])
             if st.landmarks.get(phrase) is not None:
                 st.focus.append(st.landmarks[phrase])
@@ -444,16 +441,20 @@ class ModularAgent(Agent):
         radius = self.params.goals.landmark_radius_m
         for phrase in phrases:
             ids = st.landmark_ids.get(phrase) or []
-            wrong = [j for j in ids if self.footprint_gap(m, oid, j) <= radius]
-            if not wrong:
-                continue
-            st.passed.setdefault(phrase, set()).update(wrong)
-            left = [j for j in ids if j not in wrong]
-            st.landmark_ids[phrase] = left
-            if left:
-                st.landmarks[phrase] = self.places(m, left)
-            else:
-                del st.landmarks[phrase]  # looked for again
+            wrong = {j for j in ids if self.footprint_gap(m, oid, j) <= radius}
+            if wrong:
+                self.pass_over(m, st, phrase, wrong)
+
+    def pass_over(self, m, st: SearchState, phrase: str, wrong: set) -> None:
+        """The sighted instances ``wrong`` of the landmark ``phrase`` are not the one meant: remembered as passed over
+        and no longer its places (when none is left, it is looked for again)."""
+        st.passed.setdefault(phrase, set()).update(wrong)
+        left = [j for j in st.landmark_ids.get(phrase) or [] if j not in wrong]
+        st.landmark_ids[phrase] = left
+        if left:
+            st.landmarks[phrase] = self.places(m, left)
+        else:
+            st.landmarks.pop(phrase, None)  # looked for again
 
     @staticmethod
     def places(m, ids: list[int]) -> np.ndarray | None:
