@@ -36,8 +36,7 @@ def points_round(navigable: np.ndarray, grid: GridSpec, xy, start, radius: float
         for half in (0.0, 0.5, -0.5):
             a = a0 + 2 * np.pi * (k + half) / n
             p = c + radius * np.array([np.cos(a), np.sin(a)])
-            rc = grid.world_to_cell(p)
-            if grid.inside(rc) and navigable[rc[0], rc[1]]:
+            if grid.holds(navigable, p):
                 out.append(p)
                 break
     return out
@@ -181,13 +180,13 @@ class NavPlanner:
         position whose cell is in ``mask`` (full grid): a short last approach to a few cells a route's walk ended
         next to (a stair's end); [] when ``pose`` is in it already, None when none is that near."""
         crop = self.crop(mask)
-        if self.planner._in(crop, np.asarray(pose[:2], np.float64)):
+        if self.planner.grid.holds(crop, np.asarray(pose[:2], np.float64)):
             return []
-        found = self._band_poses(pose, inside=lambda xy: self.planner._in(crop, np.asarray(xy, np.float64)))
+        found = self._band_poses(pose, inside=lambda xy: self.planner.grid.holds(crop, np.asarray(xy, np.float64)))
         return found[0][0] if found else None
 
     def _in_band(self, xy) -> bool:
-        return self.planner._in(self.planner.plan_mask, xy)  # the routes planner's own cell test, on its band
+        return self.planner.grid.holds(self.planner.plan_mask, xy)  # the routes planner's own cell test, on its band
 
     def geodesic(self, pose, target_mask: np.ndarray, *, key) -> float:
         """FMM distance (metres) from ``pose`` to the target region; inf when unreachable."""

@@ -115,8 +115,7 @@ class Stairway:
         mask = self.ends.get(floor)
         if mask is None:
             return False
-        rc = self.grid.world_to_cell(np.array([x, y]))
-        return bool(self.grid.inside(rc) and mask[rc[0], rc[1]])
+        return self.grid.holds(mask, (x, y))
 
 
 class World:

@@ -301,6 +301,12 @@ class GridSpec:
         rc = np.asarray(rc)
         return (rc[..., 0] >= 0) & (rc[..., 0] < self.rows) & (rc[..., 1] >= 0) & (rc[..., 1] < self.cols)
 
+    def holds(self, mask: np.ndarray, xy) -> bool:
+        """Whether the world point ``xy`` lies on a True cell of ``mask`` (``(rows, cols)``, on this grid); False
+        off the grid."""
+        rc = self.world_to_cell(np.asarray(xy, np.float64)[:2])
+        return bool(self.inside(rc) and mask[rc[0], rc[1]])
+
     @property
     def extent_xy(self) -> tuple[float, float, float, float]:
         """``(x_min, x_max, y_min, y_max)`` in metres."""

@@ -373,12 +373,6 @@ def start_pose(frames: FrameStore, T: np.ndarray | None = None) -> tuple[float, 
     return None if T is None else (float(T[0, 3]), float(T[1, 3]), float(camera_yaw(T)))
 
 
-def _on_grid(navigable: np.ndarray, grid, pose: tuple[float, float, float]) -> bool:
-    """Whether ``pose``'s cell is a navigable cell of ``grid``."""
-    rc = grid.world_to_cell(np.asarray(pose[:2], np.float64))
-    return bool(grid.inside(rc) and navigable[rc[0], rc[1]])
-
-
 def start_snap_m(T: np.ndarray | None, frames: FrameStore, recon: Recon, building: Building | None) -> float:
     """How far the recording's start may move onto the navigable grid (:func:`walkable_start`): the first camera's
     blind radius on its floor plus a cell (:func:`blind_radius_m`: a camera 1.25 m up with a 74 degree vertical
@@ -436,7 +430,7 @@ def build_scene_goals(frames: FrameStore, recon: Recon, out_path: Path, attrs: d
     if moved:
         log(f"the recording's start lies on a cell not seen as floor; procedural feedback starts {moved:.2f} m away, "
             "on the nearest navigable cell")
-    elif pose0 is not None and not _on_grid(start_nav, grid, pose0):
+    elif pose0 is not None and not grid.holds(start_nav, pose0):
         log(f"the recording's start lies more than {snap_m:.2f} m (its first camera's blind radius) from any cell "
             "seen as navigable floor: its goals get no procedural feedback")
     res = build_goals(objset, grid, walls, planner=planner, start_pose=pose0, settings=p, edits=edits,

@@ -405,9 +405,9 @@ class RoutePlanner:
             try:
                 actions = follow_polyline(path.polyline_xy, yaw, step_m=s.step_m, turn_deg=s.turn_deg,
                                           face_xy=face_xy, free=self.step_free,
-                                          goal=lambda p, deep=deep, aim=aim: 3 if self._in(deep, p) else
-                                          2 if self._in(aim, p) else
-                                          int(end_mask is not None and self._in(end_mask, p)))
+                                          goal=lambda p, deep=deep, aim=aim: 3 if self.grid.holds(deep, p) else
+                                          2 if self.grid.holds(aim, p) else
+                                          int(end_mask is not None and self.grid.holds(end_mask, p)))
             except ValueError as err:  # boxed in on this mask: try the next one
                 failure = err
                 continue
@@ -433,10 +433,6 @@ class RoutePlanner:
                 deep[win] = ndimage.binary_erosion(aim[win], iterations=DEEP_CELLS)
             self._goals[ck] = (aim, deep if deep.any() else aim)
         return self._goals[ck]
-
-    def _in(self, mask: np.ndarray, xy: np.ndarray) -> bool:
-        rc = self.grid.world_to_cell(np.asarray(xy, np.float64))
-        return bool(self.grid.inside(rc) and mask[rc[0], rc[1]])
 
     def step_free(self, p: np.ndarray, q: np.ndarray) -> bool:
         """Is the straight move from world point ``p`` to ``q`` inside the navigable mask?"""

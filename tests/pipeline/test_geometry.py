@@ -120,3 +120,11 @@ def test_rotate_world_and_nearest_rigid():
     assert rigid_error(fixed) < 1e-12 and np.abs(fixed - T).max() < 1e-3 and np.array_equal(fixed[:3, 3], T[:3, 3])
     with pytest.raises(InputDataError, match=r"file p\.txt; frame 4: pose is not rigid"):
         nearest_rigid(skewed, tol=1e-5, path="p.txt", frame=4)
+
+
+def test_a_grid_holds_a_point_on_a_true_cell_of_a_mask_and_nothing_off_it():
+    g = GridSpec(4, 5, 0.5, (0.0, 2.0))  # x 0..2.5 east, y 2..0 south
+    mask = np.zeros((4, 5), bool)
+    mask[1, 3] = True  # x 1.5..2.0, y 1.0..1.5
+    assert g.holds(mask, (1.7, 1.2)) and g.holds(mask, (1.7, 1.2, 0.3))  # a pose's yaw is ignored
+    assert not g.holds(mask, (0.2, 1.2)) and not g.holds(mask, (-1.0, 1.2)) and not g.holds(mask, (1.7, 9.0))
