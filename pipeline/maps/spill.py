@@ -181,6 +181,9 @@ class TileRows:
         with open(self._path(column), "rb") as f:
             f.seek(start * per_row * dtype.itemsize)
             data = np.fromfile(f, dtype=dtype, count=(stop - start) * per_row)
+        if data.size != (stop - start) * per_row:  # the file shrank since it was opened
+            raise ValueError(f"{self._path(column)}: rows [{start}, {stop}) of {self.rows} asked, the file holds "
+                             f"{start + data.size // max(per_row, 1)} rows")
         return data.reshape((stop - start,) + tail)
 
     def take(self, column: str, rows: np.ndarray) -> np.ndarray:

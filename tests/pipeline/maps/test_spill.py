@@ -75,6 +75,10 @@ def test_an_unfinished_or_damaged_set_is_not_read(tmp_path):
         TileRows(tmp_path, "x")  # no x.json until close()
     writer.close()
     assert TileRows(tmp_path, "x").span(2)["a"].tolist() == [8]
+    rows = TileRows(tmp_path, "x")
+    (tmp_path / "x.a.bin").write_bytes(b"\0" * 8)  # shrunk after it was opened: a read says so, naming the file
+    with pytest.raises(ValueError, match=r"x\.a\.bin: rows \[0, 2\) of 2 asked, the file holds 1 rows"):
+        rows.read("a")
     (tmp_path / "x.a.bin").write_bytes(b"\0" * 9)
     with pytest.raises(ValueError, match="9 bytes"):
         TileRows(tmp_path, "x")
