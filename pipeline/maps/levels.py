@@ -83,12 +83,21 @@ class LevelScorer:
 
     def block_bounds(self) -> np.ndarray:
         """``(B,2,3)`` int16 first and last ``(row, col, level)`` key of each block (found once by a pass over the
-        keys, 64 blocks' at a time)."""
+        keys, 64 blocks' at a time, which checks that they ascend: the bounds say nothing of a store whose keys do
+        not, and a region would silently miss voxels)."""
         if self._bounds is None:
             bounds = np.zeros((self.n_blocks, 2, 3), np.int16)
             step = 64 * self.chunk_rows
+            cols, last = np.int64(self.map.grid.cols), np.int64(-1)
             for s in range(0, self.n_voxels, step):
                 key = self.key[s : s + step]
+                flat = np.concatenate([[last], (key[:, 0].astype(np.int64) * cols + key[:, 1]) * 65536 + key[:, 2]])
+                bad = np.flatnonzero(flat[1:] <= flat[:-1])
+                if bad.size:
+                    raise ArtifactError(f"{self.map.path}: voxels/key row {s + int(bad[0])} does not come after the "
+                                        "row before it (keys ascend by row, column, level in a cfmap zipon writes); "
+                                        "rebuild it: zipon run --force --stage cfmap")
+                last = flat[-1]
                 first = np.arange(0, len(key), self.chunk_rows)
                 b = s // self.chunk_rows
                 bounds[b : b + len(first), 0] = key[first]

@@ -261,3 +261,23 @@ def test_features_are_held_from_the_second_call_when_they_fit(tiled_cfmap, monke
     want = streamed.cell_scores(q, bg[:1], T, *top)
     assert all((a == b).all() for a, b in zip(other, want))
     assert len(held._bg) == 1  # one background set at a time
+
+
+def test_a_store_whose_voxel_keys_do_not_ascend_is_refused_before_a_region_is_read(tiled_cfmap, tmp_path):
+    """A region's blocks are found from each block's first and last key, which says nothing when the keys do not
+    ascend (a store zipon did not write): the pass that finds them names the store and the row, and says how to
+    rebuild, rather than miss voxels."""
+    import shutil
+
+    import zarr
+
+    from pipeline.region import Window
+
+    path = shutil.copytree(tiled_cfmap, tmp_path / "cfmap.zarr")
+    key = zarr.open_array(str(path / "voxels" / "key"), mode="r+")
+    rows = key[5000:5002]
+    key[5000:5002] = rows[::-1]  # two voxels swapped
+    scorer = LevelScorer(SemanticMap(path))
+    with pytest.raises(ArtifactError, match=r"cfmap\.zarr: voxels/key row 5001 does not come after the row before "
+                                            r"it .*rebuild it: zipon run --force --stage cfmap"):
+        scorer.blocks_in(Window(0, 10, 0, 10))
