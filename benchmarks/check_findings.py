@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 from _common import emit
-from findings_drivers import driver_figures, print_drivers, scene_statistics
+from findings_drivers import driver_figures, paper_mix_weights, print_drivers, scene_statistics
 from benchmarks.bench_eval import build, build_params
 from scipy.stats import spearmanr
 
@@ -267,6 +267,22 @@ def print_report(res: dict, cells: Cells, draws: int) -> dict:
             "methods": list(METHODS), "settings": list(SETTINGS)}
 
 
+def drivers_report(episodes: list[dict], cells: Cells, stats: dict) -> dict:
+    """What drives each effect (:mod:`findings_drivers`), printed, and the check's figures with the goals weighted to
+    the paper's mix of goal types (a what-if beside the check: how much of the set's distance from the paper is its
+    mix of goals)."""
+    doc = driver_figures(episodes, stats, Cells)
+    print_drivers(doc, NAMES)
+    types = {g: r["type"] for g, r in stats["goals"].items()}
+    f = figures(cells.tables(paper_mix_weights(cells.goals, types)), paper_tables())
+    held = findings(f)
+    doc["paper mix"] = {"figures": f, "findings": [{"finding": t, "holds": h} for t, h, _ in held]}
+    print("\nthe same episodes with the goals weighted to the paper's mix of types (a what-if, not the check): SR "
+          f"Spearman rho {f['SR spearman']:.2f}, mean |d| {f['SR mean |d|']:.1f}; findings "
+          + ", ".join(f"({t.split(')')[0].lstrip('(')}) {'holds' if h else 'does not'}" for t, h, _ in held))
+    return doc
+
+
 def ablation_figures(episodes: list[dict], draws: int, seed: int = 0) -> dict:
     """ORION and its ablations in the mixed setting: ``{"rows": {method: (SR, SPL, SIT)}, "drops": {method: SR drop
     from ORION}, "intervals": {method: (lo, hi) of the drop}, "findings": [(text, holds, detail)]}``. The drops'
@@ -356,8 +372,7 @@ def main() -> None:
         doc = print_report(res, Cells(episodes), args.boot)
         ws = workspace_of(args.workspace, res["run"].get("scenes") or [])
         if ws is not None:
-            doc["drivers"] = driver_figures(episodes, scene_statistics(*ws, STAGES), Cells)
-            print_drivers(doc["drivers"], NAMES)
+            doc["drivers"] = drivers_report(episodes, Cells(episodes), scene_statistics(*ws, STAGES))
         else:
             print(f"\nwhat drives each effect: not computed ({args.workspace} holds no built workspace of these scenes; "
                   "name it with --workspace)")
@@ -387,8 +402,7 @@ def main() -> None:
                    feedback=list(FEEDBACK_SETTINGS), seeds=list(range(args.seeds)), progress=False, report=False)
     emit(bench="findings", figure="run", episodes=res["run"]["episodes"], seconds=res["run"]["seconds"])
     doc = print_report(res, Cells(res["episodes"]), args.boot)
-    doc["drivers"] = driver_figures(res["episodes"], scene_statistics(ws, params, STAGES), Cells)
-    print_drivers(doc["drivers"], NAMES)
+    doc["drivers"] = drivers_report(res["episodes"], Cells(res["episodes"]), scene_statistics(ws, params, STAGES))
     doc["scene_set"] = {"prefix": args.prefix, "seed": args.seed, "rooms": args.rooms or "simulator default",
                         "frames": args.frames, "scenes": list(params.scenes), "seeds": args.seeds,
                         "navigable_m2": areas}

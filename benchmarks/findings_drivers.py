@@ -9,7 +9,13 @@ statistics a feedback's worth depends on, beside the gains, and the same statist
   goal's (mean over the goal's landmarks): a landmark helps an exploring method when it can be seen from more of
   the home than the goal (the paper: "the provided nearby objects could be easier to find than the goal objects");
   beside it the footprint ratio, the one measure the paper's goal files give too;
-- **rooms** and **navigable area**: how far an exploration has to go.
+- **rooms** and **navigable area**: how far an exploration has to go;
+- **goal types** (big, small, ambiguous: :func:`pipeline.goals.build.group_type`): each type's SR without interaction
+  and with yes/no, and the whole table with the goals weighted to the paper's mix of types (:func:`paper_mix_weights`:
+  every type's goals share that type's share of the paper's 117, direct standardisation). A home of ten rooms repeats
+  classes, so its goals are more often ambiguous than the paper's third, and an ambiguous goal is where a method
+  without a description asks at the wrong instance; the weighted table says how much of the set's distance from
+  the paper is its mix of goals rather than the methods (a what-if beside the check, not the check).
 
 The paper's setting (:data:`PAPER_SETTING`) comes from navchat's goal files (``orion/user_simulator/goals``: 10
 HM3D scenes, 117 goals: 39 big, 41 small, 37 ambiguous; :func:`navchat_statistics` computes it from them, and a
@@ -179,7 +185,39 @@ def driver_figures(episodes: list[dict], stats: dict, cells_of) -> dict:
     }
     split = {text: {"goals": len(goals), "gains": split_gain(cells_of, episodes, goals, kind)}
              for text, (goals, kind) in groups.items()}
-    return {"scenes": scenes, "groups": split, "paper setting": PAPER_SETTING}
+    types = {g: r["type"] for g, r in goal_stats.items()}
+    return {"scenes": scenes, "groups": split, "types": type_figures(episodes, types, cells_of),
+            "paper setting": PAPER_SETTING}
+
+
+def paper_mix_weights(goals: list[tuple[str, str]], types: dict[str, str]) -> np.ndarray:
+    """Per goal of ``goals`` ((scene, goal) pairs; ``types`` "scene/goal" -> its type) the weight that gives each type
+    the share it has among the paper's goals (:data:`PAPER_SETTING`), split evenly over the type's goals; the shares of
+    types the set lacks go to the others in proportion. The weights sum to the number of goals."""
+    kinds = [types[f"{s}/{g}"] for s, g in goals]
+    count = Counter(kinds)
+    paper = PAPER_SETTING["types"]
+    share = {t: paper.get(t, 0) for t in count}
+    if not sum(share.values()):
+        raise ValueError(f"no goal of the paper's types {sorted(paper)} among the set's {sorted(count)}")
+    total = sum(share.values())
+    return np.array([share[k] / total / count[k] for k in kinds]) * len(goals)
+
+
+def type_figures(episodes: list[dict], types: dict[str, str], cells_of) -> dict:
+    """Per goal type its goals and each method's SR without interaction and with yes/no (``types``: "scene/goal" ->
+    its type; ``cells_of`` as in :func:`driver_figures`)."""
+    out = {}
+    for t in sorted(set(types.values())):
+        chosen = [e for e in episodes if types.get(f"{e['scene']}/{e['goal']}") == t]
+        if not chosen:
+            continue
+        c = cells_of(chosen)
+        sr = c.tables()["SR"]
+        out[t] = {"goals": len(c.goals), "paper goals": PAPER_SETTING["types"].get(t, 0),
+                  **{f"SR {s}": {m: float(sr[i, c.settings.index(s)]) for i, m in enumerate(c.methods)}
+                     for s in ("none", "yesno")}}
+    return out
 
 
 def print_drivers(doc: dict, names: dict[str, str]) -> None:
@@ -202,6 +240,12 @@ def print_drivers(doc: dict, names: dict[str, str]) -> None:
         g = v["gains"]
         per = "no episodes" if g is None else ", ".join(f"{names[m]} {g[m]:+.1f}" for m in methods)
         print(f"  {text} ({v['goals']} goals): {per}")
+    print("\nBy goal type (goals: this set / the paper's; SR %)")
+    for t, v in doc["types"].items():
+        for s in ("none", "yesno"):
+            per = " ".join(f"{names[m]} {v[f'SR {s}'][m]:5.1f}" for m in methods)
+            head = f"  {t:10}{v['goals']:>4} / {v['paper goals']:<4}" if s == "none" else " " * 23
+            print(f"{head} {s:6} {per}")
     p = doc["paper setting"]
     print(f"\nthe paper's setting (navchat's goal files; HM3D): {p['goals']} goals ({', '.join(f'{v} {k}' for k, v in p['types'].items())}), "
           f"distractors per goal {p['distractors per goal']} (goals with any {p['goals with distractors']}), "

@@ -172,3 +172,30 @@ def test_a_results_report_finds_the_workspace_of_its_scenes(check, tmp_path):
     ws, params = check.workspace_of(tmp_path, ["fresh_df_02", "fresh_df_00"])
     assert list(params.scenes) == ["fresh_df_00", "fresh_df_02"] and ws.params_path == tmp_path / "params.yaml"
     assert check.workspace_of(tmp_path, ["fresh_df_00", "other_00"]) is None
+
+
+def test_the_drivers_report_weighs_the_goals_to_the_papers_mix_of_types(check, capsys):
+    """Three goals, one per type, whose SR differ by type and method: the what-if table is the types' SR weighted
+    37 : 39 : 41 (the paper's ambiguous, big and small goals), and its figures are the check's on that table."""
+    import numpy as np
+    from scipy.stats import spearmanr
+
+    base, plus = {"ambiguous": 0, "big": 1, "small": 2}, {"cow": 0, "vlmap": 1, "cf": 1, "orion": 2}
+    eps = [{"method": m, "feedback": f, "scene": "s", "goal": t, "seed": k, "success": k < base[t] + plus[m],
+            "spl": 0.5 * (k < base[t] + plus[m]), "sit": 0.25 * (k < base[t] + plus[m])} for t in base for m in check.METHODS for f in check.SETTINGS for k in range(4)]
+    stats = {"scenes": {"s": {"rooms": 3, "navigable m2": 50.0, "goals": 3, "distractors per goal": 1.0,
+                              "goals with distractors": 0.33, "landmark / goal seen": None,
+                              "landmark / goal footprint": None, "goals with landmarks": 0.0}},
+             "goals": {f"s/{t}": {"type": t, "distractors": int(t == "ambiguous")} for t in base}}
+    doc = check.drivers_report(eps, check.Cells(eps), stats)
+    mean_base = (37 * 0 + 39 * 1 + 41 * 2) / 117
+    table = np.array([[25.0 * (plus[m] + mean_base)] * len(check.SETTINGS) for m in check.METHODS])
+    paper = check.paper_tables()["SR"]
+    figures = doc["paper mix"]["figures"]
+    assert figures["SR mean |d|"] == pytest.approx(float(np.mean(np.abs(table - paper))))
+    assert figures["SR spearman"] == pytest.approx(float(spearmanr(table.ravel(), paper.ravel())[0]))
+    assert doc["types"]["small"]["SR yesno"] == {"cow": 50.0, "vlmap": 75.0, "cf": 75.0, "orion": 100.0}
+    out = capsys.readouterr().out
+    assert "ambiguous    1 / 37   none   CoW   0.0 VLMap  25.0 CF  25.0 ORION  50.0" in out
+    assert (f"weighted to the paper's mix of types (a what-if, not the check): SR Spearman rho "
+            f"{figures['SR spearman']:.2f}, mean |d| {figures['SR mean |d|']:.1f}; findings (1) does not") in out

@@ -7,6 +7,7 @@ import json
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 
@@ -83,8 +84,8 @@ def test_gains_are_split_by_what_drives_them(drivers, load_script):
     stats = {"scenes": {"s": {"rooms": 3, "navigable m2": 50.0, "goals": 2, "distractors per goal": 0.5,
                               "goals with distractors": 0.5, "landmark / goal seen": 1.0,
                               "landmark / goal footprint": 2.0, "goals with landmarks": 1.0}},
-             "goals": {"s/g1": {"distractors": 2, "landmark / goal seen": 0.5},
-                       "s/g2": {"distractors": 0, "landmark / goal seen": 3.0}}}
+             "goals": {"s/g1": {"type": "ambiguous", "distractors": 2, "landmark / goal seen": 0.5},
+                       "s/g2": {"type": "big", "distractors": 0, "landmark / goal seen": 3.0}}}
     doc = drivers.driver_figures(episodes(outcomes), stats, check.Cells)
     groups = doc["groups"]
     assert groups["descriptive, goals with same-class distractors"] == {
@@ -95,3 +96,24 @@ def test_gains_are_split_by_what_drives_them(drivers, load_script):
     scene = doc["scenes"]["s"]["gains"]
     assert scene["descriptive"] == {m: 37.5 for m in check.METHODS} and scene["procedural"]["cow"] == 0.0
     assert doc["paper setting"]["goals"] == 117
+    # one success in 4 seeds in none and yes/no for both goals: 25 % per type, and the paper's counts beside
+    assert doc["types"]["ambiguous"] == {"goals": 1, "paper goals": 37, "SR none": {m: 25.0 for m in check.METHODS},
+                                         "SR yesno": {m: 25.0 for m in check.METHODS}}
+    assert doc["types"]["big"]["goals"] == 1 and doc["types"]["big"]["paper goals"] == 39
+
+
+def test_paper_mix_weights_give_each_type_its_share_of_the_papers_goals(drivers):
+    goals = [("s", "a1"), ("s", "a2"), ("s", "a3"), ("s", "b1"), ("t", "s1")]
+    types = {"s/a1": "ambiguous", "s/a2": "ambiguous", "s/a3": "ambiguous", "s/b1": "big", "t/s1": "small"}
+    w = drivers.paper_mix_weights(goals, types)
+    # shares 37 / 39 / 41 of 117, each split over its type's goals; the weights sum to the goal count
+    assert w == pytest.approx(np.array([37 / 3, 37 / 3, 37 / 3, 39, 41]) / 117 * 5)
+    # a set without small goals: ambiguous and big share the whole weight in the paper's 37 : 39
+    w = drivers.paper_mix_weights(goals[:4], types)
+    assert w == pytest.approx(np.array([37 / 3, 37 / 3, 37 / 3, 39]) / 76 * 4)
+
+
+def test_paper_mix_weights_refuse_a_set_without_the_papers_types(drivers):
+    with pytest.raises(ValueError, match=r"no goal of the paper's types \['ambiguous', 'big', 'small'\] among the "
+                                         r"set's \['custom'\]"):
+        drivers.paper_mix_weights([("s", "g")], {"s/g": "custom"})
