@@ -267,6 +267,20 @@ def print_report(res: dict, cells: Cells, draws: int) -> dict:
             "methods": list(METHODS), "settings": list(SETTINGS)}
 
 
+def scene_set(params, seeds: int, areas: dict[str, float] | None = None) -> dict:
+    """What the JSON records of the scene set: its names' prefix, ``simulate.seed``, rooms and frames (from the
+    workspace's params, so a report from ``--results`` records them too), the scenes and the evaluation's seeds."""
+    sim = params.simulate
+    scenes = list(params.scenes)
+    prefixes = {name.rsplit("_", 1)[0] for name in scenes}
+    rooms = sim.rooms_min if sim.rooms_min == sim.rooms_max else [sim.rooms_min, sim.rooms_max]
+    out = {"prefix": prefixes.pop() if len(prefixes) == 1 else None, "seed": sim.seed, "rooms": rooms,
+           "frames": sim.frames, "scenes": scenes, "seeds": seeds}
+    if areas is not None:
+        out["navigable_m2"] = areas
+    return out
+
+
 def drivers_report(episodes: list[dict], cells: Cells, stats: dict) -> dict:
     """What drives each effect (:mod:`findings_drivers`), printed, and the check's figures with the goals weighted to
     the paper's mix of goal types (a what-if beside the check: how much of the set's distance from the paper is its
@@ -373,6 +387,7 @@ def main() -> None:
         ws = workspace_of(args.workspace, res["run"].get("scenes") or [])
         if ws is not None:
             doc["drivers"] = drivers_report(episodes, Cells(episodes), scene_statistics(*ws, STAGES))
+            doc["scene_set"] = scene_set(ws[1], len({e["seed"] for e in episodes}))
         else:
             print(f"\nwhat drives each effect: not computed ({args.workspace} holds no built workspace of these scenes; "
                   "name it with --workspace)")
@@ -403,9 +418,7 @@ def main() -> None:
     emit(bench="findings", figure="run", episodes=res["run"]["episodes"], seconds=res["run"]["seconds"])
     doc = print_report(res, Cells(res["episodes"]), args.boot)
     doc["drivers"] = drivers_report(res["episodes"], Cells(res["episodes"]), scene_statistics(ws, params, STAGES))
-    doc["scene_set"] = {"prefix": args.prefix, "seed": args.seed, "rooms": args.rooms or "simulator default",
-                        "frames": args.frames, "scenes": list(params.scenes), "seeds": args.seeds,
-                        "navigable_m2": areas}
+    doc["scene_set"] = scene_set(params, args.seeds, areas)
     if args.ablations:
         abl = evaluate(ws, params, STAGES, args.workspace / "eval_ablations", scenes=list(params.scenes),
                        methods=[m for m in PAPER_ABLATIONS if m != "orion"], feedback=["mixed"],

@@ -199,3 +199,18 @@ def test_the_drivers_report_weighs_the_goals_to_the_papers_mix_of_types(check, c
     assert "ambiguous    1 / 37   none   CoW   0.0 VLMap  25.0 CF  25.0 ORION  50.0" in out
     assert (f"weighted to the paper's mix of types (a what-if, not the check): SR Spearman rho "
             f"{figures['SR spearman']:.2f}, mean |d| {figures['SR mean |d|']:.1f}; findings (1) does not") in out
+
+
+def test_the_json_records_the_scene_set_from_the_workspace_params(check, tmp_path):
+    """A report from ``--results`` records the set as the check's own run does: prefix, simulate.seed, rooms, frames."""
+    from benchmarks.bench_eval import build_params
+
+    (tmp_path / "params.yaml").write_text(build_params(2, 240, "fresh_df", 60217, None))
+    _, params = check.workspace_of(tmp_path, ["fresh_df_00", "fresh_df_01"])
+    assert check.scene_set(params, 3) == {"prefix": "fresh_df", "seed": 60217, "rooms": [6, 7], "frames": 240,
+                                          "scenes": ["fresh_df_00", "fresh_df_01"], "seeds": 3}
+    (tmp_path / "params.yaml").write_text(build_params(1, 480, "fresh_hm", 91813, 10))
+    _, params = check.workspace_of(tmp_path, ["fresh_hm_00"])
+    assert check.scene_set(params, 5, {"fresh_hm_00": 101.5}) == {
+        "prefix": "fresh_hm", "seed": 91813, "rooms": 10, "frames": 480, "scenes": ["fresh_hm_00"], "seeds": 5,
+        "navigable_m2": {"fresh_hm_00": 101.5}}
