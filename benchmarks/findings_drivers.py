@@ -9,6 +9,9 @@ statistics a feedback's worth depends on, beside the gains, and the same statist
   goal's (mean over the goal's landmarks): a landmark helps an exploring method when it can be seen from more of
   the home than the goal (the paper: "the provided nearby objects could be easier to find than the goal objects");
   beside it the footprint ratio, the one measure the paper's goal files give too;
+- **landmark repeats**: the home's other objects of a landmark's class (mean over the goal's landmarks). "Next to
+  the bed" takes an exploring method to a bed, and where the home has three, to the wrong one two times in three
+  unless the landmark's attributes tell them apart;
 - **rooms** and **navigable area**: how far an exploration has to go;
 - **goal types** (big, small, ambiguous: :func:`pipeline.goals.build.group_type`): each type's SR without interaction
   and with yes/no, and the whole table with the goals weighted to the paper's mix of types (:func:`paper_mix_weights`:
@@ -34,10 +37,13 @@ import numpy as np
 
 #: the grid the visibility statistic samples the navigable floor on, metres
 SAMPLE_M = 0.5
+#: the landmark split: goals whose landmarks' classes have more other instances in the home than this (mean over the
+#: goal's landmarks), and the others (the paper's goal files: 1.25)
+LANDMARK_REPEATS = 2
 #: the paper's setting, from navchat's goal files (:func:`navchat_statistics`) and HM3D's mean navigable floor
 PAPER_SETTING = {"goals": 117, "types": {"ambiguous": 37, "big": 39, "small": 41}, "distractors per goal": 0.6,
-                 "goals with distractors": 0.31, "landmark / goal footprint": 1.69, "goals with landmarks": 0.89,
-                 "rooms per scene": 4.0, "navigable m2": 112.5}
+                 "goals with distractors": 0.31, "landmark / goal footprint": 1.69, "landmark repeats": 1.25,
+                 "goals with landmarks": 0.89, "rooms per scene": 4.0, "navigable m2": 112.5}
 
 
 def navchat_statistics(folder: Path) -> dict:
@@ -45,7 +51,7 @@ def navchat_statistics(folder: Path) -> dict:
     ``objects.json``). Footprints are navchat's ``mass`` (contour area in its map cells); "rooms per scene" counts
     the rooms navchat's goals are in (``room_id``), all the files say of a scene's rooms."""
     types: Counter = Counter()
-    distractors, ratios, rooms, with_landmarks = [], [], [], 0
+    distractors, ratios, repeats, rooms, with_landmarks = [], [], [], [], 0
     scenes = sorted(p for p in Path(folder).iterdir() if (p / "final.json").is_file())
     if not scenes:
         raise FileNotFoundError(f"{folder}: no scene folder with a final.json (navchat's orion/user_simulator/goals)")
@@ -63,13 +69,14 @@ def navchat_statistics(folder: Path) -> dict:
             marks = [m for m in (g.get("nearby_obj") or "").split("|") if m in objects]
             if marks:
                 with_landmarks += 1
+                repeats.append(float(np.mean([classes[objects[m]["name"]] - 1 for m in marks])))
                 mass = json.loads(g["base"])["mass"] if isinstance(g.get("base"), str) else objects[key]["mass"]
                 ratios.append(float(np.mean([objects[m]["mass"] for m in marks])) / max(float(mass), 1e-9))
     n = sum(types.values())
     return {"goals": n, "types": dict(sorted(types.items())), "distractors per goal": round(float(np.mean(distractors)), 2),
             "goals with distractors": round(float(np.mean(np.asarray(distractors) > 0)), 2),
             "landmark / goal footprint": round(float(np.median(ratios)), 2),
-            "goals with landmarks": round(with_landmarks / n, 2), "rooms per scene": round(float(np.mean(rooms)), 1)}
+            "landmark repeats": round(float(np.mean(repeats)), 2), "goals with landmarks": round(with_landmarks / n, 2), "rooms per scene": round(float(np.mean(rooms)), 1)}
 
 
 def seen_from_m2(sight, goals, index: np.ndarray, keys: tuple[str, ...], samples: np.ndarray, cell_m2: float,
@@ -126,7 +133,8 @@ def scene_statistics(ws, params, stages) -> dict:
             if marks:
                 lm_seen = float(np.mean([seen_of((k,)) for k in marks]))
                 footprint = float(np.mean([goals.objects[k].area_m2 for k in marks]))
-                row.update({"landmark seen m2": round(lm_seen, 2),
+                repeats = float(np.mean([classes[goals.objects[k].cls] - 1 for k in marks]))
+                row.update({"landmark seen m2": round(lm_seen, 2), "landmark repeats": round(repeats, 2),
                             "landmark / goal seen": round(lm_seen / max(goal_seen, cell_m2), 2),
                             "landmark / goal footprint": round(footprint / max(goals.objects[g.object_keys[0]].area_m2,
                                                                                1e-6), 2)})
@@ -140,6 +148,8 @@ def scene_statistics(ws, params, stages) -> dict:
             "goals with distractors": round(float(np.mean([r["distractors"] > 0 for r in rows])), 2),
             "landmark / goal seen": round(float(np.median(ratios)), 2) if ratios else None,
             "landmark / goal footprint": round(float(np.median(feet)), 2) if feet else None,
+            "landmark repeats": round(float(np.mean([r["landmark repeats"] for r in rows if "landmark repeats" in r])), 2)
+            if ratios else None,
             "goals with landmarks": round(len(ratios) / max(len(rows), 1), 2)}
     return out
 
@@ -177,11 +187,15 @@ def driver_figures(episodes: list[dict], stats: dict, cells_of) -> dict:
     crowded = {g for g, r in goal_stats.items() if r["distractors"] > 0}
     visible = {g for g, r in goal_stats.items() if r.get("landmark / goal seen", 0) > 1}
     hidden = {g for g, r in goal_stats.items() if "landmark / goal seen" in r and r["landmark / goal seen"] <= 1}
+    crowded_marks = {g for g, r in goal_stats.items() if r.get("landmark repeats", 0) > LANDMARK_REPEATS}
+    few_marks = {g for g, r in goal_stats.items() if "landmark repeats" in r and r["landmark repeats"] <= LANDMARK_REPEATS}
     groups = {
         "descriptive, goals with same-class distractors": (crowded, "descriptive"),
         "descriptive, goals without": (set(goal_stats) - crowded, "descriptive"),
         "landmark, landmark seen from more floor than the goal": (visible, "landmark"),
         "landmark, landmark seen from as much floor or less": (hidden, "landmark"),
+        f"landmark, its landmarks' classes with more than {LANDMARK_REPEATS} other instances": (crowded_marks, "landmark"),
+        f"landmark, its landmarks' classes with {LANDMARK_REPEATS} or fewer": (few_marks, "landmark"),
     }
     split = {text: {"goals": len(goals), "gains": split_gain(cells_of, episodes, goals, kind)}
              for text, (goals, kind) in groups.items()}
@@ -225,14 +239,15 @@ def print_drivers(doc: dict, names: dict[str, str]) -> None:
     methods = list(names)
     print("\nWhat drives each effect, per scene (SR gain over yes/no, points)")
     print(f"{'scene':16}{'rooms':>6}{'nav m2':>8}{'goals':>6}{'distr/goal':>11}{'w/ distr':>9}{'lm/goal seen':>13}"
-          f"{'lm/goal footprint':>18}")
+          f"{'lm/goal footprint':>18}{'lm repeats':>11}")
     for name, s in doc["scenes"].items():
         g = s["gains"]
         seen = "-" if s["landmark / goal seen"] is None else f"{s['landmark / goal seen']:.2f}"
         per = lambda k: " ".join(f"{names[m]} {g[k][m]:+5.1f}" for m in methods)  # noqa: E731
         foot = "-" if s["landmark / goal footprint"] is None else f"{s['landmark / goal footprint']:.2f}"
+        repeats = "-" if s.get("landmark repeats") is None else f"{s['landmark repeats']:.2f}"
         print(f"{name:16}{s['rooms']:>6}{s['navigable m2']:>8.1f}{s['goals']:>6}{s['distractors per goal']:>11.2f}"
-              f"{s['goals with distractors']:>9.2f}{seen:>13}{foot:>18}")
+              f"{s['goals with distractors']:>9.2f}{seen:>13}{foot:>18}{repeats:>11}")
         for k in ("descriptive", "landmark", "procedural", "mixed - best single"):
             print(f"{'':18}{k:20} {per(k)}")
     print("\nBy goal (SR gain over yes/no, points)")
@@ -249,5 +264,6 @@ def print_drivers(doc: dict, names: dict[str, str]) -> None:
     p = doc["paper setting"]
     print(f"\nthe paper's setting (navchat's goal files; HM3D): {p['goals']} goals ({', '.join(f'{v} {k}' for k, v in p['types'].items())}), "
           f"distractors per goal {p['distractors per goal']} (goals with any {p['goals with distractors']}), "
-          f"landmark / goal footprint (median) {p['landmark / goal footprint']}, goals with landmarks "
+          f"landmark / goal footprint (median) {p['landmark / goal footprint']}, other instances of a landmark's class "
+          f"{p['landmark repeats']}, goals with landmarks "
           f"{p['goals with landmarks']}, rooms with goals per scene {p['rooms per scene']}, navigable m2 {p['navigable m2']}")

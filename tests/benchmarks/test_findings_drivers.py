@@ -44,6 +44,8 @@ def test_the_paper_setting_statistics_from_navchat_files(drivers, tmp_path):
     assert s["distractors per goal"] == 0.25 and s["goals with distractors"] == 0.25
     # landmarks listed in objects.json: chair_0 -> bed (40/10), lamp_0 -> bed and chair (25/2); tv_0 is not listed
     assert s["landmark / goal footprint"] == pytest.approx((4.0 + 12.5) / 2)
+    # other listed objects of a landmark's class: the bed has none, chair_2 two other chairs (lamp_0: (0 + 2) / 2)
+    assert s["landmark repeats"] == pytest.approx((0.0 + 1.0) / 2)
     assert s["goals with landmarks"] == 0.5 and s["rooms per scene"] == 1.5
 
 
@@ -84,8 +86,9 @@ def test_gains_are_split_by_what_drives_them(drivers, load_script):
     stats = {"scenes": {"s": {"rooms": 3, "navigable m2": 50.0, "goals": 2, "distractors per goal": 0.5,
                               "goals with distractors": 0.5, "landmark / goal seen": 1.0,
                               "landmark / goal footprint": 2.0, "goals with landmarks": 1.0}},
-             "goals": {"s/g1": {"type": "ambiguous", "distractors": 2, "landmark / goal seen": 0.5},
-                       "s/g2": {"type": "big", "distractors": 0, "landmark / goal seen": 3.0}}}
+             "goals": {"s/g1": {"type": "ambiguous", "distractors": 2, "landmark / goal seen": 0.5,
+                                "landmark repeats": 2.5},
+                       "s/g2": {"type": "big", "distractors": 0, "landmark / goal seen": 3.0, "landmark repeats": 0.0}}}
     doc = drivers.driver_figures(episodes(outcomes), stats, check.Cells)
     groups = doc["groups"]
     assert groups["descriptive, goals with same-class distractors"] == {
@@ -93,6 +96,10 @@ def test_gains_are_split_by_what_drives_them(drivers, load_script):
     assert groups["descriptive, goals without"]["gains"] == {m: 0.0 for m in check.METHODS}
     assert groups["landmark, landmark seen from more floor than the goal"]["gains"] == {m: 75.0 for m in check.METHODS}
     assert groups["landmark, landmark seen from as much floor or less"]["gains"] == {m: 0.0 for m in check.METHODS}
+    # g1's landmark class has 2.5 other instances (more than 2), g2's none: the landmark gain is g2's
+    assert groups["landmark, its landmarks' classes with more than 2 other instances"] == {
+        "goals": 1, "gains": {m: 0.0 for m in check.METHODS}}
+    assert groups["landmark, its landmarks' classes with 2 or fewer"]["gains"] == {m: 75.0 for m in check.METHODS}
     scene = doc["scenes"]["s"]["gains"]
     assert scene["descriptive"] == {m: 37.5 for m in check.METHODS} and scene["procedural"]["cow"] == 0.0
     assert doc["paper setting"]["goals"] == 117
