@@ -23,8 +23,8 @@ statistics a feedback's worth depends on, beside the gains, and the same statist
 The paper's setting (:data:`PAPER_SETTING`) comes from navchat's goal files (``orion/user_simulator/goals``: 10
 HM3D scenes, 117 goals: 39 big, 41 small, 37 ambiguous; :func:`navchat_statistics` computes it from them, and a
 test checks the constants against the files when ``ZIPON_NAVCHAT_GOALS`` names them); HM3D's navigable area is its
-paper's mean. The files list each scene's annotated objects, not every object, so the paper's distractor count is a
-lower bound.
+paper's mean. The files list each scene's annotated objects, not every object, so the paper's distractor and
+landmark-repeat counts are lower bounds.
 """
 
 from __future__ import annotations
@@ -76,7 +76,8 @@ def navchat_statistics(folder: Path) -> dict:
     return {"goals": n, "types": dict(sorted(types.items())), "distractors per goal": round(float(np.mean(distractors)), 2),
             "goals with distractors": round(float(np.mean(np.asarray(distractors) > 0)), 2),
             "landmark / goal footprint": round(float(np.median(ratios)), 2),
-            "landmark repeats": round(float(np.mean(repeats)), 2), "goals with landmarks": round(with_landmarks / n, 2), "rooms per scene": round(float(np.mean(rooms)), 1)}
+            "landmark repeats": round(float(np.mean(repeats)), 2), "goals with landmarks": round(with_landmarks / n, 2),
+            "rooms per scene": round(float(np.mean(rooms)), 1)}
 
 
 def seen_from_m2(sight, goals, index: np.ndarray, keys: tuple[str, ...], samples: np.ndarray, cell_m2: float,
