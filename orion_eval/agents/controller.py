@@ -164,14 +164,6 @@ class SearchState:
         return float(np.mean([np.min(np.hypot(*(pts - p).T)) for pts in self.focus]))
 
 
-def map_mass(obj) -> float:
-    """A map candidate's mass, its mean heatmap probability times its cells (0 for what was not found on a map): the
-    order the map gives its candidates (:meth:`pipeline.maps.query.MapQuery.query` without a pose) and the one the
-    paper's ``retrieve_map`` lists its contours in (its reference code sorts them by area, largest first), since a
-    map's true object is one large confident component where its confusions are scattered fragments."""
-    return float(obj.score) * len(obj.cells) if obj.from_map else 0.0
-
-
 class ModularAgent(Agent):
     """The one controller (see the module docstring); a subclass declares its :attr:`modules`."""
 
@@ -214,24 +206,20 @@ class ModularAgent(Agent):
 
     def ranked(self, m, st: SearchState, ids: list[int], first: set = frozenset()) -> list[int]:
         """On the preferred floor first (the one the last hint points to, else the agent's), then nearest the hints
-        (the agent's distance breaks ties). After a route, the distance to its end comes first, in whole metres (the
-        route is not precise), then the hints (the landmarks say where within that metre), then ``first`` (what was
-        seen as the description). Without hints or a route, a map's candidates come in the map's order, the largest
-        mass first (:func:`map_mass`), the agent's distance breaking ties, and what else was found nearest the
-        agent."""
+        (the agent's distance breaks ties; without hints: nearest the agent). After a route, the distance to its end
+        comes first, in whole metres (the route is not precise), then the hints (the landmarks say where within that
+        metre), then ``first`` (what was seen as the description)."""
         floor = m.floor if st.hint_floor is None else st.hint_floor
-        unhinted = not st.focus and st.route_end is None
 
         def key(i: int):
             xy = m.objects[i].center_xy
             end = 0 if st.route_end is None else round(float(np.hypot(*(xy - st.route_end))))
-            mass = -map_mass(m.objects[i]) if unhinted else 0.0
-            return m.objects[i].floor != floor, end, round(st.focus_distance(xy), 2), i not in first, mass, \
+            return m.objects[i].floor != floor, end, round(st.focus_distance(xy), 2), i not in first, \
                 m.relative(i)[0], i
         return sorted(ids, key=key)
 
     def map_candidates(self, m, st: SearchState, which: str) -> list[int]:
-        """The map's candidates of the goal's name (:meth:`ranked`: nearest the hints, else the map's order). The map is asked for the name only, never
+        """The map's candidates of the goal's name, nearest the hints first. The map is asked for the name only, never
         for the description: the paper's ``retrieve_map`` / ``retrieve_memory`` take the target's name (its
         reference code queries the map with the target noun and gives the description, a short prompt, to
         ``detect_object``, ``search_object`` and ``double_check`` alone), so a description reaches a map method only

@@ -102,28 +102,6 @@ def test_procedural_point_is_walked_to_and_searched_around(ctx):
     assert d == sorted(d) or np.allclose(np.round(d, 2), sorted(np.round(d, 2)))
 
 
-def test_without_hints_a_maps_candidates_come_in_the_maps_order(ctx):
-    """No hint yet: the map's candidates are asked about largest mass first (mean probability x cells, the order the
-    map gives them and the paper's retrieve_map lists its contours in), the agent's distance breaking ties; what was
-    not found on a map comes after them, nearest first. A hint puts the nearest to it first again."""
-    goal, run, agent = episode(ctx, "vlmap")
-    m, g = run.modules, ctx.grid
-
-    def at(dx: float, dy: float, n: int, source: str, score: float) -> int:  # n cells in a row from that point
-        xy = np.asarray(m.pose[:2]) + [dx, dy]
-        r, c = g.world_to_cell(xy)
-        return m.register(xy, r * g.cols + c + np.arange(n), source, score, "chair")
-
-    near = at(0.5, 0.0, 4, "vlmap", 0.9)  # small, close
-    far = at(3.0, 0.0, 40, "vlmap", 0.5)  # large, far
-    twin = at(0.0, 1.5, 25, "vlmap", 0.8)  # the same mass as the far one (20), nearer
-    seen = at(-1.5, 0.0, 30, "detect", 0.9)  # a sighting, not the map's
-    st = SearchState(name="chair")
-    assert agent.ranked(m, st, [near, far, twin, seen]) == [twin, far, near, seen]
-    st.focus = [np.asarray(m.pose[:2])[None] + [0.5, 0.0]]  # a hint where the small one is
-    assert agent.ranked(m, st, [near, far, twin, seen])[0] == near
-
-
 def test_a_route_is_followed_to_its_end_and_a_detector_looks_there(ctx):
     goal, run, agent = episode(ctx, "orion")
     m = run.modules
