@@ -267,6 +267,30 @@ def print_report(res: dict, cells: Cells, draws: int) -> dict:
             "methods": list(METHODS), "settings": list(SETTINGS)}
 
 
+#: what the check reads of each episode of a results.json, and the type each must have
+EPISODE_FIELDS = {"scene": str, "goal": str, "method": str, "feedback": str, "seed": int, "success": bool,
+                  "spl": float, "sit": float}
+
+
+def episode_error(episodes) -> str | None:
+    """What is wrong with the first episode of a results.json that the check cannot read (its index, the field and
+    what was expected), None when every one has :data:`EPISODE_FIELDS` (SPL and SIT finite, in [0, 1])."""
+    if not isinstance(episodes, list):
+        return f"'episodes' is a {type(episodes).__name__}, expected a list of episode records"
+    for i, e in enumerate(episodes):
+        if not isinstance(e, dict):
+            return f"episode {i} is a {type(e).__name__}, expected an object"
+        for name, kind in EPISODE_FIELDS.items():
+            v = e.get(name)
+            ok = isinstance(v, kind) and not (kind is int and isinstance(v, bool))
+            if kind is float:
+                ok = isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0
+            if not ok:
+                want = "a number in [0, 1]" if kind is float else ("an " if kind is int else "a ") + kind.__name__
+                return f"episode {i} ({e.get('scene')}/{e.get('goal')}): field {name!r} is {v!r}, expected {want}"
+    return None
+
+
 def scene_set(params, seeds: int, areas: dict[str, float] | None = None) -> dict:
     """What the JSON records of the scene set: its names' prefix, ``simulate.seed``, rooms and frames (from the
     workspace's params, so a report from ``--results`` records them too), the scenes and the evaluation's seeds."""
@@ -378,6 +402,9 @@ def main() -> None:
         except (OSError, ValueError, KeyError, TypeError) as err:
             ap.error(f"--results {args.results}: cannot be read as an evaluation's results.json "
                      f"({type(err).__name__}: {err}); expected the JSON `zipon eval` writes, with 'episodes'")
+        wrong = episode_error(episodes)
+        if wrong:
+            ap.error(f"--results {args.results}: {wrong} (the episodes `zipon eval` writes)")
         mixed = {e.get("method") for e in episodes if e.get("feedback") == "mixed"}
         if args.ablations and ("orion" not in mixed or not mixed & set(PAPER_ABLATIONS) - {"orion"}):
             ap.error(f"--ablations: {args.results} holds no mixed episodes of ORION and of one of its ablations "
@@ -386,7 +413,10 @@ def main() -> None:
         doc = print_report(res, Cells(episodes), args.boot)
         ws = workspace_of(args.workspace, res["run"].get("scenes") or [])
         if ws is not None:
-            doc["drivers"] = drivers_report(episodes, Cells(episodes), scene_statistics(*ws, STAGES))
+            try:
+                doc["drivers"] = drivers_report(episodes, Cells(episodes), scene_statistics(*ws, STAGES))
+            except ValueError as err:
+                ap.error(f"--results {args.results} against --workspace {args.workspace}: {err}")
             doc["scene_set"] = scene_set(ws[1], len({e["seed"] for e in episodes}))
         else:
             print(f"\nwhat drives each effect: not computed ({args.workspace} holds no built workspace of these scenes; "

@@ -209,6 +209,10 @@ def paper_mix_weights(goals: list[tuple[str, str]], types: dict[str, str]) -> np
     """Per goal of ``goals`` ((scene, goal) pairs; ``types`` "scene/goal" -> its type) the weight that gives each type
     the share it has among the paper's goals (:data:`PAPER_SETTING`), split evenly over the type's goals; the shares of
     types the set lacks go to the others in proportion. The weights sum to the number of goals."""
+    missing = [f"{s}/{g}" for s, g in goals if f"{s}/{g}" not in types]
+    if missing:
+        raise ValueError(f"{len(missing)} goal(s) of the episodes are not among the workspace's goals (first: "
+                         f"{', '.join(missing[:3])}): the results come from other goals than the workspace holds now")
     kinds = [types[f"{s}/{g}"] for s, g in goals]
     count = Counter(kinds)
     paper = PAPER_SETTING["types"]

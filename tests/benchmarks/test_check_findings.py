@@ -214,3 +214,26 @@ def test_the_json_records_the_scene_set_from_the_workspace_params(check, tmp_pat
     assert check.scene_set(params, 5, {"fresh_hm_00": 101.5}) == {
         "prefix": "fresh_hm", "seed": 91813, "rooms": 10, "frames": 480, "scenes": ["fresh_hm_00"], "seeds": 5,
         "navigable_m2": {"fresh_hm_00": 101.5}}
+
+
+def test_a_results_file_with_an_unreadable_episode_is_refused_naming_it(tmp_path):
+    """The episodes are read back: one missing a field, or with SPL out of [0, 1], is named with its index, scene and
+    goal, and the check exits 2 without a traceback."""
+    import json
+
+    good = episodes({"orion": 0.5}, goals=2, seeds=1)
+    for bad, said in ((dict(good[1], spl=1.5), "episode 1 (a/g1): field 'spl' is 1.5, expected a number in [0, 1]"),
+                      ({k: v for k, v in good[1].items() if k != "seed"},
+                       "episode 1 (a/g1): field 'seed' is None, expected an int"),
+                      (dict(good[1], success="yes"), "episode 1 (a/g1): field 'success' is 'yes', expected a bool")):
+        path = tmp_path / "results.json"
+        path.write_text(json.dumps({"episodes": [good[0], bad]}))
+        out = run_check("--results", str(path), "--boot", "10")
+        assert out.returncode == 2 and "Traceback" not in out.stderr and out.stdout == ""
+        assert f"--results {path}: {said} (the episodes `zipon eval` writes)" in out.stderr
+
+
+def test_episode_error_accepts_what_the_evaluator_writes(check):
+    assert check.episode_error(episodes({"orion": 0.5, "cow": 1.0}, goals=2, seeds=2)) is None
+    assert check.episode_error({"a": 1}) == "'episodes' is a dict, expected a list of episode records"
+    assert check.episode_error([3]) == "episode 0 is a int, expected an object"

@@ -124,3 +124,9 @@ def test_paper_mix_weights_refuse_a_set_without_the_papers_types(drivers):
     with pytest.raises(ValueError, match=r"no goal of the paper's types \['ambiguous', 'big', 'small'\] among the "
                                          r"set's \['custom'\]"):
         drivers.paper_mix_weights([("s", "g")], {"s/g": "custom"})
+
+
+def test_paper_mix_weights_refuse_goals_the_workspace_does_not_hold(drivers):
+    with pytest.raises(ValueError, match=r"1 goal\(s\) of the episodes are not among the workspace's goals \(first: "
+                                         r"t/gone\): the results come from other goals"):
+        drivers.paper_mix_weights([("s", "g"), ("t", "gone")], {"s/g": "big"})
