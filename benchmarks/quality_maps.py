@@ -102,7 +102,7 @@ def evaluate(frames, recon, map_path, params, n_poses, floor: int = 0) -> dict:
 
 
 def workspace_scenes(path: Path, n_poses: int, rebuild: list[str], overrides: list[str],
-                     only: list[str] | None = None) -> list[dict]:
+                     only: list[str] | None = None, maps: tuple[str, ...] = ("vlmap", "cfmap")) -> list[dict]:
     """Figures of every simulated scene's maps in the workspace (as built, or rebuilt per encoder setting)."""
     from pipeline.paths import Workspace
 
@@ -118,7 +118,7 @@ def workspace_scenes(path: Path, n_poses: int, rebuild: list[str], overrides: li
                 frames, recon = ws.artifact("frames", scene), ws.artifact("recon", scene)
                 if not frames.exists() or not recon.exists():
                     continue
-                for kind in ("vlmap", "cfmap"):
+                for kind in maps:
                     m = ws.artifact(kind, scene)
                     if setting is not None:
                         m = Path(tmp) / f"{setting}-{scene}-{kind}.zarr"
@@ -203,6 +203,8 @@ def main():
                     help="rebuild the workspace's maps in a temporary folder with encoders.simulated=ENCODER "
                     "(e.g. perception oracle)")
     ap.add_argument("--scenes", nargs="*", default=None, help="only these workspace scenes")
+    ap.add_argument("--maps", nargs="+", choices=("vlmap", "cfmap"), default=["vlmap", "cfmap"],
+                    help="only these maps (a sweep of one model's settings rebuilds only its map)")
     ap.add_argument("--no-fixture", action="store_true")
     ap.add_argument("--set", action="append", default=[], help="params override for --workspace, e.g. "
                     "encoders.simulated_lseg.object_confusion=0.3 (repeatable)")
@@ -210,7 +212,7 @@ def main():
     if not a.no_fixture:
         fixture_settings(a.poses, a.frames, a.width, a.height)
     if a.workspace is not None:
-        print_table(workspace_scenes(a.workspace, a.poses, a.rebuild, a.set, a.scenes))
+        print_table(workspace_scenes(a.workspace, a.poses, a.rebuild, a.set, a.scenes, tuple(a.maps)))
 
 
 if __name__ == "__main__":
