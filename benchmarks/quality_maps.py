@@ -49,7 +49,7 @@ from pipeline.store import artifact_attrs  # noqa: E402
 
 BACKGROUND_VOCAB = ("wall", "floor", "ceiling", "other")
 #: the published row each map's simulated perception is set against
-TARGET = {"simulated_lseg": "LSeg (privileged)", "simulated_cf": "ConceptFusion"}
+TARGET = {"simulated_lseg": "LSeg (privileged)", "simulated_cf": "ConceptFusion + SAM"}
 
 
 def segmentation_metrics(mq: MapQuery, gt: GTScene) -> dict:

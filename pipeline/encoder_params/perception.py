@@ -30,8 +30,7 @@ PUBLISHED = {
     "OpenSeg (privileged)": {"mAcc": 41.19, "F-mIoU": 53.74,
                              "source": "ConceptGraphs (arXiv 2309.16650) Table I, Replica"},
     "LSeg (privileged)": {"mAcc": 33.39, "F-mIoU": 51.54,
-                          "source": "ConceptGraphs (arXiv 2309.16650) Table I, Replica (recalled; not re-checked "
-                          "against the paper here)"},
+                          "source": "ConceptGraphs (arXiv 2309.16650) Table I, Replica"},
 }
 
 
@@ -108,10 +107,13 @@ class SimulatedCFParams(_PerceptionParams):
     neighbouring regions, global-context mixing. Not a trained model."""
 
     object_confusion: float = Field(
-        0.55, ge=0, le=1, description="as for the LSeg-like model; higher: a region's CLIP crop is classified as "
-        "a whole (ConceptFusion mAcc 24.2 / F-mIoU 31.3 vs LSeg 33.4 / 51.5 in ConceptGraphs Table I); on the two "
-        "demo scenes 0.45 with merges 0.15 gave 30.7 / 37.1, 0.7 with merges 0.3 gave 14.0 / 12.3 "
-        "(benchmarks/quality_maps.py)"
+        0.45, ge=0, le=1, description="as for the LSeg-like model; higher: a region's CLIP crop is classified as "
+        "a whole. Set against ConceptFusion with SAM's automatic masks, the variant the paper's code runs (navchat's "
+        "orion/perception/extractor/concept_fusion_extractor.py: SamAutomaticMaskGenerator): mAcc 31.5 / F-mIoU "
+        "38.7 in ConceptGraphs Table I (ConceptFusion with its first region proposer: 24.2 / 31.3; LSeg 33.4 / "
+        "51.5). With merges 0.15, on the three findings_* check scenes 0.45 gives 29.5 / 31.3 where 0.55 with merges "
+        "0.2 gives 23.1 / 24.5: the move between the two published rows (+7.4 / +7.4); on three other HM3D-sized "
+        "scenes 36.7 / 37.4 against 29.7 / 26.4 (benchmarks/quality_maps.py --maps cfmap)"
     )
     object_confusion_strength: tuple[float, float] = Field((0.6, 1.0), description="see simulated_lseg")
     frame_confusion: float = Field(0.2, ge=0, le=1, description="see simulated_lseg (a whole region per frame)")
@@ -123,7 +125,7 @@ class SimulatedCFParams(_PerceptionParams):
     )
     attribute_confusion: float = Field(0.3, ge=0, le=1, description="see simulated_lseg (CLIP crops: fewer misreads)")
     merge_probability: float = Field(
-        0.2, ge=0, le=1, description="per frame, probability two touching objects are one region (SAM/felzenszwalb "
+        0.15, ge=0, le=1, description="per frame, probability two touching objects are one region (SAM/felzenszwalb "
         "under-segmentation: the lamp with its nightstand); both get the area-weighted mean feature"
     )
     min_region_frac: float = Field(

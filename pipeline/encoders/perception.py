@@ -263,8 +263,8 @@ class SimulatedCF(SimulatedPerception):
     params_model = SimulatedCFParams
     version = VERSIONS[name]
     profile = "conceptfusion"
-    kind = ("simulated ConceptFusion-like region perception (CLIP ViT-B/32 text space; calibrated to ConceptGraphs "
-            "Table I, Replica) - not a trained model")
+    kind = ("simulated ConceptFusion-like region perception (CLIP ViT-B/32 text space; calibrated to ConceptFusion + "
+            "SAM in ConceptGraphs Table I, Replica) - not a trained model")
 
     def _regions(self, labels: np.ndarray, K: int, rng: np.random.Generator) -> np.ndarray:
         """``(K,)`` region of each label: small ones join the background (0), touching ones merge at random."""
