@@ -47,3 +47,26 @@ def test_oracle_map_scores_high_and_simulated_perception_lower(built_scene, qual
         assert set(v["confused_as"]) <= vocab - {c}
         assert sum(v["confused_as"].values()) <= 100 - v["acc"] + 0.5
     assert any(v["confused_as"] for v in perceived["per_class"].values())
+
+
+def test_maps_option_scores_only_the_named_maps_against_their_published_rows(built_scene, quality):
+    """``--maps cfmap`` scores the workspace's cfmap alone; each simulated model is set against a published row, the
+    ConceptFusion model against the SAM variant the paper's code runs."""
+    from pipeline.encoder_params.perception import PUBLISHED
+
+    ws, _ = built_scene
+    rows = quality.workspace_scenes(ws.params_path, 4, [], [], only=["tiny"], maps=("cfmap",))
+    assert rows and {r["map"] for r in rows} == {"cfmap"} and {r["scene"] for r in rows} == {"tiny"}
+    assert all(0 <= r["mAcc"] <= 100 and 0 <= r["F-mIoU"] <= 100 for r in rows)
+    assert set(quality.TARGET.values()) <= set(PUBLISHED)
+    assert quality.TARGET["simulated_cf"] == "ConceptFusion + SAM"
+
+
+def test_an_unknown_map_is_refused_by_name():
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, str(REPO / "benchmarks" / "quality_maps.py"), "--no-fixture", "--maps",
+                          "semmap"], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2, run.stderr
+    assert "--maps: invalid choice: 'semmap' (choose from" in run.stderr and "cfmap" in run.stderr, run.stderr
