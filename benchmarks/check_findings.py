@@ -36,8 +36,10 @@ import numpy as np
 from _common import emit
 from findings_drivers import driver_figures, paper_mix_weights, print_drivers, scene_statistics
 from benchmarks.bench_eval import build, build_params
+from pydantic import ValidationError
 from scipy.stats import spearmanr
 
+from orion_eval.records import EpisodeOutcome
 from orion_eval.report import stale_text
 from orion_eval.run import evaluate
 from stages import STAGES
@@ -267,27 +269,25 @@ def print_report(res: dict, cells: Cells, draws: int) -> dict:
             "methods": list(METHODS), "settings": list(SETTINGS)}
 
 
-#: what the check reads of each episode of a results.json, and the type each must have
-EPISODE_FIELDS = {"scene": str, "goal": str, "method": str, "feedback": str, "seed": int, "success": bool,
-                  "spl": float, "sit": float}
+#: what the check says it expected of each field of :class:`orion_eval.records.EpisodeOutcome` it reads
+EXPECTED = {"scene": "a str", "goal": "a str", "method": "a str", "feedback": "a str", "seed": "an int",
+            "success": "a bool", "spl": "a number in [0, 1]", "sit": "a number in [0, 1]"}
 
 
 def episode_error(episodes) -> str | None:
     """What is wrong with the first episode of a results.json that the check cannot read (its index, the field and
-    what was expected), None when every one has :data:`EPISODE_FIELDS` (SPL and SIT finite, in [0, 1])."""
+    what was expected), None when every one is an :class:`~orion_eval.records.EpisodeOutcome`."""
     if not isinstance(episodes, list):
         return f"'episodes' is a {type(episodes).__name__}, expected a list of episode records"
     for i, e in enumerate(episodes):
         if not isinstance(e, dict):
             return f"episode {i} is a {type(e).__name__}, expected an object"
-        for name, kind in EPISODE_FIELDS.items():
-            v = e.get(name)
-            ok = isinstance(v, kind) and not (kind is int and isinstance(v, bool))
-            if kind is float:
-                ok = isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0
-            if not ok:
-                want = "a number in [0, 1]" if kind is float else ("an " if kind is int else "a ") + kind.__name__
-                return f"episode {i} ({e.get('scene')}/{e.get('goal')}): field {name!r} is {v!r}, expected {want}"
+        try:
+            EpisodeOutcome.model_validate(e)
+        except ValidationError as err:
+            name = str(err.errors()[0]["loc"][0])
+            return (f"episode {i} ({e.get('scene')}/{e.get('goal')}): field {name!r} is {e.get(name)!r}, "
+                    f"expected {EXPECTED[name]}")
     return None
 
 
@@ -410,11 +410,12 @@ def main() -> None:
             ap.error(f"--ablations: {args.results} holds no mixed episodes of ORION and of one of its ablations "
                      f"(found mixed episodes of {sorted(m for m in mixed if m)}); evaluate them with `zipon eval -f "
                      f"mixed -m orion -m orion_wo_map ...`")
-        doc = print_report(res, Cells(episodes), args.boot)
+        cells = Cells(episodes)
+        doc = print_report(res, cells, args.boot)
         ws = workspace_of(args.workspace, res["run"].get("scenes") or [])
         if ws is not None:
             try:
-                doc["drivers"] = drivers_report(episodes, Cells(episodes), scene_statistics(*ws, STAGES))
+                doc["drivers"] = drivers_report(episodes, cells, scene_statistics(*ws, STAGES))
             except ValueError as err:
                 ap.error(f"--results {args.results} against --workspace {args.workspace}: {err}")
             doc["scene_set"] = scene_set(ws[1], len({e["seed"] for e in episodes}))

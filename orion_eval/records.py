@@ -22,20 +22,29 @@ from pipeline.errors import InputDataError
 MAX_LINE_BYTES = 4 << 20  # one episode's log (poses, dialogue) is tens of kB
 
 
-class EpisodeRecord(BaseModel):
-    """One stored human-answered episode: what :meth:`orion_eval.episode.EpisodeRun.result` returns."""
+class EpisodeOutcome(BaseModel):
+    """What every evaluated episode record holds and a reader of results relies on (the scene, goal, method, setting
+    and seed it was played in, and its metrics); types strict, numbers finite, SPL and SIT in [0, 1]. A results.json's
+    episodes are read back with it (``benchmarks/check_findings.py --results``)."""
 
     model_config = ConfigDict(strict=True, allow_inf_nan=False, extra="allow")
     scene: str
-    method: str
-    feedback: Literal["human"]
-    seed: int = Field(ge=0)
     goal: str
-    goal_type: str
-    episode: str
+    method: str
+    feedback: str
+    seed: int
     success: bool
     spl: float = Field(ge=0, le=1)
     sit: float = Field(ge=0, le=1)
+
+
+class EpisodeRecord(EpisodeOutcome):
+    """One stored human-answered episode: what :meth:`orion_eval.episode.EpisodeRun.result` returns."""
+
+    feedback: Literal["human"]
+    seed: int = Field(ge=0)
+    goal_type: str
+    episode: str
     talk_turns: int = Field(ge=0)
     steps: int = Field(ge=0)
     travelled_m: float = Field(ge=0)

@@ -237,3 +237,9 @@ def test_episode_error_accepts_what_the_evaluator_writes(check):
     assert check.episode_error(episodes({"orion": 0.5, "cow": 1.0}, goals=2, seeds=2)) is None
     assert check.episode_error({"a": 1}) == "'episodes' is a dict, expected a list of episode records"
     assert check.episode_error([3]) == "episode 0 is a int, expected an object"
+
+
+def test_every_field_the_episodes_are_read_with_has_its_expected_wording(check):
+    from orion_eval.records import EpisodeOutcome
+
+    assert set(check.EXPECTED) == set(EpisodeOutcome.model_fields)
