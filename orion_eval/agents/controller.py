@@ -26,15 +26,17 @@ searches for and where, through the same rules for every method:
   with only a map gains nothing from it;
 - *landmark* ("It is next to the bed."): the landmarks are located with the method's own modules (map
   retrieval, else a detector's spin that looks for the landmarks and the goal at once, then exploration
-  watching for both; each landmark once per episode) and the goal is searched near them: map candidates
-  ranked by distance to the landmarks, and, without a map, what the spin spotted of the goal, else a
-  detector's spin at the landmark instance nearest the other hints (with a map too: the map says where the
+  for the landmarks; each landmark once per episode) and the goal is searched near them: map candidates
+  ranked by distance to the landmarks, and, without a map, what the search saw of the goal next to a landmark (what
+  it saw away from every landmark is held, tried after the landmark's neighbourhood: :meth:`ModularAgent.
+  find_landmarks`), else a detector's spin at the landmark instance nearest the other hints (with a map too: the map says where the
   landmark is, the detector looks for the goal around it; without a map, when that spin shows nothing, a spin from each
   of the landmark's other sides in turn: :meth:`ModularAgent.look_at_focus`); a method with a map and no detector, which
   cannot look around, tries the name's candidates next to a landmark first, then walks to the landmark itself and asks
-  there (the goal is next to it), then the other candidates (:meth:`ModularAgent.next_to_landmarks`); without a map, a
-  landmark instance the user said "No" next to, naming the same landmark again, is passed over and the landmark looked
-  for again (:meth:`ModularAgent.pass_over_sighted`: a sighting is only the instance that was in view), and so is one
+  there (the goal is next to it), then the other candidates (:meth:`ModularAgent.next_to_landmarks`; a candidate that
+  is a landmark instance itself is not next to it); without a map, a landmark instance the user said "No" next to,
+  naming the same landmark again, is passed over and the landmark looked for again once its neighbourhood is searched
+  (:meth:`ModularAgent.pass_over_sighted`: a sighting is only the instance that was in view), and so is one
   the look around at it reads in another colour or material than the user said, as a described goal is checked
   (:meth:`ModularAgent.landmark_passed`);
 - *procedural* (a route, or "It is about 4 meters to your left."): the route is walked to its end (the
@@ -45,7 +47,7 @@ searches for and where, through the same rules for every method:
   one nearest it), a detector looks around at the route's end first, as the route alone would (without a map,
   that spin looks for the landmarks and the goal together), and around the landmark only when it saw nothing
   there, and the map's candidates of the name are ranked by distance to the route's end (in whole metres: the
-  route is not precise), then by the landmarks.
+  route is not precise), then by the landmarks (a map without a detector: by its landmark tiers within each metre).
 
 An exploration searches for one target at a time, and starts over from where the agent stands when the target
 changes (:meth:`ModularAgent.explore_for`, as CoW's frontier-based exploration resets its frontier map for a new
@@ -108,6 +110,7 @@ class SearchState:
     rejected: list = field(default_factory=list)  # centres of places the user said "No" to
     rejected_floors: list = field(default_factory=list)  # the floor of each of them
     deferred: set = field(default_factory=set)  # map candidates whose double-check failed (tried last)
+    held: list = field(default_factory=list)  # goal sightings away from every landmark (ModularAgent.find_landmarks)
     focus: list = field(default_factory=list)  # per hint, the (K,2) points the goal is near (landmarks, route end)
     route_end: np.ndarray | None = None  # where the user's last route (or pointed destination) ended
     spin_at: np.ndarray | None = None  # where a detector should look around next (None: done or nowhere)
@@ -243,6 +246,7 @@ class ModularAgent(Agent):
                 todo += self.map_candidates(m, st, which)
                 if not mods.detector:
                     todo = self.next_to_landmarks(m, st, todo)
+            todo += st.held
             skip = self.skip(m, st, negatives)
             todo = list(dict.fromkeys(i for i in todo if not skip(i)))
             todo = [i for i in todo if i not in st.deferred] + [i for i in todo if i in st.deferred]
@@ -288,13 +292,22 @@ class ModularAgent(Agent):
         name's candidates next to one of them first (footprints within ``goals.landmark_radius_m``, the user's own
         rule for "next to"), then the landmarks themselves (it walks to one and asks there: it cannot look around,
         and the goal is next to it), then the other candidates, each tier in :meth:`ranked` order. Only the
-        landmark places in force count (after a route, the instance of each landmark nearest its end)."""
+        landmark places in force count (after a route, the instance of each landmark nearest its end). After a
+        route its end still comes first, as in :meth:`ranked`: the tiers order what lies within one whole metre of
+        distance to it (a landmark instance the map put far from the route's end does not draw the search away)."""
         if not st.marks:
             return ids
         radius = self.params.goals.landmark_radius_m
-        near = [i for i in ids if any(self.footprint_gap(m, i, j) <= radius for j in st.marks)]
+        # a candidate that is a landmark instance itself (the map answered both names with one object) is not next
+        # to it: the user named the landmark as another object than the goal
+        near = [i for i in ids if any(i != j and self.footprint_gap(m, i, j) <= radius for j in st.marks)]
         rest = [i for i in ids if i not in near]
-        return near + self.ranked(m, st, [i for i in dict.fromkeys(st.marks) if i not in near]) + rest
+        tiers = near + self.ranked(m, st, [i for i in dict.fromkeys(st.marks) if i not in near]) + rest
+        if st.route_end is None:
+            return tiers
+        floor = m.floor if st.hint_floor is None else st.hint_floor
+        return sorted(tiers, key=lambda i: (m.objects[i].floor != floor,
+                                            round(float(np.hypot(*(m.objects[i].center_xy - st.route_end))))))
 
     @staticmethod
     def footprint_gap(m, i: int, j: int) -> float:
@@ -397,8 +410,8 @@ class ModularAgent(Agent):
             st.spin_at = at
         if not self.map_name():
             st.sighted = (at, phrase, ids[k])
-            if self.modules.explore:
-                st.around = [at, m.sides_of(at, here)]  # a landmark found by exploring: its sides too
+            if self.modules.explore and not (st.around and np.allclose(st.around[0], at)):
+                st.around = [at, m.sides_of(at, here)]  # a landmark found by exploring: its sides too (those left)
 
     def landmark_check(self, m, st: SearchState, at: np.ndarray) -> tuple | None:
         """``(phrase, object, id)`` when the look around at ``at`` is at the sighted landmark instance of
@@ -436,14 +449,27 @@ class ModularAgent(Agent):
     def pass_over_sighted(self, m, st: SearchState, phrases: list[str], oid: int) -> None:
         """Without a map a landmark is located by a sighting, and a sighting is the instance that happened to be
         in view (of two shelves, the one the spin saw). When the user says "No" to an object next to it and names
-        the same landmark again, the goal is next to another instance: that one is passed over and the landmark
-        looked for again (a map, which returns every instance, ranks them by the other hints instead)."""
+        the same landmark again, either another object next to this instance is the goal or the goal is next to
+        another instance: the instance is passed over and the landmark looked for again (a map, which returns every
+        instance, ranks them by the other hints instead) only once its neighbourhood is searched
+        (:meth:`searched_around`)."""
         radius = self.params.goals.landmark_radius_m
         for phrase in phrases:
             ids = st.landmark_ids.get(phrase) or []
-            wrong = {j for j in ids if self.footprint_gap(m, oid, j) <= radius}
+            wrong = {j for j in ids if self.footprint_gap(m, oid, j) <= radius and self.searched_around(m, st, j, oid)}
             if wrong:
                 self.pass_over(m, st, phrase, wrong)
+
+    def searched_around(self, m, st: SearchState, j: int, oid: int) -> bool:
+        """Whether the neighbourhood of the sighted landmark instance ``j`` is searched, the object ``oid`` just
+        rejected: nothing seen of the goal next to it is left to ask about, and no side of it is left to look from
+        (:attr:`SearchState.around`). Until then a "No" next to it says only that ``oid`` is not the goal."""
+        radius = self.params.goals.landmark_radius_m
+        skip = self.skip(m, st, {oid})
+        if any(not skip(i) and self.footprint_gap(m, i, j) <= radius for i in st.spotted):
+            return False
+        sides = st.around[1] if st.around and np.allclose(st.around[0], m.objects[j].center_xy) else []
+        return not sides
 
     def pass_over(self, m, st: SearchState, phrase: str, wrong: set) -> None:
         """The sighted instances ``wrong`` of the landmark ``phrase`` are not the one meant: remembered as passed over
@@ -495,10 +521,14 @@ class ModularAgent(Agent):
 
     def find_landmarks(self, m, st: SearchState, lost: list[str], phrases: list[str]) -> None:
         """Without a map: one spin for the landmarks ``lost`` and the goal together (the goal itself may be in sight);
-        when none of ``phrases`` is found and nothing of the goal seen, a method that explores searches the frontiers
-        for every landmark not found, watching for the goal at every look (the landmarks are salient objects, easier to
-        find than the goal: the paper's reason landmarks help exploration-based methods). A landmark found was what
-        the exploration last searched for (:meth:`explore_for`): the goal's search after it starts over from it."""
+        when none of ``phrases`` is found, a method that explores searches the frontiers for every landmark not found
+        (the landmarks are salient objects, easier to find than the goal: the paper's reason landmarks help
+        exploration-based methods). What it sees of the goal's query on the way is kept: a sighting next to a landmark
+        instance found (footprints within ``goals.landmark_radius_m``, the user's own rule for "next to") is tried
+        first, one away from every landmark is held (:attr:`SearchState.held`: asked about once the landmark's
+        neighbourhood shows nothing, as the user said the goal is next to the landmark); when no landmark is found,
+        every sighting is tried. A landmark found was what the exploration last searched for (:meth:`explore_for`):
+        the goal's search after it starts over from it."""
         seen = m.look_around_for([*lost, *st.queries])
         if st.spin_at is not None and float(np.hypot(*(st.spin_at - m.pose[:2]))) <= self.params.eval.reject_radius_m:
             st.spin_at = None  # the look-around due here (a route's end) is this one
@@ -507,15 +537,27 @@ class ModularAgent(Agent):
             st.landmark_ids[phrase] = ids
             st.landmarks[phrase] = self.places(m, ids)
         self.spot(m, st, [t for q in st.queries for t in seen[q]])
-        if not any(st.landmarks.get(p) is not None for p in phrases) and self.modules.explore and not st.spotted:
+        if not any(st.landmarks.get(p) is not None for p in phrases) and self.modules.explore:
             skip = self.skip(m, st, set())
-            hit = m.search_objects([*st.queries, *lost], {**dict.fromkeys(st.queries, skip),
-                                                         **{p: st.passed.get(p, set()).__contains__ for p in lost}})
-            if hit and hit[0] in st.queries:
-                st.spotted = [hit[1]]
-            elif hit:
-                st.landmark_ids[hit[0]] = [hit[1]]
-                st.landmarks[hit[0]] = self.places(m, [hit[1]])
+            sighted = list(st.spotted)
+            while True:  # every goal sighting is a new object: ends when a landmark is found or the frontiers run out
+                hit = m.search_objects([*lost, *st.queries],
+                                       {**dict.fromkeys(st.queries, lambda i: skip(i) or i in sighted),
+                                        **{p: st.passed.get(p, set()).__contains__ for p in lost}})
+                if hit and hit[0] in st.queries:
+                    sighted.append(hit[1])
+                    continue
+                if hit:
+                    st.landmark_ids[hit[0]] = [hit[1]]
+                    st.landmarks[hit[0]] = self.places(m, [hit[1]])
+                break
+            st.spotted = sighted
+        marks = [j for p in phrases for j in st.landmark_ids.get(p) or []]
+        if marks:
+            radius = self.params.goals.landmark_radius_m
+            near = [i for i in st.spotted if any(i != j and self.footprint_gap(m, i, j) <= radius for j in marks)]
+            st.held = list(dict.fromkeys(st.held + [i for i in st.spotted if i not in near]))
+            st.spotted = near
         found = tuple(p for p in lost if st.landmarks.get(p) is not None)
         if found and self.modules.explore:
             st.target = found

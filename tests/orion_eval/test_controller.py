@@ -195,10 +195,18 @@ def test_a_map_without_a_detector_tries_next_to_the_landmark_then_asks_at_it(ctx
         tiers = agent.next_to_landmarks(m, st, ids)
         near = [i for i in ids if any(agent.footprint_gap(m, i, j) <= radius for j in marks
                                       if any(np.allclose(m.objects[j].center_xy, p) for p in st.focus[-1]))]
-        at = [i for i in tiers[len(near):] if i in marks and i not in ids]
-        assert tiers[: len(near)] == near
-        assert tiers[len(near): len(near) + len(at)] == at and 1 <= len(at) <= asked
-        assert tiers[len(near) + len(at):] == [i for i in ids if i not in near]
+        at = [i for i in tiers if i in marks and i not in ids]
+        rest = [i for i in ids if i not in near]
+        assert sorted(tiers) == sorted(near + at + rest) and 1 <= len(at) <= asked
+        tier = {**dict.fromkeys(rest, 2), **dict.fromkeys(at, 1), **dict.fromkeys(near, 0)}
+        if not route:
+            assert tiers == near + at + rest
+            continue
+        # after a route its end comes first, in whole metres; within a metre: next to the landmark, at it, the rest
+        metres = [round(float(np.hypot(*(m.objects[i].center_xy - st.route_end)))) for i in tiers]
+        assert metres == sorted(metres)
+        assert all(tier[a] <= tier[b] for (a, ma), (b, mb) in zip(zip(tiers, metres), zip(tiers[1:], metres[1:]))
+                   if ma == mb)
     assert all(agent.footprint_gap(m, i, i) == 0.0 for i in marks)
     assert agent.footprint_gap(m, marks[0], marks[1]) > 0.0
     # a method with a detector looks around the landmark instead (test_a_method_with_map_and_detector_...)
@@ -233,6 +241,75 @@ def test_a_sighted_landmark_instance_the_user_rejected_next_to_is_passed_over(ct
     if every:
         vlmap.update(m, st, ParsedFeedback(landmarks=[phrase]), every[0], goal.name)
         assert not st.passed and st.landmark_ids[phrase] == every
+
+
+def fake_object(m, ctx, xy) -> int:
+    """A found object of one grid cell at ``xy`` (what a spin or an exploration would have registered)."""
+    rc = ctx.grid.world_to_cell(np.asarray(xy, np.float64))
+    return m.register(np.asarray(xy, np.float64), np.asarray([rc[0] * ctx.grid.cols + rc[1]], np.int64), "detect")
+
+
+def test_a_sighted_landmark_is_passed_over_only_once_its_neighbourhood_is_searched(ctx):
+    """A "No" next to a sighted landmark instance says that object is not the goal; the goal may still be another
+    object next to the same instance. The instance is passed over (and the landmark looked for again) only when
+    nothing seen next to it is left to ask about and no side of it is left to look from."""
+    goal, run, cow = episode(ctx, "cow")
+    m = run.modules
+    here = np.asarray(m.pose[:2], np.float64)
+    bed = fake_object(m, ctx, here + np.array([1.5, 0.0]))
+    asked = fake_object(m, ctx, here + np.array([1.5, 0.6]))
+    other = fake_object(m, ctx, here + np.array([1.5, -0.7]))
+    st = cow.state(goal.name)
+    st.landmark_ids["the bed"], st.landmarks["the bed"] = [bed], cow.places(m, [bed])
+    st.reject(m.objects[asked])
+    st.spotted = [asked, other]  # the other one seen next to the bed is still to be asked about
+    cow.pass_over_sighted(m, st, ["the bed"], asked)
+    assert st.landmark_ids["the bed"] == [bed] and not st.passed
+    st.spotted = [asked]
+    st.around = [m.objects[bed].center_xy, [here + np.array([3.0, 0.0])]]  # one side still to look from
+    cow.pass_over_sighted(m, st, ["the bed"], asked)
+    assert st.landmark_ids["the bed"] == [bed] and not st.passed
+    st.around[1].clear()
+    cow.pass_over_sighted(m, st, ["the bed"], asked)
+    assert st.passed["the bed"] == {bed} and st.landmarks.get("the bed") is None  # looked for again
+
+
+def test_without_a_map_a_goal_sighting_away_from_every_landmark_is_held(ctx):
+    """Told the goal is next to a landmark it has not found, CoW explores for the landmark: what it sees of the goal
+    on the way is not asked about at once. Once the landmark is found, a sighting next to it is tried first and one
+    away from it is held (tried once the landmark's neighbourhood shows nothing, before exploring further); when no
+    landmark is found, every sighting is tried."""
+    for found in (True, False):
+        goal, run, cow = episode(ctx, "cow")
+        m = run.modules
+        here = np.asarray(m.pose[:2], np.float64)
+        wrong = fake_object(m, ctx, here + np.array([0.0, -1.5]))
+        in_spin = fake_object(m, ctx, here + np.array([0.3, 0.0]))
+        on_way = fake_object(m, ctx, here + np.array([-2.0, 0.0]))
+        beside = fake_object(m, ctx, here + np.array([3.0, 0.6]))
+        bed = fake_object(m, ctx, here + np.array([3.0, 0.0]))
+        st = cow.state(goal.name)
+        st.reject(m.objects[wrong])
+        m.look_around_for = lambda strs: {s: [(in_spin, 1.0, 0.0)] if s in st.queries else [] for s in strs}
+        hits = [(st.queries[0], on_way), (st.queries[0], in_spin), (st.queries[0], beside)]
+        hits += [("the bed", bed)] if found else []
+
+        def search(strs, skip=None, near=None):
+            while hits:  # the exploration's sightings in turn, less those it is told to pass over
+                s, i = hits.pop(0)
+                if s in strs and not (skip or {}).get(s, lambda _: False)(i):
+                    return s, i
+            return None
+
+        m.search_objects = search
+        cow.update(m, st, ParsedFeedback(landmarks=["the bed"]), wrong, goal.name)
+        if found:
+            assert st.landmark_ids["the bed"] == [bed]
+            assert st.spotted == [beside] and sorted(st.held) == sorted([in_spin, on_way])
+            assert np.allclose(st.spin_at, m.objects[bed].center_xy)  # the goal is looked for around the bed
+        else:
+            assert st.landmarks.get("the bed") is None and not st.held
+            assert sorted(st.spotted) == sorted([in_spin, on_way, beside])
 
 
 def test_a_description_is_the_detectors_prompt_not_a_map_query(ctx):
