@@ -176,7 +176,7 @@ def split_gain(cells_of, episodes: list[dict], goals: set, kind: str) -> dict[st
 
 def driver_figures(episodes: list[dict], stats: dict, cells_of) -> dict:
     """Per scene its statistics and SR gains; per goal group (with / without same-class distractors; landmark seen from
-    more / less floor than the goal) the descriptive and landmark gains. ``cells_of(episodes)`` makes the check's
+    more / less floor than the goal; landmark classes repeated more / less) the descriptive, landmark and mixed gains. ``cells_of(episodes)`` makes the check's
     Cells (with ``methods`` and ``settings``)."""
     scenes = {}
     for name, st in stats["scenes"].items():
@@ -197,6 +197,11 @@ def driver_figures(episodes: list[dict], stats: dict, cells_of) -> dict:
         "landmark, landmark seen from as much floor or less": (hidden, "landmark"),
         f"landmark, its landmarks' classes with more than {LANDMARK_REPEATS} other instances": (crowded_marks, "landmark"),
         f"landmark, its landmarks' classes with {LANDMARK_REPEATS} or fewer": (few_marks, "landmark"),
+        # with a route, the landmark says which of the candidates near the route's end is meant: where its class
+        # repeats, a map's or a sighting's instance of it is more often another one
+        f"mixed - best single, its landmarks' classes with more than {LANDMARK_REPEATS} other instances":
+            (crowded_marks, "mixed - best single"),
+        f"mixed - best single, its landmarks' classes with {LANDMARK_REPEATS} or fewer": (few_marks, "mixed - best single"),
     }
     split = {text: {"goals": len(goals), "gains": split_gain(cells_of, episodes, goals, kind)}
              for text, (goals, kind) in groups.items()}
@@ -255,7 +260,7 @@ def print_drivers(doc: dict, names: dict[str, str]) -> None:
               f"{s['goals with distractors']:>9.2f}{seen:>13}{foot:>18}{repeats:>11}")
         for k in ("descriptive", "landmark", "procedural", "mixed - best single"):
             print(f"{'':18}{k:20} {per(k)}")
-    print("\nBy goal (SR gain over yes/no, points)")
+    print("\nBy goal (SR gain over yes/no, points; mixed: over the method's best single kind)")
     for text, v in doc["groups"].items():
         g = v["gains"]
         per = "no episodes" if g is None else ", ".join(f"{names[m]} {g[m]:+.1f}" for m in methods)

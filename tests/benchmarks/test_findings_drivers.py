@@ -80,8 +80,10 @@ def test_gains_are_split_by_what_drives_them(drivers, load_script):
     for g, crowded in (("g1", True), ("g2", False)):
         for m in check.METHODS:
             for f in settings:
-                # a description helps only where there are distractors; landmarks only where the landmark shows more
+                # a description helps only where there are distractors; landmarks only where the landmark shows more;
+                # mixed matches the best single kind where the landmark repeats, and falls under it where it does not
                 wins = 1 + (3 if (f == "descriptive" and crowded) or (f == "landmark" and not crowded) else 0)
+                wins = (4 if crowded else 2) if f == "mixed" else wins
                 outcomes[(g, m, f)] = wins
     stats = {"scenes": {"s": {"rooms": 3, "navigable m2": 50.0, "goals": 2, "distractors per goal": 0.5,
                               "goals with distractors": 0.5, "landmark / goal seen": 1.0,
@@ -100,6 +102,10 @@ def test_gains_are_split_by_what_drives_them(drivers, load_script):
     assert groups["landmark, its landmarks' classes with more than 2 other instances"] == {
         "goals": 1, "gains": {m: 0.0 for m in check.METHODS}}
     assert groups["landmark, its landmarks' classes with 2 or fewer"]["gains"] == {m: 75.0 for m in check.METHODS}
+    assert groups["mixed - best single, its landmarks' classes with more than 2 other instances"] == {
+        "goals": 1, "gains": {m: 0.0 for m in check.METHODS}}
+    assert groups["mixed - best single, its landmarks' classes with 2 or fewer"]["gains"] == {
+        m: -50.0 for m in check.METHODS}
     scene = doc["scenes"]["s"]["gains"]
     assert scene["descriptive"] == {m: 37.5 for m in check.METHODS} and scene["procedural"]["cow"] == 0.0
     assert doc["paper setting"]["goals"] == 117
