@@ -297,10 +297,7 @@ class ModularAgent(Agent):
         distance to it (a landmark instance the map put far from the route's end does not draw the search away)."""
         if not st.marks:
             return ids
-        radius = self.params.goals.landmark_radius_m
-        # a candidate that is a landmark instance itself (the map answered both names with one object) is not next
-        # to it: the user named the landmark as another object than the goal
-        near = [i for i in ids if any(i != j and self.footprint_gap(m, i, j) <= radius for j in st.marks)]
+        near = [i for i in ids if self.next_to(m, i, st.marks)]
         rest = [i for i in ids if i not in near]
         tiers = near + self.ranked(m, st, [i for i in dict.fromkeys(st.marks) if i not in near]) + rest
         if st.route_end is None:
@@ -308,6 +305,14 @@ class ModularAgent(Agent):
         floor = m.floor if st.hint_floor is None else st.hint_floor
         return sorted(tiers, key=lambda i: (m.objects[i].floor != floor,
                                             round(float(np.hypot(*(m.objects[i].center_xy - st.route_end))))))
+
+    def next_to(self, m, i: int, marks: list[int]) -> bool:
+        """Whether object ``i`` is next to one of the landmark instances ``marks``: footprints within
+        ``goals.landmark_radius_m``, the user's own rule for "next to". An object that is one of them itself (the map
+        answered the goal's name and the landmark's with one object) is not: the user named the landmark as another
+        object than the goal."""
+        radius = self.params.goals.landmark_radius_m
+        return any(i != j and self.footprint_gap(m, i, j) <= radius for j in marks)
 
     @staticmethod
     def footprint_gap(m, i: int, j: int) -> float:
@@ -524,8 +529,7 @@ class ModularAgent(Agent):
         when none of ``phrases`` is found, a method that explores searches the frontiers for every landmark not found
         (the landmarks are salient objects, easier to find than the goal: the paper's reason landmarks help
         exploration-based methods). What it sees of the goal's query on the way is kept: a sighting next to a landmark
-        instance found (footprints within ``goals.landmark_radius_m``, the user's own rule for "next to") is tried
-        first, one away from every landmark is held (:attr:`SearchState.held`: asked about once the landmark's
+        instance found (:meth:`next_to`) is tried first, one away from every landmark is held (:attr:`SearchState.held`: asked about once the landmark's
         neighbourhood shows nothing, as the user said the goal is next to the landmark); when no landmark is found,
         every sighting is tried. A landmark found was what the exploration last searched for (:meth:`explore_for`):
         the goal's search after it starts over from it."""
@@ -554,8 +558,7 @@ class ModularAgent(Agent):
             st.spotted = sighted
         marks = [j for p in phrases for j in st.landmark_ids.get(p) or []]
         if marks:
-            radius = self.params.goals.landmark_radius_m
-            near = [i for i in st.spotted if any(i != j and self.footprint_gap(m, i, j) <= radius for j in marks)]
+            near = [i for i in st.spotted if self.next_to(m, i, marks)]
             st.held = list(dict.fromkeys(st.held + [i for i in st.spotted if i not in near]))
             st.spotted = near
         found = tuple(p for p in lost if st.landmarks.get(p) is not None)

@@ -249,6 +249,27 @@ def fake_object(m, ctx, xy) -> int:
     return m.register(np.asarray(xy, np.float64), np.asarray([rc[0] * ctx.grid.cols + rc[1]], np.int64), "detect")
 
 
+def test_after_a_route_a_maps_landmark_tiers_order_within_each_metre_of_its_end(ctx):
+    """A map without a detector told of a landmark tries the candidates next to it first; after a route, the route's
+    end still comes first (in whole metres), so a candidate by a landmark instance 3 m from the end does not draw the
+    search away from one at the end. A candidate that is the landmark instance itself is not next to it: it is asked
+    at as the landmark, after the candidates next to it."""
+    goal, run, vlmap = episode(ctx, "vlmap")
+    m = run.modules
+    here = np.asarray(m.pose[:2], np.float64)
+    end = here + np.array([1.0, 0.0])
+    mark = fake_object(m, ctx, here + np.array([4.0, 0.0]))
+    by_mark = fake_object(m, ctx, here + np.array([4.0, 0.8]))  # apart (MERGE_M), next to it
+    at_end = fake_object(m, ctx, end + np.array([0.0, 0.3]))
+    assert len({mark, by_mark, at_end}) == 3
+    st = SearchState(name=goal.name, marks=[mark], focus=[m.objects[mark].center_xy[None]])
+    assert vlmap.next_to_landmarks(m, st, [by_mark, at_end]) == [by_mark, mark, at_end]
+    st.route_end, st.focus = end, [end[None], m.objects[mark].center_xy[None]]
+    assert vlmap.next_to_landmarks(m, st, [by_mark, at_end]) == [at_end, by_mark, mark]
+    st.route_end, st.focus = None, [m.objects[mark].center_xy[None]]
+    assert vlmap.next_to_landmarks(m, st, [mark, by_mark])[:2] == [by_mark, mark]
+
+
 def test_a_sighted_landmark_is_passed_over_only_once_its_neighbourhood_is_searched(ctx):
     """A "No" next to a sighted landmark instance says that object is not the goal; the goal may still be another
     object next to the same instance. The instance is passed over (and the landmark looked for again) only when
@@ -257,8 +278,8 @@ def test_a_sighted_landmark_is_passed_over_only_once_its_neighbourhood_is_search
     m = run.modules
     here = np.asarray(m.pose[:2], np.float64)
     bed = fake_object(m, ctx, here + np.array([1.5, 0.0]))
-    asked = fake_object(m, ctx, here + np.array([1.5, 0.6]))
-    other = fake_object(m, ctx, here + np.array([1.5, -0.7]))
+    asked = fake_object(m, ctx, here + np.array([1.5, 0.8]))  # apart from the bed (MERGE_M), next to it
+    other = fake_object(m, ctx, here + np.array([1.5, -0.9]))
     st = cow.state(goal.name)
     st.landmark_ids["the bed"], st.landmarks["the bed"] = [bed], cow.places(m, [bed])
     st.reject(m.objects[asked])
@@ -286,7 +307,7 @@ def test_without_a_map_a_goal_sighting_away_from_every_landmark_is_held(ctx):
         wrong = fake_object(m, ctx, here + np.array([0.0, -1.5]))
         in_spin = fake_object(m, ctx, here + np.array([0.3, 0.0]))
         on_way = fake_object(m, ctx, here + np.array([-2.0, 0.0]))
-        beside = fake_object(m, ctx, here + np.array([3.0, 0.6]))
+        beside = fake_object(m, ctx, here + np.array([3.0, 0.8]))
         bed = fake_object(m, ctx, here + np.array([3.0, 0.0]))
         st = cow.state(goal.name)
         st.reject(m.objects[wrong])
