@@ -176,8 +176,8 @@ def split_gain(cells_of, episodes: list[dict], goals: set, kind: str) -> dict[st
 
 def driver_figures(episodes: list[dict], stats: dict, cells_of) -> dict:
     """Per scene its statistics and SR gains; per goal group (with / without same-class distractors; landmark seen from
-    more / less floor than the goal; landmark classes repeated more / less) the descriptive, landmark and mixed gains. ``cells_of(episodes)`` makes the check's
-    Cells (with ``methods`` and ``settings``)."""
+    more / less floor than the goal; landmark classes repeated more / less) the descriptive, landmark and mixed gains.
+    ``cells_of(episodes)`` makes the check's Cells (with ``methods`` and ``settings``)."""
     scenes = {}
     for name, st in stats["scenes"].items():
         chosen = [e for e in episodes if e["scene"] == name]

@@ -154,6 +154,10 @@ class SearchState:
         scores the views against)."""
         return tuple(self.queries) if self.one_prompt else (self.name,)
 
+    def preferred_floor(self, agent_floor: int) -> int:
+        """The floor searched first: the one the user's last hint points to, else the agent's own."""
+        return agent_floor if self.hint_floor is None else self.hint_floor
+
     def hint_points(self) -> np.ndarray | None:
         """``(K,2)`` points of every hint in force (the landmarks found, a route's end), or None without hints: where
         an exploration looks first (:meth:`~orion_eval.modules.Modules.frontier`)."""
@@ -212,14 +216,18 @@ class ModularAgent(Agent):
         (the agent's distance breaks ties; without hints: nearest the agent). After a route, the distance to its end
         comes first, in whole metres (the route is not precise), then the hints (the landmarks say where within that
         metre), then ``first`` (what was seen as the description)."""
-        floor = m.floor if st.hint_floor is None else st.hint_floor
-
         def key(i: int):
-            xy = m.objects[i].center_xy
-            end = 0 if st.route_end is None else round(float(np.hypot(*(xy - st.route_end))))
-            return m.objects[i].floor != floor, end, round(st.focus_distance(xy), 2), i not in first, \
-                m.relative(i)[0], i
+            return (*self.route_order(m, st, i), round(st.focus_distance(m.objects[i].center_xy), 2), i not in first,
+                    m.relative(i)[0], i)
         return sorted(ids, key=key)
+
+    @staticmethod
+    def route_order(m, st: SearchState, i: int) -> tuple[bool, int]:
+        """What ranks object ``i`` before anything else is weighed: off the preferred floor last, then its distance to
+        the route's end in whole metres (the route is not precise; 0 without a route)."""
+        xy = m.objects[i].center_xy
+        end = 0 if st.route_end is None else round(float(np.hypot(*(xy - st.route_end))))
+        return m.objects[i].floor != st.preferred_floor(m.floor), end
 
     def map_candidates(self, m, st: SearchState, which: str) -> list[int]:
         """The map's candidates of the goal's name, nearest the hints first. The map is asked for the name only, never
@@ -302,9 +310,7 @@ class ModularAgent(Agent):
         tiers = near + self.ranked(m, st, [i for i in dict.fromkeys(st.marks) if i not in near]) + rest
         if st.route_end is None:
             return tiers
-        floor = m.floor if st.hint_floor is None else st.hint_floor
-        return sorted(tiers, key=lambda i: (m.objects[i].floor != floor,
-                                            round(float(np.hypot(*(m.objects[i].center_xy - st.route_end))))))
+        return sorted(tiers, key=lambda i: self.route_order(m, st, i))
 
     def next_to(self, m, i: int, marks: list[int]) -> bool:
         """Whether object ``i`` is next to one of the landmark instances ``marks``: footprints within
@@ -507,7 +513,7 @@ class ModularAgent(Agent):
             for phrase in (p for p in phrases if p not in st.landmarks):
                 hits = [t[0] for t in m.retrieve_map(phrase, which)]
                 # a building: the instances on the preferred floor, else those of the floor the nearest one is on
-                floor = m.floor if st.hint_floor is None else st.hint_floor
+                floor = st.preferred_floor(m.floor)
                 mine = [i for i in hits if m.objects[i].floor == floor]
                 if hits and not mine:
                     st.hint_floor = m.objects[hits[0]].floor
